@@ -1,0 +1,168 @@
+"""The plugin manager: built-in plugins and entry-point plugins, loaded the same way."""
+
+from __future__ import annotations
+
+import importlib
+import os
+import sys
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass
+from importlib import metadata
+from typing import Any
+
+import pluggy
+
+from keymps import hookspecs
+from keymps.errors import KeympsError
+
+ENTRY_POINT_GROUP = "keymps"
+
+DEFAULT_PLUGINS: dict[str, str] = {
+    "threshold_detector": "keymps.default_plugins.threshold_detector",
+    "offline_backend": "keymps.default_plugins.offline_backend",
+    "litellm_backend": "keymps.default_plugins.litellm_backend",
+    "replay_backend": "keymps.default_plugins.replay_backend",
+    "image_sources": "keymps.default_plugins.image_sources",
+    "sim_executor": "keymps.default_plugins.sim_executor",
+    "file_executor": "keymps.default_plugins.file_executor",
+    "rerun_recorder": "keymps.default_plugins.rerun_recorder",
+}
+"""Built-in plugin name -> module. KEYMPS_LOAD_PLUGINS can name these too."""
+
+COMPONENT_HOOKS: dict[str, str] = {
+    "detector": "register_detectors",
+    "vlm_backend": "register_vlm_backends",
+    "executor": "register_executors",
+    "image_source": "register_image_sources",
+}
+
+
+class PluginLoadWarning(UserWarning):
+    """A plugin failed to load; the rest of keymps keeps working."""
+
+
+@dataclass(frozen=True)
+class PluginInfo:
+    name: str
+    distribution: str
+    version: str
+    hooks: tuple[str, ...]
+
+
+def _selected(name: str, dist: str | None) -> bool:
+    allowed = os.environ.get("KEYMPS_LOAD_PLUGINS")
+    if allowed is None:
+        return True
+    wanted = {item.strip() for item in allowed.split(",") if item.strip()}
+    return name in wanted or (dist is not None and dist in wanted)
+
+
+def _trace_hook_calls(manager: pluggy.PluginManager) -> None:
+    def before(hook_name: str, hook_impls: Any, kwargs: dict[str, Any]) -> None:
+        shown = {k: v for k, v in kwargs.items() if k != "register"}
+        print(
+            f"keymps: hook {hook_name}({', '.join(shown)}) -> {len(hook_impls)} plugin(s)",
+            file=sys.stderr,
+        )
+
+    def after(outcome: Any, hook_name: str, hook_impls: Any, kwargs: dict[str, Any]) -> None:
+        return None
+
+    manager.add_hookcall_monitoring(before, after)
+
+
+def _warn_broken(name: str, error: BaseException) -> None:
+    message = (
+        f"keymps: plugin {name!r} failed to load and was skipped: {type(error).__name__}: {error}"
+    )
+    warnings.warn(message, PluginLoadWarning, stacklevel=3)
+
+
+def build_manager() -> pluggy.PluginManager:
+    """A fresh manager with the built-ins and every installed entry-point plugin."""
+    manager = pluggy.PluginManager("keymps")
+    manager.add_hookspecs(hookspecs)
+    for name, module_name in DEFAULT_PLUGINS.items():
+        if not _selected(name, None):
+            continue
+        try:
+            manager.register(importlib.import_module(module_name), name=name)
+        except Exception as error:  # a broken plugin must not break unrelated commands
+            _warn_broken(name, error)
+    for entry_point in metadata.entry_points(group=ENTRY_POINT_GROUP):
+        dist = entry_point.dist.name if entry_point.dist else None
+        if not _selected(entry_point.name, dist) or manager.has_plugin(entry_point.name):
+            continue
+        try:
+            manager.register(entry_point.load(), name=entry_point.name)
+        except Exception as error:
+            _warn_broken(entry_point.name, error)
+    if os.environ.get("KEYMPS_TRACE_PLUGINS"):
+        _trace_hook_calls(manager)
+    return manager
+
+
+_manager: pluggy.PluginManager | None = None
+
+
+def get_manager() -> pluggy.PluginManager:
+    """The process-wide manager, built on first use."""
+    global _manager
+    if _manager is None:
+        _manager = build_manager()
+    return _manager
+
+
+def reset_manager() -> None:
+    """Forget the process-wide manager (tests, or after installing a plugin)."""
+    global _manager
+    _manager = None
+
+
+def components(
+    kind: str, manager: pluggy.PluginManager | None = None
+) -> dict[str, Callable[..., Any]]:
+    """Every registered factory of one kind ('detector', 'vlm_backend', ...), by name."""
+    manager = manager or get_manager()
+    found: dict[str, Callable[..., Any]] = {}
+
+    def register(name: str, factory: Callable[..., Any]) -> None:
+        found[name] = factory
+
+    getattr(manager.hook, COMPONENT_HOOKS[kind])(register=register)
+    return found
+
+
+def create_component(
+    kind: str,
+    name: str,
+    options: dict[str, Any] | None = None,
+    manager: pluggy.PluginManager | None = None,
+) -> Any:
+    """Build the named component from its factory, or raise a KeympsError listing the choices."""
+    factories = components(kind, manager)
+    if name not in factories:
+        choices = ", ".join(sorted(factories)) or "none installed"
+        raise KeympsError(f"unknown {kind.replace('_', ' ')} {name!r} (available: {choices})")
+    return factories[name](dict(options or {}))
+
+
+def plugin_infos(manager: pluggy.PluginManager | None = None) -> list[PluginInfo]:
+    """What `keymps plugins` shows: every plugin with its distribution, version and hooks."""
+    manager = manager or get_manager()
+    dists = {dist: plugin for plugin, dist in manager.list_plugin_distinfo()}
+    infos = []
+    for name, plugin in manager.list_name_plugin():
+        if plugin is None:
+            continue
+        dist = next((d for p, d in manager.list_plugin_distinfo() if p is plugin), None)
+        hooks = tuple(sorted(h.name for h in manager.get_hookcallers(plugin) or []))
+        if dist is not None:
+            infos.append(PluginInfo(name, dist.project_name, dist.version, hooks))
+        else:
+            from keymps import __version__
+
+            infos.append(PluginInfo(name, "keymps (built-in)", __version__, hooks))
+    del dists
+    return infos

@@ -1,0 +1,45 @@
+"""The state of one run: its task, its folder, the results of the stages done so far."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from keymps.task import Task
+
+
+@dataclass
+class RunOptions:
+    """Choices made on the command line (or by run_task keywords), not in the task file."""
+
+    rerun: str = "save"
+    """save | spawn | connect | off"""
+    rerun_url: str | None = None
+    no_cache: bool = False
+    record: Path | None = None
+    """Write every VLM request digest and answer to this cassette (JSONL)."""
+    confirm: bool = False
+    """Real-robot executors move the arm only when this is set."""
+    quiet: bool = False
+
+
+@dataclass
+class Run:
+    """Passed to every `keymps_stage_done` observer and to executors."""
+
+    task: Task
+    folder: Path
+    options: RunOptions = field(default_factory=RunOptions)
+    results: dict[str, Any] = field(default_factory=dict)
+    """Stage name -> that stage's result ('image', 'detect', 'plan', ... 'execute')."""
+    timings_s: dict[str, float] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+    notes: dict[str, Any] = field(default_factory=dict)
+    """Free-form facts for run.json (backend choice and why, cache hits ...)."""
+
+    def path(self, name: str) -> Path:
+        """A file in the run folder (its parent folders created)."""
+        target = self.folder / name
+        target.parent.mkdir(parents=True, exist_ok=True)
+        return target
