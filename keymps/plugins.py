@@ -45,6 +45,8 @@ class PluginLoadWarning(UserWarning):
 @dataclass(frozen=True)
 class PluginInfo:
     name: str
+    provides: tuple[str, ...]
+    """e.g. ("detector threshold", "observer")."""
     distribution: str
     version: str
     hooks: tuple[str, ...]
@@ -148,21 +150,41 @@ def create_component(
     return factories[name](dict(options or {}))
 
 
+def _registered_names(hook: Callable[..., None]) -> list[str]:
+    names: list[str] = []
+    hook(register=lambda name, factory: names.append(name))
+    return names
+
+
+def _provides(plugin: object) -> tuple[str, ...]:
+    provided: list[str] = []
+    for kind, hook_name in COMPONENT_HOOKS.items():
+        hook = getattr(plugin, hook_name, None)
+        if hook is None:
+            continue
+        names = _registered_names(hook)
+        provided.extend(f"{kind.replace('_', ' ')} {name}" for name in names)
+    if hasattr(plugin, "keymps_stage_done"):
+        provided.append("stage observer")
+    return tuple(provided)
+
+
 def plugin_infos(manager: pluggy.PluginManager | None = None) -> list[PluginInfo]:
-    """What `keymps plugins` shows: every plugin with its distribution, version and hooks."""
+    """What `keymps plugins` shows: every plugin with what it provides and where it comes from."""
+    from keymps import __version__
+
     manager = manager or get_manager()
-    dists = {dist: plugin for plugin, dist in manager.list_plugin_distinfo()}
+    distributions = {id(plugin): dist for plugin, dist in manager.list_plugin_distinfo()}
     infos = []
     for name, plugin in manager.list_name_plugin():
         if plugin is None:
             continue
-        dist = next((d for p, d in manager.list_plugin_distinfo() if p is plugin), None)
         hooks = tuple(sorted(h.name for h in manager.get_hookcallers(plugin) or []))
+        dist = distributions.get(id(plugin))
         if dist is not None:
-            infos.append(PluginInfo(name, dist.project_name, dist.version, hooks))
+            infos.append(
+                PluginInfo(name, _provides(plugin), dist.project_name, dist.version, hooks)
+            )
         else:
-            from keymps import __version__
-
-            infos.append(PluginInfo(name, "keymps (built-in)", __version__, hooks))
-    del dists
+            infos.append(PluginInfo(name, _provides(plugin), "keymps", __version__, hooks))
     return infos

@@ -9,6 +9,7 @@ from pydantic import (
     BaseModel,
     ConfigDict,
     Field,
+    PrivateAttr,
     ValidationError,
     field_validator,
     model_validator,
@@ -140,6 +141,8 @@ class Task(StrictModel):
     executor: PluginSection = PluginSection(name="sim")
     path: Path | None = Field(default=None, exclude=True)
     """The task file this was loaded from (None when built in code)."""
+    _source: str = PrivateAttr(default="<task>")
+    _yaml: PositionedYaml | None = PrivateAttr(default=None)
 
     @field_validator("instruction")
     @classmethod
@@ -157,6 +160,13 @@ class Task(StrictModel):
     def resolve(self, relative: Path) -> Path:
         """A path from the task file, relative to the task file's folder."""
         return relative if relative.is_absolute() else (self.folder / relative)
+
+    def where(self, *field_path: str | int) -> str:
+        """'file:line:col' of a field, for errors found after loading (e.g. a plugin name)."""
+        if self._yaml is None:
+            return self._source
+        line, column = self._yaml.locate(tuple(field_path))
+        return f"{self._source}:{line}:{column}"
 
 
 def _field_name(loc: tuple[Any, ...]) -> str:
@@ -215,6 +225,8 @@ def parse_task(text: str, source: str = "<task>", path: Path | None = None) -> T
     problems = _check_referenced_files(task, source, parsed)
     if problems:
         raise TaskFileError(problems)
+    task._source = source
+    task._yaml = parsed
     return task
 
 

@@ -1,0 +1,194 @@
+"""Runs a task stage by stage: each timed, each announced, the first error stops everything."""
+
+from __future__ import annotations
+
+import time
+import warnings
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from keymps.errors import KeympsError, StageError
+from keymps.overrides import apply_overrides
+from keymps.plugins import create_component, get_manager
+from keymps.run import Run, RunOptions
+from keymps.stages import SceneImage
+from keymps.task import Task, load_task
+
+StageCallback = Callable[[str, float, Any], None]
+"""on_stage(stage, seconds, result): called after each stage (the CLI shows progress with it)."""
+
+
+class Components:
+    """Everything a run needs, built before the first stage so configuration errors cost nothing."""
+
+    def __init__(self, task: Task, backend: str):
+        from keymps.primitives import default_search_dirs, load_primitives
+        from keymps.robot import RobotModel
+
+        self.image_source = _create(
+            task, "image_source", task.scene.source, task.scene.source_options, ("scene", "source")
+        )
+        self.detector = _create(
+            task, "detector", task.detector.name, task.detector.options, ("detector",)
+        )
+        self.executor = _create(
+            task, "executor", task.executor.name, task.executor.options, ("executor",)
+        )
+        try:
+            self.primitives = load_primitives(task.primitives, default_search_dirs(task.folder))
+        except KeympsError as error:
+            raise KeympsError(f"{task.where('primitives')}: primitives: {error}") from None
+        self.robot = RobotModel.from_task(task)
+        self.backend = backend
+
+
+def _create(
+    task: Task, kind: str, name: str, options: dict[str, Any], field_path: tuple[str, ...]
+) -> Any:
+    try:
+        return create_component(kind, name, options)
+    except KeympsError as error:
+        raise KeympsError(f"{task.where(*field_path)}: {'.'.join(field_path)}: {error}") from None
+
+
+def _new_run_folder(task: Task, out: Path | None) -> Path:
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+        return out
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    base = Path("runs") / f"{task.name}-{stamp}"
+    folder, n = base, 1
+    while folder.exists():
+        n += 1
+        folder = base.with_name(f"{base.name}-{n}")
+    folder.mkdir(parents=True)
+    return folder
+
+
+class _Pipeline:
+    """The stage sequence of one run (Alg. 1 of the paper, plus solve/time/check/execute)."""
+
+    def __init__(self, run: Run, parts: Components, on_stage: StageCallback | None):
+        self.run = run
+        self.parts = parts
+        self.on_stage = on_stage
+        self.manager = get_manager()
+
+    def stage(self, name: str, work: Callable[[], Any]) -> Any:
+        started = time.perf_counter()
+        try:
+            result = work()
+        except KeympsError as error:
+            raise StageError(name, str(error)) from None
+        seconds = time.perf_counter() - started
+        self.run.results[name] = result
+        self.run.timings_s[name] = seconds
+        if self.on_stage:
+            self.on_stage(name, seconds, result)
+        self.announce(name, result)
+        return result
+
+    def announce(self, name: str, result: Any) -> None:
+        """Tell the observers; a broken observer is reported, never fatal to the run."""
+        try:
+            self.manager.hook.keymps_stage_done(stage=name, result=result, run=self.run)
+        except Exception as error:
+            message = f"an observer of stage {name!r} failed: {type(error).__name__}: {error}"
+            self.run.warnings.append(message)
+            warnings.warn(message, RuntimeWarning, stacklevel=2)
+
+    def execute_all(self) -> None:
+        from keymps import geometry, motion, planning, robot, safety, timing
+        from keymps.overlay import draw_plan
+        from keymps.trajectory_io import write_trajectory_csv
+
+        run, parts, task = self.run, self.parts, self.run.task
+        scene: SceneImage = self.stage("image", lambda: parts.image_source.load(run))
+        size = scene.size_px
+        detection = self.stage("detect", lambda: parts.detector.detect(scene))
+        run.warnings.extend(detection.warnings)
+        descriptions = {name: p.description for name, p in parts.primitives.items()}
+        plan = self.stage(
+            "plan",
+            lambda: planning.make_plan(task, detection, scene, descriptions, run, parts.backend),
+        )
+        _write_png(run.path("plan.png"), draw_plan(scene.image, detection, plan))
+        grounding = self.stage("ground", lambda: geometry.ground(plan, detection, task, size))
+        tool = parts.robot.tool
+        tool_path = self.stage(
+            "compose",
+            lambda: motion.compose_tool_path(
+                grounding.segments,
+                parts.primitives[plan.keyword],
+                object_top=task.scene.object_height,
+                clearance=task.motion.clearance,
+                work_speed=task.motion.work_speed,
+                travel_speed=task.motion.travel_speed,
+                yaw_mode=tool.yaw,
+                home=parts.robot.home_tool_position(),
+            ),
+        )
+        joint_path = self.stage("solve", lambda: robot.solve_path(parts.robot, tool_path))
+        trajectory = self.stage(
+            "time", lambda: timing.time_trajectory(parts.robot, tool_path, joint_path, task)
+        )
+        outline = geometry.object_outline_m(detection, task, size)
+        validated = self.stage(
+            "check", lambda: safety.validate(parts.robot, trajectory, tool_path, outline, task)
+        )
+        write_trajectory_csv(validated.trajectory, run.path("trajectory.csv"))
+        report = self.stage("execute", lambda: parts.executor.execute(validated, run))
+        if not report.ok:
+            raise StageError("execute", report.message or f"executor {report.executor} failed")
+
+
+def _write_png(path: Path, image: Any) -> None:
+    import cv2
+
+    if not cv2.imwrite(str(path), image):
+        raise KeympsError(f"cannot write {path}")
+
+
+def run_task(
+    task: Task | str | Path,
+    *,
+    on_stage: StageCallback | None = None,
+    options: RunOptions | None = None,
+    **overrides: Any,
+) -> Run:
+    """Run a task end to end; return the finished Run (its folder holds run.json and the rest).
+
+    Keyword overrides: instruction, image, backend, model, api_base, executor, out, rerun,
+    rerun_url, no_cache, record, confirm. Raises KeympsError on the first problem; nothing after
+    the failing stage runs, above all no executor.
+    """
+    from keymps.planning import choose_backend
+    from keymps.run_folder import write_run_json
+
+    if not isinstance(task, Task):
+        task = load_task(task)
+    options = options or RunOptions()
+    for key in ("rerun", "rerun_url", "no_cache", "record", "confirm", "quiet"):
+        if key in overrides:
+            setattr(options, key, overrides.pop(key))
+    out = overrides.pop("out", None)
+    task = apply_overrides(task, overrides)
+    backend, reason = choose_backend(
+        task, overrides.get("backend"), overrides.get("model"), overrides.get("api_base")
+    )
+    parts = Components(task, backend)
+    run = Run(task=task, folder=_new_run_folder(task, Path(out) if out else None), options=options)
+    run.notes["backend"] = backend
+    run.notes["backend_reason"] = reason
+    pipeline = _Pipeline(run, parts, on_stage)
+    error: BaseException | None = None
+    try:
+        pipeline.execute_all()
+    except BaseException as caught:
+        error = caught
+        raise
+    finally:
+        pipeline.announce("finished", error)
+        write_run_json(run, error)
+    return run
