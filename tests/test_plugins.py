@@ -1,0 +1,190 @@
+"""The plugin manager: built-ins, fixture-registered plugins and real entry-point packages."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from keymps.errors import KeympsError
+from keymps.hookspecs import hookimpl
+from keymps.plugins import DEFAULT_PLUGINS, build_manager, components, plugin_infos
+
+BUILT_IN_COMPONENTS = {
+    "detector": {"threshold"},
+    "vlm_backend": {"offline", "litellm", "replay"},
+    "executor": {"sim", "file"},
+    "image_source": {"file", "synthetic", "opencv"},
+}
+
+
+@pytest.mark.parametrize("kind", sorted(BUILT_IN_COMPONENTS))
+def test_built_in_components_are_registered_through_the_manager(kind: str) -> None:
+    assert BUILT_IN_COMPONENTS[kind] <= set(components(kind, build_manager()))
+
+
+def test_every_built_in_plugin_loads_without_warnings(recwarn: pytest.WarningsRecorder) -> None:
+    manager = build_manager()
+    assert {name for name, _ in manager.list_name_plugin()} >= set(DEFAULT_PLUGINS)
+    assert not [w for w in recwarn if "failed to load" in str(w.message)]
+
+
+class _EchoDetector:
+    def __init__(self, options: dict) -> None:
+        self.options = options
+
+
+class _FixturePlugin:
+    @hookimpl
+    def register_detectors(self, register):
+        register("echo", _EchoDetector)
+
+    @hookimpl
+    def register_executors(self, register):
+        register("echo-executor", _EchoDetector)
+
+    @hookimpl
+    def register_image_sources(self, register):
+        register("echo-source", _EchoDetector)
+
+    @hookimpl
+    def register_vlm_backends(self, register):
+        register("echo-backend", _EchoDetector)
+
+
+def test_fixture_registered_plugin_provides_every_kind(keymps_plugins) -> None:
+    keymps_plugins.register(_FixturePlugin(), name="fixture-plugin")
+    detector = keymps_plugins.create("detector", "echo", {"threshold": 7})
+    assert isinstance(detector, _EchoDetector) and detector.options == {"threshold": 7}
+    assert "echo-executor" in keymps_plugins.names("executor")
+    assert "echo-source" in keymps_plugins.names("image_source")
+    assert "echo-backend" in keymps_plugins.names("vlm_backend")
+    info = next(i for i in plugin_infos(keymps_plugins.manager) if i.name == "fixture-plugin")
+    assert "detector echo" in info.provides
+
+
+def test_unknown_component_lists_the_available_ones(keymps_plugins) -> None:
+    with pytest.raises(KeympsError, match=r"unknown detector 'nope' \(available: .*threshold"):
+        keymps_plugins.create("detector", "nope")
+
+
+def _keymps(*args: str, env_extra: dict[str, str] | None = None) -> subprocess.CompletedProcess:
+    env = {**os.environ, **(env_extra or {})}
+    return subprocess.run(
+        [sys.executable, "-c", "from keymps.cli import main; main()", *args],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=120,
+    )
+
+
+@pytest.fixture(scope="module")
+def installed_plugin_packages(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Two tiny plugin distributions really installed with pip into a target folder."""
+    root = tmp_path_factory.mktemp("plugin-packages")
+    target = root / "site"
+    for dist, module, body in [
+        (
+            "keymps-hello",
+            "keymps_hello",
+            """
+            from keymps.hookspecs import hookimpl
+
+            class HelloExecutor:
+                def __init__(self, options):
+                    self.options = options
+
+            @hookimpl
+            def register_executors(register):
+                register("hello", HelloExecutor)
+            """,
+        ),
+        ("keymps-broken", "keymps_broken", "raise RuntimeError('this plugin is broken on purpose')"),
+    ]:
+        source = root / dist
+        (source / module).mkdir(parents=True)
+        (source / module / "__init__.py").write_text(textwrap.dedent(body))
+        (source / "pyproject.toml").write_text(
+            textwrap.dedent(
+                f"""
+                [build-system]
+                requires = ["setuptools"]
+                build-backend = "setuptools.build_meta"
+                [project]
+                name = "{dist}"
+                version = "0.3.1"
+                [project.entry-points.keymps]
+                {module} = "{module}"
+                """
+            )
+        )
+        subprocess.run(
+            [sys.executable, "-m", "pip", "install", "--quiet", "--no-deps", "--no-index",
+             "--no-build-isolation", "--target", str(target), str(source)],
+            check=True,
+            capture_output=True,
+            timeout=300,
+        )
+    return target
+
+
+def test_entry_point_plugin_is_listed_and_a_broken_one_only_warns(
+    installed_plugin_packages: Path,
+) -> None:
+    result = _keymps("plugins", "--json", env_extra={"PYTHONPATH": str(installed_plugin_packages)})
+    assert result.returncode == 0, result.stderr
+    listed = {item["name"]: item for item in json.loads(result.stdout)}
+    assert listed["keymps_hello"]["distribution"] == "keymps-hello"
+    assert listed["keymps_hello"]["version"] == "0.3.1"
+    assert listed["keymps_hello"]["provides"] == ["executor hello"]
+    assert "threshold_detector" in listed
+    assert "keymps_broken" not in listed
+    warning = [line for line in result.stderr.splitlines() if "keymps_broken" in line]
+    assert warning == [
+        "warning: keymps: plugin 'keymps_broken' failed to load and was skipped: "
+        "RuntimeError: this plugin is broken on purpose"
+    ]
+    assert "Traceback" not in result.stderr
+
+
+def test_load_plugins_env_selects_packages(installed_plugin_packages: Path) -> None:
+    result = _keymps(
+        "plugins",
+        "--json",
+        env_extra={
+            "PYTHONPATH": str(installed_plugin_packages),
+            "KEYMPS_LOAD_PLUGINS": "keymps-hello, threshold_detector",
+        },
+    )
+    assert result.returncode == 0, result.stderr
+    assert sorted(item["name"] for item in json.loads(result.stdout)) == [
+        "keymps_hello",
+        "threshold_detector",
+    ]
+    assert "keymps_broken" not in result.stderr
+
+
+def test_trace_plugins_prints_each_hook_call() -> None:
+    result = _keymps("plugins", env_extra={"KEYMPS_TRACE_PLUGINS": "1", "KEYMPS_LOAD_PLUGINS": ""})
+    assert result.returncode == 0, result.stderr
+    assert result.stderr == ""  # no plugin loaded, the listing calls no hook
+    manager_env = {"KEYMPS_TRACE_PLUGINS": "1", "KEYMPS_LOAD_PLUGINS": "threshold_detector"}
+    code = (
+        "from keymps.plugins import components; "
+        "print(sorted(components('detector')))"
+    )
+    traced = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        env={**os.environ, **manager_env},
+        timeout=60,
+    )
+    assert traced.stdout.strip() == "['threshold']"
+    assert "keymps: hook register_detectors() -> 1 plugin(s)" in traced.stderr

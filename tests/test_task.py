@@ -1,0 +1,150 @@
+"""Task files: valid ones load; broken ones give one exact located line per problem."""
+
+from __future__ import annotations
+
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from keymps.errors import TaskFileError
+from keymps.task import load_task, parse_task
+
+REPO = Path(__file__).resolve().parents[1]
+
+VALID = """\
+name: demo
+instruction: Cut it into 8 equal slices
+scene:
+  image: scene.png
+  workspace: {size: [0.30, 0.18], shift: [0.0, 0.0]}
+  object_height: 0.02
+primitives: [straight, sawing]
+motion:
+  work_speed: 0.02
+"""
+
+
+def _write(tmp_path: Path, text: str) -> Path:
+    (tmp_path / "scene.png").write_bytes(b"png placeholder: only its existence is checked here")
+    path = tmp_path / "task.yaml"
+    path.write_text(textwrap.dedent(text), encoding="utf-8")
+    return path
+
+
+def _problems(tmp_path: Path, text: str) -> list[str]:
+    path = _write(tmp_path, text)
+    with pytest.raises(TaskFileError) as caught:
+        load_task(path)
+    return [line.replace(str(path), "task.yaml") for line in caught.value.problems]
+
+
+def test_valid_task_loads_with_defaults_and_resolves_paths(tmp_path: Path) -> None:
+    task = load_task(_write(tmp_path, VALID))
+    assert task.name == "demo"
+    assert task.scene.workspace.size == (0.30, 0.18)
+    assert task.resolve(task.scene.image) == tmp_path / "scene.png"
+    assert task.planner.backend == "auto"
+    assert task.robot.tool.name == "knife"
+    assert task.where("motion", "work_speed").endswith("task.yaml:9:15")
+
+
+@pytest.mark.parametrize("shipped", sorted((REPO / "tasks").glob("*.yaml")), ids=lambda p: p.name)
+def test_shipped_tasks_load(shipped: Path) -> None:
+    task = load_task(shipped)
+    assert task.instruction and task.primitives
+
+
+BROKEN = [
+    (
+        "speed zero",
+        VALID.replace("work_speed: 0.02", "work_speed: 0"),
+        ["task.yaml:9:15: motion.work_speed: Input should be greater than 0"],
+    ),
+    (
+        "unknown key points at the key",
+        VALID.replace("  object_height: 0.02", "  objct_height: 0.02"),
+        ["task.yaml:6:3: scene.objct_height: unknown key"],
+    ),
+    (
+        "missing instruction",
+        VALID.replace("instruction: Cut it into 8 equal slices\n", ""),
+        ["task.yaml:1:1: instruction: field required"],
+    ),
+    (
+        "negative workspace size",
+        VALID.replace("size: [0.30, 0.18]", "size: [0.30, -0.18]"),
+        ["task.yaml:5:28: scene.workspace.size[1]: Input should be greater than 0"],
+    ),
+    (
+        "NaN height",
+        VALID.replace("object_height: 0.02", "object_height: .nan"),
+        ["task.yaml:6:18: scene.object_height: Input should be a finite number"],
+    ),
+    (
+        "two problems, two lines",
+        VALID.replace("work_speed: 0.02", "work_speed: fast").replace(
+            "primitives: [straight, sawing]", "primitives: []"
+        ),
+        [
+            "task.yaml:7:13: primitives: List should have at least 1 item after validation, not 0",
+            "task.yaml:9:15: motion.work_speed: Input should be a valid number, "
+            "unable to parse string as a number",
+        ],
+    ),
+    (
+        "height mode",
+        VALID + "height: {mode: middle}\n",
+        ["task.yaml:10:16: height.mode: Input should be 'both', 'start' or 'end'"],
+    ),
+    (
+        "missing image file",
+        VALID.replace("image: scene.png", "image: nowhere.png"),
+        ["task.yaml:4:10: scene.image: file not found: {folder}/nowhere.png"],
+    ),
+    (
+        "YAML syntax",
+        VALID.replace("primitives: [straight, sawing]", "primitives: [straight, sawing"),
+        ["task.yaml:8:7: invalid YAML: expected ',' or ']', but got ':'"],
+    ),
+    (
+        "not a mapping",
+        "- just\n- a list\n",
+        ["task.yaml:1:1: (task): expected a mapping of task fields"],
+    ),
+    (
+        "duplicate key",
+        VALID + "name: again\n",
+        ["task.yaml:10:1: invalid YAML: duplicate key 'name'"],
+    ),
+    (
+        "control characters in the instruction",
+        VALID.replace("Cut it into 8 equal slices", '"Cut\\x07 it"'),
+        ["task.yaml:2:14: instruction: instruction contains control characters"],
+    ),
+    (
+        "tool with a short TCP",
+        VALID + "robot: {tool: {name: spatula, tcp: [0, 0]}}\n",
+        ["task.yaml:10:36: robot.tool.tcp[2]: field required"],
+    ),
+]
+
+
+@pytest.mark.parametrize(("text", "expected"), [b[1:] for b in BROKEN], ids=[b[0] for b in BROKEN])
+def test_broken_task_files_give_exact_located_lines(
+    tmp_path: Path, text: str, expected: list[str]
+) -> None:
+    expected = [line.replace("{folder}", str(tmp_path.resolve())) for line in expected]
+    assert _problems(tmp_path, text) == expected
+
+
+def test_missing_task_file_is_one_line(tmp_path: Path) -> None:
+    with pytest.raises(TaskFileError) as caught:
+        load_task(tmp_path / "absent.yaml")
+    assert str(caught.value).endswith("absent.yaml: task file not found")
+
+
+def test_parse_task_from_text_names_the_source() -> None:
+    with pytest.raises(TaskFileError) as caught:
+        parse_task("name: x\n", source="inline.yaml")
+    assert all(line.startswith("inline.yaml:") for line in caught.value.problems)
