@@ -6,7 +6,7 @@ import importlib
 import os
 import sys
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from importlib import metadata
 from typing import Any
@@ -61,14 +61,16 @@ def _selected(name: str, dist: str | None) -> bool:
 
 
 def _trace_hook_calls(manager: pluggy.PluginManager) -> None:
-    def before(hook_name: str, hook_impls: Any, kwargs: dict[str, Any]) -> None:
+    def before(hook_name: str, hook_impls: Sequence[Any], kwargs: Mapping[str, Any]) -> None:
         shown = {k: v for k, v in kwargs.items() if k != "register"}
         print(
             f"keymps: hook {hook_name}({', '.join(shown)}) -> {len(hook_impls)} plugin(s)",
             file=sys.stderr,
         )
 
-    def after(outcome: Any, hook_name: str, hook_impls: Any, kwargs: dict[str, Any]) -> None:
+    def after(
+        outcome: Any, hook_name: str, hook_impls: Sequence[Any], kwargs: Mapping[str, Any]
+    ) -> None:
         return None
 
     manager.add_hookcall_monitoring(before, after)

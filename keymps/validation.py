@@ -9,12 +9,13 @@ from keymps.errors import KeympsError, TaskFileError
 
 def validate_task_file(path: Path) -> list[str]:
     """Problems with a task file, one line each (empty when the file is ready to run)."""
-    from keymps.engine import Components
-    from keymps.planning import choose_backend
     from keymps.task import load_task
 
     try:
         task = load_task(path)
+        from keymps.engine import Components
+        from keymps.planning import choose_backend
+
         backend, _reason = choose_backend(task, None, None, None)
         Components(task, backend)
     except TaskFileError as error:

@@ -105,7 +105,11 @@ def installed_plugin_packages(tmp_path_factory: pytest.TempPathFactory) -> Path:
                 register("hello", HelloExecutor)
             """,
         ),
-        ("keymps-broken", "keymps_broken", "raise RuntimeError('this plugin is broken on purpose')"),
+        (
+            "keymps-broken",
+            "keymps_broken",
+            "raise RuntimeError('this plugin is broken on purpose')",
+        ),
     ]:
         source = root / dist
         (source / module).mkdir(parents=True)
@@ -125,8 +129,19 @@ def installed_plugin_packages(tmp_path_factory: pytest.TempPathFactory) -> Path:
             )
         )
         subprocess.run(
-            [sys.executable, "-m", "pip", "install", "--quiet", "--no-deps", "--no-index",
-             "--no-build-isolation", "--target", str(target), str(source)],
+            [
+                sys.executable,
+                "-m",
+                "pip",
+                "install",
+                "--quiet",
+                "--no-deps",
+                "--no-index",
+                "--no-build-isolation",
+                "--target",
+                str(target),
+                str(source),
+            ],
             check=True,
             capture_output=True,
             timeout=300,
@@ -175,10 +190,7 @@ def test_trace_plugins_prints_each_hook_call() -> None:
     assert result.returncode == 0, result.stderr
     assert result.stderr == ""  # no plugin loaded, the listing calls no hook
     manager_env = {"KEYMPS_TRACE_PLUGINS": "1", "KEYMPS_LOAD_PLUGINS": "threshold_detector"}
-    code = (
-        "from keymps.plugins import components; "
-        "print(sorted(components('detector')))"
-    )
+    code = "from keymps.plugins import components; print(sorted(components('detector')))"
     traced = subprocess.run(
         [sys.executable, "-c", code],
         capture_output=True,

@@ -1,0 +1,130 @@
+"""The engine: stages in order, each announced; the first error stops everything after it."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+import keymps
+from keymps.errors import KeympsError, StageError
+from keymps.hookspecs import hookimpl
+from keymps.stages import STAGES, ExecutionReport
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+class RecordingExecutor:
+    """Stands in for a robot: records what it was asked to execute (no arm exists here)."""
+
+    calls: list = []
+
+    def __init__(self, options: dict) -> None:
+        self.options = options
+
+    def execute(self, validated, run) -> ExecutionReport:
+        RecordingExecutor.calls.append(validated)
+        return ExecutionReport(executor="recording", ok=True, message="recorded")
+
+
+class BrokenDetector:
+    def __init__(self, options: dict) -> None:
+        pass
+
+    def detect(self, scene):
+        raise KeympsError("no object found (a detector that always fails)")
+
+
+class EnginePlugin:
+    def __init__(self) -> None:
+        self.events: list[tuple[str, object]] = []
+
+    @hookimpl
+    def register_executors(self, register):
+        register("recording", RecordingExecutor)
+
+    @hookimpl
+    def register_detectors(self, register):
+        register("broken", BrokenDetector)
+
+    @hookimpl
+    def keymps_stage_done(self, stage, result, run):
+        self.events.append((stage, result))
+
+
+@pytest.fixture
+def observer(keymps_plugins) -> EnginePlugin:
+    plugin = EnginePlugin()
+    keymps_plugins.register(plugin, name="engine-test-plugin")
+    RecordingExecutor.calls = []
+    return plugin
+
+
+def _task_copy(tmp_path: Path, replace: tuple[str, str] | None = None) -> Path:
+    text = (REPO / "tasks/cake_icing.yaml").read_text()
+    text = text.replace("scenes/round_cake.png", str(REPO / "tasks/scenes/round_cake.png"))
+    text = text.replace("../prompts/icing.md", str(REPO / "prompts/icing.md"))
+    if replace:
+        text = text.replace(*replace)
+    path = tmp_path / "task.yaml"
+    path.write_text(text)
+    return path
+
+
+def test_every_stage_runs_in_order_and_is_announced(tmp_path: Path, observer: EnginePlugin) -> None:
+    run = keymps.run_task(
+        _task_copy(tmp_path), executor="recording", out=tmp_path / "run", rerun="off"
+    )
+    stages = [stage for stage, _ in observer.events]
+    assert stages == ["image", *STAGES, "finished"]
+    assert observer.events[-1][1] is None
+    assert set(run.timings_s) == {"image", *STAGES}
+    assert len(RecordingExecutor.calls) == 1
+    assert RecordingExecutor.calls[0] is run.results["check"]
+    record = json.loads((tmp_path / "run/run.json").read_text())
+    assert record["ok"] is True and record["execution"]["executor"] == "recording"
+
+
+def test_first_error_stops_the_run_and_no_executor_is_called(
+    tmp_path: Path, observer: EnginePlugin
+) -> None:
+    path = _task_copy(tmp_path, ("detector: {name: threshold}", "detector: {name: broken}"))
+    with pytest.raises(StageError, match=r"^detect: no object found"):
+        keymps.run_task(path, executor="recording", out=tmp_path / "run", rerun="off")
+    assert [stage for stage, _ in observer.events] == ["image", "finished"]
+    assert isinstance(observer.events[-1][1], StageError)
+    assert RecordingExecutor.calls == []
+    record = json.loads((tmp_path / "run/run.json").read_text())
+    assert record["ok"] is False
+    assert record["error"].startswith("detect: no object found")
+    assert record["keyword"] is None and record["trajectory"] is None
+
+
+def test_configuration_errors_stop_before_any_stage(tmp_path: Path, observer: EnginePlugin) -> None:
+    path = _task_copy(tmp_path)
+    with pytest.raises(KeympsError, match=r"task.yaml:\d+:\d+: executor: unknown executor 'nope'"):
+        keymps.run_task(path, executor="nope", out=tmp_path / "run")
+    assert observer.events == []
+    assert not (tmp_path / "run").exists()
+
+
+def test_overrides_are_validated(tmp_path: Path, observer: EnginePlugin) -> None:
+    with pytest.raises(KeympsError, match="override instruction"):
+        keymps.run_task(_task_copy(tmp_path), instruction="   ", out=tmp_path / "run")
+    with pytest.raises(KeympsError, match="--image: file not found"):
+        keymps.run_task(_task_copy(tmp_path), image=tmp_path / "nope.png", out=tmp_path / "r")
+
+
+def test_a_failing_observer_is_a_warning_not_a_failed_run(tmp_path: Path, keymps_plugins) -> None:
+    class Exploding:
+        @hookimpl
+        def keymps_stage_done(self, stage, result, run):
+            if stage == "plan":
+                raise RuntimeError("observer bug")
+
+    keymps_plugins.register(Exploding(), name="exploding")
+    with pytest.warns(RuntimeWarning, match="observer of stage 'plan' failed"):
+        run = keymps.run_task(_task_copy(tmp_path), out=tmp_path / "run", rerun="off")
+    assert "execute" in run.results
+    assert any("observer bug" in w for w in run.warnings)
