@@ -175,8 +175,14 @@ def _field_name(loc: tuple[Any, ...]) -> str:
         if isinstance(part, int):
             parts.append(f"[{part}]")
         else:
-            parts.append(("." if parts else "") + str(part))
+            text = str(part)
+            shown = text if text.isprintable() and text and " " not in text else repr(text)
+            parts.append(("." if parts else "") + shown)
     return "".join(parts) or "(task)"
+
+
+def _one_line(text: str) -> str:
+    return " ".join(text.split())
 
 
 def _pydantic_loc_to_yaml_path(loc: tuple[Any, ...]) -> tuple[Any, ...]:
@@ -197,7 +203,7 @@ def _format_problems(source: str, parsed: PositionedYaml, error: ValidationError
             message = "field required"
         elif message.startswith("Value error, "):
             message = message.removeprefix("Value error, ")
-        lines.append(f"{source}:{line}:{column}: {_field_name(path)}: {message}")
+        lines.append(f"{source}:{line}:{column}: {_field_name(path)}: {_one_line(message)}")
     return lines
 
 
@@ -214,7 +220,9 @@ def parse_task(text: str, source: str = "<task>", path: Path | None = None) -> T
         parsed = load_yaml_with_positions(text)
     except YamlSyntaxError as error:
         line, column = error.location
-        raise TaskFileError([f"{source}:{line}:{column}: invalid YAML: {error}"]) from None
+        raise TaskFileError(
+            [f"{source}:{line}:{column}: invalid YAML: {_one_line(str(error))}"]
+        ) from None
     if not isinstance(parsed.data, dict):
         raise TaskFileError([f"{source}:1:1: (task): expected a mapping of task fields"])
     data = {k: v for k, v in parsed.data.items() if k != "path"}

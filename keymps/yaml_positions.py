@@ -36,38 +36,52 @@ class YamlSyntaxError(ValueError):
         super().__init__(message)
 
 
-_constructor = yaml.constructor.SafeConstructor()
-
-
-def _scalar(node: yaml.Node) -> Any:
-    return _constructor.construct_object(node, deep=True)
+MAX_NODES = 200_000
+"""A task or suite file is small; more nodes than this means an alias bomb or a wrong file."""
+MAX_DEPTH = 100
 
 
 def _mark(node: yaml.Node) -> Location:
     return (node.start_mark.line + 1, node.start_mark.column + 1)
 
 
-def _walk(
-    node: yaml.Node,
-    path: tuple[Any, ...],
-    positions: dict[tuple[Any, ...], Location],
-    key_positions: dict[tuple[Any, ...], Location],
-) -> Any:
-    positions[path] = _mark(node)
-    if isinstance(node, yaml.MappingNode):
-        result: dict[Any, Any] = {}
-        for key_node, value_node in node.value:
-            key = _scalar(key_node)
-            if key in result:
-                raise YamlSyntaxError(f"duplicate key {key!r}", _mark(key_node))
-            key_positions[(*path, key)] = _mark(key_node)
-            result[key] = _walk(value_node, (*path, key), positions, key_positions)
-        return result
-    if isinstance(node, yaml.SequenceNode):
-        return [
-            _walk(item, (*path, i), positions, key_positions) for i, item in enumerate(node.value)
-        ]
-    return _scalar(node)
+class _Walker:
+    """Builds plain Python data from a composed YAML tree, recording positions on the way."""
+
+    def __init__(self) -> None:
+        self.constructor = yaml.constructor.SafeConstructor()
+        self.positions: dict[tuple[Any, ...], Location] = {}
+        self.key_positions: dict[tuple[Any, ...], Location] = {}
+        self.nodes = 0
+
+    def scalar(self, node: yaml.Node) -> Any:
+        try:
+            return self.constructor.construct_object(node, deep=True)
+        except (yaml.YAMLError, ValueError, TypeError, OverflowError) as error:
+            message = getattr(error, "problem", None) or str(error).splitlines()[0]
+            raise YamlSyntaxError(f"invalid value: {message}", _mark(node)) from None
+
+    def walk(self, node: yaml.Node, path: tuple[Any, ...]) -> Any:
+        self.nodes += 1
+        if self.nodes > MAX_NODES:
+            raise YamlSyntaxError(f"more than {MAX_NODES} values (an alias bomb?)", _mark(node))
+        if len(path) > MAX_DEPTH:
+            raise YamlSyntaxError(f"nested deeper than {MAX_DEPTH} levels", _mark(node))
+        self.positions[path] = _mark(node)
+        if isinstance(node, yaml.MappingNode):
+            result: dict[Any, Any] = {}
+            for key_node, value_node in node.value:
+                if not isinstance(key_node, yaml.ScalarNode):
+                    raise YamlSyntaxError("a key must be a plain value", _mark(key_node))
+                key = self.scalar(key_node)
+                if key in result:
+                    raise YamlSyntaxError(f"duplicate key {key!r}", _mark(key_node))
+                self.key_positions[(*path, key)] = _mark(key_node)
+                result[key] = self.walk(value_node, (*path, key))
+            return result
+        if isinstance(node, yaml.SequenceNode):
+            return [self.walk(item, (*path, i)) for i, item in enumerate(node.value)]
+        return self.scalar(node)
 
 
 def load_yaml_with_positions(text: str) -> PositionedYaml:
@@ -82,7 +96,8 @@ def load_yaml_with_positions(text: str) -> PositionedYaml:
         ) from None
     except yaml.YAMLError as error:
         raise YamlSyntaxError(str(error).splitlines()[0], (1, 1)) from None
-    positions: dict[tuple[Any, ...], Location] = {}
-    key_positions: dict[tuple[Any, ...], Location] = {}
-    data = None if root is None else _walk(root, (), positions, key_positions)
-    return PositionedYaml(data=data, positions=positions, key_positions=key_positions)
+    except RecursionError:
+        raise YamlSyntaxError(f"nested deeper than {MAX_DEPTH} levels", (1, 1)) from None
+    walker = _Walker()
+    data = None if root is None else walker.walk(root, ())
+    return PositionedYaml(data=data, positions=walker.positions, key_positions=walker.key_positions)
