@@ -1,0 +1,184 @@
+"""Records every stage of every run in Rerun: one recording per run (see docs/rerun.md).
+
+run.options.rerun chooses the sink: "save" (run.rrd in the run folder, the default), "spawn"
+(a new viewer), "connect" (a running viewer at run.options.rerun_url) or "off" (nothing).
+"""
+
+from __future__ import annotations
+
+import uuid
+import weakref
+from dataclasses import dataclass
+from typing import Any
+
+from keymps.errors import KeympsError
+from keymps.hookspecs import hookimpl
+from keymps.run import Run
+from keymps.stages import STAGES
+
+APPLICATION_ID = "keymps"
+RECORDING_FILE = "run.rrd"
+MODES = ("save", "spawn", "connect", "off")
+ROBOT_RATE_HZ = 25.0
+"""The animated robot and tool tip are subsampled to this rate; joint series keep every sample."""
+STAGE_ORDER: tuple[str, ...] = ("image", *STAGES, "finished")
+"""Position on the `stage` timeline."""
+
+
+@dataclass
+class _Session:
+    stream: Any
+    """rerun.RecordingStream of this run (never the global one)."""
+    mode: str
+
+
+_sessions: dict[int, _Session | None] = {}
+"""id(run) -> its recording; None when recording failed to start (not retried)."""
+
+
+def stage_index(stage: str) -> int:
+    """The step of a stage on the `stage` timeline (unknown stages after the known ones)."""
+    return STAGE_ORDER.index(stage) if stage in STAGE_ORDER else len(STAGE_ORDER)
+
+
+def blueprint() -> Any:
+    """3D scene left; image with overlays and the VLM exchange middle; joint curves right."""
+    import rerun.blueprint as rrb
+
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Spatial3DView(name="3D scene", origin="world"),
+            rrb.Vertical(
+                rrb.Spatial2DView(name="Image and plan", origin="image"),
+                rrb.Tabs(
+                    rrb.TextDocumentView(name="VLM answer", origin="vlm/answer"),
+                    rrb.TextDocumentView(name="VLM prompt", origin="vlm/prompt"),
+                    rrb.TextDocumentView(name="VLM attempts", origin="vlm/attempts"),
+                    rrb.Spatial2DView(name="Crop", origin="crop"),
+                    rrb.TextDocumentView(name="Safety check", origin="check/report"),
+                    rrb.TextDocumentView(name="Run", origin="run/summary"),
+                ),
+                row_shares=[3, 2],
+            ),
+            rrb.Vertical(
+                rrb.TimeSeriesView(name="Joint positions [rad]", origin="joints/q"),
+                rrb.TimeSeriesView(name="Joint velocities [rad/s]", origin="joints/qd"),
+                rrb.TimeSeriesView(name="Tool speed [m/s]", origin="tool"),
+            ),
+            column_shares=[5, 4, 3],
+        ),
+        rrb.TimePanel(timeline="time"),
+        collapse_panels=False,
+    )
+
+
+def _open(run: Run) -> _Session:
+    import rerun as rr
+
+    mode = run.options.rerun
+    if mode not in MODES:
+        raise KeympsError(f"--rerun: unknown mode {mode!r} (choose one of {', '.join(MODES)})")
+    stream = rr.RecordingStream(
+        APPLICATION_ID,
+        recording_id=uuid.uuid4(),
+        send_properties=False,  # the default properties carry a wall-clock start time
+    )
+    stream.set_log_time_enabled(False)
+    stream.set_log_tick_enabled(False)
+    layout = blueprint()
+    try:
+        if mode == "save":
+            stream.save(run.path(RECORDING_FILE), default_blueprint=layout)
+        elif mode == "spawn":
+            stream.spawn(default_blueprint=layout)
+        else:
+            if not run.options.rerun_url:
+                raise KeympsError(
+                    "--rerun connect needs a viewer URL, e.g. rerun+http://127.0.0.1:9876/proxy"
+                )
+            stream.connect_grpc(run.options.rerun_url, default_blueprint=layout)
+    except KeympsError:
+        raise
+    except Exception as error:
+        raise KeympsError(f"rerun {mode} failed: {error}") from None
+    stream.send_recording_name(f"{run.task.name} ({run.folder.name})")
+    from keymps.rerun_entities import log_world_setup
+
+    log_world_setup(stream)
+    return _Session(stream=stream, mode=mode)
+
+
+def _close(key: int) -> None:
+    session = _sessions.pop(key, None)
+    if session is not None:
+        session.stream.flush()
+        session.stream.disconnect()
+
+
+def _session_for(run: Run) -> _Session | None:
+    key = id(run)
+    if key in _sessions:
+        return _sessions[key]
+    _sessions[key] = None  # a failed start is reported once, not at every stage
+    # A run dropped without its "finished" event still gets its recording closed.
+    weakref.finalize(run, _close, key)
+    session = _open(run)
+    _sessions[key] = session
+    return session
+
+
+def _log_stage(stream: Any, stage: str, result: Any, run: Run) -> None:
+    from keymps import rerun_entities as entities
+
+    if stage == "image":
+        entities.log_image(stream, result, run)
+    elif stage == "detect":
+        entities.log_detection(stream, result, run)
+    elif stage == "plan":
+        entities.log_plan(stream, result, run)
+    elif stage == "ground":
+        entities.log_grounding(stream, result)
+    elif stage == "compose":
+        entities.log_tool_path(stream, result)
+    elif stage == "time":
+        _log_motion(stream, result, run)
+    elif stage == "check":
+        entities.log_validation(stream, result)
+    elif stage == "execute":
+        entities.log_execution(stream, result, run)
+
+
+def _log_motion(stream: Any, trajectory: Any, run: Run) -> None:
+    from keymps import rerun_entities as entities
+    from keymps import rerun_robot
+
+    index = stage_index("time")
+    entities.log_trajectory(stream, trajectory, index, ROBOT_RATE_HZ)
+    rerun_robot.log_robot_model(stream, run.task)
+    picked = entities.subsample_indices(trajectory.t, ROBOT_RATE_HZ)
+    rerun_robot.log_robot_motion(stream, trajectory, picked, index)
+
+
+@hookimpl
+def keymps_stage_done(stage: str, result: Any, run: Run) -> None:
+    """Log one stage's result to the run's recording; close the recording when the run ends."""
+    if run.options.rerun == "off":
+        return
+    if stage == "finished" and id(run) not in _sessions and result is None:
+        return
+    try:
+        session = _session_for(run)
+        if session is None:
+            return
+        stream = session.stream
+        stream.set_time("stage", sequence=stage_index(stage))
+        stream.set_time("time", duration=0.0)
+        if stage == "finished":
+            from keymps.rerun_entities import log_finished
+
+            log_finished(stream, result if isinstance(result, BaseException) else None, run)
+        else:
+            _log_stage(stream, stage, result, run)
+    finally:
+        if stage == "finished":
+            _close(id(run))

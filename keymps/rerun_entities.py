@@ -1,0 +1,504 @@
+"""How each stage result becomes Rerun entities (the tree documented in docs/rerun.md).
+
+Every function takes the run's own RecordingStream; rerun and cv2 are imported inside.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from keymps.run import Run
+    from keymps.stages import (
+        Detection,
+        ExecutionReport,
+        Grounding,
+        Plan,
+        SceneImage,
+        ToolPath,
+        Trajectory,
+        ValidatedTrajectory,
+    )
+
+REDACTED = "[redacted]"
+SECRET_SUFFIXES = ("_API_KEY", "_TOKEN")
+SECRET_FIELDS = {"api_key", "apikey", "authorization", "x-api-key", "token", "access_token"}
+
+WORK_RADIUS_M = 0.0015
+TRAVEL_RADIUS_M = 0.0006
+TRAVEL_ALPHA = 90
+GRADIENT_CHUNK_POINTS = 12
+"""Work pieces are drawn as short strips of this many points, each in its own time colour."""
+
+
+# ---------------------------------------------------------------- text and colours
+
+
+def secrets_in_environment() -> list[str]:
+    """Values of environment variables whose names end with _API_KEY or _TOKEN."""
+    found = [
+        value
+        for name, value in os.environ.items()
+        if name.upper().endswith(SECRET_SUFFIXES) and len(value.strip()) >= 4
+    ]
+    return sorted(set(found), key=len, reverse=True)
+
+
+def redact(text: str) -> str:
+    """The text with every secret from the environment replaced by [redacted]."""
+    for secret in secrets_in_environment():
+        text = text.replace(secret, REDACTED)
+    return text
+
+
+def _redact_value(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {
+            key: REDACTED if str(key).lower() in SECRET_FIELDS else _redact_value(item)
+            for key, item in value.items()
+        }
+    if isinstance(value, list | tuple):
+        return [_redact_value(item) for item in value]
+    if isinstance(value, str):
+        if value.startswith("data:") and len(value) > 200:
+            return f"[inline data: {len(value)} characters]"
+        return value
+    return value
+
+
+def time_colors(fractions: np.ndarray, alpha: int = 255) -> np.ndarray:
+    """RGBA colours red -> green -> blue for fractions 0 -> 0.5 -> 1 (the paper's convention)."""
+    s = np.clip(np.asarray(fractions, dtype=float), 0.0, 1.0)
+    first = s < 0.5
+    u = np.where(first, s * 2.0, s * 2.0 - 1.0)
+    red = np.where(first, 1.0 - u, 0.0)
+    green = np.where(first, u, 1.0 - u)
+    blue = np.where(first, 0.0, u)
+    rgb = np.stack([red, green, blue], axis=-1) * 255.0
+    alphas = np.full((len(s), 1), float(alpha))
+    return np.round(np.concatenate([rgb, alphas], axis=1)).astype(np.uint8)
+
+
+def _order_colors(count: int) -> np.ndarray:
+    return time_colors(np.linspace(0.0, 1.0, count) if count > 1 else np.zeros(count))
+
+
+def _encoded_image(rr: Any, image: np.ndarray) -> Any:
+    """JPEG-encode a BGR (or grey) image: a tenth of the raw size, good enough to inspect."""
+    import cv2
+
+    ok, buffer = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 92])
+    if not ok:
+        return rr.Image(image, color_model="BGR" if image.ndim == 3 else "L")
+    return rr.EncodedImage(contents=buffer.tobytes(), media_type="image/jpeg")
+
+
+def _markdown(rr: Any, text: str) -> Any:
+    return rr.TextDocument(redact(text), media_type=rr.MediaType.MARKDOWN)
+
+
+# ---------------------------------------------------------------- geometry helpers
+
+
+def _image_frame(run: Run) -> Any | None:
+    """keymps.geometry.ImageFrame for this run's image, or None when unavailable."""
+    scene = run.results.get("image")
+    if scene is None:
+        return None
+    try:
+        from keymps.geometry import ImageFrame
+    except ImportError:
+        return None
+    try:
+        return ImageFrame.from_task(run.task, scene.size_px)
+    except Exception:  # a recorder must never stop the run over a drawing
+        return None
+
+
+def board_rectangle(run: Run) -> tuple[np.ndarray, np.ndarray]:
+    """(min_xy, max_xy) of the workspace in the board frame, metres (s_env shifted by g_shift)."""
+    workspace = run.task.scene.workspace
+    low = np.array(workspace.shift, dtype=float)
+    return low, low + np.array(workspace.size, dtype=float)
+
+
+# ---------------------------------------------------------------- stage loggers
+
+
+def log_world_setup(rec: Any) -> None:
+    """Static facts: the board frame is right-handed, z up."""
+    import rerun as rr
+
+    rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+
+
+def log_image(rec: Any, scene: SceneImage, run: Run) -> None:
+    import rerun as rr
+
+    rec.log("image", _encoded_image(rr, scene.image))
+    low, high = board_rectangle(run)
+    thickness = 0.01
+    center = [(low[0] + high[0]) / 2, (low[1] + high[1]) / 2, -thickness / 2]
+    half = [(high[0] - low[0]) / 2, (high[1] - low[1]) / 2, thickness / 2]
+    rec.log(
+        "world/board",
+        rr.Boxes3D(
+            centers=[center],
+            half_sizes=[half],
+            colors=[[205, 170, 125, 255]],
+            fill_mode=rr.components.FillMode.Solid,
+            labels=["board"],
+        ),
+    )
+
+
+def log_detection(rec: Any, detection: Detection, run: Run) -> None:
+    import rerun as rr
+
+    x0, y0, x1, y1 = detection.bbox_px
+    rec.log(
+        "image/detection",
+        rr.Boxes2D(
+            array=[[x0, y0, x1, y1]],
+            array_format=rr.Box2DFormat.XYXY,
+            labels=["object"],
+            colors=[[255, 200, 0, 255]],
+        ),
+    )
+    if detection.others_px:
+        rec.log(
+            "image/detection/others",
+            rr.Boxes2D(
+                array=np.array(detection.others_px, dtype=float),
+                array_format=rr.Box2DFormat.XYXY,
+                colors=[[160, 160, 160, 255]] * len(detection.others_px),
+            ),
+        )
+    if len(detection.contour_px):
+        contour = np.asarray(detection.contour_px, dtype=float).reshape(-1, 2)
+        rec.log(
+            "image/detection/contour",
+            rr.LineStrips2D([np.vstack([contour, contour[:1]])], colors=[[255, 200, 0, 255]]),
+        )
+    rec.log("crop", _encoded_image(rr, detection.crop))
+    _log_object(rec, detection, run)
+
+
+def _log_object(rec: Any, detection: Detection, run: Run) -> None:
+    import rerun as rr
+
+    frame = _image_frame(run)
+    scene = run.results.get("image")
+    if frame is None or scene is None:
+        return
+    x0, y0, x1, y1 = detection.bbox_px
+    corners = np.asarray(
+        frame.to_board(np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]], dtype=float)),
+        dtype=float,
+    )
+    low, high = corners.min(axis=0), corners.max(axis=0)
+    height = float(run.task.scene.object_height)
+    rec.log(
+        "world/object",
+        rr.Boxes3D(
+            centers=[[(low[0] + high[0]) / 2, (low[1] + high[1]) / 2, height / 2]],
+            half_sizes=[[(high[0] - low[0]) / 2, (high[1] - low[1]) / 2, height / 2]],
+            colors=[[255, 200, 0, 255]],
+            labels=["object"],
+        ),
+    )
+    try:
+        from keymps.geometry import object_outline_m
+
+        outline = np.asarray(object_outline_m(detection, run.task, scene.size_px), dtype=float)
+    except Exception:  # outline is a nicety; the box above already shows the object
+        return
+    if len(outline) >= 2:
+        ring = np.vstack([outline, outline[:1]])
+        top = np.column_stack([ring, np.full(len(ring), height)])
+        rec.log(
+            "world/object/outline",
+            rr.LineStrips3D([top], colors=[[255, 140, 0, 255]], radii=[0.001]),
+        )
+
+
+def log_plan(rec: Any, plan: Plan, run: Run) -> None:
+    import rerun as rr
+
+    count = plan.num_pairs
+    labels = [str(i + 1) for i in range(count)]
+    colors = _order_colors(count)
+    pairs = np.asarray(plan.pairs_px, dtype=float).reshape(-1, 2, 2)
+    rec.log(
+        "image/pairs",
+        rr.LineStrips2D(list(pairs), labels=labels, colors=colors, radii=[-2.0]),
+    )
+    rec.log("image/pairs/start", rr.Points2D(pairs[:, 0], colors=colors, radii=[-5.0]))
+    rec.log(
+        "image/pairs/end",
+        rr.Points2D(pairs[:, 1], colors=colors, radii=[-3.0], labels=labels),
+    )
+    crop_pairs = np.asarray(plan.pairs_crop_px, dtype=float).reshape(-1, 2, 2)
+    rec.log("crop/pairs", rr.LineStrips2D(list(crop_pairs), labels=labels, colors=colors))
+    _log_vlm(rec, plan)
+
+
+def _render_request(request: dict[str, Any]) -> str:
+    """A request as readable markdown: chat messages as sections, images by size only."""
+    request = _redact_value(request)
+    messages = request.get("messages") if isinstance(request, dict) else None
+    if not isinstance(messages, list):
+        return "```json\n" + json.dumps(request, indent=2, default=str) + "\n```"
+    parts = []
+    settings = {k: v for k, v in request.items() if k != "messages"}
+    if settings:
+        parts.append("```json\n" + json.dumps(settings, indent=2, default=str) + "\n```")
+    for message in messages:
+        if not isinstance(message, dict):
+            parts.append(str(message))
+            continue
+        content = message.get("content")
+        if isinstance(content, list):
+            texts = []
+            for item in content:
+                if isinstance(item, dict) and item.get("type") == "text":
+                    texts.append(str(item.get("text", "")))
+                elif isinstance(item, dict):
+                    texts.append(f"*[{item.get('type', 'attachment')}]*")
+                else:
+                    texts.append(str(item))
+            content = "\n\n".join(texts)
+        parts.append(f"### {message.get('role', 'message')}\n\n{content}")
+    return "\n\n".join(parts)
+
+
+def _log_vlm(rec: Any, plan: Plan) -> None:
+    import rerun as rr
+
+    model = f" ({plan.model})" if plan.model else ""
+    last = plan.calls[-1] if plan.calls else None
+    prompt = _render_request(last.request) if last else "*no request: the planner is offline*"
+    rec.log("vlm/prompt", _markdown(rr, f"## Request to {plan.backend}{model}\n\n{prompt}"))
+    answer = [
+        f"## Answer from {plan.backend}{model}",
+        f"- keyword: **{plan.keyword}**",
+        f"- pairs: {plan.num_pairs}",
+    ]
+    if plan.rationale:
+        answer.append(f"- rationale: {plan.rationale}")
+    if last is not None:
+        answer.append("\n```\n" + last.answer_text + "\n```")
+    rec.log("vlm/answer", _markdown(rr, "\n".join(answer)))
+    lines = [f"## {len(plan.calls)} attempt(s)"]
+    for call in plan.calls:
+        facts = [f"latency {call.latency_s:.2f} s"]
+        if call.prompt_tokens is not None:
+            facts.append(f"{call.prompt_tokens} prompt tokens")
+        if call.completion_tokens is not None:
+            facts.append(f"{call.completion_tokens} completion tokens")
+        if call.cost_usd is not None:
+            facts.append(f"${call.cost_usd:.4f}")
+        if call.cached:
+            facts.append("cached")
+        lines.append(f"\n### attempt {call.attempt}: {', '.join(facts)}")
+        if call.error:
+            lines.append(f"\n**error:** {call.error}")
+        lines.append("\n```\n" + call.answer_text + "\n```")
+    rec.log("vlm/attempts", _markdown(rr, "\n".join(lines)))
+
+
+def log_grounding(rec: Any, grounding: Grounding) -> None:
+    import rerun as rr
+
+    segments = grounding.segments_m
+    count = len(segments)
+    labels = [str(i + 1) for i in range(count)]
+    colors = _order_colors(count)
+    rec.log(
+        "world/segments",
+        rr.Arrows3D(
+            origins=segments[:, 0],
+            vectors=segments[:, 1] - segments[:, 0],
+            labels=labels,
+            colors=colors,
+            radii=[0.001],
+        ),
+    )
+    rec.log("world/segments/start", rr.Points3D(segments[:, 0], colors=colors, radii=[0.003]))
+    rec.log("world/segments/end", rr.Points3D(segments[:, 1], colors=colors, radii=[0.002]))
+
+
+def piece_time_fractions(tool_path: ToolPath) -> list[np.ndarray]:
+    """Per piece, each point's share of the total (estimated) execution time in [0, 1]."""
+    times = []
+    offset = 0.0
+    for piece in tool_path.pieces:
+        steps = np.linalg.norm(np.diff(piece.points, axis=0), axis=1)
+        along = np.concatenate([[0.0], np.cumsum(steps)]) / max(piece.speed, 1e-6)
+        times.append(offset + along)
+        offset += float(along[-1]) if len(along) else 0.0
+    total = max(offset, 1e-9)
+    return [t / total for t in times]
+
+
+def _gradient_strips(
+    points: np.ndarray, fractions: np.ndarray, chunk: int
+) -> tuple[list[np.ndarray], list[float]]:
+    """Split a polyline into short overlapping strips, each with its mid-time fraction."""
+    if len(points) < 2:
+        return [points], [float(fractions[0]) if len(fractions) else 0.0]
+    strips, mids = [], []
+    for start in range(0, len(points) - 1, chunk):
+        stop = min(start + chunk, len(points) - 1)
+        strips.append(points[start : stop + 1])
+        mids.append(float(fractions[(start + stop) // 2]))
+    return strips, mids
+
+
+def log_tool_path(rec: Any, tool_path: ToolPath) -> None:
+    import rerun as rr
+
+    fractions = piece_time_fractions(tool_path)
+    for kind, radius, alpha in (
+        ("work", WORK_RADIUS_M, 255),
+        ("travel", TRAVEL_RADIUS_M, TRAVEL_ALPHA),
+    ):
+        strips: list[np.ndarray] = []
+        mids: list[float] = []
+        for piece, piece_fractions in zip(tool_path.pieces, fractions, strict=True):
+            if piece.kind != kind:
+                continue
+            chunk = GRADIENT_CHUNK_POINTS if kind == "work" else max(len(piece.points), 2)
+            piece_strips, piece_mids = _gradient_strips(piece.points, piece_fractions, chunk)
+            strips.extend(piece_strips)
+            mids.extend(piece_mids)
+        if strips:
+            rec.log(
+                f"world/tool_path/{kind}",
+                rr.LineStrips3D(
+                    strips,
+                    colors=time_colors(np.array(mids), alpha=alpha),
+                    radii=[radius],
+                ),
+            )
+
+
+def subsample_indices(t: np.ndarray, rate_hz: float) -> np.ndarray:
+    """Indices of samples about 1/rate_hz apart, always keeping the first and the last."""
+    if len(t) == 0:
+        return np.zeros(0, dtype=int)
+    targets = np.arange(t[0], t[-1], 1.0 / rate_hz)
+    picked = np.searchsorted(t, targets)
+    return np.unique(np.concatenate([picked, [len(t) - 1]]).clip(0, len(t) - 1))
+
+
+def tool_speed(trajectory: Trajectory) -> np.ndarray:
+    """Tool-tip speed along the trajectory, m/s (from the planned tool positions)."""
+    if trajectory.samples < 2:
+        return np.zeros(trajectory.samples)
+    velocity = np.gradient(trajectory.tool_xyz, trajectory.t, axis=0)
+    return np.asarray(np.linalg.norm(velocity, axis=1), dtype=float)
+
+
+def log_trajectory(rec: Any, trajectory: Trajectory, stage_index: int, rate_hz: float) -> None:
+    """Joint and tool-speed series at full rate; the tool tip animated at rate_hz."""
+    import rerun as rr
+
+    t = np.asarray(trajectory.t, dtype=float)
+    time_column = rr.TimeColumn("time", duration=t)
+    for i, name in enumerate(trajectory.joint_names):
+        rec.send_columns(
+            f"joints/q/{name}",
+            indexes=[time_column],
+            columns=rr.Scalars.columns(scalars=trajectory.q[:, i]),
+        )
+        rec.send_columns(
+            f"joints/qd/{name}",
+            indexes=[time_column],
+            columns=rr.Scalars.columns(scalars=trajectory.qd[:, i]),
+        )
+        for group, unit in (("q", "rad"), ("qd", "rad/s")):
+            rec.log(
+                f"joints/{group}/{name}",
+                rr.SeriesLines(names=[f"{name} [{unit}]"]),
+                static=True,
+            )
+    rec.send_columns(
+        "tool/speed",
+        indexes=[time_column],
+        columns=rr.Scalars.columns(scalars=tool_speed(trajectory)),
+    )
+    rec.log("tool/speed", rr.SeriesLines(names=["tool speed [m/s]"]), static=True)
+    picked = subsample_indices(t, rate_hz)
+    kinds = np.asarray(trajectory.kind)[picked]
+    colors = np.where(
+        (kinds == "work")[:, None], [[255, 255, 255, 255]], [[120, 120, 120, 255]]
+    ).astype(np.uint8)
+    rec.send_columns(
+        "world/tool_tip",
+        indexes=[
+            rr.TimeColumn("time", duration=t[picked]),
+            rr.TimeColumn("stage", sequence=np.full(len(picked), stage_index)),
+        ],
+        columns=rr.Points3D.columns(
+            positions=trajectory.tool_xyz[picked], colors=colors, radii=np.full(len(picked), 0.004)
+        ),
+    )
+
+
+def log_validation(rec: Any, validated: ValidatedTrajectory) -> None:
+    import rerun as rr
+
+    report = validated.report
+    lines = [f"## Safety check: {'passed' if report.ok else 'FAILED'}"]
+    lines.extend(f"- problem: {problem}" for problem in report.problems)
+    if report.figures:
+        lines.append("\n| figure | value |\n|---|---|")
+        lines.extend(f"| {name} | {value:.6g} |" for name, value in sorted(report.figures.items()))
+    trajectory = validated.trajectory
+    lines.append(f"\n{trajectory.samples} samples, {trajectory.duration_s:.2f} s")
+    rec.log("check/report", _markdown(rr, "\n".join(lines)))
+
+
+def log_execution(rec: Any, report: ExecutionReport, run: Run) -> None:
+    import rerun as rr
+
+    lines = [f"## Executor {report.executor}: {'ok' if report.ok else 'FAILED'}"]
+    if report.message:
+        lines.append(f"\n{report.message}")
+    lines.extend(f"- file: {name}" for name in report.files)
+    if report.figures:
+        lines.append("\n| figure | value |\n|---|---|")
+        lines.extend(f"| {name} | {value:.6g} |" for name, value in sorted(report.figures.items()))
+    rec.log("execute/report", _markdown(rr, "\n".join(lines)))
+    outcome = run.folder / "outcome.png"
+    if outcome.is_file():
+        import cv2
+
+        image = cv2.imread(str(outcome), cv2.IMREAD_COLOR)
+        if image is not None:
+            rec.log("outcome", _encoded_image(rr, image))
+
+
+def log_finished(rec: Any, error: BaseException | None, run: Run) -> None:
+    import rerun as rr
+
+    status = "succeeded" if error is None else "failed"
+    lines = [f"## Run {run.folder.name} {status}", f"\ntask: **{run.task.name}**"]
+    lines.append(f"\ninstruction: {run.task.instruction}")
+    if error is not None:
+        lines.append(f"\n**error:** {type(error).__name__}: {error}")
+    if run.timings_s:
+        lines.append("\n| stage | seconds |\n|---|---|")
+        lines.extend(f"| {name} | {seconds:.3f} |" for name, seconds in run.timings_s.items())
+    lines.extend(f"- warning: {warning}" for warning in run.warnings)
+    rec.log("run/summary", _markdown(rr, "\n".join(lines)))
+    if error is not None:
+        rec.log(
+            "run/error",
+            rr.TextLog(redact(f"{type(error).__name__}: {error}"), level=rr.TextLogLevel.ERROR),
+        )

@@ -1,0 +1,134 @@
+"""The UR3 in a Rerun recording: its URDF meshes, placed on the board and moved along a trajectory.
+
+The URDF comes from the example-robot-data wheel. Its mesh references use ROS `package://`
+URIs that Rerun cannot resolve outside a ROS workspace, so a copy with absolute paths (and
+without the collision meshes, which would double the file size) is logged.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import os
+import re
+import tempfile
+from functools import cache
+from importlib import metadata
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from platformdirs import user_cache_dir
+
+from keymps.errors import KeympsError
+
+if TYPE_CHECKING:
+    from keymps.stages import Trajectory
+    from keymps.task import Task
+
+URDF_SUFFIX = "robots/ur_description/urdf/ur3_robot.urdf"
+PACKAGE_PREFIX = "package://example-robot-data/"
+ROBOT_ENTITY = "world/robot"
+MOUNT_ENTITY = "world/robot/mount"
+JOINT_ENTITY = "world/robot/joint_transforms"
+URDF_ROOT_FRAME = "world"
+"""The URDF's root link; `world/robot/mount` connects it to the board frame (tf#/world)."""
+
+
+@cache
+def ur3_urdf_path() -> Path:
+    """The UR3 URDF shipped by example-robot-data (the same file the robot model loads)."""
+    try:
+        files = metadata.distribution("example-robot-data").files or []
+    except metadata.PackageNotFoundError:
+        raise KeympsError(
+            "the UR3 model needs the 'example-robot-data' package: pip install example-robot-data"
+        ) from None
+    for file in files:
+        if str(file).endswith(URDF_SUFFIX):
+            return Path(str(file.locate())).resolve()
+    raise KeympsError(f"example-robot-data is installed but has no {URDF_SUFFIX}")
+
+
+@cache
+def loggable_urdf() -> Path:
+    """A copy of the UR3 URDF with absolute mesh paths and no collision geometry."""
+    source = ur3_urdf_path()
+    share = source.parents[3]  # .../share/example-robot-data/robots/ur_description/urdf
+    text = source.read_text(encoding="utf-8")
+    text = text.replace(PACKAGE_PREFIX, share.as_uri() + "/")
+    text = re.sub(r"<collision>.*?</collision>", "", text, flags=re.DOTALL)
+    digest = hashlib.sha256(text.encode()).hexdigest()[:12]
+    for folder in (Path(user_cache_dir("keymps")) / "urdf", Path(tempfile.gettempdir())):
+        target = folder / f"ur3-{digest}.urdf"
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            if not target.is_file():
+                partial = target.with_suffix(f".{os.getpid()}.tmp")
+                partial.write_text(text, encoding="utf-8")
+                partial.replace(target)
+            return target
+        except OSError:
+            continue
+    raise KeympsError("cannot write the UR3 URDF copy to the cache folder or the temp folder")
+
+
+def mount_transform(task: Task) -> tuple[list[float], list[float]]:
+    """(translation, xyzw quaternion) of the robot base in the board frame, from robot.base."""
+    x, y, z, yaw_deg = task.robot.base
+    half = math.radians(yaw_deg) / 2.0
+    return [x, y, z], [0.0, 0.0, math.sin(half), math.cos(half)]
+
+
+def log_robot_model(rec: Any, task: Task) -> None:
+    """The meshes (static) and the fixed placement of the robot base on the board."""
+    import rerun as rr
+
+    rec.log_file_from_path(loggable_urdf(), entity_path_prefix=ROBOT_ENTITY, static=True)
+    translation, quaternion = mount_transform(task)
+    rec.log(
+        MOUNT_ENTITY,
+        rr.Transform3D(
+            translation=translation,
+            quaternion=rr.Quaternion(xyzw=quaternion),
+            parent_frame="tf#/world",
+            child_frame=URDF_ROOT_FRAME,
+        ),
+        static=True,
+    )
+
+
+def urdf_joint_order(trajectory_joint_names: tuple[str, ...], urdf_joints: list[Any]) -> list[Any]:
+    """The URDF joint driven by each trajectory column: by name, else in chain order."""
+    moving = [joint for joint in urdf_joints if joint.joint_type in ("revolute", "continuous")]
+    by_name = {joint.name: joint for joint in moving}
+    if all(name in by_name for name in trajectory_joint_names):
+        return [by_name[name] for name in trajectory_joint_names]
+    if len(moving) != len(trajectory_joint_names):
+        raise KeympsError(
+            f"the trajectory has {len(trajectory_joint_names)} joints but the UR3 URDF has "
+            f"{len(moving)} moving joints"
+        )
+    return moving
+
+
+def log_robot_motion(rec: Any, trajectory: Trajectory, picked: np.ndarray, stage_index: int) -> int:
+    """One Transform3D per moving joint and kept sample, on the `time` timeline; returns samples."""
+    import rerun as rr
+    from rerun.urdf import UrdfTree
+
+    tree = UrdfTree.from_file_path(loggable_urdf())
+    joints = urdf_joint_order(trajectory.joint_names, tree.joints())
+    times = np.asarray(trajectory.t, dtype=float)[picked]
+    indexes = [
+        rr.TimeColumn("time", duration=times),
+        rr.TimeColumn("stage", sequence=np.full(len(picked), stage_index)),
+    ]
+    for column, joint in enumerate(joints):
+        values = np.asarray(trajectory.q, dtype=float)[picked, column]
+        rec.send_columns(
+            f"{JOINT_ENTITY}/{joint.name}",
+            indexes=indexes,
+            columns=joint.compute_transform_columns(values.tolist(), clamp=False),
+        )
+    return len(picked)

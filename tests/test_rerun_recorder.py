@@ -1,0 +1,552 @@
+"""The Rerun recorder: run.rrd read back with rerun's own reader, entity by entity."""
+
+from __future__ import annotations
+
+import gc
+from collections import defaultdict
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from keymps.default_plugins import rerun_recorder
+from keymps.errors import StageError
+from keymps.rerun_entities import subsample_indices
+from keymps.run import Run, RunOptions
+from keymps.stages import (
+    Detection,
+    ExecutionReport,
+    JointPath,
+    Piece,
+    Plan,
+    SceneImage,
+    ToolPath,
+    Trajectory,
+    ValidatedTrajectory,
+    ValidationReport,
+    VlmCall,
+)
+from keymps.task import parse_task
+
+CANARY = "sk-canary-7f3a9c1e5b2d4f60a8e1"
+VISIBLE_MARKER = "visible-marker-4411"
+RATE_HZ = 125.0
+SAMPLES = 200
+JOINTS = (
+    "shoulder_pan_joint",
+    "shoulder_lift_joint",
+    "elbow_joint",
+    "wrist_1_joint",
+    "wrist_2_joint",
+    "wrist_3_joint",
+)
+TASK_YAML = """\
+name: rerun-test
+instruction: Cut it into 4 slices.
+scene:
+  image: scene.png
+  workspace: {size: [0.30, 0.18]}
+  object_height: 0.05
+primitives: [line]
+robot: {base: [0.15, -0.20, 0.0, 90]}
+"""
+
+
+# ---------------------------------------------------------------- reading a recording back
+
+
+@dataclass
+class Entity:
+    archetypes: set[str] = field(default_factory=set)
+    rows: dict[str, int] = field(default_factory=lambda: defaultdict(int))
+    """Archetype -> number of rows (temporal + static)."""
+    timelines: set[str] = field(default_factory=set)
+    data: dict[str, list] = field(default_factory=lambda: defaultdict(list))
+    """'Archetype:field' -> every row's value, in file order."""
+
+
+def read_recording(path: Path) -> dict[str, Entity]:
+    """Entity path -> what the file holds there, via rerun.chunk.RrdReader."""
+    from rerun.chunk import RrdReader
+
+    entities: dict[str, Entity] = defaultdict(Entity)
+    for chunk in RrdReader(path).stream():
+        entity = entities[chunk.entity_path]
+        entity.timelines.update(chunk.timeline_names)
+        batch = chunk.to_record_batch()
+        archetypes = {name.split(":")[0] for name in batch.schema.names if ":" in name}
+        entity.archetypes.update(archetypes)
+        for archetype in archetypes:
+            entity.rows[archetype] += chunk.num_rows
+        for name in batch.schema.names:
+            if ":" in name:
+                entity.data[name].extend(batch.column(name).to_pylist())
+    return dict(entities)
+
+
+# ---------------------------------------------------------------- hand-made stage results
+
+
+def _scene(tmp_path: Path) -> tuple[np.ndarray, Path]:
+    import cv2
+
+    image = np.full((200, 320, 3), 40, np.uint8)
+    cv2.circle(image, (160, 100), 60, (60, 120, 230), -1)
+    path = tmp_path / "scene.png"
+    cv2.imwrite(str(path), image)
+    return image, path
+
+
+def _detection(image: np.ndarray) -> Detection:
+    return Detection(
+        bbox_px=(100, 40, 221, 161),
+        crop=image[30:171, 90:231].copy(),
+        crop_origin_px=(90, 30),
+        others_px=((10, 10, 30, 30),),
+    )
+
+
+def _plan() -> Plan:
+    crop_pairs = np.array(
+        [
+            [[20.0, 40.0], [120.0, 40.0]],
+            [[20.0, 70.0], [120.0, 70.0]],
+            [[20.0, 100.0], [120.0, 100.0]],
+        ]
+    )
+    request = {
+        "model": "openai/gpt-4o",
+        "api_key": CANARY,
+        "headers": {"Authorization": f"Bearer {CANARY}"},
+        "messages": [
+            {"role": "system", "content": f"You plan cuts. {VISIBLE_MARKER}"},
+            {
+                "role": "user",
+                "content": [
+                    {"type": "text", "text": f"Cut it into 4 slices (my key is {CANARY})"},
+                    {
+                        "type": "image_url",
+                        "image_url": {"url": "data:image/png;base64," + "A" * 400},
+                    },
+                ],
+            },
+        ],
+    }
+    calls = (
+        VlmCall(attempt=1, request=request, answer_text="not json", error="invalid JSON"),
+        VlmCall(
+            attempt=2,
+            request=request,
+            answer_text='{"keyword": "line", "pairs": [[[20, 40], [120, 40]]]}',
+            latency_s=1.2,
+            prompt_tokens=900,
+            completion_tokens=60,
+            cost_usd=0.004,
+        ),
+    )
+    return Plan(
+        keyword="line",
+        pairs_crop_px=crop_pairs,
+        pairs_px=crop_pairs + np.array([90.0, 30.0]),
+        backend="litellm",
+        model="openai/gpt-4o",
+        rationale="parallel slices",
+        calls=calls,
+    )
+
+
+def _tool_path(segments: np.ndarray) -> ToolPath:
+    home = np.array([0.15, 0.05, 0.15])
+    pieces = []
+    position = home
+    for k, (start, goal) in enumerate(segments):
+        above = start + [0.0, 0.0, 0.03]
+        travel = np.vstack([np.linspace(position, above, 20), np.linspace(above, start, 10)])
+        pieces.append(Piece("travel", k, travel, np.zeros(len(travel)), 0.15))
+        work = np.linspace(start, goal, 60)
+        pieces.append(Piece("work", k, work, np.zeros(len(work)), 0.03))
+        position = goal
+    back = np.linspace(position, home, 20)
+    pieces.append(Piece("travel", len(segments) - 1, back, np.zeros(len(back)), 0.15))
+    return ToolPath(pieces=tuple(pieces), keyword="line")
+
+
+def _joint_path(tool_path: ToolPath) -> JointPath:
+    return JointPath(
+        pieces=tuple(np.zeros((len(p.points), 6)) for p in tool_path.pieces),
+        joint_names=JOINTS,
+        max_position_error_m=0.0,
+        max_rotation_error_rad=0.0,
+    )
+
+
+def tool0_positions(q: np.ndarray, base: tuple[float, float, float, float]) -> np.ndarray:
+    """Pinocchio FK of the URDF's tool0 frame, placed on the board like the recorder does."""
+    import pinocchio as pin
+
+    from keymps.rerun_robot import ur3_urdf_path
+
+    model = pin.buildModelFromUrdf(str(ur3_urdf_path()))
+    data = model.createData()
+    frame = model.getFrameId("tool0")
+    x, y, z, yaw = base
+    rotation = pin.utils.rpyToMatrix(0.0, 0.0, np.radians(yaw))
+    positions = []
+    for row in q:
+        pin.framesForwardKinematics(model, data, row)
+        positions.append(rotation @ data.oMf[frame].translation + [x, y, z])
+    return np.array(positions)
+
+
+def _trajectory(base: tuple[float, float, float, float]) -> Trajectory:
+    t = np.arange(SAMPLES) / RATE_HZ
+    phase = t / t[-1]
+    q = np.column_stack(
+        [
+            0.3 * np.sin(2 * np.pi * phase),
+            -1.2 + 0.2 * phase,
+            1.4 - 0.3 * phase,
+            -1.7 + 0.1 * phase,
+            -1.57 + 0.0 * phase,
+            0.5 * phase,
+        ]
+    )
+    qd = np.gradient(q, t, axis=0)
+    kind = np.where((phase > 0.3) & (phase < 0.7), "work", "travel")
+    return Trajectory(
+        t=t,
+        q=q,
+        qd=qd,
+        qdd=np.gradient(qd, t, axis=0),
+        tool_xyz=tool0_positions(q, base),
+        piece_index=(phase * 3).astype(int),
+        kind=kind,
+        joint_names=JOINTS,
+        rate_hz=RATE_HZ,
+    )
+
+
+@dataclass
+class Results:
+    scene: SceneImage
+    detection: Detection
+    plan: Plan
+    trajectory: Trajectory
+    stages: list[tuple[str, object]]
+
+
+def make_run(tmp_path: Path, **options: object) -> tuple[Run, Results]:
+    from keymps.geometry import ground
+
+    image, image_path = _scene(tmp_path)
+    task = parse_task(TASK_YAML, path=tmp_path / "task.yaml")
+    folder = tmp_path / "run"
+    folder.mkdir()
+    run = Run(task=task, folder=folder, options=RunOptions(**options))  # type: ignore[arg-type]
+    scene = SceneImage(image=image, source=str(image_path))
+    detection = _detection(image)
+    plan = _plan()
+    grounding = ground(plan, detection, task, scene.size_px)
+    tool_path = _tool_path(grounding.segments_m)
+    trajectory = _trajectory(task.robot.base)
+    validated = ValidatedTrajectory(
+        trajectory, ValidationReport(ok=True, problems=(), figures={"min_tool_z_m": 0.05})
+    )
+    stages = [
+        ("image", scene),
+        ("detect", detection),
+        ("plan", plan),
+        ("ground", grounding),
+        ("compose", tool_path),
+        ("solve", _joint_path(tool_path)),
+        ("time", trajectory),
+        ("check", validated),
+        ("execute", ExecutionReport("sim", True, "simulated")),
+    ]
+    return run, Results(scene, detection, plan, trajectory, stages)
+
+
+def play(run: Run, results: Results, error: BaseException | None = None) -> None:
+    """What the engine does: one event per stage, then 'finished'."""
+    for stage, result in results.stages:
+        run.results[stage] = result
+        rerun_recorder.keymps_stage_done(stage=stage, result=result, run=run)
+    rerun_recorder.keymps_stage_done(stage="finished", result=error, run=run)
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Results, dict[str, Entity]]:
+    """One full run recorded with a canary key in the environment."""
+    tmp_path = tmp_path_factory.mktemp("recorded")
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("OPENAI_API_KEY", CANARY)
+        run, results = make_run(tmp_path)
+        play(run, results)
+    path = run.folder / "run.rrd"
+    return path, results, read_recording(path)
+
+
+# ---------------------------------------------------------------- the tests
+
+
+def test_saves_one_rrd_in_the_run_folder_and_closes_the_stream(recorded):
+    path, _, _ = recorded
+    assert path.is_file() and path.stat().st_size > 100_000
+    assert rerun_recorder._sessions == {}
+
+
+def test_documented_entities_have_their_archetypes(recorded):
+    _, _, entities = recorded
+    expected = {
+        "/world": "ViewCoordinates",
+        "/world/board": "Boxes3D",
+        "/world/object": "Boxes3D",
+        "/world/object/outline": "LineStrips3D",
+        "/image": "EncodedImage",
+        "/image/detection": "Boxes2D",
+        "/image/detection/others": "Boxes2D",
+        "/image/pairs": "LineStrips2D",
+        "/image/pairs/start": "Points2D",
+        "/image/pairs/end": "Points2D",
+        "/crop": "EncodedImage",
+        "/crop/pairs": "LineStrips2D",
+        "/vlm/prompt": "TextDocument",
+        "/vlm/answer": "TextDocument",
+        "/vlm/attempts": "TextDocument",
+        "/world/segments": "Arrows3D",
+        "/world/segments/start": "Points3D",
+        "/world/segments/end": "Points3D",
+        "/world/tool_path/work": "LineStrips3D",
+        "/world/tool_path/travel": "LineStrips3D",
+        "/world/tool_tip": "Points3D",
+        "/world/robot/mount": "Transform3D",
+        "/tool/speed": "Scalars",
+        "/check/report": "TextDocument",
+        "/execute/report": "TextDocument",
+        "/run/summary": "TextDocument",
+    }
+    for name in JOINTS:
+        expected[f"/joints/q/{name}"] = "Scalars"
+        expected[f"/joints/qd/{name}"] = "Scalars"
+        expected[f"/world/robot/joint_transforms/{name}"] = "Transform3D"
+    missing = {path: kind for path, kind in expected.items() if path not in entities}
+    assert not missing, f"entities missing from run.rrd: {missing}"
+    wrong = {
+        path: sorted(entities[path].archetypes)
+        for path, kind in expected.items()
+        if kind not in entities[path].archetypes
+    }
+    assert not wrong, f"entities with the wrong archetype: {wrong}"
+
+
+def test_one_row_per_trajectory_sample_on_joints_and_tool_speed(recorded):
+    _, results, entities = recorded
+    for name in JOINTS:
+        for group in ("q", "qd"):
+            entity = entities[f"/joints/{group}/{name}"]
+            assert entity.rows["Scalars"] == SAMPLES
+            assert "time" in entity.timelines
+    column = JOINTS.index("elbow_joint")
+    recorded_q = np.array(entities["/joints/q/elbow_joint"].data["Scalars:scalars"]).ravel()
+    np.testing.assert_allclose(recorded_q, results.trajectory.q[:, column])
+    assert entities["/tool/speed"].rows["Scalars"] == SAMPLES
+
+
+def test_robot_is_subsampled_to_25_hz(recorded):
+    _, results, entities = recorded
+    duration = results.trajectory.duration_s
+    expected = int(np.ceil(duration * rerun_recorder.ROBOT_RATE_HZ)) + 1
+    for name in JOINTS:
+        rows = entities[f"/world/robot/joint_transforms/{name}"].rows["Transform3D"]
+        assert abs(rows - expected) <= 1
+        assert rows < SAMPLES / 3
+
+
+def test_keypoint_pairs_one_per_plan_pair_with_order_numbers(recorded):
+    _, results, entities = recorded
+    count = results.plan.num_pairs
+    strips = entities["/image/pairs"].data["LineStrips2D:strips"][0]
+    assert len(strips) == count
+    assert entities["/image/pairs"].data["LineStrips2D:labels"][0] == ["1", "2", "3"]
+    np.testing.assert_allclose(np.array(strips), results.plan.pairs_px)
+    assert len(entities["/image/pairs/start"].data["Points2D:positions"][0]) == count
+    assert len(entities["/world/segments"].data["Arrows3D:origins"][0]) == count
+
+
+def test_tool_path_runs_red_to_green_to_blue_and_work_differs_from_travel(recorded):
+    _, _, entities = recorded
+    work = entities["/world/tool_path/work"].data
+    colors = np.array(work["LineStrips3D:colors"][0], dtype=np.uint32)
+    red, green, blue = (colors >> 24) & 255, (colors >> 16) & 255, (colors >> 8) & 255
+    assert red[0] > blue[0] and blue[-1] > red[-1]  # starts red, ends blue
+    assert green.max() > 200  # passes through green
+    travel = entities["/world/tool_path/travel"].data
+    assert travel["LineStrips3D:radii"][0][0] < work["LineStrips3D:radii"][0][0]
+    travel_alpha = np.array(travel["LineStrips3D:colors"][0], dtype=np.uint32) & 255
+    assert travel_alpha.max() < 255
+
+
+def test_robot_meshes_come_from_the_urdf(recorded):
+    _, _, entities = recorded
+    meshes = [
+        path
+        for path, entity in entities.items()
+        if path.startswith("/world/robot/") and "Asset3D" in entity.archetypes
+    ]
+    links = {path.split("/")[-2] for path in meshes}
+    assert links == {
+        "base_link",
+        "shoulder_link",
+        "upper_arm_link",
+        "forearm_link",
+        "wrist_1_link",
+        "wrist_2_link",
+        "wrist_3_link",
+    }
+
+
+def _matrix(translation: list[float], quaternion_xyzw: list[float] | None) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    matrix = np.eye(4)
+    if quaternion_xyzw is not None:
+        matrix[:3, :3] = Rotation.from_quat(quaternion_xyzw).as_matrix()
+    matrix[:3, 3] = translation
+    return matrix
+
+
+def test_the_recorded_robot_holds_the_tool_on_the_planned_path(recorded):
+    """Chaining the frames in the file (mount, URDF fixed joints, animated joints) puts the
+    tool0 frame where the trajectory's tool is, at every recorded robot sample."""
+    _, results, entities = recorded
+    edges: dict[str, tuple[str, np.ndarray]] = {}
+
+    def add(entity: Entity, row: int) -> None:
+        data = entity.data
+        child = data["Transform3D:child_frame"][row][0]
+        parent = data["Transform3D:parent_frame"][row][0]
+        quaternion = data.get("Transform3D:quaternion")
+        matrix = _matrix(
+            data["Transform3D:translation"][row][0],
+            quaternion[row][0] if quaternion else None,
+        )
+        edges[child] = (parent, matrix)
+
+    tf_static = next(e for p, e in entities.items() if p.endswith("tf_static"))
+    for row in range(len(tf_static.data["Transform3D:child_frame"])):
+        add(tf_static, row)
+    add(entities["/world/robot/mount"], 0)
+    elbow = entities["/world/robot/joint_transforms/elbow_joint"]
+    joint_rows = len(elbow.data["Transform3D:child_frame"])
+    picked = subsample_indices(results.trajectory.t, rerun_recorder.ROBOT_RATE_HZ)
+    assert len(picked) == joint_rows
+    for row in (0, joint_rows // 2, joint_rows - 1):
+        for name in JOINTS:
+            add(entities[f"/world/robot/joint_transforms/{name}"], row)
+        pose, frame = np.eye(4), "tool0"
+        while frame in edges:
+            parent, matrix = edges[frame]
+            pose = matrix @ pose
+            frame = parent
+        assert frame == "tf#/world"
+        np.testing.assert_allclose(pose[:3, 3], results.trajectory.tool_xyz[picked[row]], atol=1e-4)
+
+
+def test_no_trace_of_the_api_key_in_the_file(recorded):
+    path, _, entities = recorded
+    raw = path.read_bytes()
+    assert CANARY.encode() not in raw
+    text = " ".join(str(values) for entity in entities.values() for values in entity.data.values())
+    assert VISIBLE_MARKER in text  # the reader does see the logged text ...
+    assert CANARY not in text  # ... and the key is not in it
+    assert "[redacted]" in str(entities["/vlm/prompt"].data["TextDocument:text"])
+
+
+def test_vlm_attempts_show_every_attempt_and_its_error(recorded):
+    _, _, entities = recorded
+    text = entities["/vlm/attempts"].data["TextDocument:text"][0][0]
+    assert "attempt 1" in text and "attempt 2" in text and "invalid JSON" in text
+    assert "base64" not in str(entities["/vlm/prompt"].data["TextDocument:text"])
+
+
+def test_stage_and_time_timelines_and_no_wall_clock(recorded):
+    _, _, entities = recorded
+    timelines = set().union(*(entity.timelines for entity in entities.values()))
+    assert timelines == {"stage", "time"}
+    assert "stage" in entities["/image"].timelines
+    assert entities["/joints/q/elbow_joint"].timelines == {"time"}
+
+
+def test_a_blueprint_is_sent_with_the_recording(recorded):
+    from rerun.chunk import RrdReader
+
+    path, _, _ = recorded
+    assert len(RrdReader(path).blueprints()) == 1
+
+
+def test_same_inputs_give_the_same_entity_tree(recorded, tmp_path):
+    _, _, first = recorded
+    run, results = make_run(tmp_path)
+    play(run, results)
+    second = read_recording(run.folder / "run.rrd")
+    assert sorted(first) == sorted(second)
+    assert {p: e.rows for p, e in first.items()} == {p: e.rows for p, e in second.items()}
+
+
+def test_off_writes_nothing(tmp_path):
+    run, results = make_run(tmp_path, rerun="off")
+    play(run, results)
+    assert list(run.folder.iterdir()) == []
+    assert rerun_recorder._sessions == {}
+
+
+def test_a_failed_run_is_recorded_up_to_the_failure_with_the_error(tmp_path):
+    run, results = make_run(tmp_path)
+    results.stages = results.stages[:3]
+    play(run, results, error=StageError("ground", f"no workspace (key {CANARY})"))
+    entities = read_recording(run.folder / "run.rrd")
+    assert "/image/pairs" in entities and "/world/segments" not in entities
+    summary = str(entities["/run/summary"].data["TextDocument:text"])
+    assert "failed" in summary and "ground: no workspace" in summary
+    assert "TextLog" in entities["/run/error"].archetypes
+
+
+def test_two_runs_in_one_process_do_not_mix(tmp_path):
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    first, first_results = make_run(tmp_path / "a")
+    second, second_results = make_run(tmp_path / "b")
+    first_results.stages = first_results.stages[:2]
+    for (stage, a), (_, b) in zip(first_results.stages, second_results.stages, strict=False):
+        rerun_recorder.keymps_stage_done(stage=stage, result=a, run=first)
+        rerun_recorder.keymps_stage_done(stage=stage, result=b, run=second)
+    rerun_recorder.keymps_stage_done(stage="finished", result=None, run=first)
+    for stage, result in second_results.stages[2:]:
+        rerun_recorder.keymps_stage_done(stage=stage, result=result, run=second)
+    rerun_recorder.keymps_stage_done(stage="finished", result=None, run=second)
+    short = read_recording(first.folder / "run.rrd")
+    full = read_recording(second.folder / "run.rrd")
+    assert "/vlm/prompt" not in short and "/vlm/prompt" in full
+    assert short["/image"].rows["EncodedImage"] == 1
+
+
+def test_a_run_dropped_without_finished_event_is_closed(tmp_path):
+    run, results = make_run(tmp_path)
+    rerun_recorder.keymps_stage_done(stage="image", result=results.scene, run=run)
+    assert id(run) in rerun_recorder._sessions
+    path = run.folder / "run.rrd"
+    del run
+    gc.collect()
+    assert rerun_recorder._sessions == {}
+    assert "/image" in read_recording(path)
+
+
+def test_connect_without_url_names_the_option(tmp_path):
+    from keymps.errors import KeympsError
+
+    run, results = make_run(tmp_path, rerun="connect")
+    with pytest.raises(KeympsError, match="--rerun connect needs a viewer URL"):
+        rerun_recorder.keymps_stage_done(stage="image", result=results.scene, run=run)
+    rerun_recorder.keymps_stage_done(stage="finished", result=None, run=run)
+    assert rerun_recorder._sessions == {}
