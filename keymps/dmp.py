@@ -1,0 +1,552 @@
+"""Discrete DMPs in 3D: fit from one demonstration, roll out, re-target exactly.
+
+Formulation (Hoffmann/Pastor 2009, isotropic gains, one linear map S on the forcing term):
+
+    tau z' = K (g - y) - D z - K (g - y0) s + K S f(s),   tau y' = z,   tau s' = -alpha_s s
+    f(s) = sum_i w_i psi_i(s) s / sum_i psi_i(s),         psi_i(s) = exp(-h_i (s - c_i)^2)
+
+with K = alpha_z beta_z and D = alpha_z on every axis. S satisfies S (g_d - y0_d) = g - y0, so
+the system is linear in y - y0 and every re-targeted rollout is exactly
+y(t) = y0 + S (y_fit(t) - y0_d), where y_fit is the rollout for the demonstration's own start
+and goal. The transformation system is discretized exactly (matrix exponential, first-order hold
+on the input) and run as a second-order IIR filter (scipy.signal.lfilter) over all samples.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+
+from keymps.errors import KeympsError
+
+RetargetMode = Literal["similarity", "axial", "translate"]
+RETARGET_MODES: tuple[str, ...] = ("similarity", "axial", "translate")
+
+ALPHA_Z = 25.0
+BETA_Z = ALPHA_Z / 4.0
+ALPHA_S = 4.0
+ZERO_LENGTH_M = 1e-9
+"""Segments and demonstrations shorter than this are treated as zero-length (dots)."""
+_MAX_CACHED_GRIDS = 8
+
+
+class DmpError(KeympsError):
+    """A demonstration, a DMP parameter set or a rollout request is invalid."""
+
+
+@dataclass(frozen=True)
+class Rollout:
+    """A sampled DMP trajectory: positions, velocities and accelerations in metres and seconds."""
+
+    t: np.ndarray
+    """(num,) seconds from the start of the primitive."""
+    y: np.ndarray
+    """(num, 3) positions."""
+    yd: np.ndarray
+    """(num, 3) velocities."""
+    ydd: np.ndarray
+    """(num, 3) accelerations."""
+    transform: np.ndarray = field(default_factory=lambda: np.eye(3))
+    """The 3x3 map S applied to the demonstration (S (g_d - y0_d) = reached goal - start)."""
+
+    @property
+    def length_m(self) -> float:
+        return float(np.linalg.norm(np.diff(self.y, axis=0), axis=1).sum())
+
+
+# --------------------------------------------------------------------------- re-targeting maps
+
+
+def _rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Minimal rotation taking unit vector a to unit vector b (pi about the most vertical axis
+    perpendicular to a when they are opposite)."""
+    cross = np.cross(a, b)
+    cos = float(np.clip(a @ b, -1.0, 1.0))
+    sin = float(np.linalg.norm(cross))
+    if sin < 1e-12:
+        if cos > 0:
+            return np.eye(3)
+        z = np.array([0.0, 0.0, 1.0])
+        axis = z - (z @ a) * a
+        if np.linalg.norm(axis) < 1e-9:
+            axis = np.array([1.0, 0.0, 0.0]) - a[0] * a
+        axis = axis / np.linalg.norm(axis)
+        return 2.0 * np.outer(axis, axis) - np.eye(3)
+    axis = cross / sin
+    skew = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    angle = math.atan2(sin, cos)
+    return np.eye(3) + math.sin(angle) * skew + (1.0 - math.cos(angle)) * (skew @ skew)
+
+
+def _rotation_about_z(angle: float) -> np.ndarray:
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def heading_rotation(demo_dir: np.ndarray, target_dir: np.ndarray) -> np.ndarray:
+    """Rotation taking unit vector demo_dir to target_dir: first about world z (heading), then a
+    tilt in the vertical plane. Horizontal stays horizontal and "down" stays down; it equals the
+    minimal rotation whenever either vector is vertical or both are horizontal."""
+    horizontal = 1e-9
+    if np.hypot(*demo_dir[:2]) < horizontal or np.hypot(*target_dir[:2]) < horizontal:
+        return _rotation_between(demo_dir, target_dir)
+    yaw = math.atan2(target_dir[1], target_dir[0]) - math.atan2(demo_dir[1], demo_dir[0])
+    turn = _rotation_about_z(yaw)
+    return _rotation_between(turn @ demo_dir, target_dir) @ turn
+
+
+def retarget_map(demo_delta: np.ndarray, delta: np.ndarray, mode: str = "similarity") -> np.ndarray:
+    """The 3x3 map S applied to the demonstration so that S demo_delta = delta (when possible).
+
+    similarity: |delta|/|demo_delta| times the heading rotation; axial: the heading rotation
+    after stretching only along demo_delta (a zero-length delta collapses the demo's travel along
+    its own direction and keeps the rest: a dot); translate: identity. Zero-length demos, and
+    zero-length deltas outside axial mode, use the identity (the demo is replayed translated).
+    """
+    demo_delta = np.asarray(demo_delta, dtype=float)
+    delta = np.asarray(delta, dtype=float)
+    if mode not in RETARGET_MODES:
+        raise DmpError(f"unknown re-target mode {mode!r}; use one of {', '.join(RETARGET_MODES)}")
+    demo_len = float(np.linalg.norm(demo_delta))
+    target_len = float(np.linalg.norm(delta))
+    if mode == "translate" or demo_len < ZERO_LENGTH_M:
+        return np.eye(3)
+    demo_dir = demo_delta / demo_len
+    if target_len < ZERO_LENGTH_M:
+        if mode == "axial":
+            return np.eye(3) - np.outer(demo_dir, demo_dir)
+        return np.eye(3)
+    rotation = heading_rotation(demo_dir, delta / target_len)
+    ratio = target_len / demo_len
+    if mode == "similarity":
+        return ratio * rotation
+    stretch = np.eye(3) + (ratio - 1.0) * np.outer(demo_dir, demo_dir)
+    return rotation @ stretch
+
+
+# --------------------------------------------------------------------------- exact discretization
+
+
+@dataclass(frozen=True)
+class _Filters:
+    """IIR coefficients of the transformation system for one normalized step, zero initial state."""
+
+    a: np.ndarray
+    b_pos: np.ndarray
+    b_vel: np.ndarray
+    first_pos: np.ndarray
+    """Impulse correction: output response to u[0] that the zero-history filter adds."""
+    first_vel: np.ndarray
+
+
+def _filters(step: float, stiffness: float, damping: float) -> _Filters:
+    """First-order-hold discretization of p' = z, z' = u - K p - D z (normalized time)."""
+    from scipy.linalg import expm
+
+    block = np.zeros((4, 4))
+    block[0, 1] = 1.0
+    block[1, 0] = -stiffness
+    block[1, 1] = -damping
+    block[1, 2] = 1.0
+    block[2, 3] = 1.0 / step
+    big = expm(block * step)
+    phi = big[:2, :2]
+    gamma1, gamma2 = big[:2, 2], big[:2, 3]
+    g_prev, g_now = gamma1 - gamma2, gamma2
+    a = np.array([1.0, -np.trace(phi), np.linalg.det(phi)])
+
+    def numerator(row: int) -> tuple[np.ndarray, np.ndarray]:
+        # C (I - Phi q^-1)^-1 G = (C G + c q^-1) / (1 - tr q^-1 + det q^-2) for a 2x2 Phi.
+        def tail(g: np.ndarray) -> float:
+            if row == 0:
+                return float(phi[0, 1] * g[1] - phi[1, 1] * g[0])
+            return float(phi[1, 0] * g[0] - phi[0, 0] * g[1])
+
+        b = np.array([g_now[row], tail(g_now) + g_prev[row], tail(g_prev)])
+        first = np.array([g_now[row], tail(g_now)])
+        return b, first
+
+    b_pos, first_pos = numerator(0)
+    b_vel, first_vel = numerator(1)
+    return _Filters(a, b_pos, b_vel, first_pos, first_vel)
+
+
+def _respond(filters: _Filters, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Normalized-time position and velocity of the system driven by u (rows = samples)."""
+    from scipy.signal import lfilter
+
+    columns = np.ascontiguousarray(np.atleast_2d(u.T))  # lfilter is fastest along the last axis
+    pos = lfilter(filters.b_pos, filters.a, columns, axis=-1)
+    vel = lfilter(filters.b_vel, filters.a, columns, axis=-1)
+    impulse = np.zeros(columns.shape[-1])
+    impulse[0] = 1.0
+    pos -= np.outer(columns[:, 0], lfilter(filters.first_pos, filters.a, impulse))
+    vel -= np.outer(columns[:, 0], lfilter(filters.first_vel, filters.a, impulse))
+    return pos.T.reshape(u.shape), vel.T.reshape(u.shape)
+
+
+def _respond_position(filters: _Filters, u: np.ndarray) -> np.ndarray:
+    """Position only (rows = samples, columns = independent inputs)."""
+    from scipy.signal import lfilter
+
+    columns = np.ascontiguousarray(u.T)
+    pos = lfilter(filters.b_pos, filters.a, columns, axis=-1)
+    impulse = np.zeros(columns.shape[-1])
+    impulse[0] = 1.0
+    pos -= np.outer(columns[:, 0], lfilter(filters.first_pos, filters.a, impulse))
+    return pos.T
+
+
+def _final_velocity(filters: _Filters, u: np.ndarray) -> np.ndarray:
+    """Velocity at the last sample only: one dot product with the reversed impulse response."""
+    from scipy.signal import lfilter
+
+    impulse = np.zeros(u.shape[0])
+    impulse[0] = 1.0
+    response = lfilter(filters.b_vel, filters.a, impulse)
+    correction = lfilter(filters.first_vel, filters.a, impulse)[-1]
+    return response[::-1] @ u - correction * u[0]
+
+
+# --------------------------------------------------------------------------- the DMP
+
+
+def basis_centers_widths(n_basis: int, alpha_s: float = ALPHA_S) -> tuple[np.ndarray, np.ndarray]:
+    """Phase centres of Gaussians spread evenly in time, with widths equal in time."""
+    times = np.linspace(0.0, 1.0, n_basis)
+    centers = np.exp(-alpha_s * times)
+    spacing = 1.0 / max(n_basis - 1, 1)
+    widths = 1.0 / (2.0 * (spacing * alpha_s * centers) ** 2)
+    return centers, widths
+
+
+def _validate_demo(t: np.ndarray, y: np.ndarray, where: str) -> None:
+    if t.ndim != 1 or y.ndim != 2 or y.shape[1] != 3 or y.shape[0] != t.shape[0]:
+        raise DmpError(
+            f"{where}: expected t of shape (T,) and y of shape (T, 3), got {t.shape} and {y.shape}"
+        )
+    if t.shape[0] < 10:
+        raise DmpError(f"{where}: needs at least 10 samples, got {t.shape[0]}")
+    if not (np.isfinite(t).all() and np.isfinite(y).all()):
+        raise DmpError(f"{where}: contains NaN or infinite values")
+    steps = np.diff(t)
+    if (steps <= 0).any():
+        index = int(np.argmax(steps <= 0)) + 1
+        raise DmpError(f"{where}: time must increase strictly (sample {index}: t = {t[index]})")
+
+
+@dataclass(frozen=True, eq=False)
+class DMP:
+    """A 3D discrete DMP fitted to one demonstration (its start, goal and duration kept)."""
+
+    weights: np.ndarray
+    """(n_basis, 3) forcing-term weights, metres."""
+    demo_start: np.ndarray
+    demo_goal: np.ndarray
+    demo_duration: float
+    """Seconds; the default tau."""
+    alpha_z: float = ALPHA_Z
+    beta_z: float = BETA_Z
+    alpha_s: float = ALPHA_S
+    _cache: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = field(
+        default_factory=dict, repr=False, compare=False
+    )
+
+    @property
+    def n_basis(self) -> int:
+        return int(self.weights.shape[0])
+
+    @property
+    def demo_delta(self) -> np.ndarray:
+        return self.demo_goal - self.demo_start
+
+    # ---------------------------------------------------------------- fitting
+
+    @classmethod
+    def fit(
+        cls,
+        t: Sequence[float] | np.ndarray,
+        y: Sequence[Sequence[float]] | np.ndarray,
+        n_basis: int = 50,
+        *,
+        regularization: float = 1e-9,
+    ) -> DMP:
+        """Fit by one regularized least-squares solve on positions (time stamps need not be
+        uniform): the rollout is linear in the weights, so each basis function's response is a
+        column and the demo's own start, goal and duration fix the rest. The end is pinned to
+        the demonstrated goal at rest."""
+        t_arr = np.asarray(t, dtype=float)
+        y_arr = np.asarray(y, dtype=float)
+        _validate_demo(t_arr, y_arr, "demonstration")
+        if not 2 <= int(n_basis) <= 1000:
+            raise DmpError(f"n_basis must be between 2 and 1000, got {n_basis}")
+        n_basis = int(n_basis)
+        duration = float(t_arr[-1] - t_arr[0])
+        phase_time = (t_arr - t_arr[0]) / duration
+        start, goal = y_arr[0].copy(), y_arr[-1].copy()
+        basis = _fit_basis(phase_time, n_basis, regularization)
+        delta = goal - start
+        target = (y_arr - start) - np.outer(basis.goal_position, delta)
+        rhs = np.vstack(
+            [
+                target * basis.sample_weight[:, None],
+                _PIN * target[-1:],
+                -_PIN * basis.goal_end_velocity * delta[None, :],
+            ]
+        )
+        weights = np.ascontiguousarray(basis.solve(basis.rows.T @ rhs))
+        return cls(weights=weights, demo_start=start, demo_goal=goal, demo_duration=duration)
+
+    # ---------------------------------------------------------------- rollout
+
+    def forcing(self, s: np.ndarray) -> np.ndarray:
+        """f(s) for phases s: (N,) -> (N, 3), before the re-targeting map."""
+        return (
+            _phase_features(np.asarray(s, dtype=float), self.n_basis, self.alpha_s) @ self.weights
+        )
+
+    def _canonical(self, num: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Normalized-time rollout for the demo's start and goal, relative to the start: (p, dp,
+        ddp) with derivatives per unit of normalized time. Cached per number of samples."""
+        cached = self._cache.get(num)
+        if cached is not None:
+            return cached
+        stiffness, damping = self.alpha_z * self.beta_z, self.alpha_z
+        grid = np.linspace(0.0, 1.0, num)
+        s = np.exp(-self.alpha_s * grid)
+        u = stiffness * (np.outer(1.0 - s, self.demo_delta) + self.forcing(s))
+        pos, vel = _respond(_filters(grid[1], stiffness, damping), u)
+        acc = u - stiffness * pos - damping * vel
+        for array in (pos, vel, acc):
+            array.flags.writeable = False
+        if len(self._cache) >= _MAX_CACHED_GRIDS:
+            self._cache.pop(next(iter(self._cache)))
+        self._cache[num] = (pos, vel, acc)
+        return pos, vel, acc
+
+    def rollout(
+        self,
+        start: Sequence[float] | np.ndarray,
+        goal: Sequence[float] | np.ndarray,
+        tau: float | None = None,
+        num: int = 1000,
+        mode: str = "similarity",
+    ) -> Rollout:
+        """Positions, velocities and accelerations from start towards goal over tau seconds
+        (default: the demonstration's duration), num samples including both ends."""
+        start_arr = _point(start, "start")
+        goal_arr = _point(goal, "goal")
+        tau = self.demo_duration if tau is None else float(tau)
+        if not (math.isfinite(tau) and tau > 0):
+            raise DmpError(f"tau must be a positive number of seconds, got {tau}")
+        if int(num) < 2:
+            raise DmpError(f"num must be at least 2, got {num}")
+        transform = retarget_map(self.demo_delta, goal_arr - start_arr, mode)
+        pos, vel, acc = self._canonical(int(num))
+        return Rollout(
+            t=np.linspace(0.0, tau, int(num)),
+            y=start_arr + pos @ transform.T,
+            yd=vel @ (transform.T / tau),
+            ydd=acc @ (transform.T / tau**2),
+            transform=transform,
+        )
+
+    def integrate(
+        self,
+        start: Sequence[float] | np.ndarray,
+        goal: Sequence[float] | np.ndarray,
+        transform: np.ndarray,
+        tau: float | None = None,
+        num: int = 1000,
+    ) -> Rollout:
+        """Integrate the transformation system itself for this start, goal and map S (no
+        re-use of the canonical rollout): the reference that `rollout` must agree with."""
+        start_arr = _point(start, "start")
+        goal_arr = _point(goal, "goal")
+        tau = self.demo_duration if tau is None else float(tau)
+        stiffness, damping = self.alpha_z * self.beta_z, self.alpha_z
+        grid = np.linspace(0.0, 1.0, int(num))
+        s = np.exp(-self.alpha_s * grid)
+        delta = goal_arr - start_arr
+        u = stiffness * (np.outer(1.0 - s, delta) + self.forcing(s) @ np.asarray(transform).T)
+        pos, vel = _respond(_filters(grid[1], stiffness, damping), u)
+        acc = u - stiffness * pos - damping * vel
+        return Rollout(
+            t=grid * tau,
+            y=start_arr + pos,
+            yd=vel / tau,
+            ydd=acc / tau**2,
+            transform=np.asarray(transform, dtype=float),
+        )
+
+    def path_length(self, start: np.ndarray, goal: np.ndarray, mode: str = "similarity") -> float:
+        """Length in metres of the re-targeted path (from the cached canonical rollout)."""
+        transform = retarget_map(self.demo_delta, np.asarray(goal) - np.asarray(start), mode)
+        pos = self._canonical(1000)[0] @ transform.T
+        return float(np.linalg.norm(np.diff(pos, axis=0), axis=1).sum())
+
+    def tau_for_speed(
+        self, start: np.ndarray, goal: np.ndarray, speed: float, mode: str = "similarity"
+    ) -> float:
+        """Duration that makes the re-targeted path run at `speed` m/s on average (temporal
+        scaling); paths shorter than 0.1 mm keep the demonstration's duration."""
+        if not (math.isfinite(speed) and speed > 0):
+            raise DmpError(f"speed must be a positive number of m/s, got {speed}")
+        length = self.path_length(start, goal, mode)
+        return self.demo_duration if length < 1e-4 else length / speed
+
+    # ---------------------------------------------------------------- (de)serialization
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain Python values (floats as written by repr round-trip exactly)."""
+        return {
+            "n_basis": self.n_basis,
+            "alpha_z": self.alpha_z,
+            "beta_z": self.beta_z,
+            "alpha_s": self.alpha_s,
+            "demo_duration": self.demo_duration,
+            "demo_start": [float(v) for v in self.demo_start],
+            "demo_goal": [float(v) for v in self.demo_goal],
+            "weights": [[float(v) for v in row] for row in self.weights],
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any], where: str = "DMP") -> DMP:
+        """Inverse of to_dict; every problem raises DmpError naming `where` and the field."""
+        if not isinstance(data, dict):
+            raise DmpError(f"{where}: dmp must be a mapping")
+        for key in ("n_basis", "demo_duration", "demo_start", "demo_goal", "weights"):
+            if key not in data:
+                raise DmpError(f"{where}: dmp.{key} is missing")
+        try:
+            weights = np.asarray(data["weights"], dtype=float)
+            start = np.asarray(data["demo_start"], dtype=float)
+            goal = np.asarray(data["demo_goal"], dtype=float)
+            n_basis = int(data["n_basis"])
+            duration = float(data["demo_duration"])
+            gains = {k: float(data.get(k, d)) for k, d in _GAIN_DEFAULTS.items()}
+        except (TypeError, ValueError) as error:
+            raise DmpError(f"{where}: dmp has a non-numeric value ({error})") from None
+        if weights.ndim != 2 or weights.shape[1] != 3:
+            raise DmpError(f"{where}: dmp.weights must be a list of [wx, wy, wz] rows")
+        if weights.shape[0] != n_basis:
+            raise DmpError(
+                f"{where}: dmp.weights has {weights.shape[0]} rows but dmp.n_basis is {n_basis}"
+            )
+        if start.shape != (3,) or goal.shape != (3,):
+            raise DmpError(f"{where}: dmp.demo_start and dmp.demo_goal must be [x, y, z]")
+        values = np.concatenate([weights.ravel(), start, goal, [duration, *gains.values()]])
+        if not np.isfinite(values).all():
+            raise DmpError(f"{where}: dmp contains NaN or infinite values")
+        if duration <= 0:
+            raise DmpError(f"{where}: dmp.demo_duration must be positive, got {duration}")
+        return cls(
+            weights=weights,
+            demo_start=start,
+            demo_goal=goal,
+            demo_duration=duration,
+            alpha_z=gains["alpha_z"],
+            beta_z=gains["beta_z"],
+            alpha_s=gains["alpha_s"],
+        )
+
+
+_GAIN_DEFAULTS = {"alpha_z": ALPHA_Z, "beta_z": BETA_Z, "alpha_s": ALPHA_S}
+
+
+def _phase_features(s: np.ndarray, n_basis: int, alpha_s: float) -> np.ndarray:
+    """psi_i(s) s / sum psi(s) for phases s: (N, n_basis)."""
+    centers, widths = basis_centers_widths(n_basis, alpha_s)
+    psi = np.subtract.outer(s, centers)
+    np.square(psi, out=psi)
+    psi *= -widths
+    np.exp(psi, out=psi)
+    psi *= (s / psi.sum(axis=1))[:, None]
+    return psi
+
+
+_PIN = 1e3
+"""Weight of the rows that pin the fitted end to the demonstrated goal, at rest."""
+
+
+@dataclass(frozen=True)
+class _FitBasis:
+    """Everything of a fit that depends only on the sample times (cached for uniform grids)."""
+
+    rows: np.ndarray
+    """(T + 2, n_basis): weighted position responses, then the pinned end position and velocity."""
+    goal_position: np.ndarray
+    """(T,) response to a unit goal offset (the goal and Hoffmann terms)."""
+    goal_end_velocity: float
+    sample_weight: np.ndarray
+    factor: tuple[np.ndarray, bool]
+    """Cholesky factor of the regularized normal equations."""
+
+    def solve(self, right: np.ndarray) -> np.ndarray:
+        from scipy.linalg import cho_solve
+
+        return np.asarray(cho_solve(self.factor, right))
+
+
+_FIT_BASES: dict[tuple[int, int, float], _FitBasis] = {}
+
+
+def _fit_basis(phase_time: np.ndarray, n_basis: int, regularization: float) -> _FitBasis:
+    """The least-squares basis for samples at normalized times phase_time (0 ... 1)."""
+    steps = np.diff(phase_time)
+    uniform = bool(np.abs(steps - steps[0]).max() <= 1e-6 * steps[0])
+    key = (len(phase_time), n_basis, regularization)
+    if uniform and key in _FIT_BASES:
+        return _FIT_BASES[key]
+    from scipy.linalg import cho_factor
+
+    stiffness, damping = ALPHA_Z * BETA_Z, ALPHA_Z
+    num = len(phase_time) if uniform else max(len(phase_time), 1000)
+    grid = np.linspace(0.0, 1.0, num)
+    inputs = np.empty((num, n_basis + 1))
+    s = np.exp(-ALPHA_S * grid)
+    inputs[:, :n_basis] = stiffness * _phase_features(s, n_basis, ALPHA_S)
+    inputs[:, n_basis] = stiffness * (1.0 - s)
+    filters = _filters(grid[1], stiffness, damping)
+    pos = _respond_position(filters, inputs)
+    vel_end = _final_velocity(filters, inputs)
+    if not uniform:
+        pos = _interp_rows(grid, pos, phase_time)
+    # Rows weighted by the time each sample stands for, so dense stretches do not dominate.
+    sample_weight = np.sqrt(np.gradient(phase_time) * len(phase_time))
+    design = pos[:, :n_basis]
+    rows = np.vstack(
+        [design * sample_weight[:, None], _PIN * design[-1:], _PIN * vel_end[None, :n_basis]]
+    )
+    gram = rows.T @ rows
+    gram[np.diag_indices(n_basis)] += regularization * float(np.trace(gram)) / n_basis
+    basis = _FitBasis(
+        rows=rows,
+        goal_position=pos[:, n_basis],
+        goal_end_velocity=float(vel_end[n_basis]),
+        sample_weight=sample_weight,
+        factor=cho_factor(gram),
+    )
+    if uniform:
+        if len(_FIT_BASES) >= _MAX_CACHED_GRIDS:
+            _FIT_BASES.pop(next(iter(_FIT_BASES)))
+        _FIT_BASES[key] = basis
+    return basis
+
+
+def _interp_rows(grid: np.ndarray, values: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """Linear interpolation of every column of values (sampled on grid) at the times `at`."""
+    index = np.clip(np.searchsorted(grid, at, side="right") - 1, 0, len(grid) - 2)
+    frac = ((at - grid[index]) / (grid[index + 1] - grid[index]))[:, None]
+    return values[index] * (1.0 - frac) + values[index + 1] * frac
+
+
+def _point(value: Sequence[float] | np.ndarray, name: str) -> np.ndarray:
+    arr = np.asarray(value, dtype=float)
+    if arr.shape != (3,) or not np.isfinite(arr).all():
+        raise DmpError(f"{name} must be a finite [x, y, z] point, got {value!r}")
+    return arr
