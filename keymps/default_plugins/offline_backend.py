@@ -1,0 +1,129 @@
+"""The `offline` planner backend: exact designs from the sentence and the crop, no network.
+
+It reads the instruction with keymps.instruction, measures the object in the crop with
+keymps.crop_shape, lays out the design with keymps.patterns (in millimetres, then crop pixels)
+and picks the primitive from the primitives' descriptions. It answers the same JSON as a VLM.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import time
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from keymps.errors import KeympsError
+from keymps.hookspecs import hookimpl
+
+HARD_OBJECTS = re.compile(
+    r"\b(hard|crusty|crust|bread|baguette|loaf|sourdough|pumpkin|squash|potato(?:es)?|carrots?|"
+    r"frozen|cabbage|melon|pineapple|chocolate|cheese|nuts?|coconut|brick)\b",
+    re.IGNORECASE,
+)
+"""Objects that call for a sawing primitive (the paper: hard or crusty objects)."""
+HARD_PRIMITIVE = re.compile(r"saw|hard|crust|tough|forward.and.backward|back and forth", re.I)
+SOFT_PRIMITIVE = re.compile(r"soft|straight|downward|press|push", re.I)
+ICING_PRIMITIVE = re.compile(r"icing|pip(e|ing)|frost|dot|rosette|line|decorat|cream", re.I)
+
+
+def choose_primitive(family: str, primitives: Mapping[str, str], context: str) -> tuple[str, str]:
+    """(name, why) of the primitive for this design, from names and descriptions."""
+    names = list(primitives)
+    if len(names) == 1:
+        return names[0], "the only primitive"
+
+    def matching(pattern: re.Pattern[str]) -> list[str]:
+        return [n for n in names if pattern.search(f"{n} {primitives[n]}")]
+
+    if family == "icing":
+        found = matching(ICING_PRIMITIVE)
+        if found:
+            return found[0], "its description fits icing"
+        return names[0], "the first primitive (none mentions icing)"
+    hard = HARD_OBJECTS.search(context)
+    if hard:
+        found = matching(HARD_PRIMITIVE)
+        if found:
+            return found[0], f"{hard.group(0)!r} is hard or crusty"
+    cutting = [n for n in names if not ICING_PRIMITIVE.fullmatch(n)]
+    found = [n for n in matching(SOFT_PRIMITIVE) if not HARD_PRIMITIVE.search(primitives[n])]
+    if found:
+        return found[0], "a soft object: a straight cut"
+    return (cutting or names)[0], "the first cutting primitive"
+
+
+def clip_to_image(pairs_px: np.ndarray, width: int, height: int) -> np.ndarray:
+    """Shorten each segment along its own direction so both ends stay inside the image."""
+    clipped = []
+    limit = np.array([width - 1.0, height - 1.0])
+    for start, end in pairs_px:
+        a, b = start.copy(), end.copy()
+        for point, other in ((a, b), (b, a)):
+            direction = other - point
+            if np.all(point >= 0) and np.all(point <= limit):
+                continue
+            t_needed = 0.0
+            for axis in range(2):
+                if point[axis] < 0 and direction[axis] > 0:
+                    t_needed = max(t_needed, -point[axis] / direction[axis])
+                elif point[axis] > limit[axis] and direction[axis] < 0:
+                    t_needed = max(t_needed, (limit[axis] - point[axis]) / direction[axis])
+            point += min(t_needed, 1.0) * direction
+        clipped.append([np.clip(a, 0, limit), np.clip(b, 0, limit)])
+    return np.array(clipped, dtype=float).reshape(-1, 2, 2)
+
+
+class OfflineBackend:
+    """Deterministic planner: the same sentence and crop always give the same design."""
+
+    name = "offline"
+    cacheable = False
+
+    def complete(self, request: Any) -> Any:
+        from keymps.crop_shape import measure
+        from keymps.instruction import read_instruction
+        from keymps.offline_design import design
+        from keymps.planning import BackendAnswer
+
+        started = time.perf_counter()
+        intent = read_instruction(request.instruction)
+        mm_per_px = tuple(1000.0 * m for m in request.metres_per_px)
+        shape = measure(request.crop, request.crop_mask, (mm_per_px[0], mm_per_px[1]))
+        context = f"{request.instruction} {request.task_name.replace('-', ' ').replace('_', ' ')}"
+        keyword, why = choose_primitive(intent.family, request.primitives, context)
+        answer: dict[str, Any] = {}
+        if request.step in ("combined", "keyword"):
+            answer["keyword"] = keyword
+        rationale = f"primitive {keyword}: {why}"
+        if request.step in ("combined", "pairs"):
+            pairs_mm, layout = design(intent, shape, request.max_pairs)
+            width, height = request.crop_size_px
+            pairs_px = clip_to_image(shape.to_pixels(pairs_mm), width, height)
+            if len(pairs_px) > request.max_pairs:
+                raise KeympsError(
+                    f"the offline design needs {len(pairs_px)} keypoint pairs, more than "
+                    f"planner.max_pairs = {request.max_pairs}"
+                )
+            if len(pairs_px) == 0:
+                raise KeympsError(f"the offline planner found no place for {intent.describe()}")
+            answer["pairs"] = np.round(pairs_px, 3).tolist()
+            rationale = f"{layout}; {rationale}"
+        answer["rationale"] = f"offline planner ({intent.describe()}): {rationale}"
+        return BackendAnswer(
+            text=json.dumps(answer),
+            latency_s=time.perf_counter() - started,
+            cost_usd=0.0,
+            model=None,
+        )
+
+
+def _factory(options: dict[str, Any]) -> OfflineBackend:
+    return OfflineBackend()
+
+
+@hookimpl
+def register_vlm_backends(register: Any) -> None:
+    register("offline", _factory)
