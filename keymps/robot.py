@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from keymps.errors import KeympsError
-from keymps.stages import JointPath, ToolPath
+from keymps.stages import JointPath, Piece, ToolPath
 
 if TYPE_CHECKING:
     from keymps.task import Task
@@ -449,10 +449,27 @@ def _wrap(angle: float) -> float:
     return (angle + math.pi) % (2 * math.pi) - math.pi
 
 
+def _check_piece(index: int, piece: Piece) -> None:
+    points, yaw = np.asarray(piece.points), np.asarray(piece.yaw)
+    problem = None
+    if points.ndim != 2 or points.shape[1] != 3 or len(points) == 0:
+        problem = f"points must be an (n, 3) array, got shape {points.shape}"
+    elif yaw.shape != (len(points),):
+        problem = f"yaw must have one value per point ({len(points)}), got shape {yaw.shape}"
+    elif not (np.isfinite(points).all() and np.isfinite(yaw).all()):
+        problem = "points or yaw contain NaN or infinity"
+    elif not (math.isfinite(piece.speed) and piece.speed > 0):
+        problem = f"speed must be positive, got {piece.speed}"
+    if problem:
+        raise KeympsError(f"robot: tool path piece {index} ({piece.kind}): {problem}")
+
+
 def solve_path(model: RobotModel, tool_path: ToolPath) -> JointPath:
     """IK of every point of every piece, one arm configuration for the whole path."""
     if not tool_path.pieces:
         raise KeympsError("robot: the tool path has no pieces")
+    for index, piece in enumerate(tool_path.pieces):
+        _check_piece(index, piece)
     model.check_reachable(tool_path)
     first = tool_path.pieces[0]
     seed = model.tool_down_seed(first.points[0], float(first.yaw[0]))

@@ -19,6 +19,7 @@ from keymps.robot import (
     tool_from_task,
     tool_rotation,
 )
+from keymps.stages import Piece, ToolPath
 from keymps.task import Task
 
 
@@ -172,3 +173,10 @@ def test_home_is_above_the_middle_of_the_board_and_reachable() -> None:
     assert home[:2] == pytest.approx([0.15, 0.09])
     assert home[2] > 0.06 + 0.03
     assert model.reach_shortfall(home[None])[0] < 0
+
+
+def test_a_malformed_piece_is_a_clear_error() -> None:
+    model = RobotModel.from_task(make_task())
+    bad = Piece("work", 0, np.zeros((4, 3)) + [0.15, 0.09, 0.07], np.zeros(3), 0.03)
+    with pytest.raises(KeympsError, match=r"piece 0 \(work\): yaw must have one value per point"):
+        solve_path(model, ToolPath((bad,), "line"))

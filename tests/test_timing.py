@@ -1,0 +1,131 @@
+"""Ruckig timing: limits on a 1 kHz resampling, rests at corners and pieces, tool speeds."""
+
+from __future__ import annotations
+
+from functools import cache
+from typing import Any
+
+import numpy as np
+import pytest
+from robot_toolpaths import HOME, assemble, polyline, radial_cuts, ring_of_dots
+
+from keymps.robot import RobotModel, solve_path
+from keymps.stages import Piece, ToolPath, Trajectory
+from keymps.task import Task
+from keymps.timing import time_trajectory
+
+
+def make_task(**robot: Any) -> Task:
+    return Task.model_validate(
+        {
+            "name": "t",
+            "instruction": "cut it",
+            "scene": {"image": "x.png", "object_height": 0.06},
+            "primitives": ["straight"],
+            "robot": robot,
+        }
+    )
+
+
+def plan(path: ToolPath, **robot: Any) -> tuple[RobotModel, Trajectory]:
+    task = make_task(**robot)
+    model = RobotModel.from_task(task)
+    return model, time_trajectory(model, path, solve_path(model, path), task)
+
+
+@cache
+def cuts_at_1khz() -> tuple[RobotModel, Trajectory, ToolPath]:
+    path = radial_cuts(count=3)
+    model, trajectory = plan(path, tool="knife", rate_hz=1000)
+    return model, trajectory, path
+
+
+def distance_to_polyline(points: np.ndarray, polyline: np.ndarray) -> np.ndarray:
+    a, b = polyline[:-1], polyline[1:]
+    ab = b - a
+    length2 = np.maximum((ab**2).sum(axis=1), 1e-18)
+    t = np.clip(((points[:, None, :] - a[None]) * ab[None]).sum(axis=2) / length2, 0, 1)
+    nearest = a[None] + t[..., None] * ab[None]
+    return np.linalg.norm(points[:, None, :] - nearest, axis=2).min(axis=1)
+
+
+def test_every_joint_limit_holds_on_a_1khz_sampling() -> None:
+    model, trajectory, _ = cuts_at_1khz()
+    period = 1.0 / 1000
+    assert trajectory.rate_hz == 1000
+    assert np.allclose(np.diff(trajectory.t), period)
+    # measured from the positions alone, as a controller would see them
+    velocity = np.diff(trajectory.q, axis=0) / period
+    acceleration = np.diff(velocity, axis=0) / period
+    jerk = np.diff(acceleration, axis=0) / period
+    assert np.all(np.abs(velocity) <= model.velocity_limits * 1.001)
+    assert np.all(np.abs(acceleration) <= model.acceleration_limits * 1.01)
+    assert np.all(np.abs(jerk) <= model.jerk_limits * 1.02)
+    # the reported derivatives agree with the positions
+    assert np.abs(velocity - (trajectory.qd[1:] + trajectory.qd[:-1]) / 2).max() < 1e-3
+    assert np.all(np.abs(trajectory.qd) <= model.velocity_limits)
+    assert np.all(np.abs(trajectory.qdd) <= model.acceleration_limits * 1.001)
+    assert np.all(trajectory.q >= model.lower) and np.all(trajectory.q <= model.upper)
+
+
+def test_joints_follow_the_planned_tool_path_within_a_tenth_of_a_millimetre() -> None:
+    model, trajectory, path = cuts_at_1khz()
+    reached = model.tool_positions(trajectory.q[::5])
+    assert np.linalg.norm(reached - trajectory.tool_xyz[::5], axis=1).max() < 1e-4
+    for index, piece in enumerate(path.pieces):
+        mine = trajectory.piece_index[::5] == index
+        assert distance_to_polyline(reached[mine], piece.points).max() < 1e-4
+
+
+def test_fields_rests_and_order_of_pieces() -> None:
+    path = ring_of_dots(count=4)
+    model, trajectory = plan(path, tool="piping_bag")
+    n = trajectory.samples
+    assert trajectory.rate_hz == 125
+    assert trajectory.q.shape == trajectory.qd.shape == trajectory.qdd.shape == (n, 6)
+    assert trajectory.tool_xyz.shape == (n, 3)
+    assert trajectory.joint_names == model.joint_names
+    assert np.allclose(trajectory.tool_xyz[0], HOME) and np.allclose(trajectory.tool_xyz[-1], HOME)
+    assert np.all(np.diff(trajectory.piece_index) >= 0)
+    assert set(trajectory.piece_index) == set(range(len(path.pieces)))
+    kinds = np.array([path.pieces[i].kind for i in trajectory.piece_index])
+    assert np.array_equal(trajectory.kind, kinds)
+    # at rest where one piece hands over to the next, at the start and at the end
+    changes = np.flatnonzero(np.diff(trajectory.piece_index)) + 1
+    for i in [0, n - 1, *changes]:
+        assert np.abs(trajectory.qd[i]).max() < 1e-9
+        assert np.abs(trajectory.qdd[i]).max() < 1e-6
+
+
+def test_work_runs_at_the_requested_tool_speed_and_stops_at_sharp_corners() -> None:
+    start = np.array([0.08, 0.05, 0.065])
+    corner = start + [0.12, 0.0, 0.0]
+    end = corner + [0.0, 0.08, 0.0]
+    points = polyline([start, corner, end], 0.001)
+    path = assemble([(points, np.zeros(len(points)))], 0.095, "line", 0.04)
+    _, trajectory = plan(path, tool="piping_bag")
+    work = trajectory.kind == "work"
+    speed = np.linalg.norm(np.diff(trajectory.tool_xyz, axis=0), axis=1) * trajectory.rate_hz
+    work_speed = speed[work[1:] & work[:-1]]
+    assert work_speed.max() == pytest.approx(0.04, rel=0.02)
+    at_corner = np.linalg.norm(trajectory.tool_xyz - corner, axis=1) < 1e-9
+    assert at_corner.any()
+    assert np.abs(trajectory.qd[at_corner]).max() < 1e-9
+    # travel may be faster than work, never faster than asked
+    assert speed.max() <= 0.15 * 1.01
+
+
+def test_a_lower_joint_acceleration_limit_slows_the_trajectory_down() -> None:
+    path = radial_cuts(count=2)
+    model_fast, fast = plan(path, tool="knife")
+    model_slow, slow = plan(path, tool="knife", max_joint_acceleration=0.4)
+    assert np.abs(fast.qdd).max() > 0.4
+    assert np.abs(slow.qdd).max() <= 0.4 * 1.001
+    assert slow.duration_s > fast.duration_s * 1.05
+
+
+def test_e_series_defaults_to_500_hz_and_a_task_rate_wins() -> None:
+    points = polyline([HOME, HOME + [0.05, 0, 0]], 0.005)
+    path = ToolPath((Piece("travel", 0, points, np.zeros(len(points)), 0.1),), "line")
+    assert plan(path, model="ur3e")[1].rate_hz == 500
+    assert plan(path, model="ur3", rate_hz=250)[1].rate_hz == 250
