@@ -136,10 +136,50 @@ def log_world_setup(rec: Any) -> None:
     rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
 
 
+TEXTURE_MAX_PX = 512
+"""The scene image is laid on the 3D board as a texture at most this many pixels wide."""
+
+
 def log_image(rec: Any, scene: SceneImage, run: Run) -> None:
     import rerun as rr
 
     rec.log("image", _encoded_image(rr, scene.image))
+    _log_board(rec, run)
+    _log_board_texture(rec, scene, run)
+
+
+def _log_board_texture(rec: Any, scene: SceneImage, run: Run) -> None:
+    """The scene image on the board (each image corner at its board position, Appendix B)."""
+    import cv2
+    import rerun as rr
+
+    frame = _image_frame(run)
+    if frame is None:
+        return
+    width, height = scene.size_px
+    pixels = np.array([[0, 0], [width, 0], [width, height], [0, height]], dtype=float)
+    corners = np.asarray(frame.to_board(pixels), dtype=float)
+    scale = min(1.0, TEXTURE_MAX_PX / max(width, height))
+    image = scene.image
+    if scale < 1.0:
+        size = (max(1, round(width * scale)), max(1, round(height * scale)))
+        image = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
+    conversion = cv2.COLOR_BGR2RGB if image.ndim == 3 else cv2.COLOR_GRAY2RGB
+    rgb = np.ascontiguousarray(cv2.cvtColor(image, conversion), dtype=np.uint8)
+    rec.log(
+        "world/board/image",
+        rr.Mesh3D(
+            vertex_positions=np.column_stack([corners, np.full(4, 0.0005)]),
+            triangle_indices=[[0, 1, 2], [0, 2, 3]],
+            vertex_texcoords=pixels / [width, height],
+            albedo_texture=rgb,
+        ),
+    )
+
+
+def _log_board(rec: Any, run: Run) -> None:
+    import rerun as rr
+
     low, high = board_rectangle(run)
     thickness = 0.01
     center = [(low[0] + high[0]) / 2, (low[1] + high[1]) / 2, -thickness / 2]
@@ -151,7 +191,6 @@ def log_image(rec: Any, scene: SceneImage, run: Run) -> None:
             half_sizes=[half],
             colors=[[205, 170, 125, 255]],
             fill_mode=rr.components.FillMode.Solid,
-            labels=["board"],
         ),
     )
 

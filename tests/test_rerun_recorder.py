@@ -301,6 +301,7 @@ def test_documented_entities_have_their_archetypes(recorded):
     expected = {
         "/world": "ViewCoordinates",
         "/world/board": "Boxes3D",
+        "/world/board/image": "Mesh3D",
         "/world/object": "Boxes3D",
         "/world/object/outline": "LineStrips3D",
         "/image": "EncodedImage",

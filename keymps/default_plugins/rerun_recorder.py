@@ -41,13 +41,36 @@ def stage_index(stage: str) -> int:
     return STAGE_ORDER.index(stage) if stage in STAGE_ORDER else len(STAGE_ORDER)
 
 
-def blueprint() -> Any:
+def eye_position(run: Run) -> tuple[list[float], list[float]]:
+    """(eye, target): above the board, on the side away from the robot, a little to the left."""
+    import numpy as np
+
+    from keymps.rerun_entities import board_rectangle
+
+    low, high = board_rectangle(run)
+    center = (low + high) / 2.0
+    away = center - np.array(run.task.robot.base[:2], dtype=float)
+    norm = float(np.linalg.norm(away))
+    away = away / norm if norm > 1e-6 else np.array([0.0, 1.0])
+    side = np.array([-away[1], away[0]])
+    eye = center + 0.5 * away + 0.2 * side
+    return [float(eye[0]), float(eye[1]), 0.45], [float(center[0]), float(center[1]), 0.05]
+
+
+def blueprint(run: Run) -> Any:
     """3D scene left; image with overlays and the VLM exchange middle; joint curves right."""
     import rerun.blueprint as rrb
 
+    eye, target = eye_position(run)
     return rrb.Blueprint(
         rrb.Horizontal(
-            rrb.Spatial3DView(name="3D scene", origin="world"),
+            rrb.Spatial3DView(
+                name="3D scene",
+                origin="world",
+                eye_controls=rrb.EyeControls3D(
+                    position=eye, look_target=target, eye_up=[0.0, 0.0, 1.0]
+                ),
+            ),
             rrb.Vertical(
                 rrb.Spatial2DView(name="Image and plan", origin="image"),
                 rrb.Tabs(
@@ -67,8 +90,9 @@ def blueprint() -> Any:
             ),
             column_shares=[5, 4, 3],
         ),
-        rrb.TimePanel(timeline="time"),
-        collapse_panels=False,
+        rrb.TimePanel(timeline="time", state="expanded"),
+        rrb.BlueprintPanel(state="collapsed"),
+        rrb.SelectionPanel(state="collapsed"),
     )
 
 
@@ -85,7 +109,7 @@ def _open(run: Run) -> _Session:
     )
     stream.set_log_time_enabled(False)
     stream.set_log_tick_enabled(False)
-    layout = blueprint()
+    layout = blueprint(run)
     try:
         if mode == "save":
             stream.save(run.path(RECORDING_FILE), default_blueprint=layout)
