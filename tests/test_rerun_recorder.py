@@ -551,3 +551,68 @@ def test_connect_without_url_names_the_option(tmp_path):
         rerun_recorder.keymps_stage_done(stage="image", result=results.scene, run=run)
     rerun_recorder.keymps_stage_done(stage="finished", result=None, run=run)
     assert rerun_recorder._sessions == {}
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return int(probe.getsockname()[1])
+
+
+def _wait_for_port(port: int, seconds: float) -> None:
+    import socket
+    import time
+
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=0.2).close()
+            return
+        except OSError:
+            time.sleep(0.1)
+    raise AssertionError(f"the rerun server did not listen on port {port}")
+
+
+@pytest.mark.filterwarnings("ignore:RRD file has no footer")  # the server is still writing
+def test_connect_streams_the_run_to_a_running_viewer_server(tmp_path):
+    """A real `rerun --save` server on 127.0.0.1 receives the run and writes what it got."""
+    import subprocess
+    import time
+
+    rerun_cli = pytest.importorskip("rerun_cli")
+    viewer = Path(rerun_cli.__file__).parent / "rerun"  # the binary itself: no wrapper process
+    port = _free_port()
+    received = tmp_path / "received.rrd"
+    server = subprocess.Popen(
+        [str(viewer), "--port", str(port), "--save", str(received)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    try:
+        _wait_for_port(port, 20.0)
+        run, results = make_run(
+            tmp_path, rerun="connect", rerun_url=f"rerun+http://127.0.0.1:{port}/proxy"
+        )
+        play(run, results)
+        assert not (run.folder / "run.rrd").exists()
+        entities: dict[str, Entity] = {}
+        deadline = time.monotonic() + 20.0
+        while "/run/summary" not in entities and time.monotonic() < deadline:
+            time.sleep(0.3)
+            if received.is_file():
+                try:
+                    entities = read_recording(received)
+                except Exception:  # the server may be mid-write
+                    entities = {}
+    finally:
+        server.terminate()
+        try:
+            server.wait(timeout=15)
+        except subprocess.TimeoutExpired:
+            server.kill()
+            server.wait()
+    assert "/run/summary" in entities
+    assert entities["/joints/q/elbow_joint"].rows["Scalars"] == SAMPLES
+    assert entities["/image/pairs"].rows["LineStrips2D"] == 1
