@@ -1,0 +1,242 @@
+"""keymps.primitives: the bundled dictionary, the file format, learning, bad input."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from keymps.dmp import DMP
+from keymps.errors import KeympsError
+from keymps.primitives import (
+    BUNDLED_DIR,
+    Preprocessing,
+    default_search_dirs,
+    fit_rmse,
+    learn_primitive,
+    load_demo_csv,
+    load_primitive,
+    load_primitives,
+    prepare_demo,
+    save_primitive,
+    write_demo_csv,
+)
+
+NAMES = ["straight", "sawing", "downward", "forward", "line"]
+
+
+@pytest.fixture(scope="module")
+def bundled() -> dict:
+    return load_primitives(NAMES, [BUNDLED_DIR])
+
+
+def test_all_five_primitives_ship_with_demo_and_weights(bundled: dict) -> None:
+    for name in NAMES:
+        primitive = bundled[name]
+        assert primitive.name == name
+        assert primitive.description.strip()
+        assert primitive.family == ("icing" if name == "line" else "cutting")
+        assert primitive.demo is not None and primitive.demo.is_file()
+        assert primitive.dmp.n_basis == 50
+        assert 0 < primitive.fit_rmse <= 0.0005
+        assert 0.005 <= primitive.nominal_speed <= 0.1
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_shipped_weights_are_the_fit_of_the_shipped_demo(bundled: dict, name: str) -> None:
+    primitive = bundled[name]
+    t, y = prepare_demo(*load_demo_csv(primitive.demo), primitive.preprocessing)
+    refit = DMP.fit(t, y, n_basis=primitive.dmp.n_basis)
+    assert np.allclose(refit.weights, primitive.dmp.weights, rtol=1e-9, atol=1e-12)
+    assert fit_rmse(refit, t, y) == pytest.approx(primitive.fit_rmse, rel=1e-6)
+    rollout = primitive.dmp.rollout(y[0], y[-1], num=len(t))
+    assert np.sqrt(((rollout.y - y) ** 2).sum(axis=1).mean()) <= 0.0005
+
+
+def test_demos_have_realistic_shapes(bundled: dict) -> None:
+    t, y = load_demo_csv(bundled["straight"].demo)
+    assert np.abs(y[:, :2]).max() < 1e-9 and y[0, 2] - y[-1, 2] == pytest.approx(0.05)
+    t, y = load_demo_csv(bundled["sawing"].demo)
+    assert y[0, 2] - y[-1, 2] == pytest.approx(0.05)
+    velocity = np.diff(y[:, 0])
+    reversals = np.count_nonzero(np.diff(np.sign(velocity[np.abs(velocity) > 1e-7])) != 0)
+    assert 6 <= reversals <= 8  # 3-4 forward-backward strokes
+    detrended = y[:, 0] - 0.10 * (
+        10 * (t / t[-1]) ** 3 - 15 * (t / t[-1]) ** 4 + 6 * (t / t[-1]) ** 5
+    )
+    assert 0.015 <= np.abs(detrended).max() <= 0.025
+    t, y = load_demo_csv(bundled["line"].demo)
+    assert y[:, 2].min() == pytest.approx(-0.004)
+    assert y[-1] == pytest.approx([0.05, 0.0, 0.0])
+
+
+def test_save_and_load_round_trip_exactly(bundled: dict, tmp_path: Path) -> None:
+    for primitive in bundled.values():
+        copy = replace(primitive, demo=tmp_path / f"{primitive.name}.csv")
+        save_primitive(copy, tmp_path / f"{primitive.name}.yaml")
+        again = load_primitive(tmp_path / f"{primitive.name}.yaml")
+        assert np.array_equal(again.dmp.weights, primitive.dmp.weights)
+        for key in ("name", "description", "family", "mode", "nominal_speed", "fit_rmse"):
+            assert getattr(again, key) == getattr(primitive, key)
+        assert again.demo == tmp_path / f"{primitive.name}.csv"
+        assert again.dmp.demo_duration == primitive.dmp.demo_duration
+        save_primitive(again, tmp_path / "again.yaml")
+        first = (tmp_path / f"{primitive.name}.yaml").read_text()
+        assert (tmp_path / "again.yaml").read_text() == first
+
+
+def test_rollout_at_speed_is_dense_and_timed(bundled: dict) -> None:
+    sawing = bundled["sawing"]
+    rollout = sawing.rollout([0.1, 0.05, 0.055], [0.1, 0.17, 0.0], speed=0.05)
+    steps = np.linalg.norm(np.diff(rollout.y, axis=0), axis=1)
+    assert steps.max() <= 0.001
+    assert rollout.length_m / rollout.t[-1] == pytest.approx(0.05, rel=1e-3)
+    assert np.allclose(rollout.y[-1], [0.1, 0.17, 0.0], atol=1e-6)
+
+
+def test_unknown_primitive_lists_what_exists(tmp_path: Path) -> None:
+    with pytest.raises(KeympsError, match="unknown primitive 'chop'; available: downward, forward"):
+        load_primitives(["chop"], [BUNDLED_DIR])
+
+
+def test_first_search_dir_wins_and_env_path_is_searched(
+    bundled: dict, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    task_folder = tmp_path / "tasks"
+    (task_folder / "primitives").mkdir(parents=True)
+    own = replace(bundled["line"], description="My own line.", demo=None)
+    save_primitive(own, task_folder / "primitives" / "line.yaml")
+    extra = tmp_path / "extra"
+    extra.mkdir()
+    save_primitive(replace(bundled["sawing"], name="saw2", demo=None), extra / "saw2.yaml")
+    monkeypatch.setenv("KEYMPS_PRIMITIVES_PATH", str(extra))
+    monkeypatch.chdir(tmp_path)
+    dirs = default_search_dirs(task_folder)
+    assert dirs[:3] == [tmp_path / "primitives", task_folder / "primitives", extra]
+    assert dirs[-1] == BUNDLED_DIR
+    found = load_primitives(["line", "saw2", "sawing"], dirs)
+    assert found["line"].description == "My own line."
+    assert found["saw2"].name == "saw2"
+    assert found["sawing"].path == BUNDLED_DIR / "sawing.yaml"
+
+
+def test_name_must_match_file(bundled: dict, tmp_path: Path) -> None:
+    save_primitive(replace(bundled["line"], demo=None), tmp_path / "dots.yaml")
+    with pytest.raises(KeympsError, match="does not match the file name 'dots'"):
+        load_primitives(["dots"], [tmp_path])
+
+
+def _demo(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / "demo.csv"
+    path.write_text(text)
+    return path
+
+
+GOOD_ROWS = "".join(f"{i * 0.1},{i * 0.01},0,0\n" for i in range(12))
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("t,x,y\n" + GOOD_ROWS, r"demo.csv:1: expected columns t,x,y,z"),
+        ("t,x,y,z\n" + GOOD_ROWS.replace("0.05,0,0", "nan,0,0"), r"demo.csv:7: NaN"),
+        ("t,x,y,z\n" + "".join(f"{i},0,0,0\n" for i in range(5)), "at least 10 samples, got 5"),
+        ("t,x,y,z\n" + GOOD_ROWS + "0.5,0,0,0\n", r"demo.csv:14: time must increase"),
+        ("t,x,y,z\n" + GOOD_ROWS + "2.0,abc,0,0\n", r"demo.csv:14: not a number"),
+        ("t,x,y,z\n" + GOOD_ROWS + "2.0,0,0\n", r"demo.csv:14: expected 4 values"),
+        ("", "empty demonstration"),
+    ],
+)
+def test_bad_demo_files_give_one_line_naming_the_file(
+    tmp_path: Path, text: str, message: str
+) -> None:
+    with pytest.raises(KeympsError, match=message) as info:
+        load_demo_csv(_demo(tmp_path, text))
+    assert "\n" not in str(info.value)
+    assert str(tmp_path / "demo.csv") in str(info.value)
+
+
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        (lambda d: d["dmp"].pop("weights"), "dmp.weights is missing"),
+        (
+            lambda d: d["dmp"].update(weights=d["dmp"]["weights"][:-3]),
+            "has 47 rows but dmp.n_basis",
+        ),
+        (lambda d: d["dmp"].update(weights=[[1, 2]] * 50), r"list of \[wx, wy, wz\] rows"),
+        (lambda d: d["dmp"]["weights"][3].__setitem__(1, float("nan")), "NaN"),
+        (lambda d: d.pop("dmp"), "field 'dmp' is missing"),
+        (lambda d: d.update(family="baking"), "family 'baking' is not one of cutting, icing"),
+        (lambda d: d.update(mode="mirror"), "mode 'mirror'"),
+        (lambda d: d.update(nominal_speed=-1), "nominal_speed must be positive"),
+        (lambda d: d.update(speed=1), "unknown field 'speed'"),
+    ],
+)
+def test_bad_primitive_files_give_one_line_naming_the_file(
+    tmp_path: Path, edit, message: str
+) -> None:
+    data = yaml.safe_load((BUNDLED_DIR / "line.yaml").read_text())
+    edit(data)
+    path = tmp_path / "line.yaml"
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(KeympsError, match=message) as info:
+        load_primitive(path)
+    assert "\n" not in str(info.value) and str(path) in str(info.value)
+
+
+def test_invalid_yaml_names_line(tmp_path: Path) -> None:
+    path = tmp_path / "x.yaml"
+    path.write_text("name: x\ndmp: [1, 2\n")
+    with pytest.raises(KeympsError, match=r"x.yaml:\d+:\d+: invalid YAML"):
+        load_primitive(path)
+
+
+def robot_log(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The sawing demo as a 125 Hz robot would log it: jittered clock, 0.2 mm noise, 1 s still
+    at both ends and a 0.4 s pause in the middle."""
+    t_demo, y_demo = load_demo_csv(BUNDLED_DIR / "sawing.csv")
+    motion_time = np.concatenate([np.zeros(125), np.linspace(0, 2.5, 313),
+                                  np.full(50, 2.5), np.linspace(2.5, 5.0, 313)[1:],
+                                  np.full(125, 5.0)])  # fmt: skip
+    t = np.arange(len(motion_time)) / 125.0 + rng.uniform(-0.002, 0.002, len(motion_time))
+    clean = np.stack([np.interp(motion_time, t_demo, y_demo[:, k]) for k in range(3)], axis=1)
+    return t + 1000.0, clean + rng.normal(0, 0.0002, clean.shape), clean, motion_time
+
+
+def test_learning_from_a_noisy_robot_log_with_pauses(tmp_path: Path) -> None:
+    t, noisy, clean, _ = robot_log(np.random.default_rng(3))
+    log = tmp_path / "robot_log.csv"
+    write_demo_csv(log, t, noisy)
+    settings = Preprocessing(rate_hz=100.0, smooth_s=0.08, trim_mm=1.0)
+    primitive = learn_primitive(
+        "saw-log", log, description="Sawing learned from a log.", preprocessing=settings,
+        out_dir=tmp_path / "out",
+    )  # fmt: skip
+    assert primitive.path == tmp_path / "out" / "saw-log.yaml"
+    # Still ends trimmed: the 1 s waits at both ends are gone, the mid pause stays.
+    assert 5.0 <= primitive.dmp.demo_duration <= 5.5
+    assert np.linalg.norm(primitive.dmp.demo_start - clean[0]) < 0.0015
+    assert np.linalg.norm(primitive.dmp.demo_goal - clean[-1]) < 0.0015
+    assert primitive.fit_rmse < 0.0005
+    # The learned path follows the clean motion within 1 mm.
+    rollout = primitive.dmp.rollout(primitive.dmp.demo_start, primitive.dmp.demo_goal, num=4000)
+    distances = np.linalg.norm(rollout.y[:, None, :] - clean[None, ::4, :], axis=2)
+    assert distances.min(axis=0).max() < 0.001
+    again = load_primitive(tmp_path / "out" / "saw-log.yaml")
+    assert again.demo == tmp_path / "out" / "saw-log.csv"
+    assert again.source is not None and "robot_log.csv" in again.source
+    refit = learn_primitive(
+        "saw-log", again.demo, description="x", preprocessing=again.preprocessing
+    )
+    assert np.allclose(refit.dmp.weights, again.dmp.weights, rtol=1e-9, atol=1e-12)
+
+
+def test_a_log_where_nothing_moves_is_refused(tmp_path: Path) -> None:
+    log = tmp_path / "still.csv"
+    write_demo_csv(log, np.arange(50) / 10, np.zeros((50, 3)))
+    with pytest.raises(KeympsError, match="never moves"):
+        learn_primitive("still", log, description="x")
