@@ -1,0 +1,216 @@
+"""Built-in image sources: an image file, a synthetic scene, or one frame from an OpenCV camera."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from keymps.errors import KeympsError, StageError
+from keymps.hookspecs import Register, hookimpl
+from keymps.stages import SceneImage
+
+
+class ImageSourceError(StageError):
+    def __init__(self, message: str):
+        super().__init__("image", message)
+
+
+def _parse(model: type[BaseModel], options: dict[str, Any], source: str) -> Any:
+    try:
+        return model.model_validate(options)
+    except ValidationError as error:
+        problems = []
+        for item in error.errors(include_url=False):
+            key = ".".join(str(p) for p in item["loc"]) or "(options)"
+            message = "unknown option" if item["type"] == "extra_forbidden" else item["msg"]
+            problems.append(f"{key!r}: {message.removeprefix('Value error, ')}")
+        known = ", ".join(model.model_fields)
+        raise KeympsError(
+            f"{source} image source: scene.source_options {'; '.join(problems)} (options: {known})"
+        ) from None
+
+
+def to_bgr8(image: np.ndarray) -> np.ndarray:
+    """Any decoded image (gray, BGR, BGRA; 8 or 16 bit; float in [0, 1]) -> BGR uint8.
+
+    An alpha channel is dropped (its colour channels are kept as they are).
+    """
+    import cv2
+
+    if image.dtype == np.uint16:
+        image = (image.astype(np.uint32) * 255 + 32767) // 65535
+    elif np.issubdtype(image.dtype, np.floating):
+        image = np.clip(image, 0.0, 1.0) * 255.0 + 0.5
+    image = np.asarray(image).astype(np.uint8)
+    if image.ndim == 2:
+        return cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
+    channels = image.shape[2]
+    if channels == 1:
+        return cv2.cvtColor(image[:, :, 0], cv2.COLOR_GRAY2BGR)
+    if channels == 4:
+        return np.ascontiguousarray(image[:, :, :3])
+    return np.ascontiguousarray(image)
+
+
+def read_image(path: Path) -> np.ndarray:
+    """Read an image file as BGR uint8 with one clear error per way it can fail."""
+    import cv2
+
+    if not path.exists():
+        raise ImageSourceError(f"scene image not found: {path}")
+    if path.is_dir():
+        raise ImageSourceError(f"scene image is a folder, not an image: {path}")
+    try:
+        data = path.read_bytes()
+    except OSError as error:
+        raise ImageSourceError(f"cannot read scene image {path}: {error.strerror}") from None
+    if not data:
+        raise ImageSourceError(f"scene image is empty (0 bytes): {path}")
+    decoded = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    if decoded is None or decoded.size == 0:
+        raise ImageSourceError(
+            f"cannot decode scene image {path}: not an image OpenCV can read "
+            "(PNG, JPEG, TIFF, BMP, WebP ...) or the file is corrupt"
+        )
+    return to_bgr8(decoded)
+
+
+class FileOptions(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    path: Path | None = None
+    """Read this file instead of scene.image (relative to the task file)."""
+
+
+class FileSource:
+    """scene.image, resolved relative to the task file."""
+
+    def __init__(self, options: FileOptions):
+        self.options = options
+
+    def load(self, run: Any) -> SceneImage:
+        task = run.task
+        relative = self.options.path or task.scene.image
+        if relative is None:
+            raise ImageSourceError("scene.image is not set (the file source needs an image)")
+        path = task.resolve(Path(relative))
+        return SceneImage(image=read_image(path), source=str(path))
+
+
+class SyntheticOptions(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    object: str | list[str] = "round_cake"
+    """One object kind, or several (placed left to right)."""
+    seed: int = 0
+    length: float | None = Field(default=None, gt=0, le=5)
+    width: float | None = Field(default=None, gt=0, le=5)
+    height: float | None = Field(default=None, gt=0, le=1)
+    """Object height in metres; scene.object_height when omitted."""
+    rotation: float | None = Field(default=None, ge=-180, le=180)
+    px_per_m: float = Field(default=2000.0, ge=100, le=20_000)
+
+
+class SyntheticSource:
+    """A scene rendered by keymps.scenes on the task's workspace (its size is the board's)."""
+
+    def __init__(self, options: SyntheticOptions):
+        self.options = options
+
+    def load(self, run: Any) -> SceneImage:
+        from keymps.scenes import SceneSpec, render_scene
+
+        task = run.task
+        options = self.options
+        kinds = [options.object] if isinstance(options.object, str) else list(options.object)
+        spec = SceneSpec.from_kinds(
+            kinds,
+            seed=options.seed,
+            length=options.length,
+            width=options.width,
+            height=options.height if options.height is not None else task.scene.object_height,
+            rotation=options.rotation,
+            board_size=tuple(task.scene.workspace.size),
+            px_per_m=options.px_per_m,
+        )
+        scene = render_scene(spec)
+        notes = getattr(run, "notes", None)
+        if isinstance(notes, dict):
+            notes["synthetic_scene"] = scene.truth
+        return SceneImage(
+            image=scene.image, source=f"synthetic:{'+'.join(kinds)}:seed={options.seed}"
+        )
+
+
+class OpenCvOptions(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    camera: int | str = 0
+    """A camera index (0, 1 ...), a video file, or a stream URL OpenCV can open."""
+    warmup_frames: int = Field(default=5, ge=0, le=300)
+    """Frames read and dropped first (auto exposure settles)."""
+    width: int | None = Field(default=None, gt=0)
+    height: int | None = Field(default=None, gt=0)
+
+
+class OpenCvSource:
+    """One frame grabbed from cv2.VideoCapture."""
+
+    def __init__(self, options: OpenCvOptions):
+        self.options = options
+
+    def load(self, run: Any = None) -> SceneImage:
+        import cv2
+
+        camera = self.options.camera
+        if isinstance(camera, str) and camera.strip().isdigit():
+            camera = int(camera)
+        if isinstance(camera, str) and "://" not in camera and run is not None:
+            camera = str(run.task.resolve(Path(camera)))
+        capture = cv2.VideoCapture(camera)
+        try:
+            if not capture.isOpened():
+                raise ImageSourceError(
+                    f"cannot open camera {camera!r} (scene.source_options.camera): no such device, "
+                    "file or stream, or it is in use"
+                )
+            if self.options.width:
+                capture.set(cv2.CAP_PROP_FRAME_WIDTH, self.options.width)
+            if self.options.height:
+                capture.set(cv2.CAP_PROP_FRAME_HEIGHT, self.options.height)
+            frame = None
+            for _ in range(self.options.warmup_frames + 1):
+                ok, grabbed = capture.read()
+                if ok and grabbed is not None:
+                    frame = grabbed
+                elif frame is not None:
+                    break  # a short video: keep its last frame
+            if frame is None:
+                raise ImageSourceError(f"camera {camera!r} opened but returned no frame")
+        finally:
+            capture.release()
+        return SceneImage(image=to_bgr8(frame), source=f"opencv:{camera}")
+
+
+def make_file_source(options: dict[str, Any]) -> FileSource:
+    return FileSource(_parse(FileOptions, options, "file"))
+
+
+def make_synthetic_source(options: dict[str, Any]) -> SyntheticSource:
+    parsed = _parse(SyntheticOptions, options, "synthetic")
+    from keymps.scenes import check_kinds
+
+    kinds = [parsed.object] if isinstance(parsed.object, str) else list(parsed.object)
+    check_kinds(kinds, where="scene.source_options.object")
+    return SyntheticSource(parsed)
+
+
+def make_opencv_source(options: dict[str, Any]) -> OpenCvSource:
+    return OpenCvSource(_parse(OpenCvOptions, options, "opencv"))
+
+
+@hookimpl
+def register_image_sources(register: Register) -> None:
+    register("file", make_file_source)
+    register("synthetic", make_synthetic_source)
+    register("opencv", make_opencv_source)

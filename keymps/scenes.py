@@ -1,0 +1,689 @@
+"""Synthetic top-down scenes: a wooden cutting board with food on it, and the true geometry.
+
+Every scene is a pure function of its SceneSpec (object kinds, sizes, seed, board, resolution):
+the same spec renders the same pixels. The image spans the board exactly (Appendix B), so board
+metres map to pixels with keymps.geometry.ImageFrame.linear. The JSON sidecar written next to
+the PNG holds, per object, its centre, dimensions, rotation, outline (metres and pixels) and the
+box of the pixels whose centres lie inside the outline.
+
+Colours are chosen so that the paper's Appendix A detector separates every object from the
+board: the board's intensity sits near 126 and stays within +-15 of it (grain, lighting, noise);
+each object's outer edge is at least 40 grey levels lighter or darker.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from keymps.errors import KeympsError
+
+SIDECAR_SCHEMA_VERSION = 1
+MARGIN_M = 0.004
+"""Objects keep at least this distance from the board's edges."""
+
+
+@dataclass(frozen=True)
+class Shape:
+    """How an object's footprint is built, in its local frame (u along its length, metres)."""
+
+    family: str
+    """disk | ring | rrect | profile"""
+    corner: float = 0.15
+    """rrect: corner radius as a fraction of the width."""
+    hole: float = 0.0
+    """ring: hole diameter as a fraction of the outer diameter."""
+    wobble: float = 0.0
+    """disk/ring/profile: relative amplitude of the irregular edge."""
+    bend: float = 0.0
+    """profile: sag of the centre line as a fraction of the length."""
+    profile: Callable[[np.ndarray], np.ndarray] | None = None
+    """profile: half-width (max 1) along t in [0, 1] from one end to the other."""
+
+
+@dataclass(frozen=True)
+class ObjectKind:
+    name: str
+    description: str
+    length: float
+    width: float
+    height: float
+    shape: Shape
+    round: bool = False
+    """Length and width are one diameter; any rotation looks alike."""
+
+
+def _superellipse(power: float) -> Callable[[np.ndarray], np.ndarray]:
+    def profile(t: np.ndarray) -> np.ndarray:
+        return np.clip(1.0 - np.abs(2.0 * t - 1.0) ** power, 0.0, 1.0) ** (1.0 / power)
+
+    return profile
+
+
+def _eggplant_profile(t: np.ndarray) -> np.ndarray:
+    body_t = np.clip(t / 0.9, 0.0, 1.0)
+    body = np.clip(np.sin(np.pi * body_t**0.72), 0.0, 1.0) ** 0.55 * (1.0 - 0.38 * body_t)
+    stem = np.where((t > 0.8) & (t < 1.0), 0.13 * np.sqrt(np.clip((1.0 - t) / 0.012, 0, 1)), 0.0)
+    values = np.maximum(body, stem)
+    return values / 0.86
+
+
+def _banana_profile(t: np.ndarray) -> np.ndarray:
+    body = np.clip(1.0 - np.abs(2.0 * t - 1.0) ** 2.5, 0.0, 1.0) ** 0.55
+    stem = np.where(t > 0.9, 0.3 * np.sqrt(np.clip((1.0 - t) / 0.01, 0, 1)), 0.0)
+    return np.maximum(body, stem)
+
+
+KINDS: dict[str, ObjectKind] = {
+    kind.name: kind
+    for kind in [
+        ObjectKind("round_cake", "cream-iced round cake", 0.12, 0.12, 0.06, Shape("disk"), True),
+        ObjectKind("square_cake", "chocolate square cake", 0.12, 0.12, 0.06, Shape("rrect", 0.06)),
+        ObjectKind("round_pizza", "pizza with toppings", 0.15, 0.15, 0.02, Shape("disk", wobble=0.012), True),
+        ObjectKind("cabbage", "head of cabbage", 0.14, 0.13, 0.11, Shape("disk", wobble=0.03), True),
+        ObjectKind(
+            "eggplant", "purple eggplant, green cap", 0.20, 0.065, 0.06,
+            Shape("profile", bend=0.04, profile=_eggplant_profile),
+        ),
+        ObjectKind(
+            "baguette", "baguette", 0.26, 0.06, 0.05, Shape("profile", profile=_superellipse(4.0))
+        ),
+        ObjectKind("banana_bread", "banana bread loaf", 0.18, 0.09, 0.08, Shape("rrect", 0.18)),
+        ObjectKind("chiffon_cake", "chiffon cake (ring)", 0.15, 0.15, 0.09, Shape("ring", hole=0.22), True),
+        ObjectKind("baumkuchen", "baumkuchen (ring)", 0.12, 0.12, 0.05, Shape("ring", hole=0.25), True),
+        ObjectKind("meat_loaf", "meat loaf", 0.16, 0.08, 0.06, Shape("rrect", 0.3)),
+        ObjectKind(
+            "cucumber", "cucumber", 0.20, 0.032, 0.032,
+            Shape("profile", bend=0.03, profile=_superellipse(3.0)),
+        ),
+        ObjectKind(
+            "potato", "potato", 0.09, 0.062, 0.05,
+            Shape("profile", wobble=0.04, profile=_superellipse(2.2)),
+        ),
+        ObjectKind(
+            "banana", "banana", 0.18, 0.036, 0.035,
+            Shape("profile", bend=0.12, profile=_banana_profile),
+        ),
+    ]
+}  # fmt: skip
+
+
+def canonical_kind(name: str) -> str:
+    return name.strip().lower().replace("-", "_").replace(" ", "_")
+
+
+def check_kinds(kinds: Sequence[str], where: str = "object") -> list[str]:
+    """The canonical names, or a KeympsError naming the unknown one and listing the choices."""
+    names = []
+    for kind in kinds:
+        name = canonical_kind(kind)
+        if name not in KINDS:
+            raise KeympsError(
+                f"{where}: unknown object {kind!r} (available: {', '.join(sorted(KINDS))})"
+            )
+        names.append(name)
+    if not names:
+        raise KeympsError(f"{where}: no object given")
+    return names
+
+
+@dataclass(frozen=True)
+class ObjectSpec:
+    kind: str
+    length: float
+    width: float
+    height: float
+    rotation_deg: float = 0.0
+    """Counter-clockwise angle of the object's length axis from the board's x axis."""
+    centre: tuple[float, float] | None = None
+    """Board metres; None places it (centred, or left to right when there are several)."""
+
+
+@dataclass(frozen=True)
+class SceneSpec:
+    objects: tuple[ObjectSpec, ...]
+    seed: int = 0
+    board_size: tuple[float, float] = (0.30, 0.18)
+    px_per_m: float = 2000.0
+
+    @classmethod
+    def from_kinds(
+        cls,
+        kinds: Sequence[str],
+        *,
+        seed: int = 0,
+        length: float | None = None,
+        width: float | None = None,
+        height: float | None = None,
+        rotation: float | None = None,
+        board_size: tuple[float, float] | Sequence[float] = (0.30, 0.18),
+        px_per_m: float = 2000.0,
+    ) -> SceneSpec:
+        """Objects of these kinds; sizes not given are the kind's defaults varied by the seed."""
+        rng = np.random.default_rng([seed, 7])
+        objects = []
+        for name in check_kinds(kinds):
+            kind = KINDS[name]
+            jitter = rng.uniform(0.96, 1.04, size=3)
+            obj_length = length if length is not None else kind.length * jitter[0]
+            if kind.round:
+                obj_width = width if width is not None else obj_length
+            else:
+                obj_width = width if width is not None else kind.width * jitter[1]
+            obj_height = height if height is not None else kind.height * jitter[2]
+            if rotation is not None:
+                angle = rotation
+            elif kind.round:
+                angle = rng.uniform(0, 360)
+            else:
+                angle = rng.uniform(-3.0, 3.0)
+            objects.append(
+                ObjectSpec(name, float(obj_length), float(obj_width), float(obj_height), angle)
+            )
+        w, h = (float(v) for v in board_size)
+        return cls(tuple(objects), int(seed), (w, h), float(px_per_m))
+
+    @property
+    def image_size_px(self) -> tuple[int, int]:
+        return (
+            int(round(self.board_size[0] * self.px_per_m)),
+            int(round(self.board_size[1] * self.px_per_m)),
+        )
+
+
+@dataclass(frozen=True)
+class RenderedScene:
+    image: np.ndarray
+    """BGR uint8."""
+    truth: dict[str, Any] = field(default_factory=dict)
+    """The sidecar: true geometry of every object (see module docstring)."""
+
+    def save(self, path: str | Path) -> tuple[Path, Path]:
+        """Write the PNG and its JSON sidecar (same name, .json); return both paths."""
+        import cv2
+
+        png = Path(path)
+        if png.suffix.lower() != ".png":
+            raise KeympsError(f"scene images are written as PNG: {png} does not end in .png")
+        png.parent.mkdir(parents=True, exist_ok=True)
+        if not cv2.imwrite(str(png), self.image):
+            raise KeympsError(f"cannot write {png}")
+        sidecar = png.with_suffix(".json")
+        sidecar.write_text(sidecar_json(self.truth), encoding="utf-8")
+        return png, sidecar
+
+
+def sidecar_json(truth: dict[str, Any]) -> str:
+    """Indented JSON with every list of numbers (or of number pairs) on one line."""
+    text = json.dumps(truth, indent=1)
+    number_list = re.compile(r"\[[\s\d.,eE+-]*\]")
+    text = number_list.sub(
+        lambda m: "[" + ", ".join(m.group(0)[1:-1].split()).replace(",,", ",") + "]", text
+    )
+    pairs = re.compile(r"\[\s*((?:\[[^\[\]]*\],?\s*)+)\]")
+    return pairs.sub(lambda m: "[" + " ".join(m.group(1).split()) + "]", text) + "\n"
+
+
+# ---------------------------------------------------------------- footprints (local metres)
+
+
+def _outline_local(
+    obj: ObjectSpec, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Outer polygon (N, 2) and optional hole polygon, in the object's frame (u, v) metres."""
+    shape = KINDS[obj.kind].shape
+    half_l, half_w = obj.length / 2, obj.width / 2
+    if shape.family in ("disk", "ring"):
+        theta = np.linspace(0, 2 * np.pi, 360, endpoint=False)
+        radius = 1.0 + _wobble(theta, shape.wobble, rng)
+        outer = np.c_[half_l * radius * np.cos(theta), half_w * radius * np.sin(theta)]
+        hole = None
+        if shape.family == "ring":
+            r = shape.hole / 2
+            hole = np.c_[obj.length * r * np.cos(theta), obj.width * r * np.sin(theta)]
+        return outer, hole
+    if shape.family == "rrect":
+        corner = min(shape.corner * obj.width, half_w, half_l)
+        arcs = []
+        for cx, cy, start in (
+            (half_l - corner, half_w - corner, 0.0),
+            (-half_l + corner, half_w - corner, 90.0),
+            (-half_l + corner, -half_w + corner, 180.0),
+            (half_l - corner, -half_w + corner, 270.0),
+        ):
+            angles = np.radians(start + np.linspace(0, 90, 24))
+            arcs.append(np.c_[cx + corner * np.cos(angles), cy + corner * np.sin(angles)])
+        return np.concatenate(arcs), None
+    assert shape.profile is not None
+    t = 0.5 - 0.5 * np.cos(np.linspace(0, np.pi, 200))  # dense near the ends
+    u = (t - 0.5) * obj.length
+    half = half_w * shape.profile(t) * (1.0 + _wobble(t * 2 * np.pi, shape.wobble, rng))
+    centre = _centre_line(u, obj.length, shape.bend)
+    upper = np.c_[u, centre + half]
+    lower = np.c_[u, centre - half][::-1]
+    return np.concatenate([upper, lower]), None
+
+
+def _centre_line(u: np.ndarray, length: float, bend: float) -> np.ndarray:
+    """Sag of the body's centre line (v), zero at both ends, bend * length in the middle."""
+    return bend * length * (1.0 - (2.0 * u / length) ** 2)
+
+
+def _wobble(theta: np.ndarray, amplitude: float, rng: np.random.Generator) -> np.ndarray:
+    if amplitude <= 0:
+        return np.zeros_like(theta)
+    total = np.zeros_like(theta)
+    for harmonic in range(2, 9):
+        total += rng.normal(0, 1) / harmonic * np.cos(harmonic * theta + rng.uniform(0, 2 * np.pi))
+    return amplitude * total / max(np.abs(total).max(), 1e-9)
+
+
+def _to_board(points: np.ndarray, obj: ObjectSpec, centre: tuple[float, float]) -> np.ndarray:
+    angle = np.radians(obj.rotation_deg)
+    rotation = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+    return points @ rotation.T + np.asarray(centre)
+
+
+# ---------------------------------------------------------------- textures
+
+
+def smooth_noise(shape: tuple[int, int], cell_px: float, rng: np.random.Generator) -> np.ndarray:
+    """A smooth random field of unit standard deviation; features about cell_px pixels wide."""
+    import cv2
+
+    height, width = shape
+    grid_h = max(2, int(np.ceil(height / max(cell_px, 1.0))) + 2)
+    grid_w = max(2, int(np.ceil(width / max(cell_px, 1.0))) + 2)
+    coarse = rng.standard_normal((grid_h, grid_w)).astype(np.float32)
+    field_ = cv2.resize(coarse, (width, height), interpolation=cv2.INTER_CUBIC)
+    return (field_ - field_.mean()) / max(float(field_.std()), 1e-6)
+
+
+@dataclass
+class Paint:
+    """What a painter sees: local coordinates of the pixel centres of the object's box."""
+
+    u: np.ndarray
+    v: np.ndarray
+    obj: ObjectSpec
+    rng: np.random.Generator
+    px_per_m: float
+
+    def noise(self, cell_m: float) -> np.ndarray:
+        return smooth_noise(self.u.shape, cell_m * self.px_per_m, self.rng)
+
+    @property
+    def radius(self) -> np.ndarray:
+        """Normalized radius (1 at the edge of a disk)."""
+        return np.hypot(self.u / (self.obj.length / 2), self.v / (self.obj.width / 2))
+
+    @property
+    def theta(self) -> np.ndarray:
+        return np.arctan2(self.v, self.u)
+
+    def along(self) -> tuple[np.ndarray, np.ndarray]:
+        """(t in [0, 1] along the body, s in [-1, 1] across it) for profile bodies."""
+        shape = KINDS[self.obj.kind].shape
+        t = np.clip(self.u / self.obj.length + 0.5, 0.0, 1.0)
+        centre = _centre_line(self.u, self.obj.length, shape.bend)
+        half = self.obj.width / 2 * (shape.profile(t) if shape.profile else np.ones_like(t))
+        return t, (self.v - centre) / np.maximum(half, 1e-6)
+
+
+def _mix(base: np.ndarray, colour: Sequence[float], weight: np.ndarray) -> np.ndarray:
+    weight = np.clip(weight, 0.0, 1.0)[..., None]
+    return base * (1 - weight) + np.asarray(colour, dtype=np.float32) * weight
+
+
+def _fill(p: Paint, colour: Sequence[float]) -> np.ndarray:
+    return np.broadcast_to(np.asarray(colour, np.float32), (*p.u.shape, 3)).copy()
+
+
+def _shade(image: np.ndarray, amount: np.ndarray) -> np.ndarray:
+    return image * (1.0 + amount)[..., None]
+
+
+def _spots(p: Paint, count: int, radius_m: float, within: float) -> np.ndarray:
+    """Weights of `count` round spots (1 inside) scattered inside the normalized radius."""
+    weight = np.zeros(p.u.shape, np.float32)
+    for _ in range(count):
+        angle, distance = p.rng.uniform(0, 2 * np.pi), within * np.sqrt(p.rng.uniform())
+        cu = distance * np.cos(angle) * p.obj.length / 2
+        cv = distance * np.sin(angle) * p.obj.width / 2
+        size = radius_m * p.rng.uniform(0.8, 1.2)
+        d = np.hypot(p.u - cu, p.v - cv)
+        weight = np.maximum(weight, np.clip((size - d) * p.px_per_m + 0.5, 0, 1))
+    return weight
+
+
+def paint_round_cake(p: Paint) -> np.ndarray:
+    r = p.radius
+    image = _fill(p, (214, 234, 246))
+    image = _mix(image, (160, 196, 222), (r - 0.84) / 0.1)  # the darker rim
+    piping = 0.5 + 0.5 * np.cos(28 * p.theta)
+    image = _mix(image, (190, 220, 240), piping * ((r > 0.9) & (r < 0.97)) * 0.6)
+    return _shade(image, 0.03 * p.noise(0.02) - 0.04 * r**2)
+
+
+def paint_square_cake(p: Paint) -> np.ndarray:
+    edge = np.minimum(p.obj.length / 2 - np.abs(p.u), p.obj.width / 2 - np.abs(p.v))
+    image = _fill(p, (42, 62, 98))
+    image = _mix(image, (28, 42, 68), 1 - edge / 0.008)
+    return _shade(image, 0.06 * p.noise(0.01) + 0.04 * p.noise(0.003))
+
+
+def paint_round_pizza(p: Paint) -> np.ndarray:
+    r = p.radius
+    image = _fill(p, (48, 62, 188))  # tomato sauce
+    cheese = p.noise(0.012) > -0.2
+    image = _mix(image, (150, 214, 240), cheese * np.clip((0.84 - r) / 0.03, 0, 1))
+    image = _mix(image, (44, 44, 150), _spots(p, 9, 0.011, 0.7))  # pepperoni
+    basil = _spots(p, 5, 0.005, 0.72)
+    image = _mix(image, (45, 110, 55), basil)
+    crust = np.clip((r - 0.83) / 0.03, 0, 1)
+    image = _mix(image, (122, 196, 236), crust)
+    image = _mix(image, (108, 182, 225), crust * (p.noise(0.008) > 1.0))  # browned bubbles
+    return _shade(image, 0.04 * p.noise(0.02))
+
+
+def paint_cabbage(p: Paint) -> np.ndarray:
+    r = p.radius
+    image = _fill(p, (150, 222, 192))
+    ring = np.abs(np.sin(9 * r + 0.8 * p.noise(0.03)))
+    image = _mix(image, (118, 204, 166), (ring < 0.25) * 0.7)  # leaf folds
+    veins = np.abs(np.sin(5 * p.theta + 1.5 * r + 0.3 * p.noise(0.04)))
+    image = _mix(image, (205, 238, 228), (veins < 0.12) * np.clip(r * 1.5, 0, 1))
+    image = _mix(image, (130, 215, 178), (r - 0.82) / 0.1)  # outer leaves
+    return _shade(image, 0.04 * p.noise(0.015))
+
+
+def paint_eggplant(p: Paint) -> np.ndarray:
+    t, s = p.along()
+    image = _fill(p, (78, 30, 66))
+    image = _mix(image, (118, 64, 104), np.exp(-(((s - 0.35) / 0.18) ** 2)) * (t < 0.72))
+    sepals = t > 0.73 + 0.05 * np.abs(np.cos(3 * np.pi * s))
+    image = _mix(image, (36, 96, 46), sepals)
+    image = _mix(image, (46, 86, 66), t > 0.9)  # stem
+    return _shade(image, 0.05 * p.noise(0.02))
+
+
+def paint_baguette(p: Paint) -> np.ndarray:
+    t, s = p.along()
+    image = _fill(p, (92, 176, 226))
+    image = _mix(image, (95, 182, 232), np.abs(s) ** 3)
+    slash = np.abs(np.sin(np.pi * (5 * t + 0.9 * s)))
+    image = _mix(
+        image, (152, 212, 236), (slash < 0.22) * (np.abs(s) < 0.55) * (t > 0.1) * (t < 0.9)
+    )
+    return _shade(image, 0.04 * p.noise(0.01))
+
+
+def paint_banana_bread(p: Paint) -> np.ndarray:
+    image = _fill(p, (36, 62, 108))
+    crack = np.abs(p.v / (p.obj.width / 2) - 0.15 * p.noise(0.03))
+    image = _mix(image, (26, 46, 82), (crack < 0.12) * (np.abs(p.u) < 0.4 * p.obj.length))
+    return _shade(image, 0.05 * p.noise(0.008) + 0.03 * p.noise(0.03))
+
+
+def paint_chiffon_cake(p: Paint) -> np.ndarray:
+    r = p.radius
+    image = _fill(p, (112, 190, 230))
+    image = _mix(image, (115, 192, 230), (r - 0.85) / 0.1)
+    cracks = np.abs(np.sin(7 * p.theta + 2 * p.noise(0.05)))
+    image = _mix(image, (92, 172, 216), (cracks < 0.08) * (r > 0.4) * (r < 0.85))
+    return _shade(image, 0.04 * p.noise(0.015))
+
+
+def paint_baumkuchen(p: Paint) -> np.ndarray:
+    r = p.radius
+    layers = 0.5 + 0.5 * np.sin(2 * np.pi * r * 9 + 0.4 * p.noise(0.05))
+    image = _mix(_fill(p, (120, 200, 235)), (82, 166, 215), layers)
+    image = _mix(image, (226, 238, 245), (r - 0.9) / 0.03)  # sugar glaze
+    return _shade(image, 0.02 * p.noise(0.02))
+
+
+def paint_meat_loaf(p: Paint) -> np.ndarray:
+    image = _fill(p, (40, 58, 96))
+    image = _mix(image, (38, 46, 124), (p.noise(0.02) > 0.3) * 0.8)  # glaze
+    return _shade(image, 0.06 * p.noise(0.004) + 0.04 * p.noise(0.02))
+
+
+def paint_cucumber(p: Paint) -> np.ndarray:
+    t, s = p.along()
+    image = _fill(p, (42, 86, 46))
+    stripes = 0.5 + 0.5 * np.sin(7 * s + 0.5 * p.noise(0.04))
+    image = _mix(image, (52, 106, 66), stripes * 0.6 * (np.abs(s) < 0.7))
+    image = _mix(
+        image,
+        (90, 150, 118),
+        _spots(p, 40, 0.0012, 0.55) * 0.8 * (np.abs(s) < 0.45) * (np.abs(t - 0.5) < 0.4),
+    )
+    return _shade(image, 0.05 * p.noise(0.01))
+
+
+def paint_potato(p: Paint) -> np.ndarray:
+    image = _fill(p, (128, 184, 212))
+    image = _mix(image, (124, 180, 209), (p.noise(0.01) > 0.8) * 0.7)  # mottled skin
+    image = _mix(image, (72, 112, 142), _spots(p, 6, 0.0025, 0.5))  # eyes
+    return _shade(image, 0.02 * p.noise(0.02) - 0.03 * np.clip(p.radius, 0, 1) ** 2)
+
+
+def paint_banana(p: Paint) -> np.ndarray:
+    t, s = p.along()
+    image = _fill(p, (52, 206, 236))
+    image = _mix(image, (42, 186, 222), (np.abs(np.abs(s) - 0.35) < 0.06) * 0.8)  # ridges
+    ends = np.clip((np.abs(t - 0.5) - 0.4) / 0.06, 0, 1)
+    image = _mix(image, (70, 190, 225), ends)
+    freckles = _spots(p, 12, 0.0015, 0.5) * (np.abs(s) < 0.5) * (np.abs(t - 0.5) < 0.35)
+    image = _mix(image, (60, 160, 205), freckles * 0.6)
+    return _shade(image, 0.03 * p.noise(0.02))
+
+
+PAINTERS: dict[str, Callable[[Paint], np.ndarray]] = {
+    name: globals()[f"paint_{name}"] for name in KINDS
+}
+
+
+def _board(size_px: tuple[int, int], px_per_m: float, rng: np.random.Generator) -> np.ndarray:
+    """Wood: grain running along x, slow colour changes, a little fibre texture."""
+    width, height = size_px
+    rows = np.arange(height, dtype=np.float32)[:, None] / px_per_m
+    warp = smooth_noise((height, width), 0.05 * px_per_m, rng)
+    period = rng.uniform(0.006, 0.009)
+    grain = np.sin(2 * np.pi * (rows / period + 0.6 * warp))
+    fibres = smooth_noise((height, width), 1.0, rng)
+    fibres = fibres.mean(axis=1, keepdims=True) * 0.5 + 0.5 * smooth_noise((height, width), 2, rng)
+    base = np.array([70, 118, 162], np.float32) * rng.uniform(0.98, 1.02)
+    shade = (
+        0.035 * grain + 0.012 * fibres + 0.015 * smooth_noise((height, width), 0.08 * px_per_m, rng)
+    )
+    return base * (1.0 + shade)[..., None]
+
+
+def _lighting(size_px: tuple[int, int], rng: np.random.Generator) -> np.ndarray:
+    width, height = size_px
+    direction = rng.uniform(0, 2 * np.pi)
+    x = np.linspace(-0.5, 0.5, width, dtype=np.float32)[None, :]
+    y = np.linspace(-0.5, 0.5, height, dtype=np.float32)[:, None]
+    return 1.0 + 0.06 * (np.cos(direction) * x + np.sin(direction) * y)
+
+
+def _place(spec: SceneSpec, rng: np.random.Generator) -> list[tuple[float, float]]:
+    """Centres: given ones kept; others centred (one) or left to right (several)."""
+    board_w, board_h = spec.board_size
+    footprints = []
+    for obj in spec.objects:
+        outline, _ = _outline_local(obj, np.random.default_rng(0))
+        rotated = _to_board(outline, obj, (0.0, 0.0))
+        footprints.append((rotated.min(axis=0), rotated.max(axis=0)))
+    free = [i for i, obj in enumerate(spec.objects) if obj.centre is None]
+    centres: list[tuple[float, float]] = [obj.centre or (0.0, 0.0) for obj in spec.objects]
+    widths = [footprints[i][1][0] - footprints[i][0][0] for i in free]
+    gap = (board_w - 2 * MARGIN_M - sum(widths)) / (len(free) + 1) if free else 0.0
+    x = MARGIN_M + gap
+    for i, width in zip(free, widths, strict=True):
+        low, high = footprints[i]
+        slack_x = max(0.0, min(gap, 0.01)) if len(free) > 1 else 0.0
+        cx = x - low[0] + rng.uniform(-0.4, 0.4) * slack_x
+        if len(free) == 1:
+            cx = board_w / 2 - (low[0] + high[0]) / 2 + rng.uniform(-1, 1) * min(0.01, gap * 0.8)
+        room_y = (board_h - 2 * MARGIN_M - (high[1] - low[1])) / 2
+        cy = (
+            board_h / 2
+            - (low[1] + high[1]) / 2
+            + rng.uniform(-1, 1) * min(0.01, max(room_y, 0) * 0.8)
+        )
+        centres[i] = (float(cx), float(cy))
+        x += width + gap
+    for obj, (low, high), centre in zip(spec.objects, footprints, centres, strict=True):
+        lo, hi = np.asarray(centre) + low, np.asarray(centre) + high
+        if lo[0] < 0 or lo[1] < 0 or hi[0] > board_w or hi[1] > board_h or gap < 0:
+            raise KeympsError(
+                f"the {obj.kind} ({obj.length:.3f} x {obj.width:.3f} m) does not fit on the "
+                f"{board_w:g} x {board_h:g} m board; make the board larger (--board W,H)"
+            )
+    return centres
+
+
+def _coverage(
+    polygon_px: np.ndarray, hole_px: np.ndarray | None, box: tuple[int, int, int, int]
+) -> np.ndarray:
+    """Fraction of each pixel of the box inside the polygon (4x4 supersampling)."""
+    import cv2
+
+    x0, y0, x1, y1 = box
+    factor, bits = 4, 4
+    canvas = np.zeros(((y1 - y0) * factor, (x1 - x0) * factor), np.uint8)
+
+    def fixed(points: np.ndarray) -> np.ndarray:
+        # Supersample s covers [s/f, (s+1)/f): its centre is at (s + 0.5)/f image pixels.
+        scaled = (points - (x0, y0)) * factor - 0.5
+        return np.round(scaled * (1 << bits)).astype(np.int32).reshape(-1, 1, 2)
+
+    cv2.fillPoly(canvas, [fixed(polygon_px)], 255, lineType=cv2.LINE_8, shift=bits)
+    if hole_px is not None:
+        cv2.fillPoly(canvas, [fixed(hole_px)], 0, lineType=cv2.LINE_8, shift=bits)
+    small = cv2.resize(canvas, (x1 - x0, y1 - y0), interpolation=cv2.INTER_AREA)
+    return small.astype(np.float32) / 255.0
+
+
+def half_covered_box(alpha: np.ndarray, origin: tuple[int, int]) -> list[int]:
+    """[x0, y0, x1, y1] (exclusive) of the pixels at least half covered by the object."""
+    rows, cols = np.nonzero(alpha >= 0.5)
+    if len(rows) == 0:
+        return [origin[0], origin[1], origin[0], origin[1]]
+    x0, y0 = origin
+    return [
+        int(x0 + cols.min()),
+        int(y0 + rows.min()),
+        int(x0 + cols.max() + 1),
+        int(y0 + rows.max() + 1),
+    ]
+
+
+def render_scene(spec: SceneSpec) -> RenderedScene:
+    """The image and the true geometry of a scene; the same spec gives the same pixels."""
+    from keymps import __version__
+    from keymps.geometry import ImageFrame
+
+    if not spec.objects:
+        raise KeympsError("a scene needs at least one object")
+    width, height = spec.image_size_px
+    if not (32 <= width <= 8000 and 32 <= height <= 8000):
+        raise KeympsError(
+            f"scene image would be {width} x {height} px; choose --px-per-m so that both sides "
+            "are between 32 and 8000 px"
+        )
+    rng = np.random.default_rng([spec.seed, 1])
+    frame = ImageFrame.linear((width, height), spec.board_size)
+    centres = _place(spec, rng)
+    image = _board((width, height), spec.px_per_m, rng)
+    objects_truth = []
+    for index, (obj, centre) in enumerate(zip(spec.objects, centres, strict=True)):
+        object_rng = np.random.default_rng([spec.seed, 100 + index])
+        outline_local, hole_local = _outline_local(obj, object_rng)
+        outline_m = _to_board(outline_local, obj, centre)
+        hole_m = _to_board(hole_local, obj, centre) if hole_local is not None else None
+        outline_px = frame.to_pixels(outline_m)
+        hole_px = frame.to_pixels(hole_m) if hole_m is not None else None
+        bx0, by0 = np.floor(outline_px.min(axis=0)).astype(int) - 1
+        bx1, by1 = np.ceil(outline_px.max(axis=0)).astype(int) + 1
+        box = (max(bx0, 0), max(by0, 0), min(bx1, width), min(by1, height))
+        alpha = _coverage(outline_px, hole_px, box)
+        cols = np.arange(box[0], box[2]) + 0.5
+        rows = np.arange(box[1], box[3]) + 0.5
+        grid = np.stack(np.meshgrid(cols, rows), axis=-1).reshape(-1, 2)
+        local = (frame.to_board(grid) - np.asarray(centre)) @ _rotation(obj.rotation_deg)
+        u = local[:, 0].reshape(alpha.shape).astype(np.float32)
+        v = local[:, 1].reshape(alpha.shape).astype(np.float32)
+        colour = PAINTERS[obj.kind](Paint(u, v, obj, object_rng, spec.px_per_m))
+        region = image[box[1] : box[3], box[0] : box[2]]
+        image[box[1] : box[3], box[0] : box[2]] = (
+            region * (1 - alpha[..., None]) + colour * alpha[..., None]
+        )
+        objects_truth.append(
+            _object_truth(obj, centre, outline_m, hole_m, outline_px, index)
+            | {"bbox_px": half_covered_box(alpha, (box[0], box[1]))}
+        )
+    image = image * _lighting((width, height), rng)[..., None]
+    image += rng.normal(0.0, 2.0, size=image.shape).astype(np.float32)
+    pixels = np.clip(np.round(image), 0, 255).astype(np.uint8)
+    truth = {
+        "schema_version": SIDECAR_SCHEMA_VERSION,
+        "generator": f"keymps {__version__} keymps.scenes",
+        "seed": spec.seed,
+        "board_size_m": list(spec.board_size),
+        "image_size_px": [width, height],
+        "px_per_m": [width / spec.board_size[0], height / spec.board_size[1]],
+        "frame": "board metres: origin bottom-left of the image, x right, y up; pixels: x right, y down",
+        "objects": objects_truth,
+    }
+    return RenderedScene(pixels, truth)
+
+
+def _rotation(degrees: float) -> np.ndarray:
+    angle = np.radians(degrees)
+    return np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+
+
+def _object_truth(
+    obj: ObjectSpec,
+    centre: tuple[float, float],
+    outline_m: np.ndarray,
+    hole_m: np.ndarray | None,
+    outline_px: np.ndarray,
+    index: int,
+) -> dict[str, Any]:
+    from keymps.geometry import polygon_area
+
+    return {
+        "index": index,
+        "kind": obj.kind,
+        "description": KINDS[obj.kind].description,
+        "centre_m": [round(c, 6) for c in centre],
+        "length_m": round(obj.length, 6),
+        "width_m": round(obj.width, 6),
+        "height_m": round(obj.height, 6),
+        "rotation_deg": round(obj.rotation_deg, 4),
+        "area_m2": round(
+            abs(polygon_area(outline_m))
+            - (abs(polygon_area(hole_m)) if hole_m is not None else 0.0),
+            8,
+        ),
+        "bbox_m": [round(float(v), 6) for v in (*outline_m.min(axis=0), *outline_m.max(axis=0))],
+        "outline_m": np.round(outline_m, 6).tolist(),
+        "hole_m": np.round(hole_m, 6).tolist() if hole_m is not None else None,
+        "outline_px": np.round(outline_px, 3).tolist(),
+    }
+
+
+def render_to_file(spec: SceneSpec, path: str | Path) -> tuple[RenderedScene, Path, Path]:
+    scene = render_scene(spec)
+    png, sidecar = scene.save(path)
+    return scene, png, sidecar
