@@ -220,7 +220,7 @@ def _check_joints(
             problems.append(f"the arm is not at rest at the {label} (joint velocity not zero)")
 
 
-def _distance_to_polyline(points: np.ndarray, polyline: np.ndarray) -> np.ndarray:
+def distance_to_polyline(points: np.ndarray, polyline: np.ndarray) -> np.ndarray:
     """Distance of each point to a polyline (exact, in chunks to bound memory)."""
     if len(polyline) == 1:
         return np.linalg.norm(points - polyline[0], axis=1)
@@ -248,7 +248,7 @@ def _check_path(
     for index, piece in enumerate(tool_path.pieces):
         mine = np.flatnonzero(trajectory.piece_index == index)
         if len(mine):
-            off_path[mine] = _distance_to_polyline(positions[mine], np.asarray(piece.points))
+            off_path[mine] = distance_to_polyline(positions[mine], np.asarray(piece.points))
     figures["max_deviation_from_tool_path_mm"] = float(off_path.max() * 1000)
     figures["max_deviation_from_planned_samples_mm"] = float(off_plan.max() * 1000)
     for label, error in (("tool path", off_path), ("planned tool positions", off_plan)):
@@ -332,7 +332,7 @@ def _check_footprint(
     outside = np.where(
         _inside_polygon(samples, outline),
         0.0,
-        _distance_to_polyline(
+        distance_to_polyline(
             np.column_stack([samples, np.zeros(len(samples))]),
             np.column_stack([closed, np.zeros(len(closed))]),
         ),

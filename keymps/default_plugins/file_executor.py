@@ -1,0 +1,75 @@
+"""The `file` executor: writes the validated trajectory as CSV and as a ROS JointTrajectory JSON."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from keymps.errors import KeympsError
+from keymps.hookspecs import Register, hookimpl
+from keymps.stages import ExecutionReport, ValidatedTrajectory
+
+if TYPE_CHECKING:
+    from keymps.run import Run
+
+
+class FileOptions(BaseModel):
+    """The executor section of a task file for `file` (every key but `name`)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, populate_by_name=True)
+
+    csv: Path | None = Path("trajectory.csv")
+    """Relative paths are inside the run folder; null skips the file."""
+    json_path: Path | None = Field(Path("trajectory.json"), alias="json")
+    """The task file's `json` key: the ROS JointTrajectory file."""
+
+
+class FileExecutor:
+    """Exports the trajectory; moves nothing."""
+
+    name = "file"
+
+    def __init__(self, options: FileOptions):
+        self.options = options
+
+    def execute(self, validated: ValidatedTrajectory, run: Run) -> ExecutionReport:
+        from keymps.safety import require_validated
+        from keymps.trajectory_io import write_joint_trajectory_json, write_trajectory_csv
+
+        trajectory = require_validated(validated, self.name)
+        files = []
+        if self.options.csv is not None:
+            files.append(write_trajectory_csv(trajectory, self._target(run, self.options.csv)))
+        if self.options.json_path is not None:
+            files.append(
+                write_joint_trajectory_json(trajectory, self._target(run, self.options.json_path))
+            )
+        names = ", ".join(str(f) for f in files) or "nothing (csv and json are both null)"
+        return ExecutionReport(
+            self.name,
+            True,
+            f"wrote {names}",
+            tuple(str(f) for f in files),
+            {"duration_s": trajectory.duration_s, "samples": float(trajectory.samples)},
+        )
+
+    @staticmethod
+    def _target(run: Run, path: Path) -> Path:
+        return path if path.is_absolute() else run.path(str(path))
+
+
+def make_file_executor(options: dict[str, Any]) -> FileExecutor:
+    try:
+        return FileExecutor(FileOptions.model_validate(options))
+    except ValidationError as error:
+        first = error.errors(include_url=False)[0]
+        where = ".".join(str(p) for p in first["loc"]) or "options"
+        message = "unknown option" if first["type"] == "extra_forbidden" else first["msg"]
+        raise KeympsError(f"executor file: {where}: {message}") from None
+
+
+@hookimpl
+def register_executors(register: Register) -> None:
+    register("file", make_file_executor)
