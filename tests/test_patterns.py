@@ -1,0 +1,157 @@
+"""Exact parametric designs: each checked against its defining geometry."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from keymps import patterns
+from keymps.patterns import Outline
+
+
+def disk(radius=50.0, centre=(100.0, 80.0)) -> Outline:
+    polygon = patterns.circle_polygon(centre, radius, 2000)
+    return Outline("round", polygon, np.array(centre), 0.0)
+
+
+def bar(length=200.0, width=40.0, angle=0.0, centre=(150.0, 100.0)) -> Outline:
+    polygon = patterns.rectangle_polygon(centre, length, width, angle)
+    kind = "square" if length == width else "elongated"
+    return Outline(kind, polygon, np.array(centre), angle)
+
+
+def test_offsets_by_count_and_width():
+    assert np.allclose(patterns.offsets_by_count(90, 3), [30, 60])
+    assert np.allclose(patterns.offsets_by_width(100, 25), [25, 50, 75])  # no cut at the far end
+    assert np.allclose(patterns.offsets_by_width(100, 30), [30, 60, 90])
+    assert np.allclose(patterns.offsets_by_width(160, 20, count=4), [20, 40, 60, 80])
+    with pytest.raises(ValueError):
+        patterns.offsets_by_width(100, 0)
+
+
+def test_parallel_slices_span_the_object():
+    outline = bar()
+    cuts = patterns.parallel_slices(outline, 0.0, parts=4, overshoot=2.0)
+    assert np.allclose(cuts[:, 0, 0], [100, 150, 200])
+    assert np.allclose(cuts[:, :, 1], [[78, 122]] * 3)  # 40 wide plus 2 each side
+
+
+def test_rotated_bar_cuts_are_perpendicular_to_its_axis():
+    angle = math.radians(30)
+    outline = bar(angle=angle)
+    cuts = patterns.parallel_slices(outline, angle, width=50.0)
+    assert len(cuts) == 3
+    for start, end in cuts:
+        assert abs(np.dot(end - start, patterns.direction(angle))) < 1e-9
+        assert np.linalg.norm(end - start) == pytest.approx(40.0)
+
+
+def test_both_tips():
+    cuts = patterns.both_tips(bar(), 0.0, inset=15.0)
+    assert np.allclose(cuts[:, 0, 0], [65.0, 235.0])
+
+
+@pytest.mark.parametrize("parts", [2, 3, 5, 6, 8, 10])
+def test_radial_slices_have_equal_angles(parts):
+    outline = disk()
+    cuts = patterns.radial_slices(outline, parts)
+    rays = []
+    for start, end in cuts:
+        for point in (start, end):
+            offset = point - outline.centre
+            if np.linalg.norm(offset) > 1:
+                rays.append(math.degrees(math.atan2(offset[1], offset[0])) % 360)
+                assert np.linalg.norm(offset) == pytest.approx(50.0, abs=0.01)
+    gaps = np.diff(sorted(rays) + [sorted(rays)[0] + 360])
+    assert len(rays) == parts and np.allclose(gaps, 360 / parts)
+
+
+def test_grid_shape_prefers_square_cells():
+    assert patterns.grid_shape(6) == (2, 3)
+    assert patterns.grid_shape(4) == (2, 2)
+    assert patterns.grid_shape(10) == (2, 5)
+    assert patterns.grid_shape(7) == (1, 7)
+    assert patterns.grid_shape(3, aspect=3.0) == (1, 3)
+
+
+def test_grid_cuts_and_cell_centres():
+    outline = bar(120, 120)
+    cuts = patterns.grid_cuts(outline, 2, 3)
+    assert len(cuts) == 2 + 1
+    centres = patterns.grid_cell_centres(outline, 2, 3)
+    assert np.allclose(sorted(set(np.round(centres[:, 0], 6))), [110, 150, 190])
+    assert np.allclose(sorted(set(np.round(centres[:, 1], 6))), [70, 130])
+
+
+def test_ring_of_dots():
+    dots = patterns.ring_of_dots((0, 0), 10.0, 15)
+    assert dots.shape == (15, 2, 2) and np.array_equal(dots[:, 0], dots[:, 1])
+    assert np.allclose(np.linalg.norm(dots[:, 0], axis=1), 10.0)
+    assert np.allclose(dots[0, 0], [0, -10])  # starts at the top
+    gaps = np.linalg.norm(np.diff(dots[:, 0], axis=0), axis=1)
+    assert np.allclose(gaps, gaps[0])
+
+
+def test_dots_along_an_inset_square_are_evenly_spaced():
+    path = patterns.inset_path(bar(100, 100), 10.0)
+    points = patterns.points_along_closed_path(path, 8)
+    closed = np.vstack([points, points[:1]])
+    assert np.all(np.abs(points - [150, 100]).max(axis=1) == pytest.approx(40.0))
+    assert np.allclose(np.abs(np.diff(closed, axis=0)).sum(axis=1), 40.0)  # 320 / 8, by arc
+
+
+def test_concentric_rings_and_spiral_are_chains():
+    rings = patterns.concentric_rings((0, 0), [30, 20], segments=24)
+    assert rings.shape == (48, 2, 2)
+    for ring, radius in zip(np.split(rings, 2), (30, 20), strict=True):
+        assert np.allclose(ring[1:, 0], ring[:-1, 1]) and np.allclose(ring[-1, 1], ring[0, 0])
+        assert np.allclose(np.linalg.norm(ring.reshape(-1, 2), axis=1), radius)
+    swirl = patterns.spiral((0, 0), 2.0, 40.0, turns=3, segments=90)
+    assert np.allclose(swirl[1:, 0], swirl[:-1, 1])
+    radii = np.linalg.norm(swirl[:, 1], axis=1)
+    assert np.all(np.diff(radii) > 0) and radii[-1] == pytest.approx(40.0)
+    turns = np.unwrap(np.arctan2(swirl[:, 1, 1], swirl[:, 1, 0]))
+    assert (turns[-1] - np.arctan2(swirl[0, 0, 1], swirl[0, 0, 0])) == pytest.approx(6 * math.pi)
+
+
+def test_stars():
+    pentagram = patterns.star((0, 0), 10.0, 5)
+    assert pentagram.shape == (5, 2, 2)
+    lengths = np.linalg.norm(pentagram[:, 1] - pentagram[:, 0], axis=1)
+    assert np.allclose(lengths, 2 * 10 * math.sin(2 * math.pi / 5))  # chords skipping one tip
+    outline = patterns.star((0, 0), 10.0, 4)
+    assert outline.shape == (8, 2, 2) and np.allclose(outline[1:, 0], outline[:-1, 1])
+    six = patterns.star((0, 0), 10.0, 6, inner_ratio=0.5)
+    radii = np.linalg.norm(six[:, 0], axis=1)
+    assert np.allclose(radii[0::2], 10.0) and np.allclose(radii[1::2], 5.0)
+
+
+@pytest.mark.parametrize(("text", "segments"), [("8", 7), ("1", 2), ("27", 8), ("2026", 22)])
+def test_seven_segment_counts(text, segments):
+    pairs = patterns.seven_segment(text, (0, 0), 20.0)
+    assert len(pairs) == segments
+    width, height = patterns.seven_segment_size(text, 20.0)
+    points = pairs.reshape(-1, 2)
+    assert np.all(points >= [-width / 2 - 1e-9, -height / 2 - 1e-9])
+    assert np.allclose(points.max(axis=0), [width / 2, height / 2])
+    assert np.isclose(points[:, 1].min(), -height / 2)
+
+
+def test_seven_segment_rejects_letters():
+    with pytest.raises(ValueError, match="no seven-segment form for 'x'"):
+        patterns.seven_segment("1x", (0, 0), 10)
+
+
+def test_dot_per_radial_slice_sits_at_each_wedge_centroid():
+    outline = disk(radius=60.0)
+    dots = patterns.dot_per_radial_slice(outline, 6)
+    distance = np.linalg.norm(dots[:, 0] - outline.centre, axis=1)
+    assert np.allclose(distance, 2 * 60 * math.sin(math.pi / 6) / (3 * math.pi / 6))
+    angles = np.round(np.degrees(np.arctan2(*(dots[:, 0] - outline.centre).T[::-1])), 6) % 360
+    assert np.allclose(sorted(angles), [0, 60, 120, 180, 240, 300])  # between the cuts
+
+
+def test_chord_misses_outside_the_object():
+    assert patterns.chord(disk(), np.array([0.0, 0.0]), 0.0) is None

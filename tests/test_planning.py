@@ -1,0 +1,230 @@
+"""Planning core: backend choice, answer validation, prompt templates, the answer cache."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from synthetic_crops import CUTTING, ICING, make_scene, make_task, plan_for
+from vlm_server import Reply, VlmServer
+
+from keymps.errors import KeympsError
+from keymps.plan_answer import answer_schema, extract_json, parse_and_validate
+from keymps.plan_prompt import PLACEHOLDERS, find_prompt, prompt_family, render_template
+from keymps.planning import choose_backend, redact
+from keymps.run import RunOptions
+
+GOOD = {"keyword": "sawing", "pairs": [[[10, 20], [150, 20]]], "rationale": "one cut"}
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return make_scene("ellipse", (200, 80))
+
+
+# --- choose_backend --------------------------------------------------------------------------
+
+
+@pytest.fixture
+def no_keys(monkeypatch):
+    for name in (
+        "OPENAI_API_KEY",
+        "ANTHROPIC_API_KEY",
+        "GEMINI_API_KEY",
+        "GOOGLE_API_KEY",
+        "OLLAMA_API_BASE",
+        "MY_VLM_KEY",
+    ):
+        monkeypatch.delenv(name, raising=False)
+    return monkeypatch
+
+
+def test_auto_without_a_model_is_offline(scene, no_keys):
+    task = make_task("Cut it in half", scene, CUTTING)
+    backend, reason = choose_backend(task, None, None, None)
+    assert backend == "offline" and "no VLM model" in reason
+
+
+def test_auto_with_a_model_but_no_key_is_offline_and_names_the_variable(scene, no_keys):
+    task = make_task("Cut it in half", scene, CUTTING, model="openai/gpt-4o")
+    backend, reason = choose_backend(task, None, None, None)
+    assert backend == "offline" and "$OPENAI_API_KEY" in reason
+
+
+@pytest.mark.parametrize(
+    ("model", "variable"),
+    [
+        ("openai/gpt-4o", "OPENAI_API_KEY"),
+        ("anthropic/claude-sonnet-4-5", "ANTHROPIC_API_KEY"),
+        ("claude-3-5-sonnet-latest", "ANTHROPIC_API_KEY"),
+        ("gemini/gemini-2.0-flash", "GEMINI_API_KEY"),
+    ],
+)
+def test_auto_with_the_providers_key_is_litellm(scene, no_keys, model, variable):
+    no_keys.setenv(variable, "sk-test-value")
+    task = make_task("Cut it in half", scene, CUTTING, model=model)
+    backend, reason = choose_backend(task, None, None, None)
+    assert backend == "litellm" and f"${variable}" in reason and "sk-test" not in reason
+
+
+def test_auto_with_task_key_variable_or_api_base_is_litellm(scene, no_keys):
+    task = make_task("Cut it in half", scene, CUTTING, model="openai/x", api_key_env="MY_VLM_KEY")
+    assert choose_backend(task, None, None, None)[0] == "offline"
+    no_keys.setenv("MY_VLM_KEY", "secret-value-123")
+    assert choose_backend(task, None, None, None) == (
+        "litellm",
+        "model openai/x with credentials from $MY_VLM_KEY",
+    )
+    plain = make_task("Cut it in half", scene, CUTTING)
+    backend, reason = choose_backend(plain, None, "ollama/llava", "http://127.0.0.1:11434")
+    assert backend == "litellm" and "http://127.0.0.1:11434" in reason
+
+
+def test_explicit_backend_wins(scene, no_keys):
+    task = make_task("Cut it in half", scene, CUTTING, backend="replay")
+    assert choose_backend(task, None, None, None)[0] == "replay"
+    assert choose_backend(task, "offline", None, None) == (
+        "offline",
+        "--backend asks for the offline planner",
+    )
+
+
+# --- answers ---------------------------------------------------------------------------------
+
+
+def test_json_is_found_in_fences_and_prose():
+    assert extract_json('```json\n{"a": 1}\n```') == {"a": 1}
+    assert extract_json('Sure. {"a": {"b": "}"}} Hope it helps {') == {"a": {"b": "}"}}
+    with pytest.raises(ValueError):
+        extract_json("no object here")
+
+
+def test_validation_rules():
+    keys = ["straight", "sawing"]
+    ok, problems = parse_and_validate(json.dumps(GOOD), "combined", keys, (200, 100), 64)
+    assert ok is not None and problems == []
+    bad = {"keyword": "chop", "pairs": [[[10, 20], [250, 20]], [[-1, 5], [5, 5]]]}
+    _, problems = parse_and_validate(json.dumps(bad), "combined", keys, (200, 100), 64)
+    assert problems[0] == "keyword 'chop' is not one of: straight, sawing"
+    assert any("pair 1 end (250, 20) is outside the image" in p for p in problems)
+    assert any("pair 2 start (-1, 5)" in p for p in problems)
+    too_many = {**GOOD, "pairs": GOOD["pairs"] * 3}
+    _, problems = parse_and_validate(json.dumps(too_many), "combined", keys, (200, 100), 2)
+    assert problems == ["pairs: 3 pairs given; give between 1 and 2"]
+    _, problems = parse_and_validate(
+        '{"keyword": "sawing", "pairs": [[[1, NaN], [2, 2]]]}', "combined", keys, (200, 100), 64
+    )
+    assert problems and "finite" in problems[0]
+    _, problems = parse_and_validate(
+        '{"keyword": "sawing", "pairs": [[1, 2]]}', "combined", keys, (200, 100), 64
+    )
+    assert problems and problems[0].startswith("pairs.0")
+
+
+def test_schema_lists_the_primitives_and_is_strict():
+    schema = answer_schema("combined", ["line"], 64)
+    body = schema["schema"]
+    assert body["properties"]["keyword"]["enum"] == ["line"]
+    assert body["required"] == ["keyword", "pairs", "rationale"]
+    assert body["additionalProperties"] is False and schema["strict"] is True
+
+
+# --- prompts ---------------------------------------------------------------------------------
+
+
+def test_shipped_prompts_use_only_known_placeholders(tmp_path):
+    for family in ("cutting", "icing"):
+        path = find_prompt(None, tmp_path, family)
+        text = render_template(path.read_text(), {k: f"<{k}>" for k in PLACEHOLDERS}, str(path))
+        assert "{{" not in text and "<output_format>" in text and "<primitives>" in text
+
+
+def test_unknown_placeholder_names_file_and_line():
+    with pytest.raises(KeympsError, match=r"my\.md:2: unknown placeholder \{\{colour\}\}"):
+        render_template("ok {{instruction}}\nbad {{colour}}", {}, "my.md")
+
+
+def test_prompt_family_follows_the_primitives():
+    assert prompt_family(ICING) == "icing" and prompt_family(CUTTING) == "cutting"
+
+
+def test_the_prompt_sent_describes_primitives_and_coordinates(scene, tmp_path):
+    plan, run = plan_for("Cut it in half", scene, CUTTING, folder=tmp_path)
+    system = plan.calls[0].request["messages"][0]["content"]
+    assert "- sawing: Forward and backward sawing" in system
+    width, height = scene.detection.crop_size_px
+    assert f"{width} x {height} pixels" in system and "top-left" in system
+    assert "{{" not in system
+
+
+def test_redact_removes_keys_and_secret_values():
+    data = {"api_key": "abc", "headers": {"Authorization": "Bearer x"}, "text": "key sk-12345678"}
+    assert redact(data, ["sk-12345678"]) == {
+        "api_key": "[redacted]",
+        "headers": {"Authorization": "[redacted]"},
+        "text": "key [redacted]",
+    }
+
+
+def test_max_pairs_too_small_for_the_design_is_a_clean_error(scene):
+    with pytest.raises(KeympsError, match="more than planner.max_pairs = 2"):
+        plan_for("Cut it into 8 equal slices", scene, CUTTING, max_pairs=2)
+
+
+# --- cache -----------------------------------------------------------------------------------
+
+
+def test_a_rerun_with_the_same_inputs_costs_no_call(scene, tmp_path, monkeypatch):
+    monkeypatch.setenv("KEYMPS_CACHE_DIR", str(tmp_path / "cache"))
+    with VlmServer(responder=lambda request: json.dumps(GOOD)) as server:
+        settings = {"model": "openai/test-vlm", "api_base": server.openai_base}
+        first, _ = plan_for(
+            "Cut it in half", scene, CUTTING, backend="litellm", folder=tmp_path / "a", **settings
+        )
+        second, _ = plan_for(
+            "Cut it in half", scene, CUTTING, backend="litellm", folder=tmp_path / "b", **settings
+        )
+        assert len(server.chat_requests) == 1
+        assert [c.cached for c in second.calls] == [True] and second.calls[0].cost_usd == 0.0
+        assert np.array_equal(first.pairs_px, second.pairs_px)
+        # another sentence, --no-cache, or planner.cache: false each make a new call
+        plan_for(
+            "Cut it in two", scene, CUTTING, backend="litellm", folder=tmp_path / "c", **settings
+        )
+        plan_for(
+            "Cut it in half",
+            scene,
+            CUTTING,
+            backend="litellm",
+            folder=tmp_path / "d",
+            options=RunOptions(no_cache=True),
+            **settings,
+        )
+        plan_for(
+            "Cut it in half",
+            scene,
+            CUTTING,
+            backend="litellm",
+            folder=tmp_path / "e",
+            cache=False,
+            **settings,
+        )
+        assert len(server.chat_requests) == 4
+    assert list((tmp_path / "cache").rglob("*.json"))
+
+
+def test_invalid_answers_are_not_cached(scene, tmp_path, monkeypatch):
+    monkeypatch.setenv("KEYMPS_CACHE_DIR", str(tmp_path / "cache"))
+    with VlmServer(responder=lambda request: json.dumps(GOOD)) as server:
+        server.script(Reply.text_answer("nonsense"))
+        settings = {"model": "openai/test-vlm", "api_base": server.openai_base}
+        plan_for(
+            "Cut it in half", scene, CUTTING, backend="litellm", folder=tmp_path / "a", **settings
+        )
+        again, _ = plan_for(
+            "Cut it in half", scene, CUTTING, backend="litellm", folder=tmp_path / "b", **settings
+        )
+        # the invalid first answer was not kept: the rerun asks again (and gets a good answer)
+        assert len(server.chat_requests) == 3
+        assert [(c.cached, c.error) for c in again.calls] == [(False, None)]

@@ -1,0 +1,229 @@
+"""A real local VLM server for tests: OpenAI-compatible and Ollama-style endpoints on 127.0.0.1.
+
+Answers are scripted: queue them with `server.script(...)`; when the queue is empty the default
+responder answers. Every request is recorded (path, headers, JSON body) for assertions.
+
+    with VlmServer() as server:
+        server.script(Reply.text("not json"), Reply.text('{"keyword": ...}'))
+        litellm.completion(model="openai/test-vlm", api_base=server.openai_base, ...)
+        server.requests[0].body["messages"]
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from typing import Any
+
+
+@dataclass(frozen=True)
+class Reply:
+    """One scripted reply: a model answer, an HTTP error, a slow answer, or a cut connection."""
+
+    kind: str
+    text: str = ""
+    status: int = 200
+    headers: dict[str, str] = field(default_factory=dict)
+    delay_s: float = 0.0
+
+    @staticmethod
+    def text_answer(text: str, delay_s: float = 0.0) -> Reply:
+        return Reply("answer", text=text, delay_s=delay_s)
+
+    @staticmethod
+    def json_answer(data: Any, delay_s: float = 0.0) -> Reply:
+        return Reply("answer", text=json.dumps(data), delay_s=delay_s)
+
+    @staticmethod
+    def error(status: int, retry_after: float | None = None, message: str = "") -> Reply:
+        headers = {"Retry-After": f"{retry_after:g}"} if retry_after is not None else {}
+        return Reply("error", status=status, headers=headers, text=message or f"error {status}")
+
+    @staticmethod
+    def truncated() -> Reply:
+        return Reply("truncated")
+
+
+@dataclass(frozen=True)
+class Recorded:
+    path: str
+    headers: dict[str, str]
+    body: Any
+
+
+Responder = Callable[[Recorded], str]
+
+
+def _openai_completion(text: str, model: str) -> dict[str, Any]:
+    return {
+        "id": "chatcmpl-test",
+        "object": "chat.completion",
+        "created": int(time.time()),
+        "model": model,
+        "choices": [
+            {
+                "index": 0,
+                "message": {"role": "assistant", "content": text},
+                "finish_reason": "stop",
+            }
+        ],
+        "usage": {"prompt_tokens": 321, "completion_tokens": 45, "total_tokens": 366},
+    }
+
+
+def _ollama_completion(text: str, model: str, chat: bool) -> dict[str, Any]:
+    reply: dict[str, Any] = {
+        "model": model,
+        "created_at": "2026-01-01T00:00:00Z",
+        "done": True,
+        "done_reason": "stop",
+        "prompt_eval_count": 321,
+        "eval_count": 45,
+    }
+    if chat:
+        reply["message"] = {"role": "assistant", "content": text}
+    else:
+        reply["response"] = text
+    return reply
+
+
+class VlmServer:
+    """Serves on 127.0.0.1 at an ephemeral port, in a background thread."""
+
+    def __init__(self, responder: Responder | None = None):
+        self.responder = responder or (lambda request: '{"keyword": "x", "pairs": []}')
+        self.requests: list[Recorded] = []
+        self._queue: list[Reply] = []
+        self._lock = threading.Lock()
+        self._server = ThreadingHTTPServer(("127.0.0.1", 0), self._handler_class())
+        self._server.daemon_threads = True
+        self._thread = threading.Thread(target=self._server.serve_forever, daemon=True)
+
+    @property
+    def port(self) -> int:
+        return int(self._server.server_address[1])
+
+    @property
+    def url(self) -> str:
+        return f"http://127.0.0.1:{self.port}"
+
+    @property
+    def openai_base(self) -> str:
+        return f"{self.url}/v1"
+
+    def script(self, *replies: Reply) -> None:
+        with self._lock:
+            self._queue.extend(replies)
+
+    def reset(self) -> None:
+        with self._lock:
+            self._queue.clear()
+            self.requests.clear()
+
+    @property
+    def chat_requests(self) -> list[Recorded]:
+        return [
+            r
+            for r in self.requests
+            if r.path.endswith(("/chat/completions", "/api/chat", "/api/generate"))
+        ]
+
+    def __enter__(self) -> VlmServer:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        self._server.shutdown()
+        self._server.server_close()
+
+    def _next(self) -> Reply | None:
+        with self._lock:
+            return self._queue.pop(0) if self._queue else None
+
+    def _handler_class(self) -> type[BaseHTTPRequestHandler]:
+        server = self
+
+        class Handler(BaseHTTPRequestHandler):
+            protocol_version = "HTTP/1.1"
+
+            def log_message(self, format: str, *args: Any) -> None:
+                return None
+
+            def _send_json(
+                self, status: int, data: Any, headers: dict[str, str] | None = None
+            ) -> None:
+                payload = json.dumps(data).encode()
+                self.send_response(status)
+                self.send_header("Content-Type", "application/json")
+                self.send_header("Content-Length", str(len(payload)))
+                for key, value in (headers or {}).items():
+                    self.send_header(key, value)
+                self.end_headers()
+                self.wfile.write(payload)
+
+            def do_GET(self) -> None:
+                if self.path.rstrip("/").endswith(("/models", "/api/tags")):
+                    self._send_json(200, {"object": "list", "data": [], "models": []})
+                else:
+                    self._send_json(404, {"error": {"message": "not found"}})
+
+            def do_POST(self) -> None:
+                # the client may give up first (a timeout test): nothing left to answer
+                with contextlib.suppress(BrokenPipeError, ConnectionResetError):
+                    self._answer_post()
+
+            def _answer_post(self) -> None:
+                length = int(self.headers.get("Content-Length", "0"))
+                raw = self.rfile.read(length) if length else b""
+                try:
+                    body = json.loads(raw or b"{}")
+                except json.JSONDecodeError:
+                    body = {"_raw": raw.decode("utf-8", "replace")}
+                record = Recorded(self.path, {k.lower(): v for k, v in self.headers.items()}, body)
+                with server._lock:
+                    server.requests.append(record)
+                if self.path.endswith("/api/show"):
+                    self._send_json(200, {"model_info": {}, "details": {}, "template": ""})
+                    return
+                reply = server._next() or Reply.text_answer(server.responder(record))
+                if reply.delay_s:
+                    time.sleep(reply.delay_s)
+                model = str(body.get("model", "test"))
+                if reply.kind == "error":
+                    self._send_json(
+                        reply.status,
+                        {
+                            "error": {
+                                "message": reply.text,
+                                "type": "server_error",
+                                "code": reply.status,
+                            }
+                        },
+                        reply.headers,
+                    )
+                    return
+                if reply.kind == "truncated":
+                    self.send_response(200)
+                    self.send_header("Content-Type", "application/json")
+                    self.send_header("Content-Length", "4096")
+                    self.end_headers()
+                    self.wfile.write(b'{"id": "chatcmpl-test", "choices": [{"mess')
+                    self.wfile.flush()
+                    self.close_connection = True
+                    return
+                if self.path.endswith("/api/chat"):
+                    self._send_json(200, _ollama_completion(reply.text, model, chat=True))
+                elif self.path.endswith("/api/generate"):
+                    self._send_json(200, _ollama_completion(reply.text, model, chat=False))
+                else:
+                    self._send_json(200, _openai_completion(reply.text, model))
+
+        return Handler
