@@ -16,6 +16,7 @@ from functools import cache
 from importlib import metadata
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
+from urllib.parse import unquote, urlparse
 
 import numpy as np
 from platformdirs import user_cache_dir
@@ -30,6 +31,9 @@ URDF_SUFFIX = "robots/ur_description/urdf/ur3_robot.urdf"
 PACKAGE_PREFIX = "package://example-robot-data/"
 ROBOT_ENTITY = "world/robot"
 MOUNT_ENTITY = "world/robot/mount"
+TOOL_ENTITY = "world/robot/tool"
+FLANGE_FRAME = "tool0"
+"""The URDF's flange frame; the tool's TCP is given in it (keymps.robot's convention)."""
 JOINT_ENTITY = "world/robot/joint_transforms"
 URDF_ROOT_FRAME = "world"
 """The URDF's root link; `world/robot/mount` connects it to the board frame (tf#/world)."""
@@ -50,17 +54,10 @@ def ur3_urdf_path() -> Path:
     raise KeympsError(f"example-robot-data is installed but has no {URDF_SUFFIX}")
 
 
-@cache
-def loggable_urdf() -> Path:
-    """A copy of the UR3 URDF with absolute mesh paths and no collision geometry."""
-    source = ur3_urdf_path()
-    share = source.parents[3]  # .../share/example-robot-data/robots/ur_description/urdf
-    text = source.read_text(encoding="utf-8")
-    text = text.replace(PACKAGE_PREFIX, share.as_uri() + "/")
-    text = re.sub(r"<collision>.*?</collision>", "", text, flags=re.DOTALL)
-    digest = hashlib.sha256(text.encode()).hexdigest()[:12]
+def _cache_file(name: str, text: str) -> Path:
+    """Write text once to the user cache folder (else the temp folder); return its path."""
     for folder in (Path(user_cache_dir("keymps")) / "urdf", Path(tempfile.gettempdir())):
-        target = folder / f"ur3-{digest}.urdf"
+        target = folder / name
         try:
             folder.mkdir(parents=True, exist_ok=True)
             if not target.is_file():
@@ -70,7 +67,52 @@ def loggable_urdf() -> Path:
             return target
         except OSError:
             continue
-    raise KeympsError("cannot write the UR3 URDF copy to the cache folder or the temp folder")
+    raise KeympsError(f"cannot write {name} to the cache folder or the temp folder")
+
+
+def _digest(text: str) -> str:
+    return hashlib.sha256(text.encode()).hexdigest()[:12]
+
+
+def _triangles_only(collada: str) -> str | None:
+    """The COLLADA text with its all-triangle <polylist>s written as <triangles>, or None.
+
+    Rerun's COLLADA importer skips <polylist> geometry: the UR3's wrist3.dae (the flange)
+    would be missing from the drawing.
+    """
+    if "<polylist" not in collada:
+        return None
+    counts = re.findall(r"<vcount>([^<]*)</vcount>", collada)
+    if not counts or any(set(c.split()) != {"3"} for c in counts):
+        return None
+    collada = re.sub(r"\s*<vcount>[^<]*</vcount>", "", collada)
+    return collada.replace("<polylist", "<triangles").replace("</polylist>", "</triangles>")
+
+
+def _loggable_mesh(uri: str) -> str:
+    path = Path(unquote(urlparse(uri).path))
+    if path.suffix.lower() != ".dae" or not path.is_file():
+        return uri
+    converted = _triangles_only(path.read_text(encoding="utf-8"))
+    if converted is None:
+        return uri
+    return _cache_file(f"{path.stem}-{_digest(converted)}.dae", converted).as_uri()
+
+
+@cache
+def loggable_urdf() -> Path:
+    """A copy of the UR3 URDF with absolute mesh paths, meshes Rerun can read, no collisions."""
+    source = ur3_urdf_path()
+    share = source.parents[3]  # .../share/example-robot-data/robots/ur_description/urdf
+    text = source.read_text(encoding="utf-8")
+    text = text.replace(PACKAGE_PREFIX, share.as_uri() + "/")
+    text = re.sub(r"<collision>.*?</collision>", "", text, flags=re.DOTALL)
+    text = re.sub(
+        r'(<mesh filename=")([^"]+)(")',
+        lambda match: match.group(1) + _loggable_mesh(match.group(2)) + match.group(3),
+        text,
+    )
+    return _cache_file(f"ur3-{_digest(text)}.urdf", text)
 
 
 def mount_transform(task: Task) -> tuple[list[float], list[float]]:
@@ -93,6 +135,55 @@ def log_robot_model(rec: Any, task: Task) -> None:
             quaternion=rr.Quaternion(xyzw=quaternion),
             parent_frame="tf#/world",
             child_frame=URDF_ROOT_FRAME,
+        ),
+        static=True,
+    )
+    log_tool(rec, task)
+
+
+def tool_tcp(task: Task) -> tuple[float, float, float] | None:
+    """The task's tool tip in the flange frame (keymps.robot), or None without a known tool."""
+    try:
+        from keymps.robot import tool_from_task
+
+        return tool_from_task(task).tcp
+    except (ImportError, KeympsError):
+        return None
+
+
+def _z_to(direction: np.ndarray) -> list[float]:
+    """xyzw quaternion turning +z onto `direction` (a unit vector)."""
+    z = np.array([0.0, 0.0, 1.0])
+    axis = np.cross(z, direction)
+    sin, cos = float(np.linalg.norm(axis)), float(np.dot(z, direction))
+    if sin < 1e-9:
+        return [0.0, 0.0, 0.0, 1.0] if cos > 0 else [1.0, 0.0, 0.0, 0.0]
+    half = math.atan2(sin, cos) / 2.0
+    axis = axis / sin * math.sin(half)
+    return [float(axis[0]), float(axis[1]), float(axis[2]), math.cos(half)]
+
+
+def log_tool(rec: Any, task: Task) -> None:
+    """The tool as a capsule from the flange to its tip, riding on the flange frame."""
+    import rerun as rr
+
+    tcp = tool_tcp(task)
+    if tcp is None:
+        return
+    offset = np.array(tcp, dtype=float)
+    length = float(np.linalg.norm(offset))
+    if length < 1e-6:
+        return
+    rec.log(
+        TOOL_ENTITY,
+        rr.CoordinateFrame(FLANGE_FRAME),
+        rr.Capsules3D(
+            lengths=[length],
+            radii=[0.006],
+            translations=[[0.0, 0.0, 0.0]],
+            quaternions=[_z_to(offset / length)],
+            colors=[[200, 200, 210, 255]],
+            labels=[task.robot.tool.name],
         ),
         static=True,
     )

@@ -181,25 +181,10 @@ def _joint_path(tool_path: ToolPath) -> JointPath:
     )
 
 
-def tool0_positions(q: np.ndarray, base: tuple[float, float, float, float]) -> np.ndarray:
-    """Pinocchio FK of the URDF's tool0 frame, placed on the board like the recorder does."""
-    import pinocchio as pin
+def _trajectory(task) -> Trajectory:
+    """Made-up joint motion; the tool positions from keymps.robot's FK (the IK's own model)."""
+    from keymps.robot import RobotModel
 
-    from keymps.rerun_robot import ur3_urdf_path
-
-    model = pin.buildModelFromUrdf(str(ur3_urdf_path()))
-    data = model.createData()
-    frame = model.getFrameId("tool0")
-    x, y, z, yaw = base
-    rotation = pin.utils.rpyToMatrix(0.0, 0.0, np.radians(yaw))
-    positions = []
-    for row in q:
-        pin.framesForwardKinematics(model, data, row)
-        positions.append(rotation @ data.oMf[frame].translation + [x, y, z])
-    return np.array(positions)
-
-
-def _trajectory(base: tuple[float, float, float, float]) -> Trajectory:
     t = np.arange(SAMPLES) / RATE_HZ
     phase = t / t[-1]
     q = np.column_stack(
@@ -219,7 +204,7 @@ def _trajectory(base: tuple[float, float, float, float]) -> Trajectory:
         q=q,
         qd=qd,
         qdd=np.gradient(qd, t, axis=0),
-        tool_xyz=tool0_positions(q, base),
+        tool_xyz=RobotModel.from_task(task).tool_positions(q),
         piece_index=(phase * 3).astype(int),
         kind=kind,
         joint_names=JOINTS,
@@ -249,7 +234,7 @@ def make_run(tmp_path: Path, **options: object) -> tuple[Run, Results]:
     plan = _plan()
     grounding = ground(plan, detection, task, scene.size_px)
     tool_path = _tool_path(grounding.segments_m)
-    trajectory = _trajectory(task.robot.base)
+    trajectory = _trajectory(task)
     validated = ValidatedTrajectory(
         trajectory, ValidationReport(ok=True, problems=(), figures={"min_tool_z_m": 0.05})
     )
@@ -322,6 +307,7 @@ def test_documented_entities_have_their_archetypes(recorded):
         "/world/tool_path/travel": "LineStrips3D",
         "/world/tool_tip": "Points3D",
         "/world/robot/mount": "Transform3D",
+        "/world/robot/tool": "Capsules3D",
         "/tool/speed": "Scalars",
         "/check/report": "TextDocument",
         "/execute/report": "TextDocument",
@@ -405,6 +391,10 @@ def test_robot_meshes_come_from_the_urdf(recorded):
         "wrist_2_link",
         "wrist_3_link",
     }
+    # Rerun's COLLADA importer skips <polylist> geometry; the flange mesh must be triangles.
+    flange = next(entities[path] for path in meshes if "/wrist_3_link/" in path)
+    blob = bytes(flange.data["Asset3D:blob"][0][0])
+    assert b"<triangles" in blob and b"<polylist" not in blob
 
 
 def _matrix(translation: list[float], quaternion_xyzw: list[float] | None) -> np.ndarray:
@@ -417,9 +407,9 @@ def _matrix(translation: list[float], quaternion_xyzw: list[float] | None) -> np
     return matrix
 
 
-def test_the_recorded_robot_holds_the_tool_on_the_planned_path(recorded):
-    """Chaining the frames in the file (mount, URDF fixed joints, animated joints) puts the
-    tool0 frame where the trajectory's tool is, at every recorded robot sample."""
+def test_the_recorded_robot_holds_the_tool_tip_on_the_planned_path(recorded):
+    """Chaining the frames in the file (mount, URDF fixed joints, animated joints) and the
+    drawn tool's length puts the tool tip where keymps.robot's FK puts it."""
     _, results, entities = recorded
     edges: dict[str, tuple[str, np.ndarray]] = {}
 
@@ -438,6 +428,13 @@ def test_the_recorded_robot_holds_the_tool_on_the_planned_path(recorded):
     for row in range(len(tf_static.data["Transform3D:child_frame"])):
         add(tf_static, row)
     add(entities["/world/robot/mount"], 0)
+    tool = entities["/world/robot/tool"].data
+    tool_frame = tool["CoordinateFrame:frame"][0][0]
+    tip_in_tool_frame = _matrix([0.0, 0.0, 0.0], tool["Capsules3D:quaternions"][0][0])[:3, :3] @ [
+        0.0,
+        0.0,
+        tool["Capsules3D:lengths"][0][0],
+    ]
     elbow = entities["/world/robot/joint_transforms/elbow_joint"]
     joint_rows = len(elbow.data["Transform3D:child_frame"])
     picked = subsample_indices(results.trajectory.t, rerun_recorder.ROBOT_RATE_HZ)
@@ -445,13 +442,14 @@ def test_the_recorded_robot_holds_the_tool_on_the_planned_path(recorded):
     for row in (0, joint_rows // 2, joint_rows - 1):
         for name in JOINTS:
             add(entities[f"/world/robot/joint_transforms/{name}"], row)
-        pose, frame = np.eye(4), "tool0"
+        pose, frame = np.eye(4), tool_frame
         while frame in edges:
             parent, matrix = edges[frame]
             pose = matrix @ pose
             frame = parent
         assert frame == "tf#/world"
-        np.testing.assert_allclose(pose[:3, 3], results.trajectory.tool_xyz[picked[row]], atol=1e-4)
+        tip = pose @ np.append(tip_in_tool_frame, 1.0)
+        np.testing.assert_allclose(tip[:3], results.trajectory.tool_xyz[picked[row]], atol=1e-4)
 
 
 def test_no_trace_of_the_api_key_in_the_file(recorded):
