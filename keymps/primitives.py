@@ -22,6 +22,8 @@ FORMAT = "keymps-primitive/1"
 DEMO_COLUMNS = ("t", "x", "y", "z")
 NAME_PATTERN = re.compile(r"^[a-z][a-z0-9_-]{0,63}$")
 MIN_DEMO_SAMPLES = 10
+MAX_FIT_RMSE = 0.0005
+"""Bundled primitives fit their demonstrations at least this well (metres); `learn` warns above."""
 
 
 class PrimitiveError(KeympsError):

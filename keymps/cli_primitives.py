@@ -1,0 +1,290 @@
+"""`keymps primitives`: list, show, learn and plot the primitive dictionary."""
+
+from __future__ import annotations
+
+import functools
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import click
+
+
+def _user_errors(command: Callable[..., Any]) -> Callable[..., Any]:
+    """A KeympsError becomes `error: <message>` on stderr and exit code 1."""
+
+    @functools.wraps(command)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        from keymps.errors import KeympsError
+
+        try:
+            return command(*args, **kwargs)
+        except KeympsError as error:
+            for line in str(error).splitlines() or ["unknown error"]:
+                click.echo(f"error: {line}", err=True)
+            sys.exit(1)
+
+    return wrapper
+
+
+def _search_dirs(extra: tuple[Path, ...]) -> list[Path]:
+    from keymps.primitives import default_search_dirs
+
+    return [*(p.resolve() for p in extra), *default_search_dirs(Path.cwd())]
+
+
+_dir_option = click.option(
+    "--dir",
+    "dirs",
+    multiple=True,
+    type=click.Path(path_type=Path, file_okay=False),
+    help="Also search this folder (first). Repeatable.",
+)
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+def primitives() -> None:
+    """The primitive dictionary: DMPs fitted to demonstrations, chosen by the planner.
+
+    Search order: DIRs given with --dir, ../primitives and primitives/ of the current folder,
+    each folder in KEYMPS_PRIMITIVES_PATH, ./primitives, then the bundled dictionary."""
+
+
+@primitives.command("list")
+@_dir_option
+@_user_errors
+def list_command(dirs: tuple[Path, ...]) -> None:
+    """List every primitive found, first match of a name winning."""
+    from keymps.primitives import find_primitive_files, load_primitive
+
+    found = find_primitive_files(_search_dirs(dirs))
+    if not found:
+        click.echo("no primitives found")
+        return
+    rows = [("NAME", "FAMILY", "MODE", "SPEED m/s", "FIT RMSE mm", "FILE")]
+    for name, path in sorted(found.items()):
+        p = load_primitive(path)
+        rows.append(
+            (name, p.family, p.mode, f"{p.nominal_speed:.3f}", f"{p.fit_rmse * 1e3:.3f}", str(path))
+        )
+    widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]) - 1)]
+    for row in rows:
+        padded = [cell.ljust(width) for cell, width in zip(row[:-1], widths, strict=True)]
+        click.echo("  ".join([*padded, row[-1]]))
+
+
+@primitives.command()
+@click.argument("name")
+@_dir_option
+@_user_errors
+def show(name: str, dirs: tuple[Path, ...]) -> None:
+    """Show one primitive: what the planner reads, its DMP and its demonstration."""
+    import numpy as np
+
+    from keymps.primitives import load_demo_csv, load_primitives
+
+    p = load_primitives([name], _search_dirs(dirs))[name]
+    dmp = p.dmp
+    rollout = dmp.rollout(dmp.demo_start, dmp.demo_goal)
+    extent = np.ptp(rollout.y, axis=0) * 1000
+    lines = [
+        f"name:          {p.name}",
+        f"file:          {p.path}",
+        f"family:        {p.family}",
+        f"mode:          {p.mode}",
+        f"nominal speed: {p.nominal_speed:.3f} m/s (average along the path)",
+        f"description:   {p.description}",
+        f"DMP:           {dmp.n_basis} basis functions per axis, alpha_z {dmp.alpha_z:g}, "
+        f"beta_z {dmp.beta_z:g}, alpha_s {dmp.alpha_s:g}",
+        f"demo start:    {_mm(dmp.demo_start)} mm",
+        f"demo goal:     {_mm(dmp.demo_goal)} mm",
+        f"demo duration: {dmp.demo_duration:.3f} s",
+        f"path:          {rollout.length_m * 1000:.1f} mm long, extent x {extent[0]:.1f} "
+        f"y {extent[1]:.1f} z {extent[2]:.1f} mm",
+        f"fit RMSE:      {p.fit_rmse * 1000:.4f} mm",
+    ]
+    if p.demo is not None:
+        if p.demo.is_file():
+            t, _ = load_demo_csv(p.demo)
+            lines.append(f"demo:          {p.demo} ({len(t)} samples)")
+        else:
+            lines.append(f"demo:          {p.demo} (missing)")
+    if p.source:
+        lines.append(f"learned from:  {p.source}")
+    click.echo("\n".join(lines))
+
+
+def _mm(point: Any) -> str:
+    return "[" + ", ".join(f"{1000 * v:.1f}" for v in point) + "]"
+
+
+def _point(text: str) -> tuple[float, float, float]:
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise click.BadParameter(f"{text!r} is not three numbers A,B,C (metres)") from None
+    if len(values) != 3:
+        raise click.BadParameter(f"{text!r} is not three numbers A,B,C (metres)")
+    return values[0], values[1], values[2]
+
+
+@primitives.command()
+@click.argument("demo", type=click.Path(path_type=Path, dir_okay=False))
+@click.option("--name", required=True, help="Primitive name (lower case, e.g. my-saw).")
+@click.option("--basis", default=50, show_default=True, help="Basis functions per axis.")
+@click.option("--description", help="What the planner reads when choosing (say when to use it).")
+@click.option(
+    "--family", type=click.Choice(["cutting", "icing"]), default="cutting", show_default=True
+)
+@click.option(
+    "--mode",
+    type=click.Choice(["similarity", "axial", "translate"]),
+    default="similarity",
+    show_default=True,
+    help="How the demo is re-targeted to a keypoint pair.",
+)
+@click.option("--speed", default=0.03, show_default=True, help="Nominal tool speed, m/s.")
+@click.option("--rate", type=float, help="Resample to this rate, Hz (default: keep, or median).")
+@click.option("--smooth", default=0.0, show_default=True, help="Smoothing window, s (0: off).")
+@click.option("--trim", default=0.5, show_default=True, help="Trim still ends within this, mm.")
+@click.option(
+    "--out",
+    type=click.Path(path_type=Path, file_okay=False),
+    default=Path("primitives"),
+    show_default=True,
+    help="Folder for NAME.yaml and the prepared NAME.csv.",
+)
+@_user_errors
+def learn(
+    demo: Path,
+    name: str,
+    basis: int,
+    description: str | None,
+    family: str,
+    mode: str,
+    speed: float,
+    rate: float | None,
+    smooth: float,
+    trim: float,
+    out: Path,
+) -> None:
+    """Fit a primitive to DEMO.csv (header t,x,y,z; seconds, metres) and write OUT/NAME.yaml.
+
+    A robot log is cleaned first: resampled to a uniform rate, smoothed (Savitzky-Golay, cubic)
+    and trimmed of the still samples at both ends; pauses in the middle are kept."""
+    from keymps.primitives import MAX_FIT_RMSE, Preprocessing, PrimitiveError, learn_primitive
+
+    if (rate is not None and rate <= 0) or smooth < 0 or trim < 0:
+        raise PrimitiveError("--rate must be positive, --smooth and --trim not negative")
+    primitive = learn_primitive(
+        name,
+        demo,
+        description=description or f"Learned from {demo.name}.",
+        family=family,
+        mode=mode,
+        nominal_speed=speed,
+        n_basis=basis,
+        preprocessing=Preprocessing(rate_hz=rate, smooth_s=smooth, trim_mm=trim),
+        out_dir=out,
+    )
+    click.echo(
+        f"wrote {primitive.path}: {primitive.dmp.n_basis} basis functions, "
+        f"{primitive.dmp.demo_duration:.2f} s, fit RMSE {primitive.fit_rmse * 1000:.3f} mm"
+    )
+    if primitive.fit_rmse > MAX_FIT_RMSE:
+        click.echo(
+            f"warning: fit RMSE above {MAX_FIT_RMSE * 1000:.1f} mm; try more --basis or --smooth",
+            err=True,
+        )
+
+
+@primitives.command()
+@click.argument("name")
+@click.option(
+    "--to",
+    "targets",
+    multiple=True,
+    help="Re-target to this goal A,B,C in metres (from the demo's start). Repeatable.",
+)
+@click.option("--from", "start", help="Start A,B,C in metres (default: the demo's start).")
+@click.option("--mode", type=click.Choice(["similarity", "axial", "translate"]))
+@click.option("--out", type=click.Path(path_type=Path, dir_okay=False), help="PNG (NAME.png).")
+@_dir_option
+@_user_errors
+def plot(
+    name: str,
+    targets: tuple[str, ...],
+    start: str | None,
+    mode: str | None,
+    out: Path | None,
+    dirs: tuple[Path, ...],
+) -> None:
+    """Draw the demonstration and re-targeted rollouts in 3D, red -> green -> blue over time.
+
+    Without --to: the fit, the segment turned 90 degrees about z, and 1.5 times longer."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        raise click.ClickException("plot needs matplotlib: pip install matplotlib") from None
+    import numpy as np
+
+    from keymps.primitives import load_demo_csv, load_primitives
+
+    p = load_primitives([name], _search_dirs(dirs))[name]
+    dmp = p.dmp
+    origin = np.array(_point(start)) if start else dmp.demo_start
+    if targets:
+        goals = [np.array(_point(text)) for text in targets]
+    else:
+        c, s = 0.0, 1.0
+        turned = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]) @ dmp.demo_delta
+        goals = [origin + dmp.demo_delta, origin + turned, origin + 1.5 * dmp.demo_delta]
+    figure = plt.figure(figsize=(7, 6))
+    axes = figure.add_subplot(projection="3d")
+    if p.demo is not None and p.demo.is_file():
+        _, demo_y = load_demo_csv(p.demo)
+        demo_y = demo_y - dmp.demo_start + origin
+        axes.plot(*demo_y.T, color="0.6", linewidth=3, alpha=0.5, label="demonstration")
+    colors = _time_colors(np)
+    for goal in goals:
+        rollout = p.rollout(origin, goal, mode=mode, spacing=0.0005)
+        y = rollout.y
+        axes.scatter(*y.T, c=colors(np.linspace(0, 1, len(y))), s=2, depthshade=False)
+        axes.scatter(*goal, marker="x", color="k", s=30)
+    axes.scatter(*origin, marker="o", color="k", s=20, label="start")
+    axes.set_xlabel("x [m]")
+    axes.set_ylabel("y [m]")
+    axes.set_zlabel("z [m]")
+    axes.set_title(f"{p.name} ({p.mode}): time red -> green -> blue")
+    axes.legend(loc="upper left")
+    points = np.vstack([origin, *goals])
+    _equal_axes(axes, np, points, [p.rollout(origin, g, mode=mode).y for g in goals])
+    out = out or Path(f"{name}.png")
+    figure.savefig(out, dpi=120, bbox_inches="tight")
+    plt.close(figure)
+    click.echo(f"wrote {out}")
+
+
+def _time_colors(np: Any) -> Callable[[Any], Any]:
+    """Red at the start, green halfway, blue at the end."""
+
+    def colors(fraction: Any) -> Any:
+        red = np.clip(1 - 2 * fraction, 0, 1)
+        blue = np.clip(2 * fraction - 1, 0, 1)
+        green = 1 - red - blue
+        return np.stack([red, green, blue], axis=1)
+
+    return colors
+
+
+def _equal_axes(axes: Any, np: Any, points: Any, paths: list[Any]) -> None:
+    every = np.vstack([points, *paths])
+    center = (every.max(axis=0) + every.min(axis=0)) / 2
+    half = max(float((every.max(axis=0) - every.min(axis=0)).max()) / 2, 1e-3)
+    axes.set_xlim(center[0] - half, center[0] + half)
+    axes.set_ylim(center[1] - half, center[1] + half)
+    axes.set_zlim(center[2] - half, center[2] + half)

@@ -1,0 +1,114 @@
+"""`keymps primitives` list / show / learn / plot, through click's runner."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+from keymps.cli_primitives import primitives
+from keymps.primitives import BUNDLED_DIR, load_demo_csv, load_primitive, write_demo_csv
+
+
+@pytest.fixture
+def runner(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> CliRunner:
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv("KEYMPS_PRIMITIVES_PATH", raising=False)
+    return CliRunner()
+
+
+def test_list_shows_the_bundled_dictionary(runner: CliRunner) -> None:
+    result = runner.invoke(primitives, ["list"])
+    assert result.exit_code == 0, result.output
+    lines = result.output.splitlines()
+    assert lines[0].split()[:3] == ["NAME", "FAMILY", "MODE"]
+    names = [line.split()[0] for line in lines[1:]]
+    assert names == ["downward", "forward", "line", "sawing", "straight"]
+    assert "icing" in lines[3] and "axial" in lines[3]
+
+
+def test_show_prints_what_the_planner_reads(runner: CliRunner) -> None:
+    result = runner.invoke(primitives, ["show", "sawing"])
+    assert result.exit_code == 0, result.output
+    assert "Sawing cut" in result.output
+    assert "50 basis functions" in result.output
+    assert "sawing.csv (501 samples)" in result.output
+    assert "fit RMSE:      0.0786 mm" in result.output
+
+
+def test_unknown_name_is_one_error_line(runner: CliRunner) -> None:
+    result = runner.invoke(primitives, ["show", "chop"])
+    assert result.exit_code == 1
+    assert result.output.startswith("error: unknown primitive 'chop'; available: downward")
+    assert len(result.output.strip().splitlines()) == 1
+
+
+def test_learn_writes_a_primitive_that_list_and_show_find(
+    runner: CliRunner, tmp_path: Path
+) -> None:
+    t, y = load_demo_csv(BUNDLED_DIR / "forward.csv")
+    write_demo_csv(tmp_path / "push.csv", t, y + [0.1, 0.2, 0.0])
+    result = runner.invoke(
+        primitives,
+        ["learn", "push.csv", "--name", "push", "--basis", "30", "--description", "Push it.",
+         "--speed", "0.025", "--out", "mine"],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert "wrote mine/push.yaml: 30 basis functions" in result.output
+    primitive = load_primitive(tmp_path / "mine" / "push.yaml")
+    assert primitive.description == "Push it."
+    assert primitive.nominal_speed == 0.025
+    assert primitive.fit_rmse < 0.0005
+    assert (tmp_path / "mine" / "push.csv").is_file()
+    listed = runner.invoke(primitives, ["list", "--dir", "mine"])
+    assert "push" in listed.output
+    shown = runner.invoke(primitives, ["show", "push", "--dir", "mine"])
+    assert "learned from:  push.csv" in shown.output
+
+
+def test_learn_from_a_bad_csv_is_one_error_line(runner: CliRunner, tmp_path: Path) -> None:
+    (tmp_path / "log.csv").write_text("time,x,y,z\n0,0,0,0\n")
+    result = runner.invoke(primitives, ["learn", "log.csv", "--name", "x"])
+    assert result.exit_code == 1
+    assert result.output.strip() == (
+        "error: log.csv:1: expected columns t,x,y,z (seconds, metres), got time,x,y,z"
+    )
+
+
+def test_plot_draws_time_coloured_rollouts(runner: CliRunner, tmp_path: Path) -> None:
+    pytest.importorskip("matplotlib")
+    result = runner.invoke(
+        primitives, ["plot", "sawing", "--to", "0.0,0.1,0.0", "--to", "0.15,0,0", "--out", "s.png"]
+    )
+    assert result.exit_code == 0, result.output
+    import matplotlib.image
+
+    image = matplotlib.image.imread(tmp_path / "s.png")[..., :3]
+    red = ((image[..., 0] > 0.8) & (image[..., 1] < 0.3) & (image[..., 2] < 0.3)).sum()
+    green = ((image[..., 1] > 0.8) & (image[..., 0] < 0.3) & (image[..., 2] < 0.3)).sum()
+    blue = ((image[..., 2] > 0.8) & (image[..., 0] < 0.3) & (image[..., 1] < 0.3)).sum()
+    assert min(red, green, blue) > 50
+
+
+def test_plot_without_matplotlib_says_how_to_get_it(
+    runner: CliRunner, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setitem(sys.modules, "matplotlib", None)
+    result = runner.invoke(primitives, ["plot", "line"])
+    assert result.exit_code == 1
+    assert "plot needs matplotlib: pip install matplotlib" in result.output
+
+
+def test_bad_point_is_a_usage_error(runner: CliRunner) -> None:
+    result = runner.invoke(primitives, ["plot", "line", "--to", "1,2"])
+    assert result.exit_code == 2
+    assert "not three numbers" in result.output
+
+
+def test_module_imports_only_click_at_top() -> None:
+    source = Path(sys.modules["keymps.cli_primitives"].__file__ or "").read_text()
+    top_imports = [line for line in source.splitlines() if line.startswith(("import ", "from "))]
+    allowed = {"__future__", "functools", "sys", "collections", "pathlib", "typing", "click"}
+    assert {line.split()[1].split(".")[0] for line in top_imports} <= allowed
