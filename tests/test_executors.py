@@ -75,8 +75,8 @@ def to_pixel(task: Task, xy: tuple[float, float]) -> tuple[int, int]:
     return round(px[0]), round(px[1])
 
 
-def is_red(bgr: np.ndarray) -> bool:
-    return bool(bgr[2] > 150 and bgr[1] < 90 and bgr[0] < 90)
+def is_cut(bgr: np.ndarray) -> bool:
+    return bool(bgr.max() < 60)
 
 
 def test_sim_draws_cuts_where_the_knife_went_through_the_food(tmp_path: Path) -> None:
@@ -94,13 +94,13 @@ def test_sim_draws_cuts_where_the_knife_went_through_the_food(tmp_path: Path) ->
         x, y = to_pixel(
             run.task, (CENTER[0] + 0.05 * math.cos(angle), CENTER[1] + 0.05 * math.sin(angle))
         )
-        assert is_red(outcome[y, x]), (i, outcome[y, x])
+        assert is_cut(outcome[y, x]), (i, outcome[y, x])
     # between the cuts nothing happened
     x, y = to_pixel(
         run.task,
         (CENTER[0] + 0.05 * math.cos(math.pi / 4), CENTER[1] + 0.05 * math.sin(math.pi / 4)),
     )
-    assert not is_red(outcome[y, x])
+    assert not is_cut(outcome[y, x])
     assert np.array_equal(outcome[5, 5], run.results["image"].image[5, 5])
 
 

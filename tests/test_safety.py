@@ -133,3 +133,18 @@ def test_executors_refuse_forged_or_modified_validated_trajectories() -> None:
     object.__setattr__(validated, "trajectory", replace(validated.trajectory, q=q))
     with pytest.raises(SafetyError, match="modified afterwards"):
         require_validated(validated, "sim")
+
+
+def test_distance_to_polyline_is_exact_on_large_inputs() -> None:
+    from keymps.safety import distance_to_polyline
+
+    rng = np.random.default_rng(3)
+    s = np.linspace(0, 4 * math.pi, 2500)
+    spiral = np.column_stack([0.05 * np.cos(s) * s / 10, 0.05 * np.sin(s) * s / 10, s / 100])
+    spiral = np.vstack([spiral, [[0.2, 0.2, 0.2]]])  # one long last segment
+    points = rng.uniform(-0.06, 0.2, (400, 3))
+    points = np.vstack([points, spiral[::7] + rng.normal(0, 2e-4, (358, 3))])
+    a, b = spiral[:-1], spiral[1:]
+    t = np.clip(((points[:, None] - a) * (b - a)).sum(-1) / ((b - a) ** 2).sum(-1), 0, 1)
+    expected = np.linalg.norm(points[:, None] - (a + t[..., None] * (b - a)), axis=2).min(axis=1)
+    assert np.allclose(distance_to_polyline(points, spiral), expected, atol=1e-12)

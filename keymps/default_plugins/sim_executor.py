@@ -30,7 +30,8 @@ TRACKING_LIMIT_M = 0.0005
 DOT_EXTENT_M = 0.004
 """An icing stroke whose extent is below this is drawn as a dot."""
 
-CUT_COLOUR = (40, 40, 200)  # BGR: red
+CUT_COLOUR = (20, 20, 20)  # BGR: a dark cut with a light edge shows on any food
+CUT_EDGE = (235, 235, 235)
 ICING_COLOUR = (250, 250, 250)
 ICING_EDGE = (120, 120, 120)
 TRAVEL_COLOUR = (200, 160, 60)
