@@ -150,3 +150,58 @@ def test_object_outline_from_contour_and_from_box() -> None:
     )
     outline = object_outline_m(box_only, task, (600, 360))
     assert polygon_area(outline) == pytest.approx(0.05 * 0.05)
+
+
+def distance_to_polygon(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
+    a, b = polygon, np.roll(polygon, -1, axis=0)
+    ab = b - a
+    ap = points[:, None, :] - a[None]
+    t = np.clip((ap * ab).sum(-1) / np.maximum((ab * ab).sum(-1), 1e-18), 0, 1)
+    return np.linalg.norm(ap - t[..., None] * ab[None], axis=-1).min(axis=1)
+
+
+def centroid(polygon: np.ndarray) -> np.ndarray:
+    x, y = polygon.T
+    x1, y1 = np.roll(x, -1), np.roll(y, -1)
+    cross = x * y1 - x1 * y
+    return np.array([((x + x1) * cross).sum(), ((y + y1) * cross).sum()]) / (3 * cross.sum())
+
+
+def _index_to_edge(matrix_edge: np.ndarray) -> np.ndarray:
+    """The same warp for cv2, whose pixel (i, j) sits at (i, j) instead of (i + 0.5, j + 0.5)."""
+    to_edge = np.array([[1, 0, 0.5], [0, 1, 0.5], [0, 0, 1.0]])
+    return np.linalg.inv(to_edge) @ matrix_edge @ to_edge
+
+
+@pytest.mark.parametrize("kind", ["round_cake", "eggplant", "banana_bread", "chiffon_cake"])
+def test_homography_recovers_board_coordinates_from_a_perspective_warped_scene(kind: str) -> None:
+    import cv2
+
+    from keymps.default_plugins.threshold_detector import ThresholdDetector
+    from keymps.scenes import SceneSpec, render_scene
+
+    scene = render_scene(SceneSpec.from_kinds([kind], seed=3, px_per_m=2000))
+    (truth,) = scene.truth["objects"]
+    workspace_px = np.array([[0, 360], [600, 360], [600, 0], [0, 0]], dtype=float)
+    photo_corners = np.array([[60, 440], [660, 420], [600, 70], [110, 95]], dtype=float)
+    warp = cv2.getPerspectiveTransform(
+        workspace_px.astype(np.float32), photo_corners.astype(np.float32)
+    ).astype(float)
+    photo = cv2.warpPerspective(
+        scene.image, _index_to_edge(warp), (720, 480), borderMode=cv2.BORDER_REPLICATE
+    )
+    task = make_task(camera={"board_corners_px": photo_corners.tolist()})
+    frame = ImageFrame.from_task(task, (720, 480))
+
+    # Exact points: the true outline carried into the photo comes back to its metres.
+    outline_photo = cv2.perspectiveTransform(
+        np.array(truth["outline_px"], dtype=np.float64).reshape(-1, 1, 2), warp
+    ).reshape(-1, 2)
+    true_outline = np.array(truth["outline_m"])
+    assert np.abs(frame.to_board(outline_photo) - true_outline).max() < 1e-6
+
+    # Detected in the photo: the object's outline lands within 2 mm of the truth.
+    detection = ThresholdDetector().detect(photo)
+    outline = object_outline_m(detection, task, (720, 480))
+    assert distance_to_polygon(outline, true_outline).max() < 0.002
+    assert np.linalg.norm(centroid(outline) - centroid(true_outline)) < 0.001
