@@ -50,6 +50,8 @@ def draw_plan(
     font = cv2.FONT_HERSHEY_SIMPLEX
     font_scale = max(0.45, min(width, height) / 700)
     pairs = np.asarray(plan.pairs_px, dtype=float).reshape(-1, 2, 2)
+    x0, y0, x1, y1 = detection.bbox_px
+    centre = np.array([(x0 + x1) / 2, (y0 + y1) / 2], dtype=float)
     for start, end in pairs:
         length_px = float(np.linalg.norm(end - start)) * scale
         if length_px < DOT_PX * scale:
@@ -67,7 +69,12 @@ def draw_plan(
         direction = end - start
         norm = float(np.linalg.norm(direction))
         # Put the number beside the start, away from the line.
-        away = -direction / norm if norm > DOT_PX else np.array([0.7, -0.7])
+        if norm > DOT_PX:
+            away = -direction / norm
+        else:  # a dot: outwards from the object's centre, so rings of dots stay readable
+            outwards = start - centre
+            spread = float(np.linalg.norm(outwards))
+            away = outwards / spread if spread > 1.0 else np.array([0.7, -0.7])
         anchor = start * scale + away * (4 * thick + max(text_w, text_h) / 2)
         x = int(np.clip(anchor[0] - text_w / 2, 0, max(0, width - text_w)))
         y = int(np.clip(anchor[1] + text_h / 2, text_h, height - 1))
