@@ -407,49 +407,55 @@ def _matrix(translation: list[float], quaternion_xyzw: list[float] | None) -> np
     return matrix
 
 
-def test_the_recorded_robot_holds_the_tool_tip_on_the_planned_path(recorded):
-    """Chaining the frames in the file (mount, URDF fixed joints, animated joints) and the
-    drawn tool's length puts the tool tip where keymps.robot's FK puts it."""
-    _, results, entities = recorded
+def recorded_tool_tips(entities: dict[str, Entity], rows: list[int]) -> np.ndarray:
+    """The drawn tool's tip in the board frame at the given robot rows, by chaining the frames
+    in the file: animated joints, the URDF's fixed joints, the mount, the tool capsule."""
     edges: dict[str, tuple[str, np.ndarray]] = {}
 
     def add(entity: Entity, row: int) -> None:
         data = entity.data
-        child = data["Transform3D:child_frame"][row][0]
-        parent = data["Transform3D:parent_frame"][row][0]
         quaternion = data.get("Transform3D:quaternion")
-        matrix = _matrix(
-            data["Transform3D:translation"][row][0],
-            quaternion[row][0] if quaternion else None,
+        edges[data["Transform3D:child_frame"][row][0]] = (
+            data["Transform3D:parent_frame"][row][0],
+            _matrix(
+                data["Transform3D:translation"][row][0],
+                quaternion[row][0] if quaternion else None,
+            ),
         )
-        edges[child] = (parent, matrix)
 
     tf_static = next(e for p, e in entities.items() if p.endswith("tf_static"))
     for row in range(len(tf_static.data["Transform3D:child_frame"])):
         add(tf_static, row)
     add(entities["/world/robot/mount"], 0)
     tool = entities["/world/robot/tool"].data
-    tool_frame = tool["CoordinateFrame:frame"][0][0]
-    tip_in_tool_frame = _matrix([0.0, 0.0, 0.0], tool["Capsules3D:quaternions"][0][0])[:3, :3] @ [
-        0.0,
-        0.0,
-        tool["Capsules3D:lengths"][0][0],
-    ]
-    elbow = entities["/world/robot/joint_transforms/elbow_joint"]
-    joint_rows = len(elbow.data["Transform3D:child_frame"])
-    picked = subsample_indices(results.trajectory.t, rerun_recorder.ROBOT_RATE_HZ)
-    assert len(picked) == joint_rows
-    for row in (0, joint_rows // 2, joint_rows - 1):
-        for name in JOINTS:
-            add(entities[f"/world/robot/joint_transforms/{name}"], row)
-        pose, frame = np.eye(4), tool_frame
+    capsule = _matrix([0.0, 0.0, 0.0], tool["Capsules3D:quaternions"][0][0])
+    tip_in_tool_frame = capsule @ [0.0, 0.0, tool["Capsules3D:lengths"][0][0], 1.0]
+    joints = [p for p in entities if p.startswith("/world/robot/joint_transforms/")]
+    assert len(joints) == 6
+    tips = []
+    for row in rows:
+        for path in joints:
+            add(entities[path], row)
+        pose, frame = np.eye(4), tool["CoordinateFrame:frame"][0][0]
         while frame in edges:
             parent, matrix = edges[frame]
             pose = matrix @ pose
             frame = parent
         assert frame == "tf#/world"
-        tip = pose @ np.append(tip_in_tool_frame, 1.0)
-        np.testing.assert_allclose(tip[:3], results.trajectory.tool_xyz[picked[row]], atol=1e-4)
+        tips.append((pose @ tip_in_tool_frame)[:3])
+    return np.array(tips)
+
+
+def test_the_recorded_robot_holds_the_tool_tip_on_the_planned_path(recorded):
+    """The drawn tool tip is where keymps.robot's FK puts it, at every recorded robot sample."""
+    _, results, entities = recorded
+    picked = subsample_indices(results.trajectory.t, rerun_recorder.ROBOT_RATE_HZ)
+    rows = list(range(len(picked)))
+    assert len(
+        entities["/world/robot/joint_transforms/elbow_joint"].data["Transform3D:child_frame"]
+    ) == len(picked)
+    tips = recorded_tool_tips(entities, rows)
+    np.testing.assert_allclose(tips, results.trajectory.tool_xyz[picked], atol=1e-4)
 
 
 def test_no_trace_of_the_api_key_in_the_file(recorded):
@@ -614,3 +620,44 @@ def test_connect_streams_the_run_to_a_running_viewer_server(tmp_path):
     assert "/run/summary" in entities
     assert entities["/joints/q/elbow_joint"].rows["Scalars"] == SAMPLES
     assert entities["/image/pairs"].rows["LineStrips2D"] == 1
+
+
+TASKS = Path(__file__).resolve().parents[1] / "tasks"
+
+
+@pytest.mark.parametrize("task_file", ["cake_icing.yaml", "object_cutting.yaml"])
+def test_a_shipped_task_run_by_the_engine_is_recorded_whole(task_file, tmp_path):
+    """The real pipeline: every stage's entities, one row per sample, one strip per pair, and
+    the drawn tool tip on the timed trajectory's tool path."""
+    from keymps.engine import run_task
+
+    run = run_task(TASKS / task_file, out=tmp_path / "run", backend="offline", rerun="save")
+    entities = read_recording(run.folder / "run.rrd")
+    trajectory, plan = run.results["time"], run.results["plan"]
+    for name in trajectory.joint_names:
+        assert entities[f"/joints/q/{name}"].rows["Scalars"] == trajectory.samples
+    assert entities["/tool/speed"].rows["Scalars"] == trajectory.samples
+    assert len(entities["/image/pairs"].data["LineStrips2D:strips"][0]) == plan.num_pairs
+    assert len(entities["/world/segments"].data["Arrows3D:origins"][0]) == plan.num_pairs
+    for path in ("/world/board/image", "/world/object", "/world/object/outline", "/outcome"):
+        assert path in entities, path
+    assert "succeeded" in entities["/run/summary"].data["TextDocument:text"][0][0]
+    picked = subsample_indices(trajectory.t, rerun_recorder.ROBOT_RATE_HZ)
+    rows = [0, len(picked) // 3, len(picked) // 2, len(picked) - 1]
+    tips = recorded_tool_tips(entities, rows)
+    np.testing.assert_allclose(tips, trajectory.tool_xyz[picked[rows]], atol=5e-4)
+
+
+def test_leaving_the_plugin_out_records_nothing(tmp_path, monkeypatch):
+    from keymps import plugins
+    from keymps.engine import run_task
+
+    others = [name for name in plugins.DEFAULT_PLUGINS if name != "rerun_recorder"]
+    monkeypatch.setenv("KEYMPS_LOAD_PLUGINS", ",".join(others))
+    plugins.reset_manager()
+    try:
+        run = run_task(TASKS / "cake_icing.yaml", out=tmp_path / "run", backend="offline")
+    finally:
+        plugins.reset_manager()
+    assert (run.folder / "run.json").is_file()
+    assert not (run.folder / "run.rrd").exists()
