@@ -187,6 +187,7 @@ def _object_length(reader: _Reader) -> float | None:
         rf"\b(?:is|it's|about|approximately|roughly)\s+{_LENGTH}\s+long\b",
         rf"\blength\s+(?:of\s+|is\s+)?{_LENGTH}",
         rf"\b{_LENGTH}\s+long\b",
+        rf"\b(?:this|the|a|an|my)\s+{_LENGTH}\s+(?!{_PIECES}|thick|wide|apart)[a-z]+",
     ]
     for pattern in patterns:
         match = reader.find(pattern)
@@ -254,7 +255,7 @@ def _part_count(reader: _Reader) -> int | None:
 def _icing_intent(reader: _Reader) -> Intent | None:
     understood = reader.understood
     match = reader.find(
-        rf"\b1 (?:dot|drop|rosette|blob)s?\b.*\beach of (?:the )?(\d+) {_PIECES}"
+        rf"\b(?:1|a|an) (?:\w+ )?(?:dot|drop|rosette|blob)s?\b.*\beach of (?:the )?(\d+) {_PIECES}"
     ) or reader.find(
         rf"\b(?:dot|rosette)s? (?:on|in) (?:the middle of )?each of (?:the )?(\d+) {_PIECES}"
     )
@@ -322,6 +323,10 @@ def _cut_intent(reader: _Reader) -> Intent | None:
             reader.text,
         )
         slice_count = int(counted.group(1)) if counted else None
+        if slice_count is None and re.search(
+            rf"\b(?:a|an)\s+{_LENGTH}\s+(?:thick\s+|wide\s+)?(?:slice|piece|strip)\b", reader.text
+        ):
+            slice_count = 1
         return Intent(
             "cut",
             "width",

@@ -213,3 +213,60 @@ def test_canary_key_never_reaches_a_file(server, scene, tmp_path):
     assert cassette in written and any(p.suffix == ".json" for p in written)
     for path in written:
         assert CANARY.encode() not in path.read_bytes(), path
+
+
+# --- through the whole pipeline --------------------------------------------------------------
+
+REPO = __import__("pathlib").Path(__file__).resolve().parent.parent
+CUTTING_TASK = REPO / "tasks" / "object_cutting.yaml"
+
+
+@pytest.mark.skipif(not CUTTING_TASK.is_file(), reason="the shipped cutting task is missing")
+def test_a_vlm_answer_drives_a_full_run_and_the_key_stays_out_of_every_file(
+    server, tmp_path, monkeypatch
+):
+    from keymps import run_task
+
+    monkeypatch.setenv("OPENAI_API_KEY", CANARY)  # the provider's standard variable
+    crop_answer = {"keyword": "straight", "pairs": [[[40, 150], [260, 150]]], "rationale": "x"}
+    server.script(Reply.text_answer("```json\n{oops"), Reply.json_answer(crop_answer))
+    run = run_task(
+        CUTTING_TASK,
+        model="openai/test-vlm",
+        api_base=server.openai_base,
+        out=tmp_path / "run",
+        rerun="save",
+        record=tmp_path / "cassette.jsonl",
+    )
+    assert run.notes["backend"] == "litellm"
+    assert all(r.headers["authorization"] == f"Bearer {CANARY}" for r in server.chat_requests)
+    record = json.loads((run.folder / "run.json").read_text())
+    assert record["keyword"] == "straight" and record["vlm"]["calls"] == 2
+    assert record["pairs_crop_px"] == crop_answer["pairs"]
+    assert (run.folder / "trajectory.csv").is_file()
+    written = [p for p in tmp_path.rglob("*") if p.is_file()]
+    assert any(p.suffix == ".rrd" for p in written) and (tmp_path / "cassette.jsonl") in written
+    for path in written:
+        assert CANARY.encode() not in path.read_bytes(), path
+
+
+@pytest.mark.skipif(not CUTTING_TASK.is_file(), reason="the shipped cutting task is missing")
+def test_an_invalid_plan_stops_the_run_before_anything_moves(server, tmp_path):
+    from keymps import run_task
+    from keymps.errors import StageError
+
+    outside = {"keyword": "straight", "pairs": [[[40, 150], [5000, 150]]], "rationale": "x"}
+    server.script(Reply.json_answer(outside), Reply.json_answer(outside))
+    with pytest.raises(StageError, match="^plan: .*outside the image"):
+        run_task(
+            CUTTING_TASK,
+            model="openai/test-vlm",
+            api_base=server.openai_base,
+            out=tmp_path / "run",
+            rerun="off",
+            no_cache=True,
+        )
+    record = json.loads((tmp_path / "run" / "run.json").read_text())
+    assert record["ok"] is False and record["keyword"] is None
+    assert not (tmp_path / "run" / "trajectory.csv").exists()
+    assert "execute" not in record["timings_s"]

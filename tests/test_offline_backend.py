@@ -328,3 +328,68 @@ def test_the_offline_planner_is_deterministic():
     first, _ = plan_for("Cut it into 8 equal slices", scene, primitives=CUTTING)
     second, _ = plan_for("Cut it into 8 equal slices", scene, primitives=CUTTING)
     assert np.array_equal(first.pairs_px, second.pairs_px)
+
+
+# --- paraphrases read the same -----------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("canonical", "paraphrase"),
+    [
+        ("Cut it into 8 equal slices", "Please cut this pizza into eight even pieces"),
+        ("Cut it into 8 equal slices", "Divide it into 8 wedges"),
+        (
+            "I'm having a party for 10 people, cut 1 slice for each",
+            "We are ten guests, one slice each",
+        ),
+        ("Slice the object into 3 parts horizontally", "cut it horizontally into three pieces"),
+        ("Slice both tips of the object", "Cut off both ends"),
+        ("A single horizontal slice in the middle", "Make one horizontal cut through the middle"),
+        (
+            "The object is 30 cm long, cut it vertically into 5 cm slices",
+            "This eggplant is thirty centimetres long; slice it vertically into 50 mm slices",
+        ),
+        (
+            "I want to eat 1 slice for each day of this week, cut it vertically",
+            "one slice for every day of the week, cut vertically",
+        ),
+        ("Split it into 4", "Quarter it"),
+        ("Cut me 4 2cm slices", "cut 4 slices 2 cm thick"),
+        (
+            "Put 15 icing dots around the cake, leave space from the edge and between dots.",
+            "Pipe fifteen rosettes around the cake, away from the edge",
+        ),
+        ("Make 2 layers of icing around the cake", "Draw two rings of icing around the cake"),
+        ("Draw a 5-pointed star using lines in the middle of the cake", "pipe a star on the cake"),
+        (
+            "I'm having my 27th birthday, put the digits on the cake using seven-segment characters",
+            "Write 27 on the cake in seven-segment digits",
+        ),
+        (
+            "I want to put 1 dot of icing on the middle of each of the 10 slices",
+            "Put a dot of icing in the middle of each of the ten slices",
+        ),
+    ],
+)
+def test_paraphrases_read_the_same(canonical, paraphrase):
+    from keymps.instruction import read_instruction
+
+    first, second = read_instruction(canonical), read_instruction(paraphrase)
+    assert first.describe() == second.describe()
+
+
+@pytest.mark.parametrize(
+    "sentence",
+    [
+        "I want to make tsukemono",
+        "I want to make wide chips out of this",
+        "Cut it into french fries",
+        "For banana pancake",
+        "Prepare it for fondant potato",
+    ],
+)
+def test_table_v_sentences_that_need_kitchen_knowledge_are_left_to_a_vlm(sentence):
+    from keymps.instruction import UnreadableInstruction, read_instruction
+
+    with pytest.raises(UnreadableInstruction, match="--model"):
+        read_instruction(sentence)

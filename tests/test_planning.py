@@ -10,6 +10,7 @@ from synthetic_crops import CUTTING, ICING, make_scene, make_task, plan_for
 from vlm_server import Reply, VlmServer
 
 from keymps.errors import KeympsError
+from keymps.hookspecs import hookimpl
 from keymps.plan_answer import answer_schema, extract_json, parse_and_validate
 from keymps.plan_prompt import PLACEHOLDERS, find_prompt, prompt_family, render_template
 from keymps.planning import choose_backend, redact
@@ -228,3 +229,65 @@ def test_invalid_answers_are_not_cached(scene, tmp_path, monkeypatch):
         # the invalid first answer was not kept: the rerun asks again (and gets a good answer)
         assert len(server.chat_requests) == 3
         assert [(c.cached, c.error) for c in again.calls] == [(False, None)]
+
+
+# --- a third-party backend, written against the documented protocol --------------------------
+
+
+class _TeachingBackend:
+    """Answers badly once, then fixes exactly what it was told (a plugin author's backend)."""
+
+    name = "teaching"
+    cacheable = False
+
+    def __init__(self, options):
+        self.options = options
+        self.requests = []
+
+    def complete(self, request):
+        from keymps.planning import BackendAnswer
+
+        self.requests.append(request)
+        if not request.previous_errors:
+            return BackendAnswer(text='{"keyword": "chop", "pairs": [[[1, 1], [2, 2]]]}')
+        width, height = request.crop_size_px
+        answer = {
+            "keyword": next(iter(request.primitives)),
+            "pairs": [[[0, height / 2], [width, height / 2]]],
+            "rationale": "fixed",
+        }
+        return BackendAnswer(text=json.dumps(answer), prompt_tokens=10, cost_usd=0.001)
+
+
+def test_a_plugin_backend_gets_the_documented_request(scene, tmp_path, keymps_plugins):
+    created: list[_TeachingBackend] = []
+
+    def factory(options):
+        created.append(_TeachingBackend(options))
+        return created[-1]
+
+    class Plugin:
+        @hookimpl
+        def register_vlm_backends(self, register):
+            register("teaching", factory)
+
+    keymps_plugins.register(Plugin(), name="teaching-plugin")
+    plan, _ = plan_for(
+        "Cut it in half",
+        scene,
+        CUTTING,
+        backend="teaching",
+        folder=tmp_path,
+        model="my/model",
+        temperature=0.3,
+    )
+    (backend,) = created
+    assert backend.options["model"] == "my/model" and backend.options["temperature"] == 0.3
+    first, second = backend.requests
+    assert first.crop.shape == scene.detection.crop.shape and first.step == "combined"
+    assert first.primitives == CUTTING and first.max_pairs == 64 and first.attempt == 1
+    assert first.metres_per_px == pytest.approx((0.0005, 0.0005))
+    assert first.schema["schema"]["properties"]["keyword"]["enum"] == list(CUTTING)
+    assert second.previous_errors == ("keyword 'chop' is not one of: straight, sawing",)
+    assert second.attempt == 2 and second.messages[-2]["role"] == "assistant"
+    assert plan.keyword == "straight" and plan.calls[-1].cost_usd == 0.001
