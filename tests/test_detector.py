@@ -145,3 +145,28 @@ def test_fixed_background_option_overrides_the_most_common_intensity() -> None:
     assert ThresholdDetector(ThresholdOptions(**options)).detect(image).bbox_px == (70, 0, 100, 100)
     fixed = ThresholdDetector(ThresholdOptions(background=120, **options)).detect(image)
     assert fixed.bbox_px == (0, 0, 70, 100)
+
+
+def test_roi_limits_the_search_to_the_board_in_a_photo() -> None:
+    """A photo at an angle shows a dark table around the board: search the board polygon only."""
+    import cv2
+
+    scene = render_scene(SceneSpec.from_kinds(["round_cake"], seed=2, px_per_m=1000))
+    board_px = np.array([[0, 180], [300, 180], [300, 0], [0, 0]], np.float32)
+    corners = np.array([[30, 220], [330, 210], [300, 35], [55, 48]], np.float32)
+    warp = cv2.getPerspectiveTransform(board_px, corners)
+    photo = cv2.warpPerspective(scene.image, warp, (360, 240), borderValue=(30, 30, 30))
+    truth = cv2.perspectiveTransform(
+        np.array(scene.truth["objects"][0]["outline_px"]).reshape(-1, 1, 2), warp.astype(float)
+    ).reshape(-1, 2)
+    expected = [*truth.min(axis=0), *truth.max(axis=0)]
+    whole = ThresholdDetector().detect(photo)
+    assert np.abs(np.subtract(whole.bbox_px, expected)).max() > 20  # it takes the table
+    detector = create_component("detector", "threshold", {"roi": corners.tolist()})
+    detection = detector.detect(photo)
+    assert np.abs(np.subtract(detection.bbox_px, expected)).max() <= 2
+    assert detection.warnings == ()
+    box = ThresholdDetector(ThresholdOptions(roi=[0, 0, 150, 240])).detect(photo)
+    assert any("touches the border of detector.roi" in w for w in box.warnings)
+    with pytest.raises(KeympsError, match=r"option 'roi': .*a box must be"):
+        create_component("detector", "threshold", {"roi": [10, 10, 5, 50]})

@@ -43,6 +43,29 @@ class ThresholdOptions(BaseModel):
     """Which region to use, by index in order of decreasing area (0 = the largest)."""
     background: int | None = Field(default=None, ge=0, le=255)
     """Fixed background intensity instead of the most common one."""
+    roi: list[tuple[float, float]] | None = None
+    """Look only inside this polygon of full-image pixels (e.g. the board's four corners in a
+    photo), or inside a box given as [x0, y0, x1, y1]."""
+
+    @field_validator("roi", mode="before")
+    @classmethod
+    def _polygon(cls, value: Any) -> Any:
+        if value is None:
+            return None
+        if (
+            isinstance(value, (list, tuple))
+            and len(value) == 4
+            and all(isinstance(v, (int, float)) for v in value)
+        ):
+            x0, y0, x1, y1 = value
+            if x1 <= x0 or y1 <= y0:
+                raise ValueError(f"a box must be [x0, y0, x1, y1] with x0 < x1, y0 < y1: {value}")
+            return [(x0, y0), (x1, y0), (x1, y1), (x0, y1)]
+        if not isinstance(value, (list, tuple)) or len(value) < 3:
+            raise ValueError(
+                "must be a box [x0, y0, x1, y1] or a polygon of 3 or more [x, y] points"
+            )
+        return value
 
     @field_validator("blur")
     @classmethod
@@ -110,9 +133,28 @@ class ThresholdDetector:
         gray = to_gray(image)
         kernel = self.options.blur
         blurred = cv2.GaussianBlur(gray, (kernel, kernel), 0) if kernel > 1 else gray
-        background = self.background_intensity(blurred)
+        inside = self.search_area(gray.shape[1], gray.shape[0])
+        background = self.background_intensity(blurred[inside])
         difference = np.abs(blurred.astype(np.int16) - background)
-        return (difference > self.options.threshold).astype(np.uint8) * 255, background
+        mask = (difference > self.options.threshold).astype(np.uint8) * 255
+        mask[~inside] = 0
+        return mask, background
+
+    def search_area(self, width_px: int, height_px: int) -> np.ndarray:
+        """Boolean image of the pixels searched: the roi polygon, or the whole image."""
+        import cv2
+
+        if self.options.roi is None:
+            return np.ones((height_px, width_px), bool)
+        area = np.zeros((height_px, width_px), np.uint8)
+        # Pixel centres at +0.5: a polygon vertex (x, y) is index (x - 0.5, y - 0.5).
+        points = np.round((np.array(self.options.roi) - 0.5) * 16).astype(np.int32)
+        cv2.fillPoly(area, [points.reshape(-1, 1, 2)], 255, cv2.LINE_8, 4)
+        if not area.any():
+            raise DetectionError(
+                f"detector.roi {self.options.roi} lies outside the {width_px} x {height_px} px image"
+            )
+        return area > 0
 
     def regions(self, mask: np.ndarray) -> list[Region]:
         """External contours of at least min_area pixels, largest first."""
@@ -152,7 +194,8 @@ class ThresholdDetector:
         chosen = regions[pick]
         others = [region for i, region in enumerate(regions) if i != pick]
         height_px, width_px = image.shape[:2]
-        warnings = _warnings(chosen, pick, regions, (width_px, height_px), self.options)
+        searched = self.search_area(width_px, height_px)
+        warnings = _warnings(chosen, pick, regions, searched, self.options)
 
         filled = np.zeros_like(mask)
         cv2.drawContours(filled, [chosen.contour.reshape(-1, 1, 2)], -1, 255, cv2.FILLED)
@@ -182,19 +225,19 @@ def _warnings(
     chosen: Region,
     pick: int,
     regions: list[Region],
-    size_px: tuple[int, int],
+    searched: np.ndarray,
     options: ThresholdOptions,
 ) -> list[str]:
     found = []
-    x0, y0, x1, y1 = chosen.bbox
-    width_px, height_px = size_px
+    height_px, width_px = searched.shape
+    xs, ys = chosen.contour[:, 0], chosen.contour[:, 1]
     sides = [
         name
         for name, touching in (
-            ("left", x0 <= 0),
-            ("top", y0 <= 0),
-            ("right", x1 >= width_px),
-            ("bottom", y1 >= height_px),
+            ("left", xs.min() <= 0),
+            ("top", ys.min() <= 0),
+            ("right", xs.max() >= width_px - 1),
+            ("bottom", ys.max() >= height_px - 1),
         )
         if touching
     ]
@@ -203,6 +246,14 @@ def _warnings(
             f"detect: the object (box {list(chosen.bbox)}) touches the image border "
             f"({', '.join(sides)}): it may be cut off, and its box smaller than the object"
         )
+    elif options.roi is not None:
+        padded = np.pad(~searched, 1, constant_values=True)
+        near_outside = padded[:-2, 1:-1] | padded[2:, 1:-1] | padded[1:-1, :-2] | padded[1:-1, 2:]
+        if near_outside[ys, xs].any():
+            found.append(
+                f"detect: the object (box {list(chosen.bbox)}) touches the border of "
+                "detector.roi: it may be cut off, and its box smaller than the object"
+            )
     for index, region in enumerate(regions):
         if index != pick and region.area >= options.comparable * chosen.area:
             found.append(
