@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from keymps.errors import KeympsError
+from keymps.scene_textures import PAINTERS, Paint, board_texture, centre_line, lighting
 
 SIDECAR_SCHEMA_VERSION = 1
 MARGIN_M = 0.004
@@ -264,15 +265,10 @@ def _outline_local(
     t = 0.5 - 0.5 * np.cos(np.linspace(0, np.pi, 200))  # dense near the ends
     u = (t - 0.5) * obj.length
     half = half_w * shape.profile(t) * (1.0 + _wobble(t * 2 * np.pi, shape.wobble, rng))
-    centre = _centre_line(u, obj.length, shape.bend)
+    centre = centre_line(u, obj.length, shape.bend)
     upper = np.c_[u, centre + half]
     lower = np.c_[u, centre - half][::-1]
     return np.concatenate([upper, lower]), None
-
-
-def _centre_line(u: np.ndarray, length: float, bend: float) -> np.ndarray:
-    """Sag of the body's centre line (v), zero at both ends, bend * length in the middle."""
-    return bend * length * (1.0 - (2.0 * u / length) ** 2)
 
 
 def _wobble(theta: np.ndarray, amplitude: float, rng: np.random.Generator) -> np.ndarray:
@@ -288,230 +284,6 @@ def _to_board(points: np.ndarray, obj: ObjectSpec, centre: tuple[float, float]) 
     angle = np.radians(obj.rotation_deg)
     rotation = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
     return points @ rotation.T + np.asarray(centre)
-
-
-# ---------------------------------------------------------------- textures
-
-
-def smooth_noise(shape: tuple[int, int], cell_px: float, rng: np.random.Generator) -> np.ndarray:
-    """A smooth random field of unit standard deviation; features about cell_px pixels wide."""
-    import cv2
-
-    height, width = shape
-    grid_h = max(2, int(np.ceil(height / max(cell_px, 1.0))) + 2)
-    grid_w = max(2, int(np.ceil(width / max(cell_px, 1.0))) + 2)
-    coarse = rng.standard_normal((grid_h, grid_w)).astype(np.float32)
-    field_ = cv2.resize(coarse, (width, height), interpolation=cv2.INTER_CUBIC)
-    return (field_ - field_.mean()) / max(float(field_.std()), 1e-6)
-
-
-@dataclass
-class Paint:
-    """What a painter sees: local coordinates of the pixel centres of the object's box."""
-
-    u: np.ndarray
-    v: np.ndarray
-    obj: ObjectSpec
-    rng: np.random.Generator
-    px_per_m: float
-
-    def noise(self, cell_m: float) -> np.ndarray:
-        return smooth_noise(self.u.shape, cell_m * self.px_per_m, self.rng)
-
-    @property
-    def radius(self) -> np.ndarray:
-        """Normalized radius (1 at the edge of a disk)."""
-        return np.hypot(self.u / (self.obj.length / 2), self.v / (self.obj.width / 2))
-
-    @property
-    def theta(self) -> np.ndarray:
-        return np.arctan2(self.v, self.u)
-
-    def along(self) -> tuple[np.ndarray, np.ndarray]:
-        """(t in [0, 1] along the body, s in [-1, 1] across it) for profile bodies."""
-        shape = KINDS[self.obj.kind].shape
-        t = np.clip(self.u / self.obj.length + 0.5, 0.0, 1.0)
-        centre = _centre_line(self.u, self.obj.length, shape.bend)
-        half = self.obj.width / 2 * (shape.profile(t) if shape.profile else np.ones_like(t))
-        return t, (self.v - centre) / np.maximum(half, 1e-6)
-
-
-def _mix(base: np.ndarray, colour: Sequence[float], weight: np.ndarray) -> np.ndarray:
-    weight = np.clip(weight, 0.0, 1.0)[..., None]
-    return base * (1 - weight) + np.asarray(colour, dtype=np.float32) * weight
-
-
-def _fill(p: Paint, colour: Sequence[float]) -> np.ndarray:
-    return np.broadcast_to(np.asarray(colour, np.float32), (*p.u.shape, 3)).copy()
-
-
-def _shade(image: np.ndarray, amount: np.ndarray) -> np.ndarray:
-    return image * (1.0 + amount)[..., None]
-
-
-def _spots(p: Paint, count: int, radius_m: float, within: float) -> np.ndarray:
-    """Weights of `count` round spots (1 inside) scattered inside the normalized radius."""
-    weight = np.zeros(p.u.shape, np.float32)
-    for _ in range(count):
-        angle, distance = p.rng.uniform(0, 2 * np.pi), within * np.sqrt(p.rng.uniform())
-        cu = distance * np.cos(angle) * p.obj.length / 2
-        cv = distance * np.sin(angle) * p.obj.width / 2
-        size = radius_m * p.rng.uniform(0.8, 1.2)
-        d = np.hypot(p.u - cu, p.v - cv)
-        weight = np.maximum(weight, np.clip((size - d) * p.px_per_m + 0.5, 0, 1))
-    return weight
-
-
-def paint_round_cake(p: Paint) -> np.ndarray:
-    r = p.radius
-    image = _fill(p, (214, 234, 246))
-    image = _mix(image, (160, 196, 222), (r - 0.84) / 0.1)  # the darker rim
-    piping = 0.5 + 0.5 * np.cos(28 * p.theta)
-    image = _mix(image, (190, 220, 240), piping * ((r > 0.9) & (r < 0.97)) * 0.6)
-    return _shade(image, 0.03 * p.noise(0.02) - 0.04 * r**2)
-
-
-def paint_square_cake(p: Paint) -> np.ndarray:
-    edge = np.minimum(p.obj.length / 2 - np.abs(p.u), p.obj.width / 2 - np.abs(p.v))
-    image = _fill(p, (42, 62, 98))
-    image = _mix(image, (28, 42, 68), 1 - edge / 0.008)
-    return _shade(image, 0.06 * p.noise(0.01) + 0.04 * p.noise(0.003))
-
-
-def paint_round_pizza(p: Paint) -> np.ndarray:
-    r = p.radius
-    image = _fill(p, (48, 62, 188))  # tomato sauce
-    cheese = p.noise(0.012) > -0.2
-    image = _mix(image, (150, 214, 240), cheese * np.clip((0.84 - r) / 0.03, 0, 1))
-    image = _mix(image, (44, 44, 150), _spots(p, 9, 0.011, 0.7))  # pepperoni
-    basil = _spots(p, 5, 0.005, 0.72)
-    image = _mix(image, (45, 110, 55), basil)
-    crust = np.clip((r - 0.83) / 0.03, 0, 1)
-    image = _mix(image, (122, 196, 236), crust)
-    image = _mix(image, (108, 182, 225), crust * (p.noise(0.008) > 1.0))  # browned bubbles
-    return _shade(image, 0.04 * p.noise(0.02))
-
-
-def paint_cabbage(p: Paint) -> np.ndarray:
-    r = p.radius
-    image = _fill(p, (150, 222, 192))
-    ring = np.abs(np.sin(9 * r + 0.8 * p.noise(0.03)))
-    image = _mix(image, (118, 204, 166), (ring < 0.25) * 0.7)  # leaf folds
-    veins = np.abs(np.sin(5 * p.theta + 1.5 * r + 0.3 * p.noise(0.04)))
-    image = _mix(image, (205, 238, 228), (veins < 0.12) * np.clip(r * 1.5, 0, 1))
-    image = _mix(image, (130, 215, 178), (r - 0.82) / 0.1)  # outer leaves
-    return _shade(image, 0.04 * p.noise(0.015))
-
-
-def paint_eggplant(p: Paint) -> np.ndarray:
-    t, s = p.along()
-    image = _fill(p, (78, 30, 66))
-    image = _mix(image, (118, 64, 104), np.exp(-(((s - 0.35) / 0.18) ** 2)) * (t < 0.72))
-    sepals = t > 0.73 + 0.05 * np.abs(np.cos(3 * np.pi * s))
-    image = _mix(image, (36, 96, 46), sepals)
-    image = _mix(image, (46, 86, 66), t > 0.9)  # stem
-    return _shade(image, 0.05 * p.noise(0.02))
-
-
-def paint_baguette(p: Paint) -> np.ndarray:
-    t, s = p.along()
-    image = _fill(p, (92, 176, 226))
-    image = _mix(image, (95, 182, 232), np.abs(s) ** 3)
-    slash = np.abs(np.sin(np.pi * (5 * t + 0.9 * s)))
-    image = _mix(
-        image, (152, 212, 236), (slash < 0.22) * (np.abs(s) < 0.55) * (t > 0.1) * (t < 0.9)
-    )
-    return _shade(image, 0.04 * p.noise(0.01))
-
-
-def paint_banana_bread(p: Paint) -> np.ndarray:
-    image = _fill(p, (36, 62, 108))
-    crack = np.abs(p.v / (p.obj.width / 2) - 0.15 * p.noise(0.03))
-    image = _mix(image, (26, 46, 82), (crack < 0.12) * (np.abs(p.u) < 0.4 * p.obj.length))
-    return _shade(image, 0.05 * p.noise(0.008) + 0.03 * p.noise(0.03))
-
-
-def paint_chiffon_cake(p: Paint) -> np.ndarray:
-    r = p.radius
-    image = _fill(p, (112, 190, 230))
-    image = _mix(image, (115, 192, 230), (r - 0.85) / 0.1)
-    cracks = np.abs(np.sin(7 * p.theta + 2 * p.noise(0.05)))
-    image = _mix(image, (92, 172, 216), (cracks < 0.08) * (r > 0.4) * (r < 0.85))
-    return _shade(image, 0.04 * p.noise(0.015))
-
-
-def paint_baumkuchen(p: Paint) -> np.ndarray:
-    r = p.radius
-    layers = 0.5 + 0.5 * np.sin(2 * np.pi * r * 9 + 0.4 * p.noise(0.05))
-    image = _mix(_fill(p, (120, 200, 235)), (82, 166, 215), layers)
-    image = _mix(image, (226, 238, 245), (r - 0.9) / 0.03)  # sugar glaze
-    return _shade(image, 0.02 * p.noise(0.02))
-
-
-def paint_meat_loaf(p: Paint) -> np.ndarray:
-    image = _fill(p, (40, 58, 96))
-    image = _mix(image, (38, 46, 124), (p.noise(0.02) > 0.3) * 0.8)  # glaze
-    return _shade(image, 0.06 * p.noise(0.004) + 0.04 * p.noise(0.02))
-
-
-def paint_cucumber(p: Paint) -> np.ndarray:
-    t, s = p.along()
-    image = _fill(p, (42, 86, 46))
-    stripes = 0.5 + 0.5 * np.sin(7 * s + 0.5 * p.noise(0.04))
-    image = _mix(image, (52, 106, 66), stripes * 0.6 * (np.abs(s) < 0.7))
-    image = _mix(
-        image,
-        (90, 150, 118),
-        _spots(p, 40, 0.0012, 0.55) * 0.8 * (np.abs(s) < 0.45) * (np.abs(t - 0.5) < 0.4),
-    )
-    return _shade(image, 0.05 * p.noise(0.01))
-
-
-def paint_potato(p: Paint) -> np.ndarray:
-    image = _fill(p, (128, 184, 212))
-    image = _mix(image, (124, 180, 209), (p.noise(0.01) > 0.8) * 0.7)  # mottled skin
-    image = _mix(image, (72, 112, 142), _spots(p, 6, 0.0025, 0.5))  # eyes
-    return _shade(image, 0.02 * p.noise(0.02) - 0.03 * np.clip(p.radius, 0, 1) ** 2)
-
-
-def paint_banana(p: Paint) -> np.ndarray:
-    t, s = p.along()
-    image = _fill(p, (52, 206, 236))
-    image = _mix(image, (42, 186, 222), (np.abs(np.abs(s) - 0.35) < 0.06) * 0.8)  # ridges
-    ends = np.clip((np.abs(t - 0.5) - 0.4) / 0.06, 0, 1)
-    image = _mix(image, (70, 190, 225), ends)
-    freckles = _spots(p, 12, 0.0015, 0.5) * (np.abs(s) < 0.5) * (np.abs(t - 0.5) < 0.35)
-    image = _mix(image, (60, 160, 205), freckles * 0.6)
-    return _shade(image, 0.03 * p.noise(0.02))
-
-
-PAINTERS: dict[str, Callable[[Paint], np.ndarray]] = {
-    name: globals()[f"paint_{name}"] for name in KINDS
-}
-
-
-def _board(size_px: tuple[int, int], px_per_m: float, rng: np.random.Generator) -> np.ndarray:
-    """Wood: grain running along x, slow colour changes, a little fibre texture."""
-    width, height = size_px
-    rows = np.arange(height, dtype=np.float32)[:, None] / px_per_m
-    warp = smooth_noise((height, width), 0.05 * px_per_m, rng)
-    period = rng.uniform(0.006, 0.009)
-    grain = np.sin(2 * np.pi * (rows / period + 0.6 * warp))
-    fibres = smooth_noise((height, width), 1.0, rng)
-    fibres = fibres.mean(axis=1, keepdims=True) * 0.5 + 0.5 * smooth_noise((height, width), 2, rng)
-    base = np.array([70, 118, 162], np.float32) * rng.uniform(0.98, 1.02)
-    shade = (
-        0.035 * grain + 0.012 * fibres + 0.015 * smooth_noise((height, width), 0.08 * px_per_m, rng)
-    )
-    return base * (1.0 + shade)[..., None]
-
-
-def _lighting(size_px: tuple[int, int], rng: np.random.Generator) -> np.ndarray:
-    width, height = size_px
-    direction = rng.uniform(0, 2 * np.pi)
-    x = np.linspace(-0.5, 0.5, width, dtype=np.float32)[None, :]
-    y = np.linspace(-0.5, 0.5, height, dtype=np.float32)[:, None]
-    return 1.0 + 0.06 * (np.cos(direction) * x + np.sin(direction) * y)
 
 
 def _place(spec: SceneSpec, rng: np.random.Generator) -> list[tuple[float, float]]:
@@ -603,7 +375,7 @@ def render_scene(spec: SceneSpec) -> RenderedScene:
     rng = np.random.default_rng([spec.seed, 1])
     frame = ImageFrame.linear((width, height), spec.board_size)
     centres = _place(spec, rng)
-    image = _board((width, height), spec.px_per_m, rng)
+    image = board_texture((width, height), spec.px_per_m, rng)
     objects_truth = []
     for index, (obj, centre) in enumerate(zip(spec.objects, centres, strict=True)):
         object_rng = np.random.default_rng([spec.seed, 100 + index])
@@ -622,7 +394,9 @@ def render_scene(spec: SceneSpec) -> RenderedScene:
         local = (frame.to_board(grid) - np.asarray(centre)) @ _rotation(obj.rotation_deg)
         u = local[:, 0].reshape(alpha.shape).astype(np.float32)
         v = local[:, 1].reshape(alpha.shape).astype(np.float32)
-        colour = PAINTERS[obj.kind](Paint(u, v, obj, object_rng, spec.px_per_m))
+        colour = PAINTERS[obj.kind](
+            Paint(u, v, obj, object_rng, spec.px_per_m, KINDS[obj.kind].shape)
+        )
         region = image[box[1] : box[3], box[0] : box[2]]
         image[box[1] : box[3], box[0] : box[2]] = (
             region * (1 - alpha[..., None]) + colour * alpha[..., None]
@@ -631,7 +405,7 @@ def render_scene(spec: SceneSpec) -> RenderedScene:
             _object_truth(obj, centre, outline_m, hole_m, outline_px, index)
             | {"bbox_px": half_covered_box(alpha, (box[0], box[1]))}
         )
-    image = image * _lighting((width, height), rng)[..., None]
+    image = image * lighting((width, height), rng)[..., None]
     image += rng.normal(0.0, 2.0, size=image.shape).astype(np.float32)
     pixels = np.clip(np.round(image), 0, 255).astype(np.uint8)
     truth = {
