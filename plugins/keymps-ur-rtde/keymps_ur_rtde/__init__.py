@@ -1,0 +1,14 @@
+"""keymps-ur-rtde: run keymps trajectories on a real Universal Robots arm (ur_rtde)."""
+
+from __future__ import annotations
+
+from keymps.hookspecs import Register, hookimpl
+
+__version__ = "0.1.0"
+
+
+@hookimpl
+def register_executors(register: Register) -> None:
+    from keymps_ur_rtde.executor import NAME, make_executor
+
+    register(NAME, make_executor)

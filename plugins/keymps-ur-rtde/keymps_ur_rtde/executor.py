@@ -1,0 +1,302 @@
+"""The `ur-rtde` executor: streams a validated keymps trajectory to a real UR arm over RTDE.
+
+Sequence: connect the receive interface, check the arm is powered, running and in normal
+safety mode, check the trajectory starts near the arm's current joints; then (only with
+--confirm) connect the control interface, moveJ slowly to the first point, and stream every
+sample with servoJ at the controller rate, watching the safety mode and the following error
+at every sample. Any error, safety stop or Ctrl-C stops the arm (servoStop, stopScript) and
+disconnects. Without --confirm it is a dry run: the checks run, nothing moves.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from keymps.errors import KeympsError
+from keymps.stages import ExecutionReport
+
+NAME = "ur-rtde"
+
+ROBOT_MODES = {
+    -1: "NO_CONTROLLER",
+    0: "DISCONNECTED",
+    1: "CONFIRM_SAFETY",
+    2: "BOOTING",
+    3: "POWER_OFF",
+    4: "POWER_ON",
+    5: "IDLE",
+    6: "BACKDRIVE",
+    7: "RUNNING",
+    8: "UPDATING_FIRMWARE",
+}
+SAFETY_MODES = {
+    1: "NORMAL",
+    2: "REDUCED",
+    3: "PROTECTIVE_STOP",
+    4: "RECOVERY",
+    5: "SAFEGUARD_STOP",
+    6: "SYSTEM_EMERGENCY_STOP",
+    7: "ROBOT_EMERGENCY_STOP",
+    8: "VIOLATION",
+    9: "FAULT",
+    10: "VALIDATE_JOINT_ID",
+    11: "UNDEFINED_SAFETY_MODE",
+    12: "AUTOMATIC_MODE_SAFEGUARD_STOP",
+    13: "SYSTEM_THREE_POSITION_ENABLING_STOP",
+}
+RUNNING = 7
+SAFE_MODES = {1, 2}  # NORMAL and REDUCED allow motion
+RECEIVE_VARIABLES = ["timestamp", "actual_q", "robot_mode", "safety_mode", "runtime_state"]
+
+
+class UrRtdeOptions(BaseModel):
+    """The executor section of a task file for `ur-rtde` (every key but `name`)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    host: str = Field(min_length=1)
+    """The arm's IP address or host name (RTDE port 30004, script ports 30001-30003)."""
+    lookahead_time: float = Field(0.1, ge=0.03, le=0.2)
+    """servoJ smoothing, seconds (ur_rtde's range)."""
+    gain: float = Field(300.0, ge=100, le=2000)
+    """servoJ proportional gain (ur_rtde's range)."""
+    approach_speed: float = Field(0.25, gt=0, le=1.0)
+    """moveJ joint speed to the first point, rad/s."""
+    approach_acceleration: float = Field(0.5, gt=0, le=1.4)
+    """moveJ joint acceleration to the first point, rad/s^2."""
+    max_start_offset: float = Field(0.35, gt=0, le=1.5)
+    """Refuse when any joint is further than this from the first point, rad."""
+    max_following_error: float = Field(0.2, gt=0, le=1.0)
+    """Stop when any joint lags the command by more than this while streaming, rad."""
+
+
+def _connect_receive(host: str, frequency: float) -> Any:
+    import rtde_receive
+
+    return rtde_receive.RTDEReceiveInterface(host, frequency, RECEIVE_VARIABLES)
+
+
+def _connect_control(host: str, frequency: float) -> Any:
+    import rtde_control
+
+    return rtde_control.RTDEControlInterface(host, frequency)
+
+
+class StreamStopped(Exception):
+    """Streaming ended early; the message says why."""
+
+
+class UrRtdeExecutor:
+    """Runs a validated trajectory on a UR arm; a dry run unless run.options.confirm."""
+
+    name = NAME
+
+    def __init__(
+        self,
+        options: UrRtdeOptions,
+        connect_receive: Callable[[str, float], Any] = _connect_receive,
+        connect_control: Callable[[str, float], Any] = _connect_control,
+    ):
+        self.options = options
+        self.samples_sent = 0
+        self.connect_receive = connect_receive
+        self.connect_control = connect_control
+
+    def execute(self, validated: Any, run: Any) -> ExecutionReport:
+        from keymps.safety import require_validated
+
+        trajectory = require_validated(validated, self.name)
+        rate = float(trajectory.rate_hz)
+        host = self.options.host
+        try:
+            receive = self.connect_receive(host, rate)
+        except Exception as error:  # ur_rtde raises RuntimeError or boost errors
+            raise KeympsError(
+                f"executor ur-rtde: cannot connect to the arm at {host} (RTDE port 30004): {error}"
+            ) from None
+        try:
+            offset = self._preflight(receive, trajectory)
+            figures = {
+                "duration_s": trajectory.duration_s,
+                "samples": float(trajectory.samples),
+                "start_offset_rad": offset,
+            }
+            if not getattr(run.options, "confirm", False):
+                return ExecutionReport(
+                    self.name,
+                    True,
+                    f"dry run: {host} is RUNNING in NORMAL safety mode and the trajectory starts "
+                    f"{offset:.3f} rad from the arm's joints; nothing moved. Run again with "
+                    "--confirm to move the arm.",
+                    (),
+                    figures,
+                )
+            return self._move(receive, trajectory, figures)
+        finally:
+            _quietly(receive.disconnect)
+
+    def _preflight(self, receive: Any, trajectory: Any) -> float:
+        """Refuse unless the arm is running, safe, and near the trajectory's first point."""
+        host = self.options.host
+        mode = int(receive.getRobotMode())
+        if mode != RUNNING:
+            raise KeympsError(
+                f"executor ur-rtde: the arm at {host} is {ROBOT_MODES.get(mode, mode)}, not "
+                "RUNNING: power it on and release the brakes on the teach pendant"
+            )
+        safety = int(receive.getSafetyMode())
+        if safety not in SAFE_MODES:
+            raise KeympsError(
+                f"executor ur-rtde: the arm at {host} is in safety mode "
+                f"{SAFETY_MODES.get(safety, safety)}: clear it on the teach pendant first"
+            )
+        actual = np.asarray(receive.getActualQ(), dtype=float)
+        first = np.asarray(trajectory.q[0], dtype=float)
+        if actual.shape != (6,):
+            raise KeympsError(f"executor ur-rtde: the arm reported {actual.shape} joint values")
+        offsets = np.abs(first - actual)
+        worst = int(np.argmax(offsets))
+        if offsets[worst] > self.options.max_start_offset:
+            raise KeympsError(
+                f"executor ur-rtde: the trajectory starts {offsets[worst]:.2f} rad away from the "
+                f"arm's {trajectory.joint_names[worst]} (at most "
+                f"{self.options.max_start_offset:.2f}); jog the arm to "
+                f"[{', '.join(f'{v:.3f}' for v in first)}] rad first"
+            )
+        return float(offsets.max())
+
+    def _move(self, receive: Any, trajectory: Any, figures: dict[str, float]) -> ExecutionReport:
+        options = self.options
+        rate = float(trajectory.rate_hz)
+        try:
+            control = self.connect_control(options.host, rate)
+        except Exception as error:
+            raise KeympsError(
+                f"executor ur-rtde: cannot take control of the arm at {options.host} (is it in "
+                f"remote control mode?): {error}"
+            ) from None
+        started = time.monotonic()
+        self.samples_sent = 0
+        try:
+            self._approach(control, receive, trajectory, figures["start_offset_rad"])
+            self._stream(control, receive, trajectory)
+        except KeyboardInterrupt:
+            return self._stopped(control, trajectory, "stopped by Ctrl-C", figures)
+        except StreamStopped as reason:
+            return self._stopped(control, trajectory, str(reason), figures)
+        except Exception as error:  # anything from ur_rtde: stop first, then report
+            return self._stopped(control, trajectory, f"error: {error}", figures)
+        sent = self.samples_sent
+        _stop(control)
+        figures["wall_time_s"] = time.monotonic() - started
+        figures["samples_sent"] = float(sent)
+        return ExecutionReport(
+            self.name,
+            True,
+            f"executed {trajectory.duration_s:.1f} s ({sent} samples at {rate:g} Hz) on "
+            f"{options.host}",
+            (),
+            figures,
+        )
+
+    def _approach(self, control: Any, receive: Any, trajectory: Any, offset: float) -> None:
+        """moveJ (asynchronous, so safety and Ctrl-C are watched) to the first sample."""
+        options = self.options
+        first = [float(v) for v in trajectory.q[0]]
+        if not control.moveJ(first, options.approach_speed, options.approach_acceleration, True):
+            raise StreamStopped("moveJ to the first point was refused")
+        expected = offset / options.approach_speed + options.approach_speed / (
+            options.approach_acceleration
+        )
+        deadline = time.monotonic() + 2.0 * expected + 2.0
+        while control.getAsyncOperationProgress() >= 0:
+            self._check_safety(receive, "during the move to the first point")
+            if time.monotonic() > deadline:
+                _quietly(lambda: control.stopJ(options.approach_acceleration))
+                raise StreamStopped("the move to the first point did not finish in time")
+            time.sleep(0.01)
+        actual = np.asarray(receive.getActualQ(), dtype=float)
+        miss = float(np.abs(actual - np.asarray(first)).max())
+        if miss > 0.01:
+            raise StreamStopped(f"the arm stopped {miss:.3f} rad short of the first point")
+
+    def _stream(self, control: Any, receive: Any, trajectory: Any) -> None:
+        """servoJ every sample at the controller rate (counted in self.samples_sent)."""
+        options = self.options
+        period = 1.0 / float(trajectory.rate_hz)
+        commands = np.asarray(trajectory.q, dtype=float)
+        window = math.ceil((options.lookahead_time + 0.2) / period)
+        for index, q in enumerate(commands):
+            cycle = control.initPeriod()
+            if not control.servoJ(
+                [float(v) for v in q], 0.0, 0.0, period, options.lookahead_time, options.gain
+            ):
+                raise StreamStopped(f"servoJ refused sample {index}")
+            self.samples_sent = index + 1
+            self._check_safety(receive, f"at t={index * period:.3f} s")
+            # servoJ smooths over its lookahead: compare with the recent commands, not the last
+            actual = np.asarray(receive.getActualQ(), dtype=float)
+            recent = commands[max(0, index - window) : index + 1]
+            lag = float(np.abs(recent - actual).max(axis=1).min())
+            if lag > options.max_following_error:
+                raise StreamStopped(
+                    f"the arm lags the command by {lag:.3f} rad at t={index * period:.3f} s"
+                )
+            control.waitPeriod(cycle)
+
+    @staticmethod
+    def _check_safety(receive: Any, when: str) -> None:
+        safety = int(receive.getSafetyMode())
+        if safety not in SAFE_MODES:
+            raise StreamStopped(f"safety mode {SAFETY_MODES.get(safety, safety)} {when}")
+        mode = int(receive.getRobotMode())
+        if mode != RUNNING:
+            raise StreamStopped(f"robot mode {ROBOT_MODES.get(mode, mode)} {when}")
+
+    def _stopped(
+        self, control: Any, trajectory: Any, why: str, figures: dict[str, float]
+    ) -> ExecutionReport:
+        _stop(control)
+        sent = self.samples_sent
+        period = 1.0 / float(trajectory.rate_hz)
+        figures["samples_sent"] = float(sent)
+        return ExecutionReport(
+            self.name,
+            False,
+            f"{why}; the arm was stopped after {sent} of {trajectory.samples} samples "
+            f"(t={sent * period:.3f} s)",
+            (),
+            figures,
+        )
+
+
+def _stop(control: Any) -> None:
+    """Stop servoing, stop the control script, disconnect; never raise while stopping."""
+    _quietly(control.servoStop)
+    _quietly(control.stopScript)
+    _quietly(control.disconnect)
+
+
+def _quietly(action: Callable[[], Any]) -> None:
+    # the arm may already be gone; stopping must not fail
+    with contextlib.suppress(Exception):
+        action()
+
+
+def make_executor(options: dict[str, Any]) -> UrRtdeExecutor:
+    try:
+        return UrRtdeExecutor(UrRtdeOptions.model_validate(options))
+    except ValidationError as error:
+        first = error.errors(include_url=False)[0]
+        where = ".".join(str(p) for p in first["loc"]) or "options"
+        message = "unknown option" if first["type"] == "extra_forbidden" else first["msg"]
+        if first["type"] == "missing":
+            message = "required (the arm's IP address)"
+        raise KeympsError(f"executor ur-rtde: {where}: {message}") from None

@@ -1,0 +1,258 @@
+"""The ur-rtde executor against a fake controller; no real arm is (or can be) connected here.
+
+The receive side is the real ur_rtde library talking RTDE over TCP to a fake controller
+(fake_rtde_server.py) in a separate process on a 127.0.0.x address. The control side, which
+would upload a URScript and move a physical arm, is an autospec of
+rtde_control.RTDEControlInterface: its calls are checked, and the fake "arm" follows the
+servoJ commands through the shared state.
+"""
+
+from __future__ import annotations
+
+import math
+import random
+import time
+from collections.abc import Iterator
+from datetime import timedelta
+from pathlib import Path
+from typing import Any
+from unittest import mock
+
+import fake_rtde_server
+import numpy as np
+import pytest
+import rtde_control
+
+from keymps.errors import KeympsError
+from keymps.plugins import components, create_component
+from keymps.robot import RobotModel, solve_path
+from keymps.run import Run, RunOptions
+from keymps.safety import SafetyError, validate
+from keymps.stages import Piece, ToolPath, ValidatedTrajectory
+from keymps.task import Task
+from keymps.timing import time_trajectory
+
+HOST = f"127.0.0.{random.randint(20, 250)}"
+
+
+@pytest.fixture(scope="module")
+def arm() -> Iterator[fake_rtde_server.ArmState]:
+    state = fake_rtde_server.ArmState([0.0] * 6)
+    process = fake_rtde_server.start(HOST, state)
+    yield state
+    process.terminate()
+    process.join(5)
+
+
+@pytest.fixture(scope="module")
+def validated() -> ValidatedTrajectory:
+    """A real, validated 3 cm line above the board (about half a second at 125 Hz)."""
+    task = Task.model_validate(
+        {
+            "name": "t",
+            "instruction": "icing",
+            "scene": {"image": "x.png", "object_height": 0.06},
+            "primitives": ["line"],
+            "robot": {"tool": "piping_bag"},
+        }
+    )
+    model = RobotModel.from_task(task)
+    start = np.array([0.14, 0.09, 0.065])
+    points = start + np.linspace(0, 0.03, 31)[:, None] * [1.0, 0.0, 0.0]
+    path = ToolPath((Piece("work", 0, points, np.zeros(31), 0.1),), "line")
+    trajectory = time_trajectory(model, path, solve_path(model, path), task)
+    outline = np.array([[0.09, 0.04], [0.21, 0.04], [0.21, 0.14], [0.09, 0.14]])
+    return validate(model, trajectory, path, outline, task)
+
+
+@pytest.fixture
+def at_start(arm: fake_rtde_server.ArmState, validated: ValidatedTrajectory) -> Any:
+    """The fake arm running, safe, a little away from the trajectory's first point."""
+    arm.q[:] = list(validated.trajectory.q[0] + 0.05)
+    arm.robot_mode.value = 7
+    arm.safety_mode.value = 1
+    time.sleep(0.02)
+    return arm
+
+
+def make_run(tmp_path: Path, confirm: bool) -> Run:
+    task = Task.model_validate(
+        {"name": "t", "instruction": "x", "scene": {"image": "x.png"}, "primitives": ["line"]}
+    )
+    return Run(task=task, folder=tmp_path, options=RunOptions(confirm=confirm))
+
+
+def fake_control(arm: fake_rtde_server.ArmState, period: float = 1 / 125) -> Any:
+    """An autospec of the control interface whose 'arm' follows moveJ and servoJ."""
+    control = mock.create_autospec(rtde_control.RTDEControlInterface, instance=True)
+
+    def move(q: list[float], *args: Any) -> bool:
+        arm.q[:] = list(q)
+        time.sleep(0.02)  # let the receive stream report the new joints
+        return True
+
+    def servo(q: list[float], *args: Any) -> bool:
+        arm.q[:] = list(q)
+        return True
+
+    control.moveJ.side_effect = move
+    control.servoJ.side_effect = servo
+    control.getAsyncOperationProgress.return_value = -1
+    control.initPeriod.side_effect = lambda: timedelta(seconds=time.monotonic())
+    control.waitPeriod.side_effect = lambda start: time.sleep(
+        max(0.0, start.total_seconds() + period - time.monotonic())
+    )
+    return control
+
+
+def executor(control: Any = None, **options: Any) -> Any:
+    from keymps_ur_rtde.executor import UrRtdeExecutor, UrRtdeOptions
+
+    never = mock.Mock(side_effect=AssertionError("the control interface must not be used"))
+    return UrRtdeExecutor(
+        UrRtdeOptions(host=HOST, **options),
+        connect_control=(lambda host, rate: control) if control is not None else never,
+    )
+
+
+def test_the_plugin_registers_through_its_entry_point() -> None:
+    assert "ur-rtde" in components("executor")
+    with pytest.raises(KeympsError, match="executor ur-rtde: host: required"):
+        create_component("executor", "ur-rtde", {})
+    with pytest.raises(KeympsError, match="executor ur-rtde: gain: "):
+        create_component("executor", "ur-rtde", {"host": HOST, "gain": 5})
+    assert create_component("executor", "ur-rtde", {"host": HOST}).options.host == HOST
+
+
+def test_dry_run_checks_the_arm_and_moves_nothing(
+    at_start: Any, validated: ValidatedTrajectory, tmp_path: Path
+) -> None:
+    report = executor().execute(validated, make_run(tmp_path, confirm=False))
+    assert report.ok
+    assert report.message.startswith("dry run")
+    assert "--confirm" in report.message
+    assert report.figures["start_offset_rad"] == pytest.approx(0.05, abs=1e-6)
+
+
+def test_confirm_moves_to_the_start_slowly_then_streams_every_sample(
+    at_start: Any, validated: ValidatedTrajectory, tmp_path: Path
+) -> None:
+    control = fake_control(at_start)
+    trajectory = validated.trajectory
+    report = executor(control).execute(validated, make_run(tmp_path, confirm=True))
+    assert report.ok, report.message
+    control.moveJ.assert_called_once()
+    target, speed, acceleration, asynchronous = control.moveJ.call_args.args
+    assert target == pytest.approx(list(trajectory.q[0]))
+    assert (speed, acceleration, asynchronous) == (0.25, 0.5, True)
+    assert control.servoJ.call_count == trajectory.samples
+    for call, q in zip(control.servoJ.call_args_list, trajectory.q, strict=True):
+        sent, _, _, period, lookahead, gain = call.args
+        assert sent == pytest.approx(list(q))
+        assert (period, lookahead, gain) == (pytest.approx(1 / 125), 0.1, 300.0)
+    control.servoStop.assert_called_once()
+    control.stopScript.assert_called_once()
+    # streamed in real time at the controller rate
+    assert report.figures["wall_time_s"] >= trajectory.duration_s
+
+
+def test_refuses_a_trajectory_far_from_the_arm(
+    at_start: Any, validated: ValidatedTrajectory, tmp_path: Path
+) -> None:
+    at_start.q[2] = float(validated.trajectory.q[0][2] + 1.0)
+    time.sleep(0.02)
+    with pytest.raises(KeympsError, match=r"starts 1\.00 rad away from the arm's elbow_joint"):
+        executor(fake_control(at_start)).execute(validated, make_run(tmp_path, confirm=True))
+
+
+def test_refuses_an_arm_that_is_not_running_or_not_safe(
+    at_start: Any, validated: ValidatedTrajectory, tmp_path: Path
+) -> None:
+    at_start.robot_mode.value = 5
+    time.sleep(0.02)
+    with pytest.raises(KeympsError, match="is IDLE, not RUNNING"):
+        executor().execute(validated, make_run(tmp_path, confirm=False))
+    at_start.robot_mode.value = 7
+    at_start.safety_mode.value = 3
+    time.sleep(0.02)
+    with pytest.raises(KeympsError, match="safety mode PROTECTIVE_STOP"):
+        executor().execute(validated, make_run(tmp_path, confirm=False))
+
+
+def test_a_protective_stop_while_streaming_stops_the_arm(
+    at_start: Any, validated: ValidatedTrajectory, tmp_path: Path
+) -> None:
+    control = fake_control(at_start)
+    follow = control.servoJ.side_effect
+
+    def servo(q: list[float], *args: Any) -> bool:
+        if control.servoJ.call_count == 20:
+            at_start.safety_mode.value = 3
+            time.sleep(0.03)
+        return bool(follow(q, *args))
+
+    control.servoJ.side_effect = servo
+    report = executor(control).execute(validated, make_run(tmp_path, confirm=True))
+    assert not report.ok
+    assert "safety mode PROTECTIVE_STOP" in report.message
+    assert control.servoJ.call_count == 20
+    control.servoStop.assert_called_once()
+    control.stopScript.assert_called_once()
+
+
+@pytest.mark.parametrize(
+    ("failure", "expected"),
+    [(KeyboardInterrupt(), "stopped by Ctrl-C"), (RuntimeError("RTDE lost"), "error: RTDE lost")],
+)
+def test_ctrl_c_or_an_error_stops_the_arm(
+    failure: BaseException,
+    expected: str,
+    at_start: Any,
+    validated: ValidatedTrajectory,
+    tmp_path: Path,
+) -> None:
+    control = fake_control(at_start)
+    follow = control.servoJ.side_effect
+
+    def servo(q: list[float], *args: Any) -> bool:
+        if control.servoJ.call_count == 10:
+            raise failure
+        return bool(follow(q, *args))
+
+    control.servoJ.side_effect = servo
+    report = executor(control).execute(validated, make_run(tmp_path, confirm=True))
+    assert not report.ok and report.message.startswith(expected)
+    assert "stopped after 9 of" in report.message
+    control.servoStop.assert_called_once()
+    control.stopScript.assert_called_once()
+    control.disconnect.assert_called_once()
+
+
+def test_an_arm_that_does_not_follow_is_stopped(
+    at_start: Any, validated: ValidatedTrajectory, tmp_path: Path
+) -> None:
+    control = fake_control(at_start)
+    control.servoJ.side_effect = None  # the arm stays where moveJ left it
+    control.servoJ.return_value = True
+    report = executor(control, max_following_error=0.005).execute(
+        validated, make_run(tmp_path, confirm=True)
+    )
+    assert not report.ok and "lags the command by" in report.message
+
+
+def test_no_arm_at_the_address_is_a_clear_error(
+    validated: ValidatedTrajectory, tmp_path: Path
+) -> None:
+    from keymps_ur_rtde.executor import UrRtdeExecutor, UrRtdeOptions
+
+    nobody = "127.0.0.2" if HOST != "127.0.0.2" else "127.0.0.3"
+    with pytest.raises(KeympsError, match=f"cannot connect to the arm at {nobody}"):
+        UrRtdeExecutor(UrRtdeOptions(host=nobody)).execute(
+            validated, make_run(tmp_path, confirm=False)
+        )
+
+
+def test_refuses_an_unvalidated_trajectory(validated: ValidatedTrajectory, tmp_path: Path) -> None:
+    with pytest.raises(SafetyError, match="executor 'ur-rtde' refuses"):
+        executor().execute(validated.trajectory, make_run(tmp_path, confirm=True))
+    assert math.isfinite(validated.trajectory.duration_s)
