@@ -1,12 +1,11 @@
-"""How each stage result becomes Rerun entities (the tree documented in docs/rerun.md).
+"""How each stage's images, geometry and motion become Rerun entities (docs/rerun.md).
 
-Every function takes the run's own RecordingStream; rerun and cv2 are imported inside.
+Every function takes the run's own RecordingStream; rerun and cv2 are imported inside. The
+text documents (VLM exchange, reports, summary) are in keymps.rerun_text.
 """
 
 from __future__ import annotations
 
-import json
-import os
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -15,18 +14,12 @@ if TYPE_CHECKING:
     from keymps.run import Run
     from keymps.stages import (
         Detection,
-        ExecutionReport,
         Grounding,
         Plan,
         SceneImage,
         ToolPath,
         Trajectory,
-        ValidatedTrajectory,
     )
-
-REDACTED = "[redacted]"
-SECRET_SUFFIXES = ("_API_KEY", "_TOKEN")
-SECRET_FIELDS = {"api_key", "apikey", "authorization", "x-api-key", "token", "access_token"}
 
 WORK_RADIUS_M = 0.0015
 TRAVEL_RADIUS_M = 0.0006
@@ -35,39 +28,7 @@ GRADIENT_CHUNK_POINTS = 12
 """Work pieces are drawn as short strips of this many points, each in its own time colour."""
 
 
-# ---------------------------------------------------------------- text and colours
-
-
-def secrets_in_environment() -> list[str]:
-    """Values of environment variables whose names end with _API_KEY or _TOKEN."""
-    found = [
-        value
-        for name, value in os.environ.items()
-        if name.upper().endswith(SECRET_SUFFIXES) and len(value.strip()) >= 4
-    ]
-    return sorted(set(found), key=len, reverse=True)
-
-
-def redact(text: str) -> str:
-    """The text with every secret from the environment replaced by [redacted]."""
-    for secret in secrets_in_environment():
-        text = text.replace(secret, REDACTED)
-    return text
-
-
-def _redact_value(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {
-            key: REDACTED if str(key).lower() in SECRET_FIELDS else _redact_value(item)
-            for key, item in value.items()
-        }
-    if isinstance(value, list | tuple):
-        return [_redact_value(item) for item in value]
-    if isinstance(value, str):
-        if value.startswith("data:") and len(value) > 200:
-            return f"[inline data: {len(value)} characters]"
-        return value
-    return value
+# ---------------------------------------------------------------- colours and images
 
 
 def time_colors(fractions: np.ndarray, alpha: int = 255) -> np.ndarray:
@@ -95,10 +56,6 @@ def _encoded_image(rr: Any, image: np.ndarray) -> Any:
     if not ok:
         return rr.Image(image, color_model="BGR" if image.ndim == 3 else "L")
     return rr.EncodedImage(contents=buffer.tobytes(), media_type="image/jpeg")
-
-
-def _markdown(rr: Any, text: str) -> Any:
-    return rr.TextDocument(redact(text), media_type=rr.MediaType.MARKDOWN)
 
 
 # ---------------------------------------------------------------- geometry helpers
@@ -283,71 +240,6 @@ def log_plan(rec: Any, plan: Plan, run: Run) -> None:
     )
     crop_pairs = np.asarray(plan.pairs_crop_px, dtype=float).reshape(-1, 2, 2)
     rec.log("crop/pairs", rr.LineStrips2D(list(crop_pairs), labels=labels, colors=colors))
-    _log_vlm(rec, plan)
-
-
-def _render_request(request: dict[str, Any]) -> str:
-    """A request as readable markdown: chat messages as sections, images by size only."""
-    request = _redact_value(request)
-    messages = request.get("messages") if isinstance(request, dict) else None
-    if not isinstance(messages, list):
-        return "```json\n" + json.dumps(request, indent=2, default=str) + "\n```"
-    parts = []
-    settings = {k: v for k, v in request.items() if k != "messages"}
-    if settings:
-        parts.append("```json\n" + json.dumps(settings, indent=2, default=str) + "\n```")
-    for message in messages:
-        if not isinstance(message, dict):
-            parts.append(str(message))
-            continue
-        content = message.get("content")
-        if isinstance(content, list):
-            texts = []
-            for item in content:
-                if isinstance(item, dict) and item.get("type") == "text":
-                    texts.append(str(item.get("text", "")))
-                elif isinstance(item, dict):
-                    texts.append(f"*[{item.get('type', 'attachment')}]*")
-                else:
-                    texts.append(str(item))
-            content = "\n\n".join(texts)
-        parts.append(f"### {message.get('role', 'message')}\n\n{content}")
-    return "\n\n".join(parts)
-
-
-def _log_vlm(rec: Any, plan: Plan) -> None:
-    import rerun as rr
-
-    model = f" ({plan.model})" if plan.model else ""
-    last = plan.calls[-1] if plan.calls else None
-    prompt = _render_request(last.request) if last else "*no request: the planner is offline*"
-    rec.log("vlm/prompt", _markdown(rr, f"## Request to {plan.backend}{model}\n\n{prompt}"))
-    answer = [
-        f"## Answer from {plan.backend}{model}",
-        f"- keyword: **{plan.keyword}**",
-        f"- pairs: {plan.num_pairs}",
-    ]
-    if plan.rationale:
-        answer.append(f"- rationale: {plan.rationale}")
-    if last is not None:
-        answer.append("\n```\n" + last.answer_text + "\n```")
-    rec.log("vlm/answer", _markdown(rr, "\n".join(answer)))
-    lines = [f"## {len(plan.calls)} attempt(s)"]
-    for call in plan.calls:
-        facts = [f"latency {call.latency_s:.2f} s"]
-        if call.prompt_tokens is not None:
-            facts.append(f"{call.prompt_tokens} prompt tokens")
-        if call.completion_tokens is not None:
-            facts.append(f"{call.completion_tokens} completion tokens")
-        if call.cost_usd is not None:
-            facts.append(f"${call.cost_usd:.4f}")
-        if call.cached:
-            facts.append("cached")
-        lines.append(f"\n### attempt {call.attempt}: {', '.join(facts)}")
-        if call.error:
-            lines.append(f"\n**error:** {call.error}")
-        lines.append("\n```\n" + call.answer_text + "\n```")
-    rec.log("vlm/attempts", _markdown(rr, "\n".join(lines)))
 
 
 def log_grounding(rec: Any, grounding: Grounding) -> None:
@@ -489,55 +381,14 @@ def log_trajectory(rec: Any, trajectory: Trajectory, stage_index: int, rate_hz: 
     )
 
 
-def log_validation(rec: Any, validated: ValidatedTrajectory) -> None:
+def log_outcome(rec: Any, run: Run) -> None:
+    """The executor's outcome.png (the simulated result), when it wrote one."""
+    import cv2
     import rerun as rr
 
-    report = validated.report
-    lines = [f"## Safety check: {'passed' if report.ok else 'FAILED'}"]
-    lines.extend(f"- problem: {problem}" for problem in report.problems)
-    if report.figures:
-        lines.append("\n| figure | value |\n|---|---|")
-        lines.extend(f"| {name} | {value:.6g} |" for name, value in sorted(report.figures.items()))
-    trajectory = validated.trajectory
-    lines.append(f"\n{trajectory.samples} samples, {trajectory.duration_s:.2f} s")
-    rec.log("check/report", _markdown(rr, "\n".join(lines)))
-
-
-def log_execution(rec: Any, report: ExecutionReport, run: Run) -> None:
-    import rerun as rr
-
-    lines = [f"## Executor {report.executor}: {'ok' if report.ok else 'FAILED'}"]
-    if report.message:
-        lines.append(f"\n{report.message}")
-    lines.extend(f"- file: {name}" for name in report.files)
-    if report.figures:
-        lines.append("\n| figure | value |\n|---|---|")
-        lines.extend(f"| {name} | {value:.6g} |" for name, value in sorted(report.figures.items()))
-    rec.log("execute/report", _markdown(rr, "\n".join(lines)))
     outcome = run.folder / "outcome.png"
-    if outcome.is_file():
-        import cv2
-
-        image = cv2.imread(str(outcome), cv2.IMREAD_COLOR)
-        if image is not None:
-            rec.log("outcome", _encoded_image(rr, image))
-
-
-def log_finished(rec: Any, error: BaseException | None, run: Run) -> None:
-    import rerun as rr
-
-    status = "succeeded" if error is None else "failed"
-    lines = [f"## Run {run.folder.name} {status}", f"\ntask: **{run.task.name}**"]
-    lines.append(f"\ninstruction: {run.task.instruction}")
-    if error is not None:
-        lines.append(f"\n**error:** {type(error).__name__}: {error}")
-    if run.timings_s:
-        lines.append("\n| stage | seconds |\n|---|---|")
-        lines.extend(f"| {name} | {seconds:.3f} |" for name, seconds in run.timings_s.items())
-    lines.extend(f"- warning: {warning}" for warning in run.warnings)
-    rec.log("run/summary", _markdown(rr, "\n".join(lines)))
-    if error is not None:
-        rec.log(
-            "run/error",
-            rr.TextLog(redact(f"{type(error).__name__}: {error}"), level=rr.TextLogLevel.ERROR),
-        )
+    if not outcome.is_file():
+        return
+    image = cv2.imread(str(outcome), cv2.IMREAD_COLOR)
+    if image is not None:
+        rec.log("outcome", _encoded_image(rr, image))

@@ -153,6 +153,7 @@ def _session_for(run: Run) -> _Session | None:
 
 def _log_stage(stream: Any, stage: str, result: Any, run: Run) -> None:
     from keymps import rerun_entities as entities
+    from keymps import rerun_text as text
 
     if stage == "image":
         entities.log_image(stream, result, run)
@@ -160,6 +161,7 @@ def _log_stage(stream: Any, stage: str, result: Any, run: Run) -> None:
         entities.log_detection(stream, result, run)
     elif stage == "plan":
         entities.log_plan(stream, result, run)
+        text.log_vlm(stream, result)
     elif stage == "ground":
         entities.log_grounding(stream, result)
     elif stage == "compose":
@@ -167,9 +169,10 @@ def _log_stage(stream: Any, stage: str, result: Any, run: Run) -> None:
     elif stage == "time":
         _log_motion(stream, result, run)
     elif stage == "check":
-        entities.log_validation(stream, result)
+        text.log_validation(stream, result)
     elif stage == "execute":
-        entities.log_execution(stream, result, run)
+        text.log_execution(stream, result)
+        entities.log_outcome(stream, run)
 
 
 def _log_motion(stream: Any, trajectory: Any, run: Run) -> None:
@@ -198,7 +201,7 @@ def keymps_stage_done(stage: str, result: Any, run: Run) -> None:
         stream.set_time("stage", sequence=stage_index(stage))
         stream.set_time("time", duration=0.0)
         if stage == "finished":
-            from keymps.rerun_entities import log_finished
+            from keymps.rerun_text import log_finished
 
             log_finished(stream, result if isinstance(result, BaseException) else None, run)
         else:
