@@ -100,8 +100,6 @@ class ImageFrame:
     ) -> ImageFrame:
         """Calibrated camera: the homography taking the workspace's four corner pixels
         (bottom-left, bottom-right, top-right, top-left) to the board's corners."""
-        import cv2
-
         size = _check_size(image_size_px)
         corners = np.asarray(corners_px, dtype=float).reshape(4, 2)
         _check_quadrilateral(corners)
@@ -111,9 +109,7 @@ class ImageFrame:
             [[sx, sy], [sx + w_env, sy], [sx + w_env, sy + h_env], [sx, sy + h_env]],
             dtype=np.float64,
         )
-        matrix = cv2.getPerspectiveTransform(corners.astype(np.float32), board.astype(np.float32))
-        # getPerspectiveTransform works in float32; refine with a float64 direct solve.
-        matrix = _homography_float64(corners, board, fallback=np.asarray(matrix, dtype=float))
+        matrix = _homography(corners, board)
         return cls(matrix, size, (w_env, h_env), (sx, sy), "homography")
 
     @classmethod
@@ -151,7 +147,8 @@ class ImageFrame:
         )
 
 
-def _homography_float64(src: np.ndarray, dst: np.ndarray, fallback: np.ndarray) -> np.ndarray:
+def _homography(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """The 3x3 map taking four points to four points (direct linear solve in float64)."""
     rows = []
     rhs = []
     for (x, y), (u, v) in zip(src, dst, strict=True):
@@ -161,7 +158,9 @@ def _homography_float64(src: np.ndarray, dst: np.ndarray, fallback: np.ndarray) 
     try:
         h = np.linalg.solve(np.array(rows, dtype=float), np.array(rhs, dtype=float))
     except np.linalg.LinAlgError:
-        return fallback
+        raise KeympsError(
+            "scene.camera.board_corners_px: the four corners are degenerate (three on a line?)"
+        ) from None
     return np.append(h, 1.0).reshape(3, 3)
 
 
