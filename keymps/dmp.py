@@ -14,6 +14,7 @@ on the input) and run as a second-order IIR filter (scipy.signal.lfilter) over a
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -143,17 +144,16 @@ class _Filters:
     first_vel: np.ndarray
 
 
+@functools.lru_cache(maxsize=64)
 def _filters(step: float, stiffness: float, damping: float) -> _Filters:
     """First-order-hold discretization of p' = z, z' = u - K p - D z (normalized time)."""
-    from scipy.linalg import expm
-
     block = np.zeros((4, 4))
     block[0, 1] = 1.0
     block[1, 0] = -stiffness
     block[1, 1] = -damping
     block[1, 2] = 1.0
     block[2, 3] = 1.0 / step
-    big = expm(block * step)
+    big = _expm(block * step)
     phi = big[:2, :2]
     gamma1, gamma2 = big[:2, 2], big[:2, 3]
     g_prev, g_now = gamma1 - gamma2, gamma2
@@ -175,41 +175,52 @@ def _filters(step: float, stiffness: float, damping: float) -> _Filters:
     return _Filters(a, b_pos, b_vel, first_pos, first_vel)
 
 
+def _expm(matrix: np.ndarray) -> np.ndarray:
+    """Matrix exponential of a tiny matrix: scaling and squaring with an order-18 Taylor series
+    (accurate to rounding for norms up to 0.5 after scaling; no LAPACK call, no thread start-up).
+    """
+    norm = float(np.abs(matrix).sum(axis=0).max())
+    squarings = max(0, math.ceil(math.log2(norm / 0.5))) if norm > 0.5 else 0
+    scaled = matrix / 2.0**squarings
+    result = np.eye(len(matrix))
+    term = np.eye(len(matrix))
+    for order in range(1, 19):
+        term = term @ scaled / order
+        result = result + term
+    for _ in range(squarings):
+        result = result @ result
+    return result
+
+
+def _all_pole(a: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """1 / A(q) along the last axis, zero history (the recursive half of the filter)."""
+    from scipy.signal import lfilter
+
+    return np.asarray(lfilter(_ONE, a, x, axis=-1))
+
+
+_ONE = np.ones(1)
+
+
+def _fir(b: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """B(q) along the last axis, zero history (the moving-average half of the filter)."""
+    out = b[0] * v
+    for lag in range(1, len(b)):
+        out[..., lag:] += b[lag] * v[..., :-lag]
+    return out
+
+
 def _respond(filters: _Filters, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Normalized-time position and velocity of the system driven by u (rows = samples)."""
-    from scipy.signal import lfilter
-
-    columns = np.ascontiguousarray(np.atleast_2d(u.T))  # lfilter is fastest along the last axis
-    pos = lfilter(filters.b_pos, filters.a, columns, axis=-1)
-    vel = lfilter(filters.b_vel, filters.a, columns, axis=-1)
-    impulse = np.zeros(columns.shape[-1])
-    impulse[0] = 1.0
-    pos -= np.outer(columns[:, 0], lfilter(filters.first_pos, filters.a, impulse))
-    vel -= np.outer(columns[:, 0], lfilter(filters.first_vel, filters.a, impulse))
-    return pos.T.reshape(u.shape), vel.T.reshape(u.shape)
-
-
-def _respond_position(filters: _Filters, u: np.ndarray) -> np.ndarray:
-    """Position only (rows = samples, columns = independent inputs)."""
-    from scipy.signal import lfilter
-
+    """Normalized-time position and velocity of the system driven by u (rows = samples), from
+    zero initial state. One recursive pass serves both outputs (they share the poles)."""
     columns = np.ascontiguousarray(u.T)
-    pos = lfilter(filters.b_pos, filters.a, columns, axis=-1)
+    state = _all_pole(filters.a, columns)
     impulse = np.zeros(columns.shape[-1])
     impulse[0] = 1.0
-    pos -= np.outer(columns[:, 0], lfilter(filters.first_pos, filters.a, impulse))
-    return pos.T
-
-
-def _final_velocity(filters: _Filters, u: np.ndarray) -> np.ndarray:
-    """Velocity at the last sample only: one dot product with the reversed impulse response."""
-    from scipy.signal import lfilter
-
-    impulse = np.zeros(u.shape[0])
-    impulse[0] = 1.0
-    response = lfilter(filters.b_vel, filters.a, impulse)
-    correction = lfilter(filters.first_vel, filters.a, impulse)[-1]
-    return response[::-1] @ u - correction * u[0]
+    free = _all_pole(filters.a, impulse)
+    pos = _fir(filters.b_pos, state) - np.outer(columns[:, 0], _fir(filters.first_pos, free))
+    vel = _fir(filters.b_vel, state) - np.outer(columns[:, 0], _fir(filters.first_vel, free))
+    return pos.T, vel.T
 
 
 # --------------------------------------------------------------------------- the DMP
@@ -291,14 +302,7 @@ class DMP:
         basis = _fit_basis(phase_time, n_basis, regularization)
         delta = goal - start
         target = (y_arr - start) - np.outer(basis.goal_position, delta)
-        rhs = np.vstack(
-            [
-                target * basis.sample_weight[:, None],
-                _PIN * target[-1:],
-                -_PIN * basis.goal_end_velocity * delta[None, :],
-            ]
-        )
-        weights = np.ascontiguousarray(basis.solve(basis.rows.T @ rhs))
+        weights = np.ascontiguousarray(basis.solve(target, -basis.goal_end_velocity * delta))
         return cls(weights=weights, demo_start=start, demo_goal=goal, demo_duration=duration)
 
     # ---------------------------------------------------------------- rollout
@@ -319,7 +323,7 @@ class DMP:
         grid = np.linspace(0.0, 1.0, num)
         s = np.exp(-self.alpha_s * grid)
         u = stiffness * (np.outer(1.0 - s, self.demo_delta) + self.forcing(s))
-        pos, vel = _respond(_filters(grid[1], stiffness, damping), u)
+        pos, vel = _respond(_filters(float(grid[1]), stiffness, damping), u)
         acc = u - stiffness * pos - damping * vel
         for array in (pos, vel, acc):
             array.flags.writeable = False
@@ -373,7 +377,7 @@ class DMP:
         s = np.exp(-self.alpha_s * grid)
         delta = goal_arr - start_arr
         u = stiffness * (np.outer(1.0 - s, delta) + self.forcing(s) @ np.asarray(transform).T)
-        pos, vel = _respond(_filters(grid[1], stiffness, damping), u)
+        pos, vel = _respond(_filters(float(grid[1]), stiffness, damping), u)
         acc = u - stiffness * pos - damping * vel
         return Rollout(
             t=grid * tau,
@@ -477,19 +481,26 @@ _PIN = 1e3
 class _FitBasis:
     """Everything of a fit that depends only on the sample times (cached for uniform grids)."""
 
-    rows: np.ndarray
-    """(T + 2, n_basis): weighted position responses, then the pinned end position and velocity."""
+    weighted_design: np.ndarray
+    """(n_basis, T): position response of each basis function at the samples, times each
+    sample's weight."""
+    end_position: np.ndarray
+    """(n_basis,) position responses at the last sample."""
+    end_velocity: np.ndarray
     goal_position: np.ndarray
     """(T,) response to a unit goal offset (the goal and Hoffmann terms)."""
     goal_end_velocity: float
-    sample_weight: np.ndarray
     factor: tuple[np.ndarray, bool]
     """Cholesky factor of the regularized normal equations."""
 
-    def solve(self, right: np.ndarray) -> np.ndarray:
+    def solve(self, target: np.ndarray, end_velocity_target: np.ndarray) -> np.ndarray:
+        """Weights for position targets (T, 3) and the wanted end velocity response (3,)."""
         from scipy.linalg import cho_solve
 
-        return np.asarray(cho_solve(self.factor, right))
+        right = self.weighted_design @ target
+        right += _PIN**2 * np.outer(self.end_position, target[-1])
+        right += _PIN**2 * np.outer(self.end_velocity, end_velocity_target)
+        return np.asarray(cho_solve(self.factor, right, check_finite=False))
 
 
 _FIT_BASES: dict[tuple[int, int, float], _FitBasis] = {}
@@ -497,45 +508,70 @@ _FIT_BASES: dict[tuple[int, int, float], _FitBasis] = {}
 
 def _fit_basis(phase_time: np.ndarray, n_basis: int, regularization: float) -> _FitBasis:
     """The least-squares basis for samples at normalized times phase_time (0 ... 1)."""
+    from scipy.linalg import cho_factor
+    from scipy.linalg.blas import dsyrk
+
     steps = np.diff(phase_time)
     uniform = bool(np.abs(steps - steps[0]).max() <= 1e-6 * steps[0])
     key = (len(phase_time), n_basis, regularization)
     if uniform and key in _FIT_BASES:
         return _FIT_BASES[key]
-    from scipy.linalg import cho_factor
-
     stiffness, damping = ALPHA_Z * BETA_Z, ALPHA_Z
     num = len(phase_time) if uniform else max(len(phase_time), 1000)
     grid = np.linspace(0.0, 1.0, num)
-    inputs = np.empty((num, n_basis + 1))
     s = np.exp(-ALPHA_S * grid)
-    inputs[:, :n_basis] = stiffness * _phase_features(s, n_basis, ALPHA_S)
-    inputs[:, n_basis] = stiffness * (1.0 - s)
-    filters = _filters(grid[1], stiffness, damping)
-    pos = _respond_position(filters, inputs)
-    vel_end = _final_velocity(filters, inputs)
+    # Inputs as rows (one per basis function, then the goal term): the filters run along rows.
+    inputs = np.empty((n_basis + 1, num))
+    centers, widths = basis_centers_widths(n_basis, ALPHA_S)
+    psi = inputs[:n_basis]
+    np.subtract(centers[:, None], s[None, :], out=psi)
+    np.square(psi, out=psi)
+    psi *= -widths[:, None]
+    np.exp(psi, out=psi)
+    psi *= stiffness * s / psi.sum(axis=0)
+    np.multiply(stiffness, 1.0 - s, out=inputs[n_basis])
+    filters = _filters(float(grid[1]), stiffness, damping)
+    state = _all_pole(filters.a, inputs)
+    impulse = np.zeros(num)
+    impulse[0] = 1.0
+    free = _all_pole(filters.a, impulse)
+    pos = _fir(filters.b_pos, state)
+    pos -= np.outer(inputs[:, 0], _fir(filters.first_pos, free))
+    b_vel = filters.b_vel
+    vel_end = b_vel[0] * state[:, -1] + b_vel[1] * state[:, -2] + b_vel[2] * state[:, -3]
+    vel_end -= inputs[:, 0] * _fir(filters.first_vel, free)[-1]
     if not uniform:
-        pos = _interp_rows(grid, pos, phase_time)
-    # Rows weighted by the time each sample stands for, so dense stretches do not dominate.
-    sample_weight = np.sqrt(np.gradient(phase_time) * len(phase_time))
-    design = pos[:, :n_basis]
-    rows = np.vstack(
-        [design * sample_weight[:, None], _PIN * design[-1:], _PIN * vel_end[None, :n_basis]]
-    )
-    gram = rows.T @ rows
-    gram[np.diag_indices(n_basis)] += regularization * float(np.trace(gram)) / n_basis
+        pos = _interp_rows(grid, pos.T, phase_time).T
+    design = pos[:n_basis]
+    if uniform:
+        weighted, root_weighted = design, design
+    else:
+        # Samples weighted by the time each stands for, so dense stretches do not dominate.
+        sample_weight = np.gradient(phase_time) * len(phase_time)
+        weighted, root_weighted = design * sample_weight, design * np.sqrt(sample_weight)
+    gram = dsyrk(1.0, root_weighted)  # upper triangle of design W design^T
+    gram += _PIN**2 * np.outer(design[:, -1], design[:, -1])
+    gram += _PIN**2 * np.outer(vel_end[:n_basis], vel_end[:n_basis])
+    gram.flat[:: n_basis + 1] += regularization * float(np.trace(gram)) / n_basis
     basis = _FitBasis(
-        rows=rows,
-        goal_position=pos[:, n_basis],
+        weighted_design=weighted,
+        end_position=design[:, -1].copy(),
+        end_velocity=vel_end[:n_basis].copy(),
+        goal_position=pos[n_basis],
         goal_end_velocity=float(vel_end[n_basis]),
-        sample_weight=sample_weight,
-        factor=cho_factor(gram),
+        factor=cho_factor(gram, lower=False, check_finite=False),
     )
     if uniform:
         if len(_FIT_BASES) >= _MAX_CACHED_GRIDS:
             _FIT_BASES.pop(next(iter(_FIT_BASES)))
         _FIT_BASES[key] = basis
     return basis
+
+
+def clear_caches() -> None:
+    """Forget cached fit bases and discretizations (for cold-start timing)."""
+    _FIT_BASES.clear()
+    _filters.cache_clear()
 
 
 def _interp_rows(grid: np.ndarray, values: np.ndarray, at: np.ndarray) -> np.ndarray:

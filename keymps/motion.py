@@ -15,6 +15,8 @@ WORK_SPACING_M = 0.001
 """Work pieces are sampled at least this finely (the re-targeted rollout's points)."""
 TRAVEL_SPACING_M = 0.01
 """Travel legs are straight lines; a point every centimetre is plenty for IK and checks."""
+TURN_STEP_RAD = math.radians(5.0)
+"""A turn in place is sampled at least this finely."""
 NO_HEADING_M = 0.001
 """Segments with less horizontal travel than this (dots, plunges) keep the previous yaw."""
 
@@ -116,31 +118,31 @@ def _travel(
     """Rise to travel_z (if below), move over at or above it, descend to end (if below).
 
     Every point of the over-move is at or above travel_z, so it cannot cross the object. The
-    yaw turns only during the over-move, in the air; it is held while rising and descending."""
+    yaw turns only up there: along the over-move, or in place when the move is too short."""
     above_start = np.array([start[0], start[1], max(start[2], travel_z)])
     above_end = np.array([end[0], end[1], max(end[2], travel_z)])
-    legs = [(start, above_start), (above_start, above_end), (above_end, end)]
-    points, arcs, over_span = [start[None, :]], [np.zeros(1)], (0.0, 0.0)
-    travelled = 0.0
-    for leg_index, (a, b) in enumerate(legs):
+    over_is_short = float(np.linalg.norm(above_end - above_start)) < 1e-3
+    turn = (above_start, above_start, start_yaw, end_yaw) if over_is_short else None
+    legs = [
+        (start, above_start, start_yaw, start_yaw),
+        *([turn] if turn is not None else []),
+        (above_start, above_end, end_yaw if over_is_short else start_yaw, end_yaw),
+        (above_end, end, end_yaw, end_yaw),
+    ]
+    points, yaws = [start[None, :]], [np.array([start_yaw])]
+    for a, b, yaw_a, yaw_b in legs:
         length = float(np.linalg.norm(b - a))
-        if leg_index == 1:
-            over_span = (travelled, travelled + length)
-        if length < 1e-12:
+        rotation = abs(yaw_b - yaw_a)
+        if length < 1e-12 and rotation < 1e-12:
             continue
-        count = max(1, math.ceil(length / TRAVEL_SPACING_M))
+        count = max(1, math.ceil(length / TRAVEL_SPACING_M), math.ceil(rotation / TURN_STEP_RAD))
         fractions = np.linspace(0.0, 1.0, count + 1)[1:]
         points.append(a + fractions[:, None] * (b - a))
-        arcs.append(travelled + fractions * length)
-        travelled += length
-    path = np.vstack(points)
-    if len(path) == 1:  # already there: a zero-length piece of two identical points
-        path = np.vstack([start, end])
-        arcs.append(np.zeros(1))
-    arc = np.concatenate(arcs)
-    a0, a1 = over_span if over_span[1] - over_span[0] > 1e-3 else (0.0, travelled)
-    fraction = np.clip((arc - a0) / (a1 - a0), 0.0, 1.0) if a1 > a0 else np.ones(len(arc))
-    return path, start_yaw + fraction * (end_yaw - start_yaw)
+        yaws.append(yaw_a + fractions * (yaw_b - yaw_a))
+    if len(points) == 1:  # already there: a zero-length piece of two identical points
+        points.append(end[None, :])
+        yaws.append(np.array([end_yaw]))
+    return np.vstack(points), np.concatenate(yaws)
 
 
 def _finite_point(value: object, name: str) -> np.ndarray:

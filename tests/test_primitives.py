@@ -50,7 +50,11 @@ def test_shipped_weights_are_the_fit_of_the_shipped_demo(bundled: dict, name: st
     primitive = bundled[name]
     t, y = prepare_demo(*load_demo_csv(primitive.demo), primitive.preprocessing)
     refit = DMP.fit(t, y, n_basis=primitive.dmp.n_basis)
-    assert np.allclose(refit.weights, primitive.dmp.weights, rtol=1e-9, atol=1e-12)
+    # Weights are compared through what they do (they are ill-conditioned at the 1e-5 level).
+    for goal in ([0.1, 0.0, 0.0], [0.0, 0.2, -0.05]):
+        a = refit.rollout([0, 0, 0.05], goal).y
+        b = primitive.dmp.rollout([0, 0, 0.05], goal).y
+        assert np.abs(a - b).max() < 1e-6
     assert fit_rmse(refit, t, y) == pytest.approx(primitive.fit_rmse, rel=1e-6)
     rollout = primitive.dmp.rollout(y[0], y[-1], num=len(t))
     assert np.sqrt(((rollout.y - y) ** 2).sum(axis=1).mean()) <= 0.0005
@@ -232,7 +236,8 @@ def test_learning_from_a_noisy_robot_log_with_pauses(tmp_path: Path) -> None:
     refit = learn_primitive(
         "saw-log", again.demo, description="x", preprocessing=again.preprocessing
     )
-    assert np.allclose(refit.dmp.weights, again.dmp.weights, rtol=1e-9, atol=1e-12)
+    a = refit.dmp.rollout([0, 0, 0], [0.1, 0, 0]).y
+    assert np.abs(a - again.dmp.rollout([0, 0, 0], [0.1, 0, 0]).y).max() < 1e-8
 
 
 def test_a_log_where_nothing_moves_is_refused(tmp_path: Path) -> None:
