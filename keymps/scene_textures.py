@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    from keymps.scenes import ObjectSpec, Shape
+    from keymps.scene_objects import ObjectSpec, Shape
 
 
 def centre_line(u: np.ndarray, length: float, bend: float) -> np.ndarray:
