@@ -167,6 +167,8 @@ def log_tool(rec: Any, task: Task) -> None:
     """The tool as a capsule from the flange to its tip, riding on the flange frame."""
     import rerun as rr
 
+    from keymps.rerun_text import redact
+
     tcp = tool_tcp(task)
     if tcp is None:
         return
@@ -183,7 +185,7 @@ def log_tool(rec: Any, task: Task) -> None:
             translations=[[0.0, 0.0, 0.0]],
             quaternions=[_z_to(offset / length)],
             colors=[[200, 200, 210, 255]],
-            labels=[task.robot.tool.name],
+            labels=[redact(task.robot.tool.name)],
         ),
         static=True,
     )

@@ -490,13 +490,15 @@ def test_a_blueprint_is_sent_with_the_recording(recorded):
     assert len(RrdReader(path).blueprints()) == 1
 
 
-def test_same_inputs_give_the_same_entity_tree(recorded, tmp_path):
+def test_same_inputs_give_the_same_entity_tree_and_values(recorded, tmp_path, monkeypatch):
     _, _, first = recorded
+    monkeypatch.setenv("OPENAI_API_KEY", CANARY)
     run, results = make_run(tmp_path)
     play(run, results)
     second = read_recording(run.folder / "run.rrd")
     assert sorted(first) == sorted(second)
     assert {p: e.rows for p, e in first.items()} == {p: e.rows for p, e in second.items()}
+    assert {p: e.data for p, e in first.items()} == {p: e.data for p, e in second.items()}
 
 
 def test_off_writes_nothing(tmp_path):
@@ -661,3 +663,12 @@ def test_leaving_the_plugin_out_records_nothing(tmp_path, monkeypatch):
         plugins.reset_manager()
     assert (run.folder / "run.json").is_file()
     assert not (run.folder / "run.rrd").exists()
+
+
+def test_an_old_rerun_sdk_gets_a_one_line_upgrade_message():
+    from keymps.errors import KeympsError
+
+    with pytest.raises(KeympsError, match=r"needs rerun-sdk >= 0\.41, found 0\.21\.0: pip install"):
+        rerun_recorder._check_version("0.21.0")
+    rerun_recorder._check_version("0.41.0")
+    rerun_recorder._check_version("1.2.0rc1")

@@ -6,6 +6,7 @@ run.options.rerun chooses the sink: "save" (run.rrd in the run folder, the defau
 
 from __future__ import annotations
 
+import re
 import uuid
 import weakref
 from dataclasses import dataclass
@@ -19,6 +20,8 @@ from keymps.stages import STAGES
 APPLICATION_ID = "keymps"
 RECORDING_FILE = "run.rrd"
 MODES = ("save", "spawn", "connect", "off")
+MIN_RERUN_VERSION = (0, 41)
+"""Oldest rerun-sdk tested (named transform frames, rerun.urdf, rerun.chunk.RrdReader)."""
 ROBOT_RATE_HZ = 25.0
 """The animated robot and tool tip are subsampled to this rate; joint series keep every sample."""
 STAGE_ORDER: tuple[str, ...] = ("image", *STAGES, "finished")
@@ -96,12 +99,23 @@ def blueprint(run: Run) -> Any:
     )
 
 
+def _check_version(version: str) -> None:
+    numbers = tuple(int(part) for part in re.findall(r"\d+", version)[:2])
+    if numbers < MIN_RERUN_VERSION:
+        wanted = ".".join(map(str, MIN_RERUN_VERSION))
+        raise KeympsError(
+            f"the Rerun recorder needs rerun-sdk >= {wanted}, found {version}: "
+            f"pip install 'rerun-sdk>={wanted}' (or run with --rerun off)"
+        )
+
+
 def _open(run: Run) -> _Session:
     import rerun as rr
 
     mode = run.options.rerun
     if mode not in MODES:
         raise KeympsError(f"--rerun: unknown mode {mode!r} (choose one of {', '.join(MODES)})")
+    _check_version(rr.__version__)
     stream = rr.RecordingStream(
         APPLICATION_ID,
         recording_id=uuid.uuid4(),
@@ -125,8 +139,10 @@ def _open(run: Run) -> _Session:
         raise
     except Exception as error:
         raise KeympsError(f"rerun {mode} failed: {error}") from None
-    stream.send_recording_name(f"{run.task.name} ({run.folder.name})")
     from keymps.rerun_entities import log_world_setup
+    from keymps.rerun_text import redact
+
+    stream.send_recording_name(redact(f"{run.task.name} ({run.folder.name})"))
 
     log_world_setup(stream)
     return _Session(stream=stream, mode=mode)
