@@ -83,9 +83,18 @@ def _warn_broken(name: str, error: BaseException) -> None:
     warnings.warn(message, PluginLoadWarning, stacklevel=3)
 
 
-def build_manager() -> pluggy.PluginManager:
+class KeympsPluginManager(pluggy.PluginManager):
+    """A pluggy manager that also remembers which distribution each plugin came from."""
+
+    def __init__(self) -> None:
+        super().__init__("keymps")
+        self.distributions: dict[str, tuple[str, str]] = {}
+        """Plugin name -> (distribution name, version) for entry-point plugins."""
+
+
+def build_manager() -> KeympsPluginManager:
     """A fresh manager with the built-ins and every installed entry-point plugin."""
-    manager = pluggy.PluginManager("keymps")
+    manager = KeympsPluginManager()
     manager.add_hookspecs(hookspecs)
     for name, module_name in DEFAULT_PLUGINS.items():
         if not _selected(name, None):
@@ -102,6 +111,12 @@ def build_manager() -> pluggy.PluginManager:
             manager.register(entry_point.load(), name=entry_point.name)
         except Exception as error:
             _warn_broken(entry_point.name, error)
+            continue
+        if entry_point.dist is not None:
+            manager.distributions[entry_point.name] = (
+                entry_point.dist.name,
+                entry_point.dist.version,
+            )
     if os.environ.get("KEYMPS_TRACE_PLUGINS"):
         _trace_hook_calls(manager)
     return manager
@@ -176,17 +191,15 @@ def plugin_infos(manager: pluggy.PluginManager | None = None) -> list[PluginInfo
     from keymps import __version__
 
     manager = manager or get_manager()
-    distributions = {id(plugin): dist for plugin, dist in manager.list_plugin_distinfo()}
+    known = getattr(manager, "distributions", {})
     infos = []
     for name, plugin in manager.list_name_plugin():
         if plugin is None:
             continue
         hooks = tuple(sorted(h.name for h in manager.get_hookcallers(plugin) or []))
-        dist = distributions.get(id(plugin))
-        if dist is not None:
-            infos.append(
-                PluginInfo(name, _provides(plugin), dist.project_name, dist.version, hooks)
-            )
+        if name in DEFAULT_PLUGINS:
+            dist, version = "keymps", __version__
         else:
-            infos.append(PluginInfo(name, _provides(plugin), "keymps", __version__, hooks))
+            dist, version = known.get(name, ("(registered in code)", ""))
+        infos.append(PluginInfo(name, _provides(plugin), dist, version, hooks))
     return infos
