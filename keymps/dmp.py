@@ -510,6 +510,7 @@ def _fit_basis(phase_time: np.ndarray, n_basis: int, regularization: float) -> _
     """The least-squares basis for samples at normalized times phase_time (0 ... 1)."""
     from scipy.linalg import cho_factor
     from scipy.linalg.blas import dsyrk
+    from scipy.signal import lfilter
 
     steps = np.diff(phase_time)
     uniform = bool(np.abs(steps - steps[0]).max() <= 1e-6 * steps[0])
@@ -531,14 +532,16 @@ def _fit_basis(phase_time: np.ndarray, n_basis: int, regularization: float) -> _
     psi *= stiffness * s / psi.sum(axis=0)
     np.multiply(stiffness, 1.0 - s, out=inputs[n_basis])
     filters = _filters(float(grid[1]), stiffness, damping)
-    state = _all_pole(filters.a, inputs)
+    pos = lfilter(filters.b_pos, filters.a, inputs, axis=-1)
     impulse = np.zeros(num)
     impulse[0] = 1.0
     free = _all_pole(filters.a, impulse)
-    pos = _fir(filters.b_pos, state)
-    pos -= np.outer(inputs[:, 0], _fir(filters.first_pos, free))
-    b_vel = filters.b_vel
-    vel_end = b_vel[0] * state[:, -1] + b_vel[1] * state[:, -2] + b_vel[2] * state[:, -3]
+    # Undo the filter's response to u[0] arriving with zero history (x[0] must be 0); only the
+    # first few basis functions are active at t = 0.
+    active = np.flatnonzero(np.abs(inputs[:, 0]) > 1e-14 * np.abs(inputs[:, 0]).max())
+    pos[active] -= np.outer(inputs[active, 0], _fir(filters.first_pos, free))
+    # Only the last velocity is needed: one dot product with the reversed impulse response.
+    vel_end = inputs @ _fir(filters.b_vel, free)[::-1]
     vel_end -= inputs[:, 0] * _fir(filters.first_vel, free)[-1]
     if not uniform:
         pos = _interp_rows(grid, pos.T, phase_time).T
