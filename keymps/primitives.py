@@ -86,7 +86,12 @@ class Primitive:
         tau = self.dmp.tau_for_speed(start_arr, goal_arr, speed or self.nominal_speed, mode)
         # The fastest stretch of a smooth primitive runs ~2-4x the average; oversample for it.
         num = int(min(max(50, math.ceil(4.0 * length / spacing) + 1), 200_000))
-        return self.dmp.rollout(start_arr, goal_arr, tau=tau, num=num, mode=mode)
+        rollout = self.dmp.rollout(start_arr, goal_arr, tau=tau, num=num, mode=mode)
+        widest = float(np.linalg.norm(np.diff(rollout.y, axis=0), axis=1).max())
+        if widest > spacing and num < 200_000:
+            num = int(min(math.ceil(num * widest / spacing * 1.05) + 1, 200_000))
+            rollout = self.dmp.rollout(start_arr, goal_arr, tau=tau, num=num, mode=mode)
+        return rollout
 
 
 # --------------------------------------------------------------------------- demonstrations

@@ -245,3 +245,11 @@ def test_a_log_where_nothing_moves_is_refused(tmp_path: Path) -> None:
     write_demo_csv(log, np.arange(50) / 10, np.zeros((50, 3)))
     with pytest.raises(KeympsError, match="never moves"):
         learn_primitive("still", log, description="x")
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_every_primitive_is_sampled_at_least_every_millimetre(bundled: dict, name: str) -> None:
+    primitive = bundled[name]
+    for goal in ([0.25, 0.0, 0.0], [0.0, 0.02, 0.05], [0.0, 0.0, 0.05]):
+        rollout = primitive.rollout([0.0, 0.0, 0.05], goal, speed=0.05)
+        assert np.linalg.norm(np.diff(rollout.y, axis=0), axis=1).max() <= 0.001
