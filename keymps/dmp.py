@@ -9,7 +9,9 @@ with K = alpha_z beta_z and D = alpha_z on every axis. S satisfies S (g_d - y0_d
 the system is linear in y - y0 and every re-targeted rollout is exactly
 y(t) = y0 + S (y_fit(t) - y0_d), where y_fit is the rollout for the demonstration's own start
 and goal. The transformation system is discretized exactly (matrix exponential, first-order hold
-on the input) and run as a second-order IIR filter (scipy.signal.lfilter) over all samples.
+on the input) and run as a second-order IIR filter over all samples at once: the recursion is
+solved as a banded lower-triangular system (LAPACK dtbtrs), which is the all-pole pass of
+scipy.signal.lfilter without the second it takes to import scipy.signal.
 """
 
 from __future__ import annotations
@@ -32,7 +34,7 @@ BETA_Z = ALPHA_Z / 4.0
 ALPHA_S = 4.0
 ZERO_LENGTH_M = 1e-9
 """Segments and demonstrations shorter than this are treated as zero-length (dots)."""
-_MAX_CACHED_GRIDS = 8
+_MAX_CACHED_GRIDS = 16
 
 
 class DmpError(KeympsError):
@@ -192,14 +194,22 @@ def _expm(matrix: np.ndarray) -> np.ndarray:
     return result
 
 
-def _all_pole(a: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """1 / A(q) along the last axis, zero history (the recursive half of the filter)."""
-    from scipy.signal import lfilter
+def _all_pole(a: np.ndarray, x: np.ndarray, overwrite: bool = False) -> np.ndarray:
+    """1 / A(q) along the last axis with zero history, for monic second-order A: the recursion
+    y[n] = x[n] - a1 y[n-1] - a2 y[n-2] is a unit lower-triangular banded system."""
+    from scipy.linalg.lapack import dtbtrs
 
-    return np.asarray(lfilter(_ONE, a, x, axis=-1))
-
-
-_ONE = np.ones(1)
+    columns = x.reshape(1, -1) if x.ndim == 1 else x
+    length = columns.shape[-1]
+    band = np.empty((3, length))
+    band[0] = 1.0
+    band[1] = a[1]
+    band[2] = a[2]
+    # x.T of a C-ordered (m, N) array is a Fortran-ordered (N, m) right-hand side: no copy.
+    solution, info = dtbtrs(band, columns.T, uplo="L", diag="U", overwrite_b=int(overwrite))
+    if info != 0:  # pragma: no cover - a unit diagonal cannot be singular
+        raise DmpError(f"internal error: banded solve failed (info {info})")
+    return np.asarray(solution.T).reshape(x.shape)
 
 
 def _fir(b: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -510,7 +520,6 @@ def _fit_basis(phase_time: np.ndarray, n_basis: int, regularization: float) -> _
     """The least-squares basis for samples at normalized times phase_time (0 ... 1)."""
     from scipy.linalg import cho_factor
     from scipy.linalg.blas import dsyrk
-    from scipy.signal import lfilter
 
     steps = np.diff(phase_time)
     uniform = bool(np.abs(steps - steps[0]).max() <= 1e-6 * steps[0])
@@ -532,7 +541,7 @@ def _fit_basis(phase_time: np.ndarray, n_basis: int, regularization: float) -> _
     psi *= stiffness * s / psi.sum(axis=0)
     np.multiply(stiffness, 1.0 - s, out=inputs[n_basis])
     filters = _filters(float(grid[1]), stiffness, damping)
-    pos = lfilter(filters.b_pos, filters.a, inputs, axis=-1)
+    pos = _all_pole(filters.a, _fir(filters.b_pos, inputs), overwrite=True)
     impulse = np.zeros(num)
     impulse[0] = 1.0
     free = _all_pole(filters.a, impulse)

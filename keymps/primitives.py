@@ -82,16 +82,29 @@ class Primitive:
         nominal speed), sampled finely enough that points are at most about `spacing` apart."""
         start_arr, goal_arr = np.asarray(start, float), np.asarray(goal, float)
         mode = mode or self.mode
-        length = self.dmp.path_length(start_arr, goal_arr, mode)
         tau = self.dmp.tau_for_speed(start_arr, goal_arr, speed or self.nominal_speed, mode)
-        # The fastest stretch of a smooth primitive runs ~2-4x the average; oversample for it.
-        num = int(min(max(50, math.ceil(4.0 * length / spacing) + 1), 200_000))
+        # Point spacing scales with 1/(num - 1): size num from a reference rollout, then round it
+        # up to a bin so that segments of similar length share one cached canonical rollout.
+        reference = self.dmp.rollout(start_arr, goal_arr, num=_REFERENCE_NUM, mode=mode).y
+        widest = float(np.linalg.norm(np.diff(reference, axis=0), axis=1).max())
+        num = _sample_bin((_REFERENCE_NUM - 1) * widest / spacing + 1)
         rollout = self.dmp.rollout(start_arr, goal_arr, tau=tau, num=num, mode=mode)
         widest = float(np.linalg.norm(np.diff(rollout.y, axis=0), axis=1).max())
-        if widest > spacing and num < 200_000:
-            num = int(min(math.ceil(num * widest / spacing * 1.05) + 1, 200_000))
+        while widest > spacing and num < _MAX_SAMPLES:
+            num = _sample_bin(num * widest / spacing + 1)
             rollout = self.dmp.rollout(start_arr, goal_arr, tau=tau, num=num, mode=mode)
+            widest = float(np.linalg.norm(np.diff(rollout.y, axis=0), axis=1).max())
         return rollout
+
+
+_REFERENCE_NUM = 1000
+_MAX_SAMPLES = 200_000
+
+
+def _sample_bin(needed: float) -> int:
+    """The smallest of 50 * 1.125**k (rounded) that is at least `needed`, at most 200 000."""
+    k = max(0, math.ceil(math.log(max(needed, 1.0) / 50.0) / math.log(1.125) - 1e-9))
+    return int(min(math.ceil(50 * 1.125**k - 1e-9), _MAX_SAMPLES))
 
 
 # --------------------------------------------------------------------------- demonstrations
