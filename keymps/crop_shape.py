@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from keymps.patterns import Outline, ShapeKind, polygon_area, polygon_centroid
+from keymps.outline import Outline, ShapeKind, polygon_area, polygon_centroid
 
 ELONGATED_ASPECT = 1.35
 """Length / width at or above which an object is elongated (a loaf, an eggplant)."""

@@ -20,9 +20,12 @@ TIP_FRACTION = 0.1
 """Both tips: each cut is this fraction of the length in from its end (5-30 mm)."""
 
 
+OVERSHOOT_MM = 1.0
+"""How far a cut reaches past the object's edge (then clipped to its bounding box)."""
+
+
 def _overshoot(outline: Outline) -> float:
-    """How far a cut reaches past the object's boundary, so the blade clears it."""
-    return max(3.0, 0.03 * max(outline.length, outline.width))
+    return OVERSHOOT_MM
 
 
 def _slicing_angle(intent: Intent, outline: Outline) -> float:

@@ -146,11 +146,21 @@ def parse_and_validate(
     problems = []
     keyword = getattr(answer, "keyword", None)
     if keyword is not None and keyword not in keywords:
+        keyword = normalise_keyword(keyword, keywords)
+        answer = answer.model_copy(update={"keyword": keyword})
+    if keyword is not None and keyword not in keywords:
         problems.append(f"keyword {keyword!r} is not one of: {', '.join(keywords)}")
     pairs = getattr(answer, "pairs", None)
     if pairs is not None:
         problems += _pair_problems(pairs, crop_size_px, max_pairs)
     return (None, problems) if problems else (answer, [])
+
+
+def normalise_keyword(keyword: str, keywords: Sequence[str]) -> str:
+    """The listed name a keyword means despite case, spaces, quotes or brackets ("[Sawing]")."""
+    bare = keyword.strip().strip("[]()'\"`* ").strip().lower()
+    matches = [k for k in keywords if k.lower() == bare]
+    return matches[0] if len(matches) == 1 else keyword
 
 
 def _pair_problems(pairs: list[Pair], crop_size_px: tuple[int, int], max_pairs: int) -> list[str]:

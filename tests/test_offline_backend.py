@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 from synthetic_crops import (
+    BOARD_BGR,
     CUTTING,
     ICING,
     MM_PER_PX,
@@ -24,13 +25,20 @@ def _sorted_x(plan) -> np.ndarray:
     return np.sort(plan.pairs_px[:, :, 0].mean(axis=1))
 
 
-def _assert_spans(plan, scene, axis: int) -> None:
-    """Every cut reaches past the object on both sides along `axis` (0: x, 1: y)."""
-    x0, y0, x1, y1 = scene.detection.bbox_px
-    low, high = (x0, x1) if axis == 0 else (y0, y1)
-    for pair in plan.pairs_px:
-        values = sorted(pair[:, axis])
-        assert values[0] < low + 1 and values[1] > high - 2
+def _assert_spans(plan, scene, axis: int | None = None) -> None:
+    """Every cut crosses the whole object: each end lies just beyond the object's edge."""
+    board = np.array(BOARD_BGR)
+    on_object = np.abs(scene.scene.image.astype(int) - board).max(axis=2) > 30
+
+    def inside(point) -> bool:
+        x, y = (int(round(v)) for v in point)
+        return bool(on_object[y, x])
+
+    for start, end in plan.pairs_px:
+        direction = (end - start) / np.linalg.norm(end - start)
+        for tip, outwards in ((start, -direction), (end, direction)):
+            assert not inside(tip + outwards), "the cut stops inside the object"
+            assert inside(tip - 4 * outwards), "the cut ends far outside the object"
 
 
 # --- Table I (cutting) -----------------------------------------------------------------------
@@ -82,6 +90,7 @@ def test_round_objects_are_cut_into_equal_wedges(sentence, parts):
     for pair in plan.pairs_px:
         assert distance_point_to_line(centre, pair) * MM_PER_PX < 1.0
     if parts % 2 == 0:
+        _assert_spans(plan, scene)
         angles = sorted(segment_angle(p) for p in plan.pairs_px)
         gaps = np.diff(angles + [angles[0] + 180.0])
         assert np.allclose(gaps, 360.0 / parts, atol=0.01)
@@ -393,3 +402,31 @@ def test_table_v_sentences_that_need_kitchen_knowledge_are_left_to_a_vlm(sentenc
 
     with pytest.raises(UnreadableInstruction, match="--model"):
         read_instruction(sentence)
+
+
+def test_designs_are_metric_when_pixels_are_not_square(tmp_path):
+    """0.30 x 0.18 m spanned by a 400 x 400 image: x pixels 0.75 mm, y pixels 0.45 mm."""
+    import cv2
+
+    from keymps.planning import make_plan
+    from keymps.run import Run
+    from keymps.stages import Detection, SceneImage
+    from keymps.task import Task
+
+    image = np.full((400, 400, 3), 205, np.uint8)
+    # a 120 mm disk on the board is an ellipse in this image
+    cv2.ellipse(image, ((200, 200), (120 / 0.75, 120 / 0.45), 0), (40, 110, 200), -1)
+    detection = Detection((120, 66, 281, 335), image[56:345, 110:291].copy(), (110, 56))
+    task = Task(
+        name="stretched",
+        instruction="Cut it into 6 equal slices",
+        scene={"source": "synthetic", "workspace": {"size": [0.30, 0.18]}},
+        primitives=list(CUTTING),
+    )
+    run = Run(task=task, folder=tmp_path)
+    plan = make_plan(task, detection, SceneImage(image, "synthetic"), CUTTING, run, "offline")
+    metric = plan.pairs_px * np.array([0.75, 0.45])
+    angles = sorted(segment_angle(p) for p in metric)
+    assert np.allclose(np.diff(angles + [angles[0] + 180]), 60.0, atol=0.5)
+    half_lengths = np.linalg.norm(metric[:, 1] - metric[:, 0], axis=1) / 2
+    assert np.all(half_lengths > 59.5) and np.ptp(half_lengths) < 1.5

@@ -13,7 +13,8 @@ from keymps.errors import KeympsError
 from keymps.hookspecs import hookimpl
 from keymps.plan_answer import answer_schema, extract_json, parse_and_validate
 from keymps.plan_prompt import PLACEHOLDERS, find_prompt, prompt_family, render_template
-from keymps.planning import choose_backend, redact
+from keymps.plan_session import redact
+from keymps.planning import choose_backend
 from keymps.run import RunOptions
 
 GOOD = {"keyword": "sawing", "pairs": [[[10, 20], [150, 20]]], "rationale": "one cut"}
@@ -83,7 +84,7 @@ def test_auto_with_task_key_variable_or_api_base_is_litellm(scene, no_keys):
 
 
 def test_explicit_backend_wins(scene, no_keys):
-    task = make_task("Cut it in half", scene, CUTTING, backend="replay")
+    task = make_task("Cut it in half", scene, CUTTING, backend="replay", cassette="a.jsonl")
     assert choose_backend(task, None, None, None)[0] == "replay"
     assert choose_backend(task, "offline", None, None) == (
         "offline",
@@ -291,3 +292,58 @@ def test_a_plugin_backend_gets_the_documented_request(scene, tmp_path, keymps_pl
     assert second.previous_errors == ("keyword 'chop' is not one of: straight, sawing",)
     assert second.attempt == 2 and second.messages[-2]["role"] == "assistant"
     assert plan.keyword == "straight" and plan.calls[-1].cost_usd == 0.001
+
+
+def test_keyword_spelling_is_forgiven_only_when_unambiguous():
+    keys = ["straight", "sawing"]
+    for spelled in ("Sawing", " [sawing] ", '"SAWING"'):
+        answer, problems = parse_and_validate(
+            json.dumps({**GOOD, "keyword": spelled}), "combined", keys, (200, 100), 64
+        )
+        assert problems == [] and answer.keyword == "sawing"
+
+
+def test_impossible_backend_requests_fail_before_any_stage(scene, no_keys):
+    task = make_task("Cut it in half", scene, CUTTING)
+    with pytest.raises(KeympsError, match=r"unknown planner backend 'gpt' \(available: auto, "):
+        choose_backend(task, "gpt", None, None)
+    with pytest.raises(KeympsError, match="litellm backend needs a model"):
+        choose_backend(task, "litellm", None, None)
+    with pytest.raises(KeympsError, match="replay backend needs a cassette"):
+        choose_backend(task, "replay", None, None)
+
+
+def test_offline_planner_answers_in_two_calls_too(scene, tmp_path):
+    combined, _ = plan_for("Cut it into 4 equal slices", scene, CUTTING, folder=tmp_path / "a")
+    split, run = plan_for(
+        "Cut it into 4 equal slices", scene, CUTTING, folder=tmp_path / "b", combined=False
+    )
+    assert [c.request["step"] for c in split.calls] == ["keyword", "pairs"]
+    assert split.keyword == combined.keyword
+    assert np.array_equal(split.pairs_px, combined.pairs_px)
+    assert sorted(p.name for p in (run.folder / "vlm").glob("*.json")) == [
+        "01-keyword-attempt1.json",
+        "02-pairs-attempt1.json",
+    ]
+
+
+def test_detector_mask_of_the_whole_image_is_cut_to_the_crop(scene, tmp_path):
+    from dataclasses import replace
+
+    from keymps.planning import crop_mask
+
+    full = np.zeros(scene.scene.image.shape[:2], bool)
+    x0, y0 = scene.detection.crop_origin_px
+    full[y0 + 5, x0 + 7] = True
+    detection = replace(scene.detection, mask=full)
+    cut = crop_mask(detection, scene.scene)
+    assert cut.shape == scene.detection.crop.shape[:2] and cut[5, 7] and cut.sum() == 1
+
+
+def test_local_servers_are_recognised():
+    from keymps.default_plugins.litellm_backend import is_local
+
+    assert is_local("http://127.0.0.1:8000/v1", "openai")
+    assert is_local("http://localhost:11434", "ollama")
+    assert is_local(None, "ollama")
+    assert not is_local(None, "openai") and not is_local("https://api.example.com", "openai")

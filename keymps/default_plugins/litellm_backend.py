@@ -124,7 +124,8 @@ class LitellmBackend:
         self._registered.add(model)
 
     def complete(self, request: Any) -> Any:
-        from keymps.planning import BackendAnswer, model_provider
+        from keymps.backend_choice import model_provider
+        from keymps.planning import BackendAnswer
 
         model = request.model or self.options.model
         if not model:

@@ -55,10 +55,16 @@ def choose_primitive(family: str, primitives: Mapping[str, str], context: str) -
     return (cutting or names)[0], "the first cutting primitive"
 
 
-def clip_to_image(pairs_px: np.ndarray, width: int, height: int) -> np.ndarray:
-    """Shorten each segment along its own direction so both ends stay inside the image."""
+def clip_to_box(pairs_px: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    """Shorten each segment along its own direction so both ends stay inside [low, high]."""
+    shifted = clip_to_image(pairs_px - low, *(high - low))
+    return shifted + low
+
+
+def clip_to_image(pairs_px: np.ndarray, width: float, height: float) -> np.ndarray:
+    """Shorten each segment along its own direction so both ends stay in [0, width] x [0, height]."""
     clipped = []
-    limit = np.array([width - 1.0, height - 1.0])
+    limit = np.array([float(width), float(height)])
     for start, end in pairs_px:
         a, b = start.copy(), end.copy()
         for point, other in ((a, b), (b, a)):
@@ -101,7 +107,11 @@ class OfflineBackend:
         if request.step in ("combined", "pairs"):
             pairs_mm, layout = design(intent, shape, request.max_pairs)
             width, height = request.crop_size_px
-            pairs_px = clip_to_image(shape.to_pixels(pairs_mm), width, height)
+            pairs_px = clip_to_image(shape.to_pixels(pairs_mm), width - 1, height - 1)
+            if intent.family == "cut":
+                # cuts reach the object's edges, not beyond its bounding box (the paper's lines)
+                outline_px = shape.to_pixels(shape.outline.polygon)
+                pairs_px = clip_to_box(pairs_px, outline_px.min(axis=0), outline_px.max(axis=0))
             if len(pairs_px) > request.max_pairs:
                 raise KeympsError(
                     f"the offline design needs {len(pairs_px)} keypoint pairs, more than "
