@@ -367,7 +367,30 @@ def read_instruction(sentence: str) -> Intent:
         intent = _cut_intent(_Reader(text))
     if intent is None:
         raise UnreadableInstruction(unreadable_message(sentence, reader.understood))
+    _check_numbers(intent)
     return intent
+
+
+MAX_COUNT = 1000
+"""The largest count the offline planner lays out (planner.max_pairs limits the plan anyway)."""
+
+
+def _check_numbers(intent: Intent) -> None:
+    if intent.count is not None and not 1 <= intent.count <= MAX_COUNT:
+        raise KeympsError(
+            f"the offline planner read a count of {intent.count} ({intent.describe()}); "
+            f"it lays out 1 to {MAX_COUNT}"
+        )
+    for what, value in (
+        ("slice width", intent.slice_width_mm),
+        ("length", intent.object_length_mm),
+    ):
+        if value is not None and not 0.5 <= value <= 10_000:
+            raise KeympsError(
+                f"the offline planner read a {what} of {value:g} mm; it must be 0.5 mm to 10 m"
+            )
+    if intent.design == "star" and intent.count is not None and intent.count < 3:
+        raise KeympsError(f"a star needs at least 3 points, not {intent.count}")
 
 
 def unreadable_message(sentence: str, understood: list[str]) -> str:

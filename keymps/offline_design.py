@@ -104,6 +104,10 @@ def _width_slices(intent: Intent, shape: CropShape, over: float) -> tuple[np.nda
                 f"; the picture measures {measured / 10:.1f} cm, the sentence says "
                 f"{intent.object_length_mm / 10:g} cm: slices follow the sentence's proportions"
             )
+    if intent.count is None and measured / width > 1000:
+        raise KeympsError(
+            f"slices {intent.slice_width_mm / 10:g} cm wide would need more than 1000 cuts"
+        )
     offsets = patterns.offsets_by_width(measured, width, intent.count, tolerance=0.02 * width)
     if len(offsets) == 0:
         raise KeympsError(
@@ -138,6 +142,11 @@ def _icing(intent: Intent, shape: CropShape, max_pairs: int) -> tuple[np.ndarray
         )
     if intent.design == "rings":
         layers = intent.count or 1
+        if layers * 4 > max_pairs:
+            raise KeympsError(
+                f"{layers} icing rings need at least {layers * 4} pairs, more than "
+                f"planner.max_pairs = {max_pairs}"
+            )
         if o.kind == "round":
             step = 0.7 * RING_FRACTION * o.radius / layers
             radii = [RING_FRACTION * o.radius - k * step for k in range(layers)]

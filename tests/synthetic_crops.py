@@ -105,11 +105,13 @@ def plan_for(
 ) -> tuple[Plan, Run]:
     from keymps.planning import make_plan
 
+    """Plan with `backend`; without `folder` the run folder is temporary (gone on return)."""
     task = make_task(instruction, scene, primitives, **planner)
-    run = Run(task=task, folder=folder or Path(tempfile.mkdtemp()), options=options or RunOptions())
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        plan = make_plan(task, scene.detection, scene.scene, primitives, run, backend)
+    with tempfile.TemporaryDirectory() as scratch:
+        run = Run(task=task, folder=folder or Path(scratch), options=options or RunOptions())
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            plan = make_plan(task, scene.detection, scene.scene, primitives, run, backend)
     return plan, run
 
 

@@ -430,3 +430,71 @@ def test_designs_are_metric_when_pixels_are_not_square(tmp_path):
     assert np.allclose(np.diff(angles + [angles[0] + 180]), 60.0, atol=0.5)
     half_lengths = np.linalg.norm(metric[:, 1] - metric[:, 0], axis=1) / 2
     assert np.all(half_lengths > 59.5) and np.ptp(half_lengths) < 1.5
+
+
+# --- any sentence: a plan inside the crop or one clear line, never a crash --------------------
+
+_WORDS = [
+    "cut",
+    "slice",
+    "into",
+    "equal",
+    "slices",
+    "pieces",
+    "vertically",
+    "horizontally",
+    "both",
+    "tips",
+    "middle",
+    "dots",
+    "icing",
+    "around",
+    "layers",
+    "spiral",
+    "star",
+    "pointed",
+    "birthday",
+    "digits",
+    "each",
+    "of",
+    "the",
+    "people",
+    "cm",
+    "mm",
+    "long",
+    "thick",
+    "a",
+    "single",
+    "week",
+    "day",
+    "rings",
+    "write",
+    "seven-segment",
+    "half",
+]
+
+
+@pytest.mark.parametrize("shape", ["disk", "ellipse"])
+def test_any_sentence_gives_a_valid_plan_or_one_clear_line(shape):
+    from hypothesis import HealthCheck, given, settings
+    from hypothesis import strategies as st
+
+    scene = make_scene(shape, (120, 120) if shape == "disk" else (200, 70))
+    numbers = st.one_of(st.integers(-5, 2000).map(str), st.sampled_from(["0.0001", "1e9", "0"]))
+    tokens = st.lists(st.one_of(st.sampled_from(_WORDS), numbers), min_size=1, max_size=9)
+
+    @settings(max_examples=60, deadline=None, suppress_health_check=list(HealthCheck))
+    @given(tokens)
+    def check(words):
+        sentence = " ".join(words)
+        try:
+            plan, _ = plan_for(sentence, scene, ICING if "icing" in words else CUTTING)
+        except KeympsError as error:
+            assert "\n" not in str(error)
+            return
+        width, height = scene.detection.crop_size_px
+        crop = plan.pairs_crop_px.reshape(-1, 2)
+        assert 1 <= plan.num_pairs <= 64 and np.isfinite(crop).all()
+        assert (crop >= 0).all() and (crop[:, 0] <= width).all() and (crop[:, 1] <= height).all()
+
+    check()

@@ -105,7 +105,13 @@ class OfflineBackend:
             answer["keyword"] = keyword
         rationale = f"primitive {keyword}: {why}"
         if request.step in ("combined", "pairs"):
-            pairs_mm, layout = design(intent, shape, request.max_pairs)
+            try:
+                pairs_mm, layout = design(intent, shape, request.max_pairs)
+            except ValueError as error:  # a design that cannot exist on this object
+                raise KeympsError(
+                    f"the offline planner cannot lay out {intent.describe()} on the "
+                    f"{shape.describe()}: {error}"
+                ) from None
             width, height = request.crop_size_px
             pairs_px = clip_to_image(shape.to_pixels(pairs_mm), width - 1, height - 1)
             if intent.family == "cut":
