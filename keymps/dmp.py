@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import functools
 import math
+import threading
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
@@ -66,23 +67,26 @@ class Rollout:
 
 def _rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Minimal rotation taking unit vector a to unit vector b (pi about the most vertical axis
-    perpendicular to a when they are opposite)."""
-    cross = np.cross(a, b)
-    cos = float(np.clip(a @ b, -1.0, 1.0))
-    sin = float(np.linalg.norm(cross))
-    if sin < 1e-12:
-        if cos > 0:
-            return np.eye(3)
-        z = np.array([0.0, 0.0, 1.0])
-        axis = z - (z @ a) * a
-        if np.linalg.norm(axis) < 1e-9:
-            axis = np.array([1.0, 0.0, 0.0]) - a[0] * a
-        axis = axis / np.linalg.norm(axis)
-        return 2.0 * np.outer(axis, axis) - np.eye(3)
-    axis = cross / sin
-    skew = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
-    angle = math.atan2(sin, cos)
-    return np.eye(3) + math.sin(angle) * skew + (1.0 - math.cos(angle)) * (skew @ skew)
+    perpendicular to a when they are opposite), accurate to rounding in every direction."""
+    a0, a1, a2 = float(a[0]), float(a[1]), float(a[2])
+    b0, b1, b2 = float(b[0]), float(b[1]), float(b[2])
+    cos = a0 * b0 + a1 * b1 + a2 * b2
+    k0, k1, k2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+    sin = math.sqrt(k0 * k0 + k1 * k1 + k2 * k2)
+    if cos >= 0.0:  # I + [k]x + [k]x^2 / (1 + cos), k = a x b: exact near parallel vectors
+        skew = np.array([[0.0, -k2, k1], [k2, 0.0, -k0], [-k1, k0, 0.0]])
+        return np.eye(3) + skew + (skew @ skew) / (1.0 + cos)
+    if sin > 1e-3:  # Rodrigues with the unit axis: error ~ rounding / sin
+        skew = np.array([[0.0, -k2, k1], [k2, 0.0, -k0], [-k1, k0, 0.0]]) / sin
+        return np.eye(3) + sin * skew + (1.0 - cos) * (skew @ skew)
+    # (Nearly) opposite: half a turn about the most vertical axis perpendicular to a, then the
+    # tiny rest of the way.
+    axis = np.array([-a2 * a0, -a2 * a1, 1.0 - a2 * a2])  # world z minus its part along a
+    if np.linalg.norm(axis) < 1e-9:
+        axis = np.array([1.0 - a0 * a0, -a0 * a1, -a0 * a2])  # a is vertical: turn about x
+    axis = axis / np.linalg.norm(axis)
+    half_turn = 2.0 * np.outer(axis, axis) - np.eye(3)
+    return _rotation_between(-np.asarray(a, dtype=float), b) @ half_turn
 
 
 def _rotation_about_z(angle: float) -> np.ndarray:
@@ -95,7 +99,9 @@ def heading_rotation(demo_dir: np.ndarray, target_dir: np.ndarray) -> np.ndarray
     tilt in the vertical plane. Horizontal stays horizontal and "down" stays down; it equals the
     minimal rotation whenever either vector is vertical or both are horizontal."""
     horizontal = 1e-9
-    if np.hypot(*demo_dir[:2]) < horizontal or np.hypot(*target_dir[:2]) < horizontal:
+    if math.hypot(demo_dir[0], demo_dir[1]) < horizontal:
+        return _rotation_between(demo_dir, target_dir)
+    if math.hypot(target_dir[0], target_dir[1]) < horizontal:
         return _rotation_between(demo_dir, target_dir)
     yaw = math.atan2(target_dir[1], target_dir[0]) - math.atan2(demo_dir[1], demo_dir[0])
     turn = _rotation_about_z(yaw)
@@ -212,12 +218,29 @@ def _all_pole(a: np.ndarray, x: np.ndarray, overwrite: bool = False) -> np.ndarr
     return np.asarray(solution.T).reshape(x.shape)
 
 
-def _fir(b: np.ndarray, v: np.ndarray) -> np.ndarray:
+def _fir(
+    b: np.ndarray, v: np.ndarray, out: np.ndarray | None = None, scratch: np.ndarray | None = None
+) -> np.ndarray:
     """B(q) along the last axis, zero history (the moving-average half of the filter)."""
-    out = b[0] * v
+    out = np.multiply(v, b[0], out=out)
+    scratch = np.empty_like(v) if scratch is None else scratch
     for lag in range(1, len(b)):
-        out[..., lag:] += b[lag] * v[..., :-lag]
+        np.multiply(v[..., :-lag], b[lag], out=scratch[..., lag:])
+        out[..., lag:] += scratch[..., lag:]
     return out
+
+
+_WORKSPACE = threading.local()
+
+
+def _workspace(name: str, shape: tuple[int, ...]) -> np.ndarray:
+    """A per-thread scratch array (contents undefined), reused across fits: large temporaries
+    would otherwise be fresh memory mappings, and page faults, on every call."""
+    pool: dict[str, np.ndarray] = _WORKSPACE.__dict__.setdefault("pool", {})
+    array = pool.get(name)
+    if array is None or array.shape != shape:
+        array = pool[name] = np.empty(shape)
+    return array
 
 
 def _respond(filters: _Filters, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -531,7 +554,7 @@ def _fit_basis(phase_time: np.ndarray, n_basis: int, regularization: float) -> _
     grid = np.linspace(0.0, 1.0, num)
     s = np.exp(-ALPHA_S * grid)
     # Inputs as rows (one per basis function, then the goal term): the filters run along rows.
-    inputs = np.empty((n_basis + 1, num))
+    inputs = _workspace("inputs", (n_basis + 1, num))
     centers, widths = basis_centers_widths(n_basis, ALPHA_S)
     psi = inputs[:n_basis]
     np.subtract(centers[:, None], s[None, :], out=psi)
@@ -541,7 +564,8 @@ def _fit_basis(phase_time: np.ndarray, n_basis: int, regularization: float) -> _
     psi *= stiffness * s / psi.sum(axis=0)
     np.multiply(stiffness, 1.0 - s, out=inputs[n_basis])
     filters = _filters(float(grid[1]), stiffness, damping)
-    pos = _all_pole(filters.a, _fir(filters.b_pos, inputs), overwrite=True)
+    pos = _fir(filters.b_pos, inputs, np.empty_like(inputs), _workspace("fir", inputs.shape))
+    pos = _all_pole(filters.a, pos, overwrite=True)
     impulse = np.zeros(num)
     impulse[0] = 1.0
     free = _all_pole(filters.a, impulse)

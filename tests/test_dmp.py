@@ -282,3 +282,27 @@ def test_bad_requests_raise(sawing: DMP) -> None:
     bad["weights"] = bad["weights"][:-1]
     with pytest.raises(DmpError, match="rows but dmp.n_basis"):
         DMP.from_dict(bad, "x.yaml")
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    a=st.tuples(unit, unit, unit),
+    e=st.tuples(unit, unit, unit),
+    offset=st.sampled_from([0.0, 1e-12, 1e-8, 1e-5, 1e-3, 2e-3, 0.1]),
+    sign=st.sampled_from([1.0, -1.0]),
+)
+def test_rotations_stay_exact_near_parallel_and_opposite(
+    a: tuple, e: tuple, offset: float, sign: float
+) -> None:
+    a_arr, e_arr = np.array(a), np.array(e)
+    if np.linalg.norm(a_arr) < 1e-3:
+        return
+    a_arr /= np.linalg.norm(a_arr)
+    e_arr -= (e_arr @ a_arr) * a_arr
+    if np.linalg.norm(e_arr) < 1e-3:
+        return
+    b = sign * a_arr + offset * e_arr / np.linalg.norm(e_arr)
+    b /= np.linalg.norm(b)
+    S = retarget_map(0.1 * a_arr, 0.3 * b)
+    assert np.abs(S @ (0.1 * a_arr) - 0.3 * b).max() < 1e-14
+    assert np.abs(S.T @ S - 9.0 * np.eye(3)).max() < 1e-12
