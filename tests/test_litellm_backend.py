@@ -222,8 +222,9 @@ CUTTING_TASK = REPO / "tasks" / "object_cutting.yaml"
 
 
 @pytest.mark.skipif(not CUTTING_TASK.is_file(), reason="the shipped cutting task is missing")
+@pytest.mark.parametrize("model", ["openai/test-vlm", "ollama_chat/llava"])
 def test_a_vlm_answer_drives_a_full_run_and_the_key_stays_out_of_every_file(
-    server, tmp_path, monkeypatch
+    server, tmp_path, monkeypatch, model
 ):
     from keymps import run_task
 
@@ -232,14 +233,17 @@ def test_a_vlm_answer_drives_a_full_run_and_the_key_stays_out_of_every_file(
     server.script(Reply.text_answer("```json\n{oops"), Reply.json_answer(crop_answer))
     run = run_task(
         CUTTING_TASK,
-        model="openai/test-vlm",
-        api_base=server.openai_base,
+        model=model,
+        api_base=server.openai_base if model.startswith("openai") else server.url,
         out=tmp_path / "run",
         rerun="save",
         record=tmp_path / "cassette.jsonl",
     )
     assert run.notes["backend"] == "litellm"
-    assert all(r.headers["authorization"] == f"Bearer {CANARY}" for r in server.chat_requests)
+    if model.startswith("openai"):
+        assert all(r.headers["authorization"] == f"Bearer {CANARY}" for r in server.chat_requests)
+    else:
+        assert [r.path for r in server.chat_requests] == ["/api/chat", "/api/chat"]
     record = json.loads((run.folder / "run.json").read_text())
     assert record["keyword"] == "straight" and record["vlm"]["calls"] == 2
     assert record["pairs_crop_px"] == crop_answer["pairs"]
