@@ -82,11 +82,11 @@ def _rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     # (Nearly) opposite: half a turn about the most vertical axis perpendicular to a, then the
     # tiny rest of the way.
     axis = np.array([-a2 * a0, -a2 * a1, 1.0 - a2 * a2])  # world z minus its part along a
-    if np.linalg.norm(axis) < 1e-9:
+    if np.linalg.norm(axis) < 1e-6:
         axis = np.array([1.0 - a0 * a0, -a0 * a1, -a0 * a2])  # a is vertical: turn about x
     axis = axis / np.linalg.norm(axis)
     half_turn = 2.0 * np.outer(axis, axis) - np.eye(3)
-    return _rotation_between(-np.asarray(a, dtype=float), b) @ half_turn
+    return _rotation_between(half_turn @ np.asarray(a, dtype=float), b) @ half_turn
 
 
 def _rotation_about_z(angle: float) -> np.ndarray:
