@@ -24,6 +24,10 @@ if TYPE_CHECKING:
 
 CORNER_ANGLE_RAD = math.radians(30.0)
 """A turn sharper than this between path segments stops the tool (a stroke ends there)."""
+MIN_STEP_M = 2e-5
+"""Path points closer than this to the previous one are dropped (dwell jitter)."""
+CORNER_CHORD_M = 0.0005
+"""Path directions at a point are measured over chords at least this long."""
 YAW_RADIUS_M = 0.05
 """Turning the tool by 1 rad counts like moving it 5 cm along the path parameter."""
 MAX_KNOT_SPACING = 0.002
@@ -80,15 +84,41 @@ def _parameter_steps(points: np.ndarray, yaw: np.ndarray) -> np.ndarray:
     return np.column_stack([np.diff(points, axis=0), YAW_RADIUS_M * np.diff(yaw)])
 
 
-def _corner_indexes(steps: np.ndarray) -> list[int]:
-    """Point indexes (into the piece) where the path turns sharper than CORNER_ANGLE_RAD."""
-    lengths = np.linalg.norm(steps, axis=1)
-    moving = np.flatnonzero(lengths > 1e-9)
+def _corner_indexes(points: np.ndarray, yaw: np.ndarray) -> list[int]:
+    """Point indexes where the path turns sharper than CORNER_ANGLE_RAD.
+
+    Directions are chords of at least CORNER_CHORD_M on each side of a point, so that the
+    sub-millimetre jitter of a rollout turning round (the bottom of a dot) makes one corner,
+    not many; of a run of neighbouring corner points the middle one is kept.
+    """
+    geometry = np.column_stack([points, YAW_RADIUS_M * yaw])
+    steps = np.linalg.norm(np.diff(geometry, axis=0), axis=1)
+    arc = np.concatenate([[0.0], np.cumsum(steps)])
+    n = len(points)
+    if n < 3 or arc[-1] <= 0:
+        return []
+    before = np.searchsorted(arc, arc - CORNER_CHORD_M, side="right") - 1
+    after = np.searchsorted(arc, arc + CORNER_CHORD_M, side="left")
+    before, after = np.clip(before, 0, n - 1), np.clip(after, 0, n - 1)
+    incoming = geometry - geometry[before]
+    outgoing = geometry[after] - geometry
+    norms = np.linalg.norm(incoming, axis=1) * np.linalg.norm(outgoing, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cosine = np.where(norms > 1e-18, (incoming * outgoing).sum(axis=1) / norms, 1.0)
+    sharp = cosine < math.cos(CORNER_ANGLE_RAD)
+    sharp[[0, -1]] = False
     corners = []
-    for before, after in zip(moving[:-1], moving[1:], strict=True):
-        cosine = np.dot(steps[before], steps[after]) / (lengths[before] * lengths[after])
-        if cosine < math.cos(CORNER_ANGLE_RAD):
-            corners.append(int(after))  # the point between the two segments
+    index = 0
+    while index < n:
+        if not sharp[index]:
+            index += 1
+            continue
+        end = index
+        while end + 1 < n and sharp[end + 1] and arc[end + 1] - arc[index] <= 2 * CORNER_CHORD_M:
+            end += 1
+        middle = (arc[index] + arc[end]) / 2  # a reversal's cluster is centred on its tip
+        corners.append(index + int(np.argmin(np.abs(arc[index : end + 1] - middle))))
+        index = end + 1
     return corners
 
 
@@ -117,8 +147,29 @@ def _densify(
     return np.concatenate(out_p), np.concatenate(out_y), np.concatenate(out_q)
 
 
+def _significant_points(points: np.ndarray, yaw: np.ndarray) -> np.ndarray:
+    """Indexes of the points that move at least MIN_STEP_M from the last one kept.
+
+    A rollout that dwells (the bottom of an icing dot) jitters by micrometres; every such
+    wiggle would be a direction reversal of the path, a cusp the joints cannot follow at speed.
+    Dropping those points moves the path by less than MIN_STEP_M.
+    """
+    geometry = np.column_stack([points, YAW_RADIUS_M * yaw])
+    kept = [0]
+    for i in range(1, len(points)):
+        if np.linalg.norm(geometry[i] - geometry[kept[-1]]) >= MIN_STEP_M:
+            kept.append(i)
+    last = len(points) - 1
+    if kept[-1] != last:
+        if len(kept) > 1:
+            kept[-1] = last
+        else:
+            kept.append(last)
+    return np.array(kept)
+
+
 def split_strokes(model: RobotModel, tool_path: ToolPath, joint_path: JointPath) -> list[Stroke]:
-    """Every piece cut at its sharp corners; zero-length parts dropped."""
+    """Every piece cut at its sharp corners; parts that do not move are dropped."""
     from scipy.interpolate import CubicSpline
 
     if len(joint_path.pieces) != len(tool_path.pieces):
@@ -127,25 +178,38 @@ def split_strokes(model: RobotModel, tool_path: ToolPath, joint_path: JointPath)
             f"has {len(tool_path.pieces)}"
         )
     strokes = []
-    for index, (piece, q) in enumerate(zip(tool_path.pieces, joint_path.pieces, strict=True)):
-        if len(q) != len(piece.points):
+    for index, (piece, q_all) in enumerate(zip(tool_path.pieces, joint_path.pieces, strict=True)):
+        if len(q_all) != len(piece.points):
             raise KeympsError(
-                f"timing: piece {index} has {len(piece.points)} points but {len(q)} joint vectors"
+                f"timing: piece {index} has {len(piece.points)} points but {len(q_all)} joint "
+                "vectors"
             )
-        steps = _parameter_steps(piece.points, piece.yaw)
-        cuts = [0, *_corner_indexes(steps), len(piece.points) - 1]
+        kept = _significant_points(piece.points, piece.yaw)
+        if len(kept) < 2:
+            continue
+        points, yaw, q = piece.points[kept], piece.yaw[kept], q_all[kept]
+        cuts = [0, *_corner_indexes(points, yaw), len(points) - 1]
         for start, end in zip(cuts[:-1], cuts[1:], strict=True):
             part = slice(start, end + 1)
-            points, yaw, qs = _densify(model, piece.points[part], piece.yaw[part], q[part])
-            step_lengths = np.linalg.norm(_parameter_steps(points, yaw), axis=1)
-            keep = np.concatenate([[True], step_lengths > 1e-9])
-            if keep.sum() < 2:
-                continue
-            s_dense = np.concatenate([[0.0], np.cumsum(step_lengths[keep[1:]])])
-            spline = CubicSpline(s_dense, qs[keep], axis=0)
-            s_orig = np.concatenate([[0.0], np.cumsum(np.linalg.norm(steps[start:end], axis=1))])
+            dense_p, dense_yaw, dense_q = _densify(model, points[part], yaw[part], q[part])
+            s_dense = np.concatenate(
+                [[0.0], np.cumsum(np.linalg.norm(_parameter_steps(dense_p, dense_yaw), axis=1))]
+            )
+            s_plan = np.concatenate(
+                [
+                    [0.0],
+                    np.cumsum(np.linalg.norm(_parameter_steps(points[part], yaw[part]), axis=1)),
+                ]
+            )
             strokes.append(
-                Stroke(index, piece.kind, s_orig, piece.points[part], spline, float(piece.speed))
+                Stroke(
+                    index,
+                    piece.kind,
+                    s_plan,
+                    points[part],
+                    CubicSpline(s_dense, dense_q, axis=0),
+                    float(piece.speed),
+                )
             )
     if not strokes:
         raise KeympsError("timing: the tool path does not move")

@@ -129,3 +129,20 @@ def test_e_series_defaults_to_500_hz_and_a_task_rate_wins() -> None:
     path = ToolPath((Piece("travel", 0, points, np.zeros(len(points)), 0.1),), "line")
     assert plan(path, model="ur3e")[1].rate_hz == 500
     assert plan(path, model="ur3", rate_hz=250)[1].rate_hz == 250
+
+
+def test_a_dwell_that_jitters_by_micrometres_is_one_reversal_not_a_slow_crawl() -> None:
+    # an icing dot: down 4 mm, a dwell with 1 um noise, back up (what a DMP rollout gives)
+    rng = np.random.default_rng(0)
+    top = np.array([0.15, 0.09, 0.065])
+    down = top - np.linspace(0, 0.004, 12)[:, None] * [0, 0, 1]
+    dwell = top - [0, 0, 0.004] + rng.normal(0, 1e-6, (25, 3))
+    points = np.vstack([down, dwell, down[::-1]])
+    path = assemble([(points, np.zeros(len(points)))], 0.095, "line", 0.03)
+    model, trajectory = plan(path, tool="piping_bag")
+    work = trajectory.kind == "work"
+    # two rest-to-rest strokes of 4 mm: a fraction of a second, not seconds of crawling
+    assert 0.2 < work.sum() / trajectory.rate_hz < 1.0
+    bottom = np.argmin(np.where(work, trajectory.tool_xyz[:, 2], np.inf))
+    assert trajectory.tool_xyz[bottom, 2] == pytest.approx(0.061, abs=2e-5)
+    assert np.abs(trajectory.qd[bottom]).max() < 1e-9
