@@ -498,3 +498,16 @@ def test_any_sentence_gives_a_valid_plan_or_one_clear_line(shape):
         assert (crop >= 0).all() and (crop[:, 0] <= width).all() and (crop[:, 1] <= height).all()
 
     check()
+
+
+def test_layers_on_a_square_cake_follow_its_edge():
+    scene = make_scene("rect", (180, 180))
+    plan, _ = plan_for("Make 2 layers of icing around the cake", scene, primitives=ICING)
+    assert plan.num_pairs == 8  # two nested squares
+    offsets = np.abs(plan.pairs_px.reshape(-1, 2) - scene.centre_px) * MM_PER_PX
+    sizes = sorted({round(float(v), 1) for v in offsets.max(axis=1)})
+    assert len(sizes) == 2 and sizes[1] < 90.0 and sizes[1] - sizes[0] >= 10.0
+    for square in np.split(plan.pairs_px, 2):
+        assert np.allclose(square[1:, 0], square[:-1, 1]) and np.allclose(
+            square[-1, 1], square[0, 0]
+        )
