@@ -14,152 +14,45 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from importlib import metadata
-from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from keymps.errors import KeympsError
 from keymps.stages import JointPath, Piece, ToolPath
+from keymps.ur_description import (
+    ARMS,
+    BUILTIN_TOOLS,
+    JOINT_NAMES,
+    POSITION_TOLERANCE_M,
+    REACH_MARGIN_M,
+    ROTATION_TOLERANCE_RAD,
+    ArmGeometry,
+    Tool,
+    build_pinocchio_model,
+    rz,
+    se3,
+    tool_from_task,
+    tool_rotation,
+    ur_urdf_path,
+)
+
+__all__ = [
+    "ARMS",
+    "BUILTIN_TOOLS",
+    "JOINT_NAMES",
+    "ArmGeometry",
+    "IkResult",
+    "RobotModel",
+    "Tool",
+    "solve_path",
+    "tool_from_task",
+    "tool_rotation",
+    "ur_urdf_path",
+]
 
 if TYPE_CHECKING:
     from keymps.task import Task
-
-JOINT_NAMES: tuple[str, ...] = (
-    "shoulder_pan_joint",
-    "shoulder_lift_joint",
-    "elbow_joint",
-    "wrist_1_joint",
-    "wrist_2_joint",
-    "wrist_3_joint",
-)
-
-POSITION_TOLERANCE_M = 1e-4
-ROTATION_TOLERANCE_RAD = math.radians(0.1)
-REACH_MARGIN_M = 0.01
-"""Keep the wrist this far inside the fully stretched arm (a stretched elbow is singular)."""
-
-
-@dataclass(frozen=True)
-class ArmGeometry:
-    """Standard DH lengths of a UR arm (metres); the URDF is rescaled to these."""
-
-    d1: float
-    upper_arm: float
-    forearm: float
-    d4: float
-    d5: float
-    d6: float
-    joint_speed_limits: tuple[float, ...]
-    rate_hz: float
-
-
-_DEG = math.pi / 180.0
-_UR_JOINT_SPEEDS = (180 * _DEG, 180 * _DEG, 180 * _DEG, 360 * _DEG, 360 * _DEG, 360 * _DEG)
-
-ARMS: dict[str, ArmGeometry] = {
-    "ur3": ArmGeometry(0.1519, 0.24365, 0.21325, 0.11235, 0.08535, 0.0819, _UR_JOINT_SPEEDS, 125.0),
-    "ur3e": ArmGeometry(
-        0.15185, 0.24355, 0.2132, 0.13105, 0.08535, 0.0921, _UR_JOINT_SPEEDS, 500.0
-    ),
-}
-
-
-@dataclass(frozen=True)
-class Tool:
-    """A tool on the flange: its tip in the flange frame and how its yaw is chosen."""
-
-    name: str
-    tcp: tuple[float, float, float]
-    yaw: str
-    """'follow': the tool turns with the path direction (a blade); 'fixed': constant yaw."""
-
-
-BUILTIN_TOOLS: dict[str, Tool] = {
-    "knife": Tool("knife", (0.0, 0.0, 0.10), "follow"),
-    "piping_bag": Tool("piping_bag", (0.0, 0.0, 0.15), "fixed"),
-}
-
-
-def tool_from_task(task: Task) -> Tool:
-    """The task's tool: a built-in by name, possibly with its own TCP and yaw mode."""
-    spec = task.robot.tool
-    builtin = BUILTIN_TOOLS.get(spec.name)
-    if builtin is None and spec.tcp is None:
-        choices = ", ".join(sorted(BUILTIN_TOOLS))
-        raise KeympsError(
-            f"robot.tool: unknown tool {spec.name!r}; use a built-in ({choices}) "
-            "or give its tcp: [x, y, z] (tool tip in the flange frame, metres)"
-        )
-    tcp = tuple(float(v) for v in spec.tcp) if spec.tcp is not None else builtin.tcp  # type: ignore[union-attr]
-    yaw = spec.yaw or (builtin.yaw if builtin else "fixed")
-    return Tool(spec.name, (tcp[0], tcp[1], tcp[2]), yaw)
-
-
-def ur_urdf_path() -> Path:
-    """The UR3 URDF shipped (with meshes) by the example-robot-data wheel."""
-    relative = "cmeel.prefix/share/example-robot-data/robots/ur_description/urdf/ur3_robot.urdf"
-    try:
-        path = Path(str(metadata.distribution("example-robot-data").locate_file(relative)))
-    except metadata.PackageNotFoundError:
-        raise KeympsError(
-            "the example-robot-data package is not installed (pip install example-robot-data)"
-        ) from None
-    if not path.is_file():
-        raise KeympsError(f"example-robot-data is installed but {path} is missing")
-    return path
-
-
-def tool_rotation(yaw: float) -> np.ndarray:
-    """Tool orientation in the board frame: pointing down, x axis at `yaw` about board z."""
-    c, s = math.cos(yaw), math.sin(yaw)
-    return np.array([[c, s, 0.0], [s, -c, 0.0], [0.0, 0.0, -1.0]])
-
-
-def _se3(rotation: np.ndarray, translation: np.ndarray) -> Any:
-    import pinocchio as pin
-
-    return pin.SE3(np.asarray(rotation, dtype=float), np.asarray(translation, dtype=float))
-
-
-def _rz(angle: float) -> np.ndarray:
-    c, s = math.cos(angle), math.sin(angle)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
-def _build_pinocchio_model(arm: ArmGeometry, base_in_board: Any, tool: Tool) -> tuple[Any, int]:
-    """The UR3 URDF, its lengths set to `arm`, its base in the board frame, a 'tcp' frame."""
-    import pinocchio as pin
-
-    model = pin.buildModelFromUrdf(str(ur_urdf_path()))
-    ids = {name: model.getJointId(name) for name in JOINT_NAMES}
-    # The URDF splits d4 over three lateral offsets (0.1198 - 0.0925 + 0.08505); the last one
-    # absorbs the e-Series difference, which keeps the kinematics exact.
-    translations = {
-        "shoulder_pan_joint": (0.0, 0.0, arm.d1),
-        "elbow_joint": (0.0, -0.0925, arm.upper_arm),
-        "wrist_1_joint": (0.0, 0.0, arm.forearm),
-        "wrist_2_joint": (0.0, arm.d4 - 0.1198 + 0.0925, 0.0),
-        "wrist_3_joint": (0.0, 0.0, arm.d5),
-    }
-    for name, translation in translations.items():
-        placement = model.jointPlacements[ids[name]].copy()
-        placement.translation = np.array(translation)
-        model.jointPlacements[ids[name]] = placement
-    pan = ids["shoulder_pan_joint"]
-    model.jointPlacements[pan] = base_in_board * model.jointPlacements[pan]
-    tool0 = model.frames[model.getFrameId("tool0")]
-    flange = tool0.placement.copy()
-    flange.translation = np.array([0.0, arm.d6, 0.0])
-    tcp = flange * _se3(np.eye(3), np.array(tool.tcp))
-    frame_id = model.addFrame(
-        pin.Frame("tcp", tool0.parentJoint, tool0.parentFrame, tcp, pin.FrameType.OP_FRAME)
-    )
-    model.addFrame(
-        pin.Frame("flange", tool0.parentJoint, tool0.parentFrame, flange, pin.FrameType.OP_FRAME)
-    )
-    return model, frame_id
 
 
 @dataclass(frozen=True)
@@ -202,8 +95,8 @@ class RobotModel:
         self.object_height = float(object_height)
         self.clearance = float(clearance)
         x, y, z, yaw_deg = self.base
-        self.base_in_board = _se3(_rz(math.radians(yaw_deg)), np.array([x, y, z]))
-        self.model, self.tcp_frame = _build_pinocchio_model(self.arm, self.base_in_board, tool)
+        self.base_in_board = se3(rz(math.radians(yaw_deg)), np.array([x, y, z]))
+        self.model, self.tcp_frame = build_pinocchio_model(self.arm, self.base_in_board, tool)
         self.flange_frame = self.model.getFrameId("flange")
         self.data = self.model.createData()
         self.joint_names = JOINT_NAMES
