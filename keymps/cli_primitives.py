@@ -172,8 +172,8 @@ def learn(
     """Fit a primitive to DEMO.csv (header t,x,y,z; seconds, metres) and write OUT/NAME.yaml.
 
     A robot log is cleaned first: resampled to a uniform rate, smoothed (with --smooth:
-    Savitzky-Golay, cubic)
-    and trimmed of the still samples at both ends; pauses in the middle are kept."""
+    Savitzky-Golay, cubic) and trimmed of the still samples at both ends; pauses in the middle
+    are kept."""
     from keymps.primitives import MAX_FIT_RMSE, Preprocessing, PrimitiveError, learn_primitive
 
     if (rate is not None and rate <= 0) or smooth < 0 or trim < 0:
