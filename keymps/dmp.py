@@ -94,27 +94,39 @@ def _rotation_about_z(angle: float) -> np.ndarray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
-def heading_rotation(demo_dir: np.ndarray, target_dir: np.ndarray) -> np.ndarray:
+def heading_rotation(
+    demo_dir: np.ndarray, target_dir: np.ndarray, heading: float | None = None
+) -> np.ndarray:
     """Rotation taking unit vector demo_dir to target_dir: first about world z (heading), then a
     tilt in the vertical plane. Horizontal stays horizontal and "down" stays down; it equals the
-    minimal rotation whenever either vector is vertical or both are horizontal."""
+    minimal rotation whenever either vector is vertical or both are horizontal. For a vertical
+    target, `heading` (radians about z), when given, is where the demo's heading turns to."""
     horizontal = 1e-9
     if math.hypot(demo_dir[0], demo_dir[1]) < horizontal:
         return _rotation_between(demo_dir, target_dir)
     if math.hypot(target_dir[0], target_dir[1]) < horizontal:
-        return _rotation_between(demo_dir, target_dir)
+        if heading is None:
+            return _rotation_between(demo_dir, target_dir)
+        turn = _rotation_about_z(heading - math.atan2(demo_dir[1], demo_dir[0]))
+        return _rotation_between(turn @ demo_dir, target_dir) @ turn
     yaw = math.atan2(target_dir[1], target_dir[0]) - math.atan2(demo_dir[1], demo_dir[0])
     turn = _rotation_about_z(yaw)
     return _rotation_between(turn @ demo_dir, target_dir) @ turn
 
 
-def retarget_map(demo_delta: np.ndarray, delta: np.ndarray, mode: str = "similarity") -> np.ndarray:
+def retarget_map(
+    demo_delta: np.ndarray,
+    delta: np.ndarray,
+    mode: str = "similarity",
+    heading: float | None = None,
+) -> np.ndarray:
     """The 3x3 map S applied to the demonstration so that S demo_delta = delta (when possible).
 
     similarity: |delta|/|demo_delta| times the heading rotation; axial: the heading rotation
     after stretching only along demo_delta (a zero-length delta collapses the demo's travel along
     its own direction and keeps the rest: a dot); translate: identity. Zero-length demos, and
     zero-length deltas outside axial mode, use the identity (the demo is replayed translated).
+    `heading` orients the demo about z when delta is vertical (e.g. the blade's current yaw).
     """
     demo_delta = np.asarray(demo_delta, dtype=float)
     delta = np.asarray(delta, dtype=float)
@@ -129,7 +141,7 @@ def retarget_map(demo_delta: np.ndarray, delta: np.ndarray, mode: str = "similar
         if mode == "axial":
             return np.eye(3) - np.outer(demo_dir, demo_dir)
         return np.eye(3)
-    rotation = heading_rotation(demo_dir, delta / target_len)
+    rotation = heading_rotation(demo_dir, delta / target_len, heading)
     ratio = target_len / demo_len
     if mode == "similarity":
         return ratio * rotation
@@ -372,9 +384,11 @@ class DMP:
         tau: float | None = None,
         num: int = 1000,
         mode: str = "similarity",
+        heading: float | None = None,
     ) -> Rollout:
         """Positions, velocities and accelerations from start towards goal over tau seconds
-        (default: the demonstration's duration), num samples including both ends."""
+        (default: the demonstration's duration), num samples including both ends. `heading`
+        (radians about z) orients the demo when the segment is vertical."""
         start_arr = _point(start, "start")
         goal_arr = _point(goal, "goal")
         tau = self.demo_duration if tau is None else float(tau)
@@ -382,7 +396,7 @@ class DMP:
             raise DmpError(f"tau must be a positive number of seconds, got {tau}")
         if int(num) < 2:
             raise DmpError(f"num must be at least 2, got {num}")
-        transform = retarget_map(self.demo_delta, goal_arr - start_arr, mode)
+        transform = retarget_map(self.demo_delta, goal_arr - start_arr, mode, heading)
         pos, vel, acc = self._canonical(int(num))
         return Rollout(
             t=np.linspace(0.0, tau, int(num)),

@@ -51,16 +51,18 @@ def compose_tool_path(
         raise MotionError("compose: the plan has no keypoint pairs to execute")
     travel_z = object_top + clearance
     pieces: list[Piece] = []
+    yaws = _work_yaws(segments, yaw_mode, home_yaw)
     work_paths = [
         primitive.rollout(
             _finite_point(seg.start, f"segment {k + 1} start"),
             _finite_point(seg.goal, f"segment {k + 1} goal"),
             speed=work_speed,
             spacing=WORK_SPACING_M,
+            # A plunge has no direction of its own: a blade's demo keeps the blade's yaw.
+            heading=yaws[k] if yaw_mode == "follow" else None,
         ).y
         for k, seg in enumerate(segments)
     ]
-    yaws = _work_yaws(segments, yaw_mode, home_yaw)
     position, yaw = home_arr, yaws[0] if yaw_mode == "follow" else home_yaw
     for index, (points, work_yaw) in enumerate(zip(work_paths, yaws, strict=True)):
         travel_points, travel_yaw = _travel(position, points[0], travel_z, yaw, work_yaw)

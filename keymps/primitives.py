@@ -77,22 +77,30 @@ class Primitive:
         speed: float | None = None,
         spacing: float = 0.001,
         mode: str | None = None,
+        heading: float | None = None,
     ) -> Rollout:
         """The primitive re-targeted to start/goal, run at `speed` m/s on average (default: the
-        nominal speed), sampled finely enough that points are at most about `spacing` apart."""
+        nominal speed), sampled finely enough that points are at most about `spacing` apart.
+        `heading` (radians about z) orients the demo when the segment is vertical."""
         start_arr, goal_arr = np.asarray(start, float), np.asarray(goal, float)
         mode = mode or self.mode
         tau = self.dmp.tau_for_speed(start_arr, goal_arr, speed or self.nominal_speed, mode)
         # Point spacing scales with 1/(num - 1): size num from a reference rollout, then round it
         # up to a bin so that segments of similar length share one cached canonical rollout.
-        reference = self.dmp.rollout(start_arr, goal_arr, num=_REFERENCE_NUM, mode=mode).y
+        reference = self.dmp.rollout(
+            start_arr, goal_arr, num=_REFERENCE_NUM, mode=mode, heading=heading
+        ).y
         widest = float(np.linalg.norm(np.diff(reference, axis=0), axis=1).max())
         num = _sample_bin((_REFERENCE_NUM - 1) * widest / spacing + 1)
-        rollout = self.dmp.rollout(start_arr, goal_arr, tau=tau, num=num, mode=mode)
+        rollout = self.dmp.rollout(
+            start_arr, goal_arr, tau=tau, num=num, mode=mode, heading=heading
+        )
         widest = float(np.linalg.norm(np.diff(rollout.y, axis=0), axis=1).max())
         while widest > spacing and num < _MAX_SAMPLES:
             num = _sample_bin(num * widest / spacing + 1)
-            rollout = self.dmp.rollout(start_arr, goal_arr, tau=tau, num=num, mode=mode)
+            rollout = self.dmp.rollout(
+                start_arr, goal_arr, tau=tau, num=num, mode=mode, heading=heading
+            )
             widest = float(np.linalg.norm(np.diff(rollout.y, axis=0), axis=1).max())
         return rollout
 

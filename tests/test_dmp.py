@@ -306,3 +306,12 @@ def test_rotations_stay_exact_near_parallel_and_opposite(
     S = retarget_map(0.1 * a_arr, 0.3 * b)
     assert np.abs(S @ (0.1 * a_arr) - 0.3 * b).max() < 1e-14
     assert np.abs(S.T @ S - 9.0 * np.eye(3)).max() < 1e-12
+
+
+def test_heading_orients_the_demo_for_a_vertical_segment(sawing: DMP) -> None:
+    plunge = sawing.rollout([0, 0, 0.05], [0, 0, 0.0], heading=math.pi / 2)
+    assert np.abs(plunge.y[:, 0]).max() < 1e-12  # strokes along y, none along x
+    assert np.ptp(plunge.y[:, 1]) > 0.005  # scaled by 0.05 / 0.11 with the segment
+    assert np.allclose(plunge.y[-1], [0, 0, 0], atol=1e-6)
+    ignored = sawing.rollout([0, 0, 0.05], [0.1, 0, 0.0], heading=math.pi / 2)
+    assert np.array_equal(ignored.y, sawing.rollout([0, 0, 0.05], [0.1, 0, 0.0]).y)

@@ -192,3 +192,18 @@ def test_bad_input_gives_one_clear_line(dictionary: dict, kwargs: dict, message:
     with pytest.raises(KeympsError, match=message) as info:
         compose(segments, dictionary["straight"], **kwargs)
     assert "\n" not in str(info.value)
+
+
+def test_a_vertical_plunge_saws_along_the_blade(dictionary: dict) -> None:
+    """A pair with start and goal at the same xy has no direction: the blade keeps the previous
+    cut's yaw, and the sawing strokes run along the blade, not along the demo's world x."""
+    segments = [cut(0.1, 0.04, 0.1, 0.14), cut(0.15, 0.09, 0.15, 0.09)]
+    path = compose(segments, dictionary["sawing"])
+    first, plunge = [p for p in path.pieces if p.kind == "work"]
+    assert plunge.yaw[0] == first.yaw[0]
+    blade = np.array([math.cos(plunge.yaw[0]), math.sin(plunge.yaw[0])])
+    horizontal = plunge.points[:, :2] - [0.15, 0.09]
+    along = horizontal @ blade
+    across = horizontal @ np.array([-blade[1], blade[0]])
+    assert np.ptp(along) > 0.005
+    assert np.abs(across).max() < 1e-9
