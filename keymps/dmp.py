@@ -354,9 +354,9 @@ class DMP:
 
     def forcing(self, s: np.ndarray) -> np.ndarray:
         """f(s) for phases s: (N,) -> (N, 3), before the re-targeting map."""
-        return (
-            _phase_features(np.asarray(s, dtype=float), self.n_basis, self.alpha_s) @ self.weights
-        )
+        s = np.asarray(s, dtype=float)
+        scratch = _workspace("features", (self.n_basis, len(s)))
+        return _phase_features(s, self.n_basis, self.alpha_s, out=scratch).T @ self.weights
 
     def _canonical(self, num: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Normalized-time rollout for the demo's start and goal, relative to the start: (p, dp,
@@ -509,14 +509,16 @@ class DMP:
 _GAIN_DEFAULTS = {"alpha_z": ALPHA_Z, "beta_z": BETA_Z, "alpha_s": ALPHA_S}
 
 
-def _phase_features(s: np.ndarray, n_basis: int, alpha_s: float) -> np.ndarray:
-    """psi_i(s) s / sum psi(s) for phases s: (N, n_basis)."""
+def _phase_features(
+    s: np.ndarray, n_basis: int, alpha_s: float, out: np.ndarray | None = None
+) -> np.ndarray:
+    """psi_i(s) s / sum psi(s) for phases s, one row per basis function: (n_basis, N)."""
     centers, widths = basis_centers_widths(n_basis, alpha_s)
-    psi = np.subtract.outer(s, centers)
+    psi = np.subtract(centers[:, None], s[None, :], out=out)
     np.square(psi, out=psi)
-    psi *= -widths
+    psi *= -widths[:, None]
     np.exp(psi, out=psi)
-    psi *= (s / psi.sum(axis=1))[:, None]
+    psi *= s / psi.sum(axis=0)
     return psi
 
 
@@ -569,13 +571,8 @@ def _fit_basis(phase_time: np.ndarray, n_basis: int, regularization: float) -> _
     s = np.exp(-ALPHA_S * grid)
     # Inputs as rows (one per basis function, then the goal term): the filters run along rows.
     inputs = _workspace("inputs", (n_basis + 1, num))
-    centers, widths = basis_centers_widths(n_basis, ALPHA_S)
-    psi = inputs[:n_basis]
-    np.subtract(centers[:, None], s[None, :], out=psi)
-    np.square(psi, out=psi)
-    psi *= -widths[:, None]
-    np.exp(psi, out=psi)
-    psi *= stiffness * s / psi.sum(axis=0)
+    _phase_features(s, n_basis, ALPHA_S, out=inputs[:n_basis])
+    inputs[:n_basis] *= stiffness
     np.multiply(stiffness, 1.0 - s, out=inputs[n_basis])
     filters = _filters(float(grid[1]), stiffness, damping)
     pos = _fir(filters.b_pos, inputs, np.empty_like(inputs), _workspace("fir", inputs.shape))
