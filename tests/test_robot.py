@@ -180,3 +180,31 @@ def test_a_malformed_piece_is_a_clear_error() -> None:
     bad = Piece("work", 0, np.zeros((4, 3)) + [0.15, 0.09, 0.07], np.zeros(3), 0.03)
     with pytest.raises(KeympsError, match=r"piece 0 \(work\): yaw must have one value per point"):
         solve_path(model, ToolPath((bad,), "line"))
+
+
+@pytest.mark.parametrize("task_file", ["cake_icing.yaml", "object_cutting.yaml"])
+def test_shipped_tasks_solve_time_and_validate_within_every_bound(
+    task_file: str, tmp_path: Any
+) -> None:
+    from pathlib import Path
+
+    from keymps import load_task, run_task
+
+    task = load_task(Path(__file__).resolve().parents[1] / "tasks" / task_file)
+    run = run_task(task, out=tmp_path, rerun="off", backend="offline", executor="file")
+    model = RobotModel.from_task(task)
+    tool_path, joint_path = run.results["compose"], run.results["solve"]
+    for piece, qs in zip(tool_path.pieces, joint_path.pieces, strict=True):
+        positions, rotations = model.tool_poses(qs)
+        assert np.linalg.norm(positions - piece.points, axis=1).max() < 1e-4
+        yaw = np.arctan2(rotations[:, 1, 0], rotations[:, 0, 0])
+        assert np.abs(np.angle(np.exp(1j * (yaw - piece.yaw)))).max() < math.radians(0.1)
+        assert all(model.configuration_problem(q) is None for q in qs)
+    trajectory = run.results["time"]
+    period = 1 / trajectory.rate_hz
+    velocity = np.diff(trajectory.q, axis=0) / period
+    assert np.all(np.abs(velocity) <= model.velocity_limits * 1.001)
+    assert np.all(np.abs(np.diff(velocity, axis=0) / period) <= model.acceleration_limits * 1.01)
+    figures = run.results["check"].report.figures
+    assert figures["max_deviation_from_tool_path_mm"] < 0.5
+    assert (tmp_path / "trajectory.json").is_file()
