@@ -22,7 +22,10 @@ if TYPE_CHECKING:
     from keymps.task import Task
 
 
-_SECRET_KEY = re.compile(r"(api[_-]?key|authorization|secret|token|password)", re.IGNORECASE)
+_SECRET_KEY = re.compile(
+    r"^(api[_-]?key|x-api-key|authorization|secret|password|access[_-]?token|\w*_secret)$",
+    re.IGNORECASE,
+)
 
 
 def _secrets(task: Task) -> list[str]:
@@ -37,11 +40,7 @@ def redact(value: Any, secrets: list[str]) -> Any:
     """Drop credential-like keys and blank out any secret value anywhere in `value`."""
     if isinstance(value, dict):
         return {
-            k: (
-                "[redacted]"
-                if _SECRET_KEY.search(str(k)) and k != "prompt_tokens"
-                else redact(v, secrets)
-            )
+            k: "[redacted]" if _SECRET_KEY.match(str(k)) else redact(v, secrets)
             for k, v in value.items()
         }
     if isinstance(value, list | tuple):
