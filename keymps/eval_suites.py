@@ -125,7 +125,10 @@ class Case(_Strict):
     def _known_objects(cls, value: str | list[str]) -> str | list[str]:
         from keymps.scenes import check_kinds
 
-        names = check_kinds([value] if isinstance(value, str) else value, where="object")
+        try:
+            names = check_kinds([value] if isinstance(value, str) else value, where="object")
+        except KeympsError as error:
+            raise ValueError(str(error).removeprefix("object: ")) from None
         return names[0] if isinstance(value, str) else names
 
     @property

@@ -1,0 +1,119 @@
+"""`keymps eval SUITE`: run a benchmark suite (paper Tables I, IV, V and Appendix F) and score it."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import click
+
+METHOD_NAMES = ("keymps", "vlm-keypoint", "keymps-text", "vlm-keyword", "vlm-dmp", "vlm-mdmp")
+
+
+@click.command(
+    name="eval",
+    context_settings={"help_option_names": ["-h", "--help"]},
+    epilog="Suites shipped: cutting_sim, icing, cake_six, real_cutting (benchmarks/suites/). "
+    "Without --model the offline planner runs (methods keymps and vlm-keypoint only).",
+)
+@click.argument("suite_file", metavar="SUITE")
+@click.option(
+    "--method", "methods", multiple=True, type=click.Choice(METHOD_NAMES),
+    help="Method to run (repeatable; default keymps).",
+)  # fmt: skip
+@click.option("--repeats", type=click.IntRange(1, 1000), help="Runs per case (suite default).")
+@click.option(
+    "--concurrency", type=click.IntRange(1, 64), default=1, show_default=True,
+    help="Runs in flight at once (VLM calls overlap).",
+)  # fmt: skip
+@click.option("--backend", help="Planner backend: offline, litellm, replay or a plugin's.")
+@click.option("--model", help="VLM model for litellm, e.g. openai/gpt-4o.")
+@click.option("--api-base", help="OpenAI-compatible server URL (Ollama, vLLM ...).")
+@click.option("--case", "cases", multiple=True, help="Only this case id (repeatable).")
+@click.option(
+    "--out", type=click.Path(file_okay=False, path_type=Path),
+    help="Results folder (default eval/SUITE[-METHODS]); rerunning into it resumes.",
+)  # fmt: skip
+@click.option("--quiet", is_flag=True, help="No progress bar.")
+def eval_command(
+    suite_file: str,
+    methods: tuple[str, ...],
+    repeats: int | None,
+    concurrency: int,
+    backend: str | None,
+    model: str | None,
+    api_base: str | None,
+    cases: tuple[str, ...],
+    out: Path | None,
+    quiet: bool,
+) -> None:
+    """Run every case x method x repeat of SUITE (a file or a shipped suite's name), write
+    results.jsonl, summary.md, summary.csv, d_boxplot.png and gallery.html, print the table."""
+    from keymps.errors import KeympsError
+
+    try:
+        _evaluate(
+            suite_file, methods, repeats, concurrency, backend, model, api_base, cases, out, quiet
+        )
+    except KeympsError as error:
+        for line in str(error).splitlines() or ["unknown error"]:
+            click.echo(f"error: {line}", err=True)
+        sys.exit(1)
+
+
+def _evaluate(
+    suite_file: str,
+    methods: tuple[str, ...],
+    repeats: int | None,
+    concurrency: int,
+    backend: str | None,
+    model: str | None,
+    api_base: str | None,
+    cases: tuple[str, ...],
+    out: Path | None,
+    quiet: bool,
+) -> None:
+    from keymps.eval_report import markdown_table, write_summary
+    from keymps.eval_runner import EvalOptions, plan_jobs, run_suite
+    from keymps.eval_suites import load_suite
+
+    suite = load_suite(suite_file)
+    chosen = methods or ("keymps",)
+    folder = out or Path("eval") / "-".join([suite.name, *([m for m in chosen] if methods else [])])
+    options = EvalOptions(
+        out=folder,
+        methods=tuple(dict.fromkeys(chosen)),
+        repeats=repeats,
+        concurrency=concurrency,
+        backend=backend,
+        model=model,
+        api_base=api_base,
+        cases=cases,
+    )
+    total = len(plan_jobs(suite, options))
+    if quiet:
+        records = run_suite(suite, options)
+    else:
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn
+
+        with Progress(
+            "[progress.description]{task.description}",
+            BarColumn(),
+            MofNCompleteColumn(),
+            TimeElapsedColumn(),
+            transient=True,
+        ) as progress:
+            bar = progress.add_task(f"{suite.name}", total=total)
+
+            def advance(job: object, record: dict[str, object]) -> None:
+                status = "ok" if record.get("ok") else "failed"
+                progress.update(bar, advance=1, description=f"{suite.name}: {job.label} {status}")  # type: ignore[attr-defined]
+
+            records = run_suite(suite, options, on_result=advance)
+    rows = write_summary(records, suite, folder)
+    click.echo(markdown_table(rows, suite))
+    failed = sum(1 for r in records if not r.get("ok"))
+    click.echo(
+        f"{len(records)} runs ({failed} failed); results in {folder}/ "
+        "(results.jsonl, summary.md, summary.csv, gallery.html)"
+    )

@@ -1,0 +1,300 @@
+"""Runs a suite: every case x method x repeat, concurrently, resumably, one JSON line per result.
+
+Each job renders its case's scene, runs the method, scores what it generated (D against the
+ground truth, or the equal-parts check) and appends one record to results.jsonl, flushed and
+synced at once: an interrupted evaluation loses no finished result, and a rerun into the same
+folder skips every job already recorded (same case, method, repeat, backend and model).
+A job that fails is recorded as a failure with its one-line error; it never stops the suite.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import threading
+import time
+import traceback
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor, as_completed
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from keymps.errors import KeympsError
+from keymps.eval_suites import Suite
+
+RESULTS_FILE = "results.jsonl"
+
+
+@dataclass(frozen=True)
+class EvalOptions:
+    out: Path
+    methods: tuple[str, ...] = ("keymps",)
+    repeats: int | None = None
+    """Runs per case and method (the suite's `repeats` when None)."""
+    concurrency: int = 1
+    backend: str | None = None
+    """None: offline, or litellm when a model or an API base is given."""
+    model: str | None = None
+    api_base: str | None = None
+    cases: tuple[str, ...] = ()
+    """Only these case ids (all when empty)."""
+    n: int = 100
+    """Ground-truth points of the metric D."""
+
+
+@dataclass(frozen=True)
+class Job:
+    case_id: str
+    method: str
+    repeat: int
+    seed: int
+
+    @property
+    def label(self) -> str:
+        return f"case {self.case_id} / {self.method} / repeat {self.repeat}"
+
+
+def resolve_backend(options: EvalOptions) -> str:
+    if options.backend:
+        return options.backend
+    return "litellm" if (options.model or options.api_base) else "offline"
+
+
+def plan_jobs(suite: Suite, options: EvalOptions) -> list[Job]:
+    from keymps.eval_methods import get_method
+
+    for method in options.methods:
+        get_method(method)
+    cases = [suite.case(c) for c in options.cases] if options.cases else suite.cases
+    repeats = options.repeats or suite.repeats
+    return [
+        Job(case.id, method, r, case.scene.seed + r)
+        for case in cases
+        for method in options.methods
+        for r in range(repeats)
+    ]
+
+
+def _job_key(record: dict[str, Any]) -> tuple[Any, ...]:
+    return (
+        record.get("case"),
+        record.get("method"),
+        record.get("repeat"),
+        record.get("backend"),
+        record.get("model"),
+    )
+
+
+def read_results(path: Path) -> list[dict[str, Any]]:
+    """Records of results.jsonl; a line cut short by an interruption is skipped."""
+    if not path.is_file():
+        return []
+    records = []
+    for line in path.read_text(encoding="utf-8").splitlines():
+        try:
+            record = json.loads(line)
+        except json.JSONDecodeError:
+            continue
+        if isinstance(record, dict):
+            records.append(record)
+    return records
+
+
+class _ResultsFile:
+    """Appends one record per line, flushed and synced, from any thread."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        self.lock = threading.Lock()
+        if path.is_file() and path.stat().st_size:
+            with path.open("rb") as handle:
+                handle.seek(-1, os.SEEK_END)
+                ends_cleanly = handle.read(1) == b"\n"
+            if not ends_cleanly:  # a line cut short by an interruption: start a fresh line
+                with path.open("a", encoding="utf-8") as handle:
+                    handle.write("\n")
+
+    def append(self, record: dict[str, Any]) -> None:
+        line = json.dumps(record, allow_nan=False)
+        with self.lock, self.path.open("a", encoding="utf-8") as handle:
+            handle.write(line + "\n")
+            handle.flush()
+            os.fsync(handle.fileno())
+
+
+def write_task_file(suite: Suite, job: Job, out: Path) -> Path:
+    """The case's task for this seed as a task file (reusable with `keymps run`)."""
+    import yaml
+
+    from keymps.eval_tasks import case_task_data
+
+    case = suite.case(job.case_id)
+    data = case_task_data(suite, case, job.seed)
+    data["name"] = f"{data['name']}-r{job.repeat}"
+    path = out / "tasks" / job.method / f"{job.case_id}-r{job.repeat}.yaml"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    header = f"# {suite.name} case {case.id}, method {job.method}, repeat {job.repeat}\n"
+    path.write_text(header + yaml.safe_dump(data, sort_keys=False), encoding="utf-8")
+    return path
+
+
+def prepare(suite: Suite, options: EvalOptions) -> None:
+    """Folder set-up shared by the jobs: VLM-Keypoint's zero-weight primitives."""
+    from keymps.eval_methods import get_method, zero_weight_primitives
+    from keymps.primitives import default_search_dirs
+
+    for name in options.methods:
+        if get_method(name).zero_weights:
+            names = sorted(
+                {p for c in suite.cases for p in (c.primitives or suite.primitives)}
+                | {c.ground_truth.primitive for c in suite.cases if c.ground_truth}
+            )
+            zero_weight_primitives(
+                names,
+                default_search_dirs(suite.folder),
+                options.out / "tasks" / name / "primitives",
+            )
+
+
+def _vlm_totals(calls: tuple[dict[str, Any], ...]) -> dict[str, Any]:
+    def total(key: str) -> float | None:
+        values = [c[key] for c in calls if c.get(key) is not None]
+        return float(sum(values)) if values else None
+
+    return {
+        "vlm_calls": len(calls),
+        "cached": sum(1 for c in calls if c.get("cached")),
+        "cost_usd": total("cost_usd"),
+        "prompt_tokens": total("prompt_tokens"),
+        "completion_tokens": total("completion_tokens"),
+        "vlm_latency_s": round(total("latency_s") or 0.0, 3),
+    }
+
+
+def run_job(suite: Suite, job: Job, options: EvalOptions, backend: str) -> dict[str, Any]:
+    """Run and score one job; failures become a record with ok = False and the error."""
+    from keymps.eval_methods import MethodContext, PartialRunError, get_method, partial_output
+
+    started = time.perf_counter()
+    folder = options.out / "runs" / job.method / job.case_id / f"r{job.repeat}"
+    record: dict[str, Any] = {
+        "suite": suite.name,
+        "case": job.case_id,
+        "method": job.method,
+        "repeat": job.repeat,
+        "seed": job.seed,
+        "backend": backend,
+        "model": options.model,
+        "folder": str(folder.relative_to(options.out)),
+    }
+    case = suite.case(job.case_id)
+    output = None
+    try:
+        task_path = write_task_file(suite, job, options.out)
+        context = MethodContext(task_path, folder, backend, options.model, options.api_base)
+        try:
+            output = get_method(job.method).run(context)
+            error: str | None = None
+        except PartialRunError as stopped:
+            output, error = partial_output(stopped, folder), str(stopped)
+        record.update(_score(suite, case, job, output, options.n))
+        if error is not None:
+            record["ok"], record["error"] = False, " ".join(error.split())
+            record["success"] = False if record.get("success") is not None else None
+    except KeympsError as failure:
+        record.update(ok=False, error=" ".join(str(failure).split()))
+    except Exception as failure:  # a bug must not stop the suite; keep where it happened
+        where = traceback.extract_tb(failure.__traceback__)[-1]
+        record.update(
+            ok=False,
+            error=f"internal error {type(failure).__name__}: {failure} "
+            f"({Path(where.filename).name}:{where.lineno})",
+        )
+    if output is not None:
+        record.update(_vlm_totals(output.calls))
+        record["images"] = {
+            k: str(Path(v).relative_to(options.out)) for k, v in output.images.items()
+        }
+    record["seconds"] = round(time.perf_counter() - started, 3)
+    return record
+
+
+def _score(suite: Suite, case: Any, job: Job, output: Any, n: int) -> dict[str, Any]:
+    from keymps.eval_truth import case_truth
+    from keymps.evaluate import metric_d, metric_d_optimal
+
+    truth = case_truth(suite, case, job.seed)
+    scored: dict[str, Any] = {
+        "ok": True,
+        "error": None,
+        "keyword": output.keyword,
+        "pieces": len(output.work_pieces),
+    }
+    if case.ground_truth is not None:
+        scored["truth_keyword"] = case.ground_truth.primitive
+        scored["truth_pieces"] = len(truth.pieces)
+        if output.work_pieces:
+            scored["d_mm"] = round(1000 * metric_d(truth.pieces, output.work_pieces, n), 3)
+            scored["d_optimal_mm"] = round(
+                1000 * metric_d_optimal(truth.pieces, output.work_pieces, n), 3
+            )
+    if suite.kind == "equal_parts" and suite.parts is not None:
+        from keymps.eval_parts import check_equal_parts
+
+        scene_object = truth.scene["objects"][0]
+        hole = scene_object.get("hole_m")
+        check = check_equal_parts(
+            np.asarray(scene_object["outline_m"]),
+            output.lines_m,
+            suite.parts,
+            suite.tolerance,
+            np.asarray(hole) if hole else None,
+        )
+        scored["success"] = check.ok
+        scored["parts"] = len(check.areas_m2)
+        scored["parts_detail"] = check.describe()
+        deviation = check.worst_deviation
+        scored["worst_deviation"] = round(deviation, 4) if np.isfinite(deviation) else None
+    return scored
+
+
+ProgressCallback = Callable[[Job, dict[str, Any]], None]
+
+
+def run_suite(
+    suite: Suite, options: EvalOptions, on_result: ProgressCallback | None = None
+) -> list[dict[str, Any]]:
+    """Run every job not yet in out/results.jsonl; return all records for these jobs."""
+    from keymps.eval_methods import check_runnable, get_method
+
+    backend = resolve_backend(options)
+    for name in options.methods:
+        check_runnable(get_method(name), backend)
+    jobs = plan_jobs(suite, options)
+    options.out.mkdir(parents=True, exist_ok=True)
+    results = _ResultsFile(options.out / RESULTS_FILE)
+    done = {_job_key(r): r for r in read_results(results.path) if r.get("suite") == suite.name}
+
+    def key(job: Job) -> tuple[Any, ...]:
+        return (job.case_id, job.method, job.repeat, backend, options.model)
+
+    todo = [job for job in jobs if key(job) not in done]
+    prepare(suite, options)
+    records = {key(job): done[key(job)] for job in jobs if key(job) in done}
+    if on_result:
+        for job in jobs:
+            if key(job) in done:
+                on_result(job, done[key(job)])
+    with ThreadPoolExecutor(max_workers=max(1, options.concurrency)) as pool:
+        futures = {pool.submit(run_job, suite, job, options, backend): job for job in todo}
+        for future in as_completed(futures):
+            job = futures[future]
+            record = future.result()
+            results.append(record)
+            records[key(job)] = record
+            if on_result:
+                on_result(job, record)
+    return [records[key(job)] for job in jobs]

@@ -1,0 +1,278 @@
+"""`keymps eval`: offline through the real pipeline, resuming, interruption, and every method
+against a real local OpenAI-compatible server (127.0.0.1) answering with canned designs."""
+
+from __future__ import annotations
+
+import csv
+import json
+import re
+from pathlib import Path
+from typing import Any
+
+import pytest
+from click.testing import CliRunner
+from vlm_server import Recorded, VlmServer
+
+from keymps.cli import cli
+from keymps.eval_runner import read_results
+
+
+def _eval(*args: str) -> Any:
+    return CliRunner().invoke(cli, ["eval", *args, "--quiet"], catch_exceptions=False)
+
+
+def _records(out: Path) -> list[dict[str, Any]]:
+    return read_results(out / "results.jsonl")
+
+
+@pytest.fixture(autouse=True)
+def _isolated(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    monkeypatch.setenv("KEYMPS_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.chdir(tmp_path)
+
+
+@pytest.fixture(scope="module")
+def offline_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Cases 5 and 7 of Table I (eggplant, 2 and 4 slices), keymps and vlm-keypoint, offline."""
+    out = tmp_path_factory.mktemp("eval") / "offline"
+    result = _eval(
+        "cutting_sim", "--case", "5", "--case", "7", "--repeats", "1",
+        "--method", "keymps", "--method", "vlm-keypoint", "--out", str(out),
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    return out
+
+
+def test_offline_eval_scores_the_real_pipeline(offline_run: Path) -> None:
+    records = _records(offline_run)
+    assert {(r["case"], r["method"]) for r in records} == {
+        ("5", "keymps"),
+        ("5", "vlm-keypoint"),
+        ("7", "keymps"),
+        ("7", "vlm-keypoint"),
+    }
+    for record in records:
+        assert record["ok"], record
+        assert record["backend"] == "offline"
+        assert record["keyword"] == record["truth_keyword"] == "straight"
+        assert record["pieces"] == record["truth_pieces"]  # as many cuts as the ground truth
+        # the offline planner places the slices within millimetres of the ground truth
+        assert 0 < record["d_mm"] < 5
+        assert record["d_optimal_mm"] <= record["d_mm"] + 1e-9
+        run = offline_run / record["folder"]
+        assert (run / "run.json").is_file() and (run / "plan.png").is_file()
+
+
+def test_offline_eval_writes_the_summary_files(offline_run: Path) -> None:
+    summary = (offline_run / "summary.md").read_text()
+    assert "| case | method | runs |" in summary
+    assert re.search(r"\| 7 \| keymps \| 1 \| 1/1 \(100 %\) \| \d+\.\d \+- 0\.0 \|", summary)
+    rows = list(csv.DictReader((offline_run / "summary.csv").open()))
+    assert {(r["case"], r["method"]) for r in rows} == {
+        ("5", "keymps"),
+        ("5", "vlm-keypoint"),
+        ("7", "keymps"),
+        ("7", "vlm-keypoint"),
+    }
+    assert all(0 < float(r["d_mean_mm"]) < 5 for r in rows)
+    gallery = (offline_run / "gallery.html").read_text()
+    images = re.findall(r"src='([^']+)'", gallery)
+    assert len(images) == 4 and all((offline_run / i).is_file() for i in images)
+    assert (offline_run / "d_boxplot.png").stat().st_size > 1000
+    task = offline_run / "tasks" / "keymps" / "7-r0.yaml"
+    assert "source: synthetic" in task.read_text()  # a task file `keymps run` can replay
+
+
+def test_vlm_keypoint_uses_straight_pieces(offline_run: Path) -> None:
+    import numpy as np
+
+    from keymps.primitives import load_primitive
+
+    zeroed = load_primitive(offline_run / "tasks" / "vlm-keypoint" / "primitives" / "sawing.yaml")
+    assert not np.any(zeroed.dmp.weights)
+    path = zeroed.rollout([0, 0, 0.05], [0.1, 0.0, 0.0]).y
+    direction = np.array([0.1, 0.0, -0.05]) / np.linalg.norm([0.1, 0.0, -0.05])
+    relative = path - [0, 0, 0.05]
+    off_line = relative - np.outer(relative @ direction, direction)
+    assert np.abs(off_line).max() < 1e-9  # a straight piece from start to goal
+
+
+def test_rerunning_resumes_and_an_interrupted_line_is_redone(offline_run: Path) -> None:
+    results = offline_run / "results.jsonl"
+    lines = results.read_text().splitlines()
+    before = len(lines)
+    again = _eval(
+        "cutting_sim", "--case", "5", "--case", "7", "--repeats", "1",
+        "--method", "keymps", "--method", "vlm-keypoint", "--out", str(offline_run),
+    )  # fmt: skip
+    assert again.exit_code == 0, again.output
+    assert len(results.read_text().splitlines()) == before  # nothing run twice
+    # an interruption while writing the last record: that line is cut short
+    cut = lines[-1][: len(lines[-1]) // 2]
+    results.write_text("\n".join(lines[:-1]) + "\n" + cut)
+    lost = json.loads(lines[-1])
+    resumed = _eval(
+        "cutting_sim", "--case", "5", "--case", "7", "--repeats", "1",
+        "--method", "keymps", "--method", "vlm-keypoint", "--out", str(offline_run),
+    )  # fmt: skip
+    assert resumed.exit_code == 0, resumed.output
+    records = _records(offline_run)
+    assert len(records) == before  # the three finished ones kept, the cut one redone
+    redone = [r for r in records if (r["case"], r["method"]) == (lost["case"], lost["method"])]
+    assert len(redone) == 1 and redone[0]["ok"]
+
+
+def test_vlm_methods_need_a_vlm_offline(tmp_path: Path) -> None:
+    result = _eval("cutting_sim", "--method", "vlm-dmp", "--out", str(tmp_path / "x"))
+    assert result.exit_code == 1
+    assert result.output.strip().splitlines() == [result.output.strip().splitlines()[0]]  # one line
+    assert "method vlm-dmp needs a VLM" in result.output and "--model" in result.output
+    assert not (tmp_path / "x" / "results.jsonl").exists()
+
+
+def test_bad_suite_and_case_are_one_line_errors(tmp_path: Path) -> None:
+    missing = _eval(str(tmp_path / "nope.yaml"))
+    assert missing.exit_code == 1 and "suite file not found" in missing.output
+    case = _eval("cutting_sim", "--case", "99", "--out", str(tmp_path / "y"))
+    assert case.exit_code == 1 and "no case '99'" in case.output
+    assert "Traceback" not in missing.output + case.output
+
+
+def test_cake_six_offline_reports_equal_parts(tmp_path: Path) -> None:
+    out = tmp_path / "six"
+    result = _eval("cake_six", "--repeats", "2", "--out", str(out), "--concurrency", "2")
+    assert result.exit_code == 0, result.output
+    records = _records(out)
+    assert len(records) == 4
+    for record in records:
+        assert record["ok"], record
+        assert isinstance(record["success"], bool)
+        assert record["parts_detail"]
+    assert "equal parts" in (out / "summary.md").read_text()
+
+
+# --------------------------------------------------------------------------- against a VLM
+
+BOARD = re.compile(
+    r"x = (-?[\d.]+) to x = (-?[\d.]+).*?y = (-?[\d.]+) to\s+y = (-?[\d.]+)", re.DOTALL
+)
+CROP = re.compile(r"(\d+) x (\d+) pixels")
+TOP = re.compile(r"object's top is (?:at\s+)?z = (\d+\.\d+)")
+
+
+def _text(message: dict[str, Any]) -> str:
+    content = message["content"]
+    if isinstance(content, str):
+        return content
+    return " ".join(part.get("text", "") for part in content if part.get("type") == "text")
+
+
+SEVENTHS = [k / 7 for k in range(1, 7)]
+
+
+def _seventh_cuts(request: Recorded) -> str:
+    """Canned designs for case 2 (a loaf in 7 slices), each method in its own answer format."""
+    messages = request.body["messages"]
+    system, user = _text(messages[0]), " ".join(_text(m) for m in messages[1:])
+    if "cutting with one DMP" in system or "cutting with several DMPs" in system:
+        x0, x1, y0, y1 = (float(v) for v in BOARD.search(system).groups())  # type: ignore[union-attr]
+        top = float(TOP.search(system).group(1))  # type: ignore[union-attr]
+        dmps = [
+            {
+                "start": [x0 + (x1 - x0) * f, y1, top],
+                "goal": [x0 + (x1 - x0) * f, y0, 0.0],
+                "weights": [[0.0, 0.0, 0.0]] * 5,
+            }
+            for f in SEVENTHS
+        ]
+        if "several DMPs" in system:
+            return json.dumps({"dmps": dmps, "rationale": "six cuts"})
+        return json.dumps({**dmps[0], "rationale": "one cut only"})
+    if "cutting with 3D keypoints" in system:
+        x0, x1, y0, y1 = (float(v) for v in BOARD.search(system).groups())  # type: ignore[union-attr]
+        top = float(TOP.search(system).group(1))  # type: ignore[union-attr]
+        pairs = [[[x0 + (x1 - x0) * f, y1, top], [x0 + (x1 - x0) * f, y0, 0.0]] for f in SEVENTHS]
+        return json.dumps({"keyword": "straight", "pairs": pairs, "rationale": "3D"})
+    width, height = (int(v) for v in CROP.search(system + " " + user).groups())  # type: ignore[union-attr]
+    margin = 10  # the detector's crop padding: the loaf spans the rest
+    inner = width - 2 * margin
+    pairs = [
+        [[margin + inner * f, margin], [margin + inner * f, height - margin]] for f in SEVENTHS
+    ]
+    # straight, not the ground truth's sawing: the sawing strokes reach past the loaf's ends
+    return json.dumps({"keyword": "straight", "pairs": pairs, "rationale": "sevenths"})
+
+
+@pytest.fixture(scope="module")
+def vlm_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[Recorded]]:
+    out = tmp_path_factory.mktemp("eval") / "vlm"
+    with VlmServer(responder=_seventh_cuts) as server:
+        result = _eval(
+            "cutting_sim", "--case", "2", "--repeats", "2", "--concurrency", "4",
+            "--method", "keymps", "--method", "keymps-text", "--method", "vlm-keyword",
+            "--method", "vlm-dmp", "--method", "vlm-mdmp", "--method", "vlm-keypoint",
+            "--model", "openai/test-vlm", "--api-base", server.openai_base, "--out", str(out),
+        )  # fmt: skip
+        assert result.exit_code == 0, result.output
+        requests = list(server.chat_requests)
+    return out, requests
+
+
+def test_every_method_runs_against_a_vlm(vlm_run: tuple[Path, list[Recorded]]) -> None:
+    out, requests = vlm_run
+    records = _records(out)
+    assert len(records) == 12  # 6 methods x 2 repeats
+    # one call each, except that vlm-keypoint asks exactly what keymps asks (same scene, same
+    # prompt): the planner's answer cache serves one of the two
+    cached = [r for r in records if r["method"] in ("keymps", "vlm-keypoint") and r["cached"]]
+    assert len(requests) == 12 - len(cached) and len(cached) == 2
+    by_method: dict[str, list[dict[str, Any]]] = {}
+    for record in records:
+        assert record["ok"], record
+        assert record["backend"] == "litellm" and record["model"] == "openai/test-vlm"
+        assert record["vlm_calls"] == 1
+        assert record["prompt_tokens"] == 321
+        by_method.setdefault(record["method"], []).append(record)
+    d = {m: max(r["d_mm"] for r in rs) for m, rs in by_method.items()}
+    # the right 2D design through KeyMPs lands within millimetres (with the straight primitive,
+    # not the ground truth's sawing strokes); one DMP for six cuts cannot
+    assert d["keymps"] < 10 and d["keymps-text"] < 10
+    assert d["vlm-dmp"] > 5 * d["keymps"]
+    assert all(r["pieces"] == 6 for r in by_method["vlm-mdmp"])
+    assert all(r["pieces"] == 1 for r in by_method["vlm-dmp"])
+
+
+def test_keymps_text_never_sends_the_image(vlm_run: tuple[Path, list[Recorded]]) -> None:
+    _, requests = vlm_run
+    with_image = 0
+    for request in requests:
+        system = _text(request.body["messages"][0])
+        has_image = "image_url" in json.dumps(request.body["messages"])
+        if "robot food cutting (text only)" in system:
+            assert not has_image
+            assert "banana bread loaf" in system and "rectangular" in system
+        else:
+            assert has_image
+            with_image += 1
+    assert with_image == len(requests) - 2  # keymps-text: 2 repeats
+
+
+def test_a_method_that_fails_is_recorded_not_fatal(tmp_path: Path) -> None:
+    def garbage_for_dmps(request: Recorded) -> str:
+        system = _text(request.body["messages"][0])
+        return "I would rather not." if "several DMPs" in system else _seventh_cuts(request)
+
+    out = tmp_path / "fail"
+    with VlmServer(responder=garbage_for_dmps) as server:
+        result = _eval(
+            "cutting_sim", "--case", "2", "--repeats", "1",
+            "--method", "vlm-mdmp", "--method", "keymps",
+            "--model", "openai/test-vlm", "--api-base", server.openai_base, "--out", str(out),
+        )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    records = {r["method"]: r for r in _records(out)}
+    assert records["keymps"]["ok"]
+    failed = records["vlm-mdmp"]
+    assert not failed["ok"] and "no valid answer after 2 attempts" in failed["error"]
+    assert "\n" not in failed["error"]
+    assert "vlm-mdmp: no valid answer" in (out / "summary.md").read_text()
