@@ -672,3 +672,31 @@ def test_an_old_rerun_sdk_gets_a_one_line_upgrade_message():
         rerun_recorder._check_version("0.21.0")
     rerun_recorder._check_version("0.41.0")
     rerun_recorder._check_version("1.2.0rc1")
+
+
+@pytest.mark.slow  # rerun gives up on a connection after about 6 s, then waits 5 s to close
+def test_a_viewer_that_is_not_there_does_not_hang_the_run(tmp_path):
+    """connect to a port nobody listens on: the run ends, with one line saying what was lost."""
+    import time
+
+    from keymps.errors import KeympsError
+
+    url = f"rerun+http://127.0.0.1:{_free_port()}/proxy"
+    run, results = make_run(tmp_path, rerun="connect", rerun_url=url)
+    results.stages = results.stages[:2]
+    started = time.monotonic()
+    with pytest.raises(KeympsError, match=r"^rerun connect: the recording was not fully delivered"):
+        play(run, results)
+    assert time.monotonic() - started < rerun_recorder.FLUSH_TIMEOUT_S
+    assert rerun_recorder._sessions == {}
+
+
+def test_spawn_without_a_display_saves_the_file_instead_and_says_so(tmp_path, monkeypatch):
+    for name in ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET"):
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setattr("sys.platform", "linux")
+    run, results = make_run(tmp_path, rerun="spawn")
+    results.stages = results.stages[:1]
+    play(run, results)
+    assert "/image" in read_recording(run.folder / "run.rrd")
+    assert any("--rerun spawn: no display" in warning for warning in run.warnings)

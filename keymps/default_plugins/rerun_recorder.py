@@ -6,7 +6,9 @@ run.options.rerun chooses the sink: "save" (run.rrd in the run folder, the defau
 
 from __future__ import annotations
 
+import os
 import re
+import sys
 import uuid
 import weakref
 from dataclasses import dataclass
@@ -22,6 +24,8 @@ RECORDING_FILE = "run.rrd"
 MODES = ("save", "spawn", "connect", "off")
 MIN_RERUN_VERSION = (0, 41)
 """Oldest rerun-sdk tested (named transform frames, rerun.urdf, rerun.chunk.RrdReader)."""
+FLUSH_TIMEOUT_S = 30.0
+"""Longest wait for the recording to reach its file or viewer when a run ends."""
 ROBOT_RATE_HZ = 25.0
 """The animated robot and tool tip are subsampled to this rate; joint series keep every sample."""
 STAGE_ORDER: tuple[str, ...] = ("image", *STAGES, "finished")
@@ -109,6 +113,13 @@ def _check_version(version: str) -> None:
         )
 
 
+def has_display() -> bool:
+    """False where no viewer window can open (Linux without X11 or Wayland, e.g. over SSH)."""
+    if not sys.platform.startswith("linux"):
+        return True
+    return any(os.environ.get(name) for name in ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET"))
+
+
 def _open(run: Run) -> _Session:
     import rerun as rr
 
@@ -116,6 +127,13 @@ def _open(run: Run) -> _Session:
     if mode not in MODES:
         raise KeympsError(f"--rerun: unknown mode {mode!r} (choose one of {', '.join(MODES)})")
     _check_version(rr.__version__)
+    if mode == "spawn" and not has_display():
+        # Spawning would wait for a viewer that cannot start, then stream to nothing.
+        mode = "save"
+        run.warnings.append(
+            f"--rerun spawn: no display to open a viewer on (DISPLAY is not set); saved "
+            f"{run.folder / RECORDING_FILE} instead"
+        )
     stream = rr.RecordingStream(
         APPLICATION_ID,
         recording_id=uuid.uuid4(),
@@ -148,11 +166,26 @@ def _open(run: Run) -> _Session:
     return _Session(stream=stream, mode=mode)
 
 
-def _close(key: int) -> None:
+def _close(key: int) -> str | None:
+    """Flush and close a run's recording; the problem if it could not be delivered, else None.
+
+    Never raises and never waits forever (a viewer that is gone must not hang the run).
+    """
     session = _sessions.pop(key, None)
-    if session is not None:
-        session.stream.flush()
+    if session is None:
+        return None
+    problem = None
+    try:
+        session.stream.flush(timeout_sec=FLUSH_TIMEOUT_S)
+    except Exception as error:
+        problem = str(error)
+    try:
         session.stream.disconnect()
+    except Exception as error:
+        problem = problem or str(error)
+    if problem is None:
+        return None
+    return f"rerun {session.mode}: the recording was not fully delivered: {problem}"
 
 
 def _session_for(run: Run) -> _Session | None:
@@ -223,5 +256,6 @@ def keymps_stage_done(stage: str, result: Any, run: Run) -> None:
         else:
             _log_stage(stream, stage, result, run)
     finally:
-        if stage == "finished":
-            _close(id(run))
+        problem = _close(id(run)) if stage == "finished" else None
+    if problem:
+        raise KeympsError(problem)
