@@ -82,7 +82,8 @@ def show(name: str, dirs: tuple[Path, ...]) -> None:
     """Show one primitive: what the planner reads, its DMP and its demonstration."""
     import numpy as np
 
-    from keymps.primitives import load_demo_csv, load_primitives
+    from keymps.demos import load_demo_csv
+    from keymps.primitives import load_primitives
 
     p = load_primitives([name], _search_dirs(dirs))[name]
     dmp = p.dmp
@@ -174,7 +175,8 @@ def learn(
     A robot log is cleaned first: resampled to a uniform rate, smoothed (with --smooth:
     Savitzky-Golay, cubic) and trimmed of the still samples at both ends; pauses in the middle
     are kept."""
-    from keymps.primitives import MAX_FIT_RMSE, Preprocessing, PrimitiveError, learn_primitive
+    from keymps.demos import Preprocessing
+    from keymps.primitives import MAX_FIT_RMSE, PrimitiveError, learn_primitive
 
     if (rate is not None and rate <= 0) or smooth < 0 or trim < 0:
         raise PrimitiveError("--rate must be positive, --smooth and --trim not negative")
@@ -233,7 +235,8 @@ def plot(
         raise click.ClickException("plot needs matplotlib: pip install matplotlib") from None
     import numpy as np
 
-    from keymps.primitives import load_demo_csv, load_primitives
+    from keymps.demos import load_demo_csv
+    from keymps.primitives import load_primitives
 
     p = load_primitives([name], _search_dirs(dirs))[name]
     dmp = p.dmp

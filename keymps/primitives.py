@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import csv
 import math
 import os
 import re
@@ -13,37 +12,20 @@ from typing import Any, Literal
 
 import numpy as np
 
+from keymps.demos import Preprocessing, fit_rmse, load_demo_csv, prepare_demo, write_demo_csv
 from keymps.dmp import DMP, RETARGET_MODES, DmpError, Rollout
 from keymps.errors import KeympsError
 
 Family = Literal["cutting", "icing"]
 FAMILIES: tuple[str, ...] = ("cutting", "icing")
 FORMAT = "keymps-primitive/1"
-DEMO_COLUMNS = ("t", "x", "y", "z")
 NAME_PATTERN = re.compile(r"^[a-z][a-z0-9_-]{0,63}$")
-MIN_DEMO_SAMPLES = 10
 MAX_FIT_RMSE = 0.0005
 """Bundled primitives fit their demonstrations at least this well (metres); `learn` warns above."""
 
 
 class PrimitiveError(KeympsError):
     """A primitive file or demonstration is invalid, or a primitive does not exist."""
-
-
-@dataclass(frozen=True)
-class Preprocessing:
-    """How a recorded demonstration is cleaned before fitting (see docs/primitives.md)."""
-
-    rate_hz: float | None = None
-    """Resample to this uniform rate; None keeps uniform logs and resamples uneven ones to the
-    median rate."""
-    smooth_s: float = 0.0
-    """Savitzky-Golay window (cubic) in seconds; 0 turns smoothing off."""
-    trim_mm: float = 0.5
-    """Drop still samples at both ends: those within this distance of the first/last position."""
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"rate_hz": self.rate_hz, "smooth_s": self.smooth_s, "trim_mm": self.trim_mm}
 
 
 @dataclass(frozen=True)
@@ -113,106 +95,6 @@ def _sample_bin(needed: float) -> int:
     """The smallest of 50 * 1.125**k (rounded) that is at least `needed`, at most 200 000."""
     k = max(0, math.ceil(math.log(max(needed, 1.0) / 50.0) / math.log(1.125) - 1e-9))
     return int(min(math.ceil(50 * 1.125**k - 1e-9), _MAX_SAMPLES))
-
-
-# --------------------------------------------------------------------------- demonstrations
-
-
-def load_demo_csv(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """Read a demonstration CSV with header t,x,y,z (seconds, metres): returns t (T,), y (T, 3)."""
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise PrimitiveError(f"{path}: demonstration file not found") from None
-    except (OSError, UnicodeDecodeError) as error:
-        raise PrimitiveError(f"{path}: cannot read demonstration ({error})") from None
-    rows = list(csv.reader(line for line in text.splitlines() if line.strip()))
-    if not rows:
-        raise PrimitiveError(f"{path}: empty demonstration; expected a header t,x,y,z")
-    header = tuple(cell.strip().lower() for cell in rows[0])
-    if header != DEMO_COLUMNS:
-        raise PrimitiveError(
-            f"{path}:1: expected columns t,x,y,z (seconds, metres), got {','.join(rows[0])}"
-        )
-    values = np.empty((len(rows) - 1, 4))
-    for index, row in enumerate(rows[1:]):
-        line = index + 2
-        if len(row) != 4:
-            raise PrimitiveError(f"{path}:{line}: expected 4 values (t,x,y,z), got {len(row)}")
-        try:
-            values[index] = [float(cell) for cell in row]
-        except ValueError:
-            raise PrimitiveError(f"{path}:{line}: not a number in {','.join(row)}") from None
-        if not np.isfinite(values[index]).all():
-            raise PrimitiveError(f"{path}:{line}: NaN or infinite value in {','.join(row)}")
-    if len(values) < MIN_DEMO_SAMPLES:
-        raise PrimitiveError(
-            f"{path}: needs at least {MIN_DEMO_SAMPLES} samples, got {len(values)}"
-        )
-    steps = np.diff(values[:, 0])
-    if (steps <= 0).any():
-        index = int(np.argmax(steps <= 0)) + 1
-        raise PrimitiveError(
-            f"{path}:{index + 2}: time must increase strictly "
-            f"(t = {values[index, 0]:g} after {values[index - 1, 0]:g})"
-        )
-    return values[:, 0].copy(), values[:, 1:].copy()
-
-
-def write_demo_csv(path: Path, t: np.ndarray, y: np.ndarray) -> None:
-    """Write t (T,), y (T, 3) as CSV t,x,y,z with round-trip precision."""
-    lines = [",".join(DEMO_COLUMNS)]
-    rows = zip(np.asarray(t).tolist(), np.asarray(y).tolist(), strict=True)
-    lines += [f"{ti!r},{p[0]!r},{p[1]!r},{p[2]!r}" for ti, p in rows]
-    Path(path).write_text("\n".join(lines) + "\n", encoding="utf-8")
-
-
-def prepare_demo(
-    t: np.ndarray, y: np.ndarray, settings: Preprocessing, where: str = "demonstration"
-) -> tuple[np.ndarray, np.ndarray]:
-    """Resample to a uniform rate, smooth, and trim still ends (in that order)."""
-    t = np.asarray(t, float) - float(t[0])
-    y = np.asarray(y, float)
-    steps = np.diff(t)
-    rate = settings.rate_hz or 1.0 / float(np.median(steps))
-    uneven = np.abs(steps - np.median(steps)).max() > 0.01 * np.median(steps)
-    if settings.rate_hz is not None or uneven:
-        count = max(int(round(t[-1] * rate)) + 1, MIN_DEMO_SAMPLES)
-        grid = np.linspace(0.0, t[-1], count)
-        y = np.stack([np.interp(grid, t, y[:, axis]) for axis in range(3)], axis=1)
-        t = grid
-    if settings.smooth_s > 0:
-        from scipy.signal import savgol_filter
-
-        window = int(round(settings.smooth_s * rate)) | 1
-        if window >= 5:
-            if window > len(t):
-                raise PrimitiveError(
-                    f"{where}: smoothing window {settings.smooth_s} s is longer than the demo"
-                )
-            y = savgol_filter(y, window, 3, axis=0, mode="interp")
-    if settings.trim_mm > 0:
-        tolerance = settings.trim_mm / 1000.0
-        moved_from_start = np.linalg.norm(y - y[0], axis=1) > tolerance
-        moved_from_end = np.linalg.norm(y - y[-1], axis=1) > tolerance
-        if not moved_from_start.any():
-            raise PrimitiveError(
-                f"{where}: the tool never moves more than {settings.trim_mm} mm; nothing to learn"
-            )
-        first = max(int(np.argmax(moved_from_start)) - 1, 0)
-        last = min(len(t) - int(np.argmax(moved_from_end[::-1])), len(t) - 1)
-        t, y = t[first : last + 1] - t[first], y[first : last + 1]
-    if len(t) < MIN_DEMO_SAMPLES:
-        raise PrimitiveError(f"{where}: fewer than {MIN_DEMO_SAMPLES} samples after trimming")
-    return t, y
-
-
-def fit_rmse(dmp: DMP, t: np.ndarray, y: np.ndarray) -> float:
-    """RMS distance (metres) between the demo and the fitted rollout at the demo's time stamps."""
-    fine = dmp.rollout(dmp.demo_start, dmp.demo_goal, num=max(4 * len(t), 1000))
-    at = np.stack([np.interp(t - t[0], fine.t, fine.y[:, axis]) for axis in range(3)], axis=1)
-    return float(np.sqrt(((at - y) ** 2).sum(axis=1).mean()))
 
 
 def learn_primitive(

@@ -13,7 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from keymps.primitives import Preprocessing, learn_primitive, write_demo_csv
+from keymps.demos import Preprocessing, write_demo_csv
+from keymps.primitives import learn_primitive
 
 HERE = Path(__file__).resolve().parent
 RATE_HZ = 100.0

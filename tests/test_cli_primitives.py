@@ -10,7 +10,8 @@ import pytest
 from click.testing import CliRunner
 
 from keymps.cli_primitives import primitives
-from keymps.primitives import BUNDLED_DIR, load_demo_csv, load_primitive, write_demo_csv
+from keymps.demos import load_demo_csv, write_demo_csv
+from keymps.primitives import BUNDLED_DIR, load_primitive
 
 
 @pytest.fixture

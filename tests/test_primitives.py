@@ -9,20 +9,16 @@ import numpy as np
 import pytest
 import yaml
 
+from keymps.demos import Preprocessing, fit_rmse, load_demo_csv, prepare_demo, write_demo_csv
 from keymps.dmp import DMP
 from keymps.errors import KeympsError
 from keymps.primitives import (
     BUNDLED_DIR,
-    Preprocessing,
     default_search_dirs,
-    fit_rmse,
     learn_primitive,
-    load_demo_csv,
     load_primitive,
     load_primitives,
-    prepare_demo,
     save_primitive,
-    write_demo_csv,
 )
 
 NAMES = ["straight", "sawing", "downward", "forward", "line"]

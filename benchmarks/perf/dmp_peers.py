@@ -54,7 +54,7 @@ def _require_peers() -> tuple[Any, Any]:
 
 
 def demonstration() -> tuple[np.ndarray, np.ndarray]:
-    from keymps.primitives import load_demo_csv
+    from keymps.demos import load_demo_csv
 
     t, y = load_demo_csv(ROOT / "primitives" / "sawing.csv")
     grid = np.linspace(t[0], t[-1], SAMPLES)
