@@ -511,3 +511,36 @@ def test_layers_on_a_square_cake_follow_its_edge():
         assert np.allclose(square[1:, 0], square[:-1, 1]) and np.allclose(
             square[-1, 1], square[0, 0]
         )
+
+
+# --- the primitive, from the shipped primitives' descriptions ----------------------------------
+
+
+@pytest.mark.parametrize(
+    ("names", "context", "expected"),
+    [
+        (
+            ["straight", "sawing"],
+            "The object is 40 cm long, cut it into 5 cm slices baguette-40cm",
+            "sawing",
+        ),
+        (["straight", "sawing"], "Cut it into 8 equal slices pizza", "straight"),
+        (["straight", "sawing"], "A single horizontal slice in the middle cabbage", "sawing"),
+        (["straight", "sawing"], "Slice both tips of the object eggplant", "straight"),
+        (["straight", "sawing"], "1 slice for each day of this week banana bread", "sawing"),
+        (["downward", "forward"], "Cut it into french fries potato", "forward"),
+        (["downward", "forward"], "Split it into 4 baumkuchen", "downward"),
+        (["downward", "forward"], "cut 4 slices tomato", "downward"),
+        (["straight", "sawing", "line"], "Put 15 icing dots around the cake", "line"),
+    ],
+)
+def test_primitive_choice_reads_the_shipped_descriptions(names, context, expected):
+    from keymps.default_plugins.offline_backend import choose_primitive
+    from keymps.primitives import default_search_dirs, load_primitives
+
+    repo = __import__("pathlib").Path(__file__).resolve().parent.parent
+    loaded = load_primitives(names, default_search_dirs(repo / "tasks"))
+    descriptions = {name: p.description for name, p in loaded.items()}
+    family = "icing" if "icing" in context else "cut"
+    chosen, why = choose_primitive(family, descriptions, context)
+    assert chosen == expected, why

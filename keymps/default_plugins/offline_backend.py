@@ -20,39 +20,71 @@ from keymps.hookspecs import hookimpl
 
 HARD_OBJECTS = re.compile(
     r"\b(hard|crusty|crust|bread|baguette|loaf|sourdough|pumpkin|squash|potato(?:es)?|carrots?|"
-    r"frozen|cabbage|melon|pineapple|chocolate|cheese|nuts?|coconut|brick)\b",
+    r"frozen|cabbage|melon|pineapple|chocolate|nuts?|coconut)\b",
     re.IGNORECASE,
 )
 """Objects that call for a sawing primitive (the paper: hard or crusty objects)."""
-HARD_PRIMITIVE = re.compile(r"saw|hard|crust|tough|forward.and.backward|back and forth", re.I)
-SOFT_PRIMITIVE = re.compile(r"soft|straight|downward|press|push", re.I)
-ICING_PRIMITIVE = re.compile(r"icing|pip(e|ing)|frost|dot|rosette|line|decorat|cream", re.I)
+HARD_PRIMITIVE = re.compile(r"\bsaw|\bfor (?:\w+ )?(?:hard|firm\w*|crusty|tough)\b", re.I)
+"""A primitive for hard objects: a sawing name or description, or "For hard/firmer objects"."""
+SOFT_PRIMITIVE = re.compile(r"\bfor (?:\w+ )?soft\b|^(?:straight|downward)$", re.I)
+ICING_PRIMITIVE = re.compile(
+    r"\b(?:icing|pip(?:e|ing)|frost\w*|rosettes?|decorat\w*|nozzle)\b", re.I
+)
+ICING_NAMES = {"line", "icing", "dot", "dots", "pipe", "piping", "rosette"}
+
+
+def _singular(word: str) -> str:
+    if word.endswith("oes"):
+        return word[:-2]
+    if word.endswith("s") and not word.endswith("ss"):
+        return word[:-1]
+    return word
+
+
+def _words(text: str) -> set[str]:
+    return {_singular(w) for w in re.findall(r"[a-z]{3,}", text.lower())}
+
+
+def _named_objects(description: str) -> set[str]:
+    """The example objects a description lists in parentheses: "(crusty bread, baguette)"."""
+    return set().union(*(_words(group) for group in re.findall(r"\(([^)]*)\)", description)))
 
 
 def choose_primitive(family: str, primitives: Mapping[str, str], context: str) -> tuple[str, str]:
-    """(name, why) of the primitive for this design, from names and descriptions."""
+    """(name, why) of the primitive for this design, from names and descriptions.
+
+    Icing designs take the icing primitive. Cuts take the one primitive whose description names
+    the object (from the sentence or the task name), else a hard-object primitive for a hard or
+    crusty object, else a soft-object one.
+    """
     names = list(primitives)
     if len(names) == 1:
         return names[0], "the only primitive"
-
-    def matching(pattern: re.Pattern[str]) -> list[str]:
-        return [n for n in names if pattern.search(f"{n} {primitives[n]}")]
-
+    icing = [n for n in names if n.lower() in ICING_NAMES or ICING_PRIMITIVE.search(primitives[n])]
     if family == "icing":
-        found = matching(ICING_PRIMITIVE)
-        if found:
-            return found[0], "its description fits icing"
-        return names[0], "the first primitive (none mentions icing)"
+        if icing:
+            return icing[0], "its description is for icing"
+        return names[0], "the first primitive (none is described for icing)"
+    cutting = [n for n in names if n not in icing] or names
+    mentioned = _words(context)
+    named = [n for n in cutting if mentioned & _named_objects(primitives[n])]
+    if len(named) == 1:
+        word = sorted(mentioned & _named_objects(primitives[named[0]]))[0]
+        return named[0], f"its description names {word!r}"
     hard = HARD_OBJECTS.search(context)
     if hard:
-        found = matching(HARD_PRIMITIVE)
+        found = [n for n in cutting if HARD_PRIMITIVE.search(f"{n} {primitives[n]}")]
         if found:
             return found[0], f"{hard.group(0)!r} is hard or crusty"
-    cutting = [n for n in names if not ICING_PRIMITIVE.fullmatch(n)]
-    found = [n for n in matching(SOFT_PRIMITIVE) if not HARD_PRIMITIVE.search(primitives[n])]
-    if found:
-        return found[0], "a soft object: a straight cut"
-    return (cutting or names)[0], "the first cutting primitive"
+    soft = [
+        n
+        for n in cutting
+        if (SOFT_PRIMITIVE.search(n) or SOFT_PRIMITIVE.search(primitives[n]))
+        and not HARD_PRIMITIVE.search(f"{n} {primitives[n]}")
+    ]
+    if soft:
+        return soft[0], "a soft object: a cut without sawing"
+    return cutting[0], "the first cutting primitive"
 
 
 def clip_to_box(pairs_px: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
