@@ -94,7 +94,7 @@ def log_world_setup(rec: Any) -> None:
 
 
 TEXTURE_MAX_PX = 512
-"""The scene image is laid on the 3D board as a texture at most this many pixels wide."""
+"""The scene image is laid on the 3D board as a texture at most this many pixels a side."""
 
 
 def log_image(rec: Any, scene: SceneImage, run: Run) -> None:
@@ -106,29 +106,38 @@ def log_image(rec: Any, scene: SceneImage, run: Run) -> None:
 
 
 def _log_board_texture(rec: Any, scene: SceneImage, run: Run) -> None:
-    """The scene image on the board (each image corner at its board position, Appendix B)."""
+    """The scene image rectified onto the workspace: exact for the linear model and the
+    calibrated homography alike (the image is warped with the same pixel -> board map)."""
     import cv2
     import rerun as rr
 
     frame = _image_frame(run)
     if frame is None:
         return
-    width, height = scene.size_px
-    pixels = np.array([[0, 0], [width, 0], [width, height], [0, height]], dtype=float)
-    corners = np.asarray(frame.to_board(pixels), dtype=float)
-    scale = min(1.0, TEXTURE_MAX_PX / max(width, height))
-    image = scene.image
-    if scale < 1.0:
-        size = (max(1, round(width * scale)), max(1, round(height * scale)))
-        image = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
-    conversion = cv2.COLOR_BGR2RGB if image.ndim == 3 else cv2.COLOR_GRAY2RGB
-    rgb = np.ascontiguousarray(cv2.cvtColor(image, conversion), dtype=np.uint8)
+    low, high = board_rectangle(run)
+    width_m, height_m = high - low
+    if width_m >= height_m:
+        size = (TEXTURE_MAX_PX, max(1, round(TEXTURE_MAX_PX * height_m / width_m)))
+    else:
+        size = (max(1, round(TEXTURE_MAX_PX * width_m / height_m)), TEXTURE_MAX_PX)
+    board_to_texture = np.array(
+        [
+            [size[0] / width_m, 0.0, -low[0] * size[0] / width_m],
+            [0.0, -size[1] / height_m, high[1] * size[1] / height_m],
+            [0.0, 0.0, 1.0],
+        ]
+    )
+    pixels_to_texture = board_to_texture @ np.asarray(frame.matrix, dtype=float)
+    texture = cv2.warpPerspective(scene.image, pixels_to_texture, size, flags=cv2.INTER_AREA)
+    conversion = cv2.COLOR_BGR2RGB if texture.ndim == 3 else cv2.COLOR_GRAY2RGB
+    rgb = np.ascontiguousarray(cv2.cvtColor(texture, conversion), dtype=np.uint8)
+    corners = [[low[0], high[1]], [high[0], high[1]], [high[0], low[1]], [low[0], low[1]]]
     rec.log(
         "world/board/image",
         rr.Mesh3D(
             vertex_positions=np.column_stack([corners, np.full(4, 0.0005)]),
             triangle_indices=[[0, 1, 2], [0, 2, 3]],
-            vertex_texcoords=pixels / [width, height],
+            vertex_texcoords=[[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]],
             albedo_texture=rgb,
         ),
     )

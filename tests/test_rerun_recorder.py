@@ -93,6 +93,7 @@ def _scene(tmp_path: Path) -> tuple[np.ndarray, Path]:
 
     image = np.full((200, 320, 3), 40, np.uint8)
     cv2.circle(image, (160, 100), 60, (60, 120, 230), -1)
+    cv2.rectangle(image, (40, 20), (59, 39), (0, 255, 0), -1)  # a marker off the centre
     path = tmp_path / "scene.png"
     cv2.imwrite(str(path), image)
     return image, path
@@ -221,11 +222,11 @@ class Results:
     stages: list[tuple[str, object]]
 
 
-def make_run(tmp_path: Path, **options: object) -> tuple[Run, Results]:
+def make_run(tmp_path: Path, task_yaml: str = TASK_YAML, **options: object) -> tuple[Run, Results]:
     from keymps.geometry import ground
 
     image, image_path = _scene(tmp_path)
-    task = parse_task(TASK_YAML, path=tmp_path / "task.yaml")
+    task = parse_task(task_yaml, path=tmp_path / "task.yaml")
     folder = tmp_path / "run"
     folder.mkdir()
     run = Run(task=task, folder=folder, options=RunOptions(**options))  # type: ignore[arg-type]
@@ -700,3 +701,50 @@ def test_spawn_without_a_display_saves_the_file_instead_and_says_so(tmp_path, mo
     play(run, results)
     assert "/image" in read_recording(run.folder / "run.rrd")
     assert any("--rerun spawn: no display" in warning for warning in run.warnings)
+
+
+def marker_on_board(entities: dict[str, Entity]) -> np.ndarray:
+    """Board position of the green marker's centre in the recorded board texture."""
+    mesh = entities["/world/board/image"].data
+    corners = np.array(mesh["Mesh3D:vertex_positions"][0])
+    texcoords = np.array(mesh["Mesh3D:vertex_texcoords"][0])
+    texture_format = mesh["Mesh3D:albedo_texture_format"][0][0]
+    width, height = texture_format["width"], texture_format["height"]
+    texture = bytes(mesh["Mesh3D:albedo_texture_buffer"][0][0])
+    rgb = np.frombuffer(texture, np.uint8).reshape(height, width, 3).astype(int)
+    green = (rgb[..., 1] > 200) & (rgb[..., 0] < 60) & (rgb[..., 2] < 60)
+    rows, cols = np.nonzero(green)
+    uv = np.array([(cols.mean() + 0.5) / width, (rows.mean() + 0.5) / height])
+    # The quad is a rectangle: solve corner0 + a (corner1 - corner0) + b (corner3 - corner0).
+    origin, along_u, along_v = (
+        texcoords[0],
+        texcoords[1] - texcoords[0],
+        texcoords[3] - texcoords[0],
+    )
+    a, b = np.linalg.solve(np.column_stack([along_u, along_v]), uv - origin)
+    found = corners[0] + a * (corners[1] - corners[0]) + b * (corners[3] - corners[0])
+    return found[:2]
+
+
+CALIBRATED_TASK_YAML = TASK_YAML.replace(
+    "  object_height: 0.05\n",
+    "  object_height: 0.05\n"
+    "  camera: {board_corners_px: [[20, 190], [300, 185], [290, 10], [30, 15]]}\n",
+)
+
+
+@pytest.mark.parametrize(
+    "task_yaml", [TASK_YAML, CALIBRATED_TASK_YAML], ids=["linear", "homography"]
+)
+def test_the_board_texture_puts_the_image_where_the_grounding_does(task_yaml, tmp_path):
+    """The green marker's centre in the 3D board texture is at the board point that
+    keymps.geometry gives for its centre pixel (50, 30), with or without camera calibration."""
+    from keymps.geometry import ImageFrame
+
+    run, results = make_run(tmp_path, task_yaml)
+    results.stages = results.stages[:1]
+    play(run, results)
+    found = marker_on_board(read_recording(run.folder / "run.rrd"))
+    frame = ImageFrame.from_task(run.task, results.scene.size_px)
+    expected = frame.to_board(np.array([[50.0, 30.0]]))[0]
+    np.testing.assert_allclose(found, expected, atol=0.002)

@@ -49,7 +49,7 @@ def stage_index(stage: str) -> int:
 
 
 def eye_position(run: Run) -> tuple[list[float], list[float]]:
-    """(eye, target): above the board, on the side away from the robot, a little to the left."""
+    """(eye, target): above the board, on the side away from the robot, a little aside."""
     import numpy as np
 
     from keymps.rerun_entities import board_rectangle
@@ -161,7 +161,6 @@ def _open(run: Run) -> _Session:
     from keymps.rerun_text import redact
 
     stream.send_recording_name(redact(f"{run.task.name} ({run.folder.name})"))
-
     log_world_setup(stream)
     return _Session(stream=stream, mode=mode)
 
