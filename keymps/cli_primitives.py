@@ -253,11 +253,15 @@ def plot(
         _, demo_y = load_demo_csv(p.demo)
         demo_y = demo_y - dmp.demo_start + origin
         axes.plot(*demo_y.T, color="0.6", linewidth=3, alpha=0.5, label="demonstration")
+    from mpl_toolkits.mplot3d.art3d import Line3DCollection
+
     colors = _time_colors(np)
     for goal in goals:
-        rollout = p.rollout(origin, goal, mode=mode, spacing=0.0005)
-        y = rollout.y
-        axes.scatter(*y.T, c=colors(np.linspace(0, 1, len(y))), s=2, depthshade=False)
+        y = p.rollout(origin, goal, mode=mode, spacing=0.0005).y
+        pieces = np.stack([y[:-1], y[1:]], axis=1)
+        axes.add_collection(
+            Line3DCollection(pieces, colors=colors(np.linspace(0, 1, len(pieces))), linewidth=2)
+        )
         axes.scatter(*goal, marker="x", color="k", s=30)
     axes.scatter(*origin, marker="o", color="k", s=20, label="start")
     axes.set_xlabel("x [m]")

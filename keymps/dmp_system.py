@@ -122,13 +122,19 @@ _WORKSPACE = threading.local()
 
 
 def workspace(name: str, shape: tuple[int, ...]) -> np.ndarray:
-    """A per-thread scratch array (contents undefined), reused across fits: large temporaries
-    would otherwise be fresh memory mappings, and page faults, on every call."""
+    """A per-thread scratch array (contents undefined), reused across calls: large temporaries
+    would otherwise be fresh memory mappings, and page faults, on every call. Arrays above
+    4 MB are not kept."""
+    if math.prod(shape) > _WORKSPACE_MAX_ELEMENTS:
+        return np.empty(shape)
     pool: dict[str, np.ndarray] = _WORKSPACE.__dict__.setdefault("pool", {})
     array = pool.get(name)
     if array is None or array.shape != shape:
         array = pool[name] = np.empty(shape)
     return array
+
+
+_WORKSPACE_MAX_ELEMENTS = 1 << 19
 
 
 def respond(filters: Filters, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
