@@ -118,9 +118,9 @@ class Robot(StrictModel):
     """Controller rate: 125 Hz for CB3, 500 Hz for e-Series when omitted."""
     max_joint_acceleration: Annotated[float, Field(gt=0, le=50)] = 3.0
     """rad/s^2, every joint (the maker publishes none; a conservative default)."""
-    max_joint_jerk: Annotated[float, Field(gt=0, le=5000)] = 30.0
+    max_joint_jerk: Annotated[float, Field(gt=0, le=5000)] = 100.0
     max_tool_acceleration: Annotated[float, Field(gt=0, le=10)] = 0.5
-    max_tool_jerk: Annotated[float, Field(gt=0, le=1000)] = 5.0
+    max_tool_jerk: Annotated[float, Field(gt=0, le=1000)] = 20.0
 
     @field_validator("tool", mode="before")
     @classmethod
