@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from keymps.run import Run
-    from keymps.stages import ExecutionReport, Plan, ValidatedTrajectory
+    from keymps.stages import ExecutionReport, Plan, ValidatedTrajectory, VlmCall
 
 REDACTED = "[redacted]"
 SECRET_SUFFIXES = ("_API_KEY", "_TOKEN")
@@ -80,14 +80,32 @@ def _render_request(request: dict[str, Any]) -> str:
     return "\n\n".join(parts)
 
 
+def _step(call: VlmCall) -> str:
+    step = call.request.get("step") if isinstance(call.request, dict) else None
+    return str(step) if step else "plan"
+
+
+def _final_calls_per_step(calls: tuple[VlmCall, ...]) -> list[VlmCall]:
+    """The last attempt of each planning step (keyword, pairs or combined), in order."""
+    last: dict[str, VlmCall] = {}
+    for call in calls:
+        last[_step(call)] = call
+    return list(last.values())
+
+
 def log_vlm(rec: Any, plan: Plan) -> None:
-    """The VLM exchange: the last request, the answer, every attempt."""
+    """The VLM exchange: the final request of each step, the answer, every attempt."""
     import rerun as rr
 
     model = f" ({plan.model})" if plan.model else ""
-    last = plan.calls[-1] if plan.calls else None
-    prompt = _render_request(last.request) if last else "*no request: the planner is offline*"
-    rec.log("vlm/prompt", _markdown(rr, f"## Request to {plan.backend}{model}\n\n{prompt}"))
+    finals = _final_calls_per_step(plan.calls)
+    prompt = [f"## Request to {plan.backend}{model}"]
+    for call in finals:
+        prompt.append(f"\n## step {_step(call)}, attempt {call.attempt}\n")
+        prompt.append(_render_request(call.request))
+    if not finals:
+        prompt.append("\n*no request recorded*")
+    rec.log("vlm/prompt", _markdown(rr, "\n".join(prompt)))
     answer = [
         f"## Answer from {plan.backend}{model}",
         f"- keyword: **{plan.keyword}**",
@@ -95,10 +113,10 @@ def log_vlm(rec: Any, plan: Plan) -> None:
     ]
     if plan.rationale:
         answer.append(f"- rationale: {plan.rationale}")
-    if last is not None:
-        answer.append("\n```\n" + last.answer_text + "\n```")
+    for call in finals:
+        answer.append(f"\nstep {_step(call)}:\n```\n" + call.answer_text + "\n```")
     rec.log("vlm/answer", _markdown(rr, "\n".join(answer)))
-    lines = [f"## {len(plan.calls)} attempt(s)"]
+    lines = [f"## {len(plan.calls)} call(s)"]
     for call in plan.calls:
         facts = [f"latency {call.latency_s:.2f} s"]
         if call.prompt_tokens is not None:
@@ -109,7 +127,7 @@ def log_vlm(rec: Any, plan: Plan) -> None:
             facts.append(f"${call.cost_usd:.4f}")
         if call.cached:
             facts.append("cached")
-        lines.append(f"\n### attempt {call.attempt}: {', '.join(facts)}")
+        lines.append(f"\n### step {_step(call)}, attempt {call.attempt}: {', '.join(facts)}")
         if call.error:
             lines.append(f"\n**error:** {call.error}")
         lines.append("\n```\n" + call.answer_text + "\n```")

@@ -135,11 +135,21 @@ def _plan() -> Plan:
         ],
     }
     calls = (
-        VlmCall(attempt=1, request=request, answer_text="not json", error="invalid JSON"),
+        VlmCall(
+            attempt=1,
+            request={**request, "step": "keyword", "note": "keyword-request-1"},
+            answer_text='{"keyword": "line"}',
+        ),
+        VlmCall(
+            attempt=1,
+            request={**request, "step": "pairs", "note": "pairs-request-1"},
+            answer_text="not json",
+            error="invalid JSON",
+        ),
         VlmCall(
             attempt=2,
-            request=request,
-            answer_text='{"keyword": "line", "pairs": [[[20, 40], [120, 40]]]}',
+            request={**request, "step": "pairs", "note": "pairs-request-2"},
+            answer_text='{"pairs": [[[20, 40], [120, 40]]]}',
             latency_s=1.2,
             prompt_tokens=900,
             completion_tokens=60,
@@ -469,11 +479,18 @@ def test_no_trace_of_the_api_key_in_the_file(recorded):
     assert "[redacted]" in str(entities["/vlm/prompt"].data["TextDocument:text"])
 
 
-def test_vlm_attempts_show_every_attempt_and_its_error(recorded):
+def test_vlm_documents_show_each_steps_final_request_and_every_attempt(recorded):
     _, _, entities = recorded
-    text = entities["/vlm/attempts"].data["TextDocument:text"][0][0]
-    assert "attempt 1" in text and "attempt 2" in text and "invalid JSON" in text
-    assert "base64" not in str(entities["/vlm/prompt"].data["TextDocument:text"])
+    attempts = entities["/vlm/attempts"].data["TextDocument:text"][0][0]
+    for heading in ("step keyword, attempt 1", "step pairs, attempt 1", "step pairs, attempt 2"):
+        assert heading in attempts
+    assert "invalid JSON" in attempts
+    prompt = entities["/vlm/prompt"].data["TextDocument:text"][0][0]
+    assert "keyword-request-1" in prompt and "pairs-request-2" in prompt
+    assert "pairs-request-1" not in prompt  # a failed attempt's request is superseded
+    assert "base64" not in prompt and "*[image_url]*" in prompt
+    answer = entities["/vlm/answer"].data["TextDocument:text"][0][0]
+    assert "keyword: **line**" in answer and '{"pairs": [[[20, 40], [120, 40]]]}' in answer
 
 
 def test_stage_and_time_timelines_and_no_wall_clock(recorded):
