@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
@@ -148,13 +149,22 @@ def log_validation(rec: Any, validated: ValidatedTrajectory) -> None:
     rec.log("check/report", _markdown(rr, "\n".join(lines)))
 
 
-def log_execution(rec: Any, report: ExecutionReport) -> None:
+def _in_run_folder(name: str, run: Run) -> str:
+    """A file path relative to the run folder when it is inside it (the report reads the same
+    wherever the run folder is)."""
+    try:
+        return str(Path(name).resolve().relative_to(run.folder.resolve()))
+    except ValueError:
+        return name
+
+
+def log_execution(rec: Any, report: ExecutionReport, run: Run) -> None:
     import rerun as rr
 
     lines = [f"## Executor {report.executor}: {'ok' if report.ok else 'FAILED'}"]
     if report.message:
         lines.append(f"\n{report.message}")
-    lines.extend(f"- file: {name}" for name in report.files)
+    lines.extend(f"- file: {_in_run_folder(name, run)}" for name in report.files)
     if report.figures:
         lines.append("\n| figure | value |\n|---|---|")
         lines.extend(f"| {name} | {value:.6g} |" for name, value in sorted(report.figures.items()))

@@ -258,7 +258,7 @@ def make_run(tmp_path: Path, task_yaml: str = TASK_YAML, **options: object) -> t
         ("solve", _joint_path(tool_path)),
         ("time", trajectory),
         ("check", validated),
-        ("execute", ExecutionReport("sim", True, "simulated")),
+        ("execute", ExecutionReport("sim", True, "simulated", (str(folder / "trajectory.csv"),))),
     ]
     return run, Results(scene, detection, plan, trajectory, stages)
 
@@ -491,6 +491,13 @@ def test_vlm_documents_show_each_steps_final_request_and_every_attempt(recorded)
     assert "base64" not in prompt and "*[image_url]*" in prompt
     answer = entities["/vlm/answer"].data["TextDocument:text"][0][0]
     assert "keyword: **line**" in answer and '{"pairs": [[[20, 40], [120, 40]]]}' in answer
+
+
+def test_reports_name_files_relative_to_the_run_folder(recorded):
+    _, _, entities = recorded
+    report = entities["/execute/report"].data["TextDocument:text"][0][0]
+    assert "- file: trajectory.csv" in report
+    assert "passed" in entities["/check/report"].data["TextDocument:text"][0][0]
 
 
 def test_stage_and_time_timelines_and_no_wall_clock(recorded):

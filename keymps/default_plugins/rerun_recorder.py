@@ -219,7 +219,7 @@ def _log_stage(stream: Any, stage: str, result: Any, run: Run) -> None:
     elif stage == "check":
         text.log_validation(stream, result)
     elif stage == "execute":
-        text.log_execution(stream, result)
+        text.log_execution(stream, result, run)
         entities.log_outcome(stream, run)
 
 
