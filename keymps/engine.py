@@ -99,8 +99,12 @@ class _Pipeline:
             warnings.warn(message, RuntimeWarning, stacklevel=2)
 
     def execute_all(self) -> None:
-        from keymps import geometry, motion, planning, robot, safety, timing
+        from keymps import geometry, planning
+        from keymps.motion import compose_tool_path
         from keymps.overlay import draw_plan
+        from keymps.robot import solve_path
+        from keymps.safety import validate
+        from keymps.timing import time_trajectory
         from keymps.trajectory_io import write_trajectory_csv
 
         run, parts, task = self.run, self.parts, self.run.task
@@ -118,7 +122,7 @@ class _Pipeline:
         tool = parts.robot.tool
         tool_path = self.stage(
             "compose",
-            lambda: motion.compose_tool_path(
+            lambda: compose_tool_path(
                 grounding.segments,
                 parts.primitives[plan.keyword],
                 object_top=task.scene.object_height,
@@ -129,13 +133,13 @@ class _Pipeline:
                 home=parts.robot.home_tool_position(),
             ),
         )
-        joint_path = self.stage("solve", lambda: robot.solve_path(parts.robot, tool_path))
+        joint_path = self.stage("solve", lambda: solve_path(parts.robot, tool_path))
         trajectory = self.stage(
-            "time", lambda: timing.time_trajectory(parts.robot, tool_path, joint_path, task)
+            "time", lambda: time_trajectory(parts.robot, tool_path, joint_path, task)
         )
         outline = geometry.object_outline_m(detection, task, size)
         validated = self.stage(
-            "check", lambda: safety.validate(parts.robot, trajectory, tool_path, outline, task)
+            "check", lambda: validate(parts.robot, trajectory, tool_path, outline, task)
         )
         write_trajectory_csv(validated.trajectory, run.path("trajectory.csv"))
         report = self.stage("execute", lambda: parts.executor.execute(validated, run))
