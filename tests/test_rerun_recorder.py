@@ -12,7 +12,7 @@ import pytest
 
 from keymps.default_plugins import rerun_recorder
 from keymps.errors import StageError
-from keymps.rerun_entities import subsample_indices
+from keymps.rerun_motion import subsample_indices
 from keymps.run import Run, RunOptions
 from keymps.stages import (
     Detection,

@@ -201,6 +201,7 @@ def _session_for(run: Run) -> _Session | None:
 
 def _log_stage(stream: Any, stage: str, result: Any, run: Run) -> None:
     from keymps import rerun_entities as entities
+    from keymps import rerun_motion as motion
     from keymps import rerun_text as text
 
     if stage == "image":
@@ -213,7 +214,7 @@ def _log_stage(stream: Any, stage: str, result: Any, run: Run) -> None:
     elif stage == "ground":
         entities.log_grounding(stream, result)
     elif stage == "compose":
-        entities.log_tool_path(stream, result)
+        motion.log_tool_path(stream, result)
     elif stage == "time":
         _log_motion(stream, result, run)
     elif stage == "check":
@@ -224,13 +225,12 @@ def _log_stage(stream: Any, stage: str, result: Any, run: Run) -> None:
 
 
 def _log_motion(stream: Any, trajectory: Any, run: Run) -> None:
-    from keymps import rerun_entities as entities
-    from keymps import rerun_robot
+    from keymps import rerun_motion, rerun_robot
 
     index = stage_index("time")
-    entities.log_trajectory(stream, trajectory, index, ROBOT_RATE_HZ)
+    rerun_motion.log_trajectory(stream, trajectory, index, ROBOT_RATE_HZ)
     rerun_robot.log_robot_model(stream, run.task)
-    picked = entities.subsample_indices(trajectory.t, ROBOT_RATE_HZ)
+    picked = rerun_motion.subsample_indices(trajectory.t, ROBOT_RATE_HZ)
     rerun_robot.log_robot_motion(stream, trajectory, picked, index)
 
 
