@@ -56,17 +56,26 @@ def parallel_cuts(
 ) -> np.ndarray:
     """Cuts across the object, perpendicular to `slicing_angle`, at `offsets` from its start.
 
-    The start is the object's extreme point against the slicing direction.
+    The start is the object's extreme point against the slicing direction. Each cut runs like
+    a line of text: left to right, or top to bottom when it is closer to vertical.
     """
     low, _ = outline.extent(slicing_angle)
     axis = direction(slicing_angle)
+    cut_angle = conventional_angle(slicing_angle + math.pi / 2)
     pairs = []
     for offset in offsets:
         point = outline.centre + (low + offset) * axis
-        cut = chord(outline, point, slicing_angle + math.pi / 2, overshoot)
+        cut = chord(outline, point, cut_angle, overshoot)
         if cut is not None:
             pairs.append(cut)
     return as_pairs(pairs)
+
+
+def conventional_angle(angle: float) -> float:
+    """The direction of a line, chosen to point right, or down (+y) when closer to vertical."""
+    dx, dy = math.cos(angle), math.sin(angle)
+    flip = dy < 0 if abs(dy) > abs(dx) else dx < 0
+    return angle + math.pi if flip else angle
 
 
 def parallel_slices(

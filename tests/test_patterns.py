@@ -155,3 +155,21 @@ def test_dot_per_radial_slice_sits_at_each_wedge_centroid():
 
 def test_chord_misses_outside_the_object():
     assert patterns.chord(disk(), np.array([0.0, 0.0]), 0.0) is None
+
+
+@pytest.mark.parametrize(
+    ("slicing_deg", "start_to_end"),
+    [
+        (0, (0, 1)),
+        (90, (1, 0)),
+        (180, (0, 1)),
+        (-90, (1, 0)),
+        (10, (0, 1)),
+        (80, (1, 0)),
+    ],
+)
+def test_cuts_run_left_to_right_or_top_to_bottom(slicing_deg, start_to_end):
+    cuts = patterns.parallel_slices(bar(100, 100), math.radians(slicing_deg), parts=3)
+    for start, end in cuts:
+        d = (end - start) / np.linalg.norm(end - start)
+        assert np.dot(d, start_to_end) > 0.9
