@@ -140,7 +140,7 @@ def _point(text: str) -> tuple[float, float, float]:
 )
 @click.option(
     "--mode",
-    type=click.Choice(["similarity", "axial", "translate"]),
+    type=click.Choice(["similarity", "axial", "blade", "translate"]),
     default="similarity",
     show_default=True,
     help="How the demo is re-targeted to a keypoint pair.",
@@ -211,7 +211,7 @@ def learn(
     help="Re-target to this goal A,B,C in metres (from the demo's start). Repeatable.",
 )
 @click.option("--from", "start", help="Start A,B,C in metres (default: the demo's start).")
-@click.option("--mode", type=click.Choice(["similarity", "axial", "translate"]))
+@click.option("--mode", type=click.Choice(["similarity", "axial", "blade", "translate"]))
 @click.option("--out", type=click.Path(path_type=Path, dir_okay=False), help="PNG (NAME.png).")
 @_dir_option
 @_user_errors

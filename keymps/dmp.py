@@ -55,7 +55,7 @@ __all__ = [
     "retarget_map",
 ]
 
-RetargetMode = Literal["similarity", "axial", "translate"]
+RetargetMode = Literal["similarity", "axial", "blade", "translate"]
 
 
 @dataclass(frozen=True)

@@ -8,7 +8,7 @@ import numpy as np
 
 from keymps.dmp_system import DmpError
 
-RETARGET_MODES: tuple[str, ...] = ("similarity", "axial", "translate")
+RETARGET_MODES: tuple[str, ...] = ("similarity", "axial", "blade", "translate")
 ZERO_LENGTH_M = 1e-9
 """Segments and demonstrations shorter than this are treated as zero-length (dots)."""
 
@@ -72,9 +72,10 @@ def retarget_map(
 
     similarity: |delta|/|demo_delta| times the heading rotation; axial: the heading rotation
     after stretching only along demo_delta (a zero-length delta collapses the demo's travel along
-    its own direction and keeps the rest: a dot); translate: identity. Zero-length demos, and
-    zero-length deltas outside axial mode, use the identity (the demo is replayed translated).
-    `heading` orients the demo about z when delta is vertical (e.g. the blade's current yaw).
+    its own direction and keeps the rest: a dot); blade: see `blade_map`; translate: identity.
+    Zero-length demos, and zero-length deltas in similarity mode, use the identity (the demo is
+    replayed translated). `heading` orients the demo about z when delta is vertical (e.g. the
+    blade's current yaw).
     """
     demo_delta = np.asarray(demo_delta, dtype=float)
     delta = np.asarray(delta, dtype=float)
@@ -84,9 +85,11 @@ def retarget_map(
     target_len = float(np.linalg.norm(delta))
     if mode == "translate" or demo_len < ZERO_LENGTH_M:
         return np.eye(3)
+    if mode == "blade" and abs(demo_delta[2]) >= ZERO_LENGTH_M:
+        return blade_map(demo_delta, delta, heading)
     demo_dir = demo_delta / demo_len
     if target_len < ZERO_LENGTH_M:
-        if mode == "axial":
+        if mode in ("axial", "blade"):
             return np.eye(3) - np.outer(demo_dir, demo_dir)
         return np.eye(3)
     rotation = heading_rotation(demo_dir, delta / target_len, heading)
@@ -95,3 +98,37 @@ def retarget_map(
         return ratio * rotation
     stretch = np.eye(3) + (ratio - 1.0) * np.outer(demo_dir, demo_dir)
     return rotation @ stretch
+
+
+def blade_map(
+    demo_delta: np.ndarray, delta: np.ndarray, heading: float | None = None
+) -> np.ndarray:
+    """For cutting: turn about z to the segment's heading, keep horizontal motion as it was
+    demonstrated (strokes along the blade keep their length and stay level), scale the depth by
+    delta_z / demo_z, and spread the remaining horizontal difference in proportion to the depth
+    reached. The cut therefore never goes below the goal when the demo never went below its own.
+
+        S = [[R, c], [0, k]],   R: 2x2 turn,   k = delta_z / demo_z,
+        c = (delta_xy - R demo_xy) / demo_z   (so that S demo_delta = delta)
+
+    The demo needs vertical travel (demo_z != 0). A demo without horizontal travel is taken to
+    point along +x; a segment without any takes `heading` (or the demo's own)."""
+    demo_delta = np.asarray(demo_delta, dtype=float)
+    delta = np.asarray(delta, dtype=float)
+    if abs(demo_delta[2]) < ZERO_LENGTH_M:
+        raise DmpError("blade re-targeting needs a demonstration that moves vertically")
+    level = 1e-9
+    demo_heading = (
+        math.atan2(demo_delta[1], demo_delta[0])
+        if math.hypot(demo_delta[0], demo_delta[1]) >= level
+        else 0.0
+    )
+    if math.hypot(delta[0], delta[1]) >= level:
+        target_heading = math.atan2(delta[1], delta[0])
+    else:
+        target_heading = demo_heading if heading is None else heading
+    turn = _rotation_about_z(target_heading - demo_heading)
+    result = turn.copy()
+    result[:2, 2] = (delta[:2] - turn[:2, :2] @ demo_delta[:2]) / demo_delta[2]
+    result[2, 2] = delta[2] / demo_delta[2]
+    return result

@@ -3,8 +3,9 @@
 Run from the repository root: `python primitives/author_demos.py`. Every demo is a smooth,
 hand-designed 3D tool-tip path sampled at 100 Hz, in metres, starting at rest and ending at
 rest. Cutting demos go from the top of a 5 cm object at one end of a 10 cm cut to the board
-surface (z = 0) at the other end, the blade along +x, so the re-targeting map only has to turn
-and scale them; the icing demo starts and ends at the nozzle's travel height.
+surface (z = 0) at the other end, the blade along +x, like a grounded cutting pair; they are
+re-targeted in `blade` mode (strokes keep their length and stay level, the depth scales). The
+icing demo starts and ends at the nozzle's travel height (`axial` mode).
 """
 
 from __future__ import annotations
@@ -83,7 +84,7 @@ PRIMITIVES = {
     "straight": dict(
         demo=straight,
         family="cutting",
-        mode="similarity",
+        mode="blade",
         nominal_speed=0.02,
         description=(
             "Straight cut: the blade moves in one smooth straight line from the top of the "
@@ -94,7 +95,7 @@ PRIMITIVES = {
     "sawing": dict(
         demo=sawing,
         family="cutting",
-        mode="similarity",
+        mode="blade",
         nominal_speed=0.04,
         description=(
             "Sawing cut: four forward-backward strokes of about 2 cm along the blade while the "
@@ -105,7 +106,7 @@ PRIMITIVES = {
     "downward": dict(
         demo=downward,
         family="cutting",
-        mode="similarity",
+        mode="blade",
         nominal_speed=0.02,
         description=(
             "Downward cut: press the blade down through the object first, then draw it along "
@@ -116,7 +117,7 @@ PRIMITIVES = {
     "forward": dict(
         demo=forward,
         family="cutting",
-        mode="similarity",
+        mode="blade",
         nominal_speed=0.03,
         description=(
             "Forward cut: push the blade forward along the cut while it descends, in one "

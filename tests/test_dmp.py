@@ -136,7 +136,7 @@ DEMO_DELTA = sawing_demo()[1][-1] - sawing_demo()[1][0]
 @settings(max_examples=150, deadline=None)
 @given(
     segment=segments(DEMO_DELTA),
-    mode=st.sampled_from(["similarity", "axial", "translate"]),
+    mode=st.sampled_from(["similarity", "axial", "blade", "translate"]),
     tau=st.floats(0.2, 20.0),
     num=st.integers(2, 400),
 )

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -207,3 +208,44 @@ def test_a_vertical_plunge_saws_along_the_blade(dictionary: dict) -> None:
     across = horizontal @ np.array([-blade[1], blade[0]])
     assert np.ptp(along) > 0.005
     assert np.abs(across).max() < 1e-9
+
+
+def test_a_sawing_path_runs_on_the_real_ur3_pipeline(dictionary: dict) -> None:
+    """Real Pinocchio IK, Ruckig timing and the safety validator accept a composed sawing path,
+    and the timed tool follows the composed points."""
+    from keymps.robot import RobotModel, solve_path
+    from keymps.safety import validate
+    from keymps.task import load_task
+    from keymps.timing import time_trajectory
+
+    task = load_task(Path(__file__).resolve().parents[1] / "tasks" / "object_cutting.yaml")
+    robot = RobotModel.from_task(task)
+    top = task.scene.object_height
+    segments = [
+        Segment(np.array([x, 0.05, top + 0.005]), np.array([x, 0.13, 0.0]), (0, 0), (0, 0))
+        for x in (0.13, 0.17)
+    ]
+    path = compose_tool_path(
+        segments,
+        dictionary["sawing"],
+        object_top=top,
+        clearance=task.motion.clearance,
+        work_speed=task.motion.work_speed,
+        travel_speed=task.motion.travel_speed,
+        yaw_mode=robot.tool.yaw,
+        home=robot.home_tool_position(),
+    )
+    joints = solve_path(robot, path)
+    assert joints.max_position_error_m < 1e-4
+    trajectory = time_trajectory(robot, path, joints, task)
+    # The loaf spans y 0.04-0.14: the +-2 cm strokes reach 6 mm past its ends, within the
+    # validator's 10 mm (pairs reaching past the object would need a wider margin for sawing).
+    outline = np.array([[0.1, 0.04], [0.2, 0.04], [0.2, 0.14], [0.1, 0.14]])
+    checked = validate(robot, trajectory, path, outline, task)
+    assert checked.report.ok
+    work = trajectory.kind == "work"
+    # Every timed work sample lies on the composed sawing path (within 1 mm).
+    composed = np.concatenate([p.points for p in path.pieces if p.kind == "work"])
+    timed = trajectory.tool_xyz[work][::10]
+    distance = np.linalg.norm(timed[:, None, :] - composed[None, ::2, :], axis=2).min(axis=1)
+    assert distance.max() < 0.001
