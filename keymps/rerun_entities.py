@@ -234,9 +234,12 @@ def log_plan(rec: Any, plan: Plan, run: Run) -> None:
         "image/pairs",
         rr.LineStrips2D(list(pairs), labels=labels, colors=colors, radii=[-2.0]),
     )
-    # The order numbers sit on the strips only; big start dots and small end dots show the
-    # direction of each stroke.
-    rec.log("image/pairs/start", rr.Points2D(pairs[:, 0], colors=colors, radii=[-5.0]))
+    # Order numbers on the strips and again at the start dots: radial cuts share their middle,
+    # so only the start labels stay readable there. Big start and small end dots give direction.
+    rec.log(
+        "image/pairs/start",
+        rr.Points2D(pairs[:, 0], colors=colors, radii=[-5.0], labels=labels),
+    )
     rec.log("image/pairs/end", rr.Points2D(pairs[:, 1], colors=colors, radii=[-3.0]))
     crop_pairs = np.asarray(plan.pairs_crop_px, dtype=float).reshape(-1, 2, 2)
     rec.log("crop/pairs", rr.LineStrips2D(list(crop_pairs), labels=labels, colors=colors))

@@ -369,6 +369,7 @@ def test_keypoint_pairs_one_per_plan_pair_with_order_numbers(recorded):
     assert entities["/image/pairs"].data["LineStrips2D:labels"][0] == ["1", "2", "3"]
     np.testing.assert_allclose(np.array(strips), results.plan.pairs_px)
     assert len(entities["/image/pairs/start"].data["Points2D:positions"][0]) == count
+    assert entities["/image/pairs/start"].data["Points2D:labels"][0] == ["1", "2", "3"]
     assert len(entities["/world/segments"].data["Arrows3D:origins"][0]) == count
 
 
