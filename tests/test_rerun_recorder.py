@@ -292,6 +292,19 @@ def test_saves_one_rrd_in_the_run_folder_and_closes_the_stream(recorded):
     assert rerun_recorder._sessions == {}
 
 
+def test_rerun_verifies_the_file(recorded):
+    """`rerun rrd verify`: the viewer can load and interpret every chunk."""
+    import subprocess
+
+    rerun_cli = pytest.importorskip("rerun_cli")
+    path, _, _ = recorded
+    viewer = Path(rerun_cli.__file__).parent / "rerun"
+    done = subprocess.run(
+        [str(viewer), "rrd", "verify", str(path)], capture_output=True, text=True, timeout=60
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+
+
 def test_documented_entities_have_their_archetypes(recorded):
     _, _, entities = recorded
     expected = {
