@@ -141,9 +141,8 @@ def _point(text: str) -> tuple[float, float, float]:
 @click.option(
     "--mode",
     type=click.Choice(["similarity", "axial", "blade", "translate"]),
-    default="similarity",
-    show_default=True,
-    help="How the demo is re-targeted to a keypoint pair.",
+    help="How the demo is re-targeted to a keypoint pair (default: blade for cutting, axial "
+    "for icing).",
 )
 @click.option("--speed", default=0.03, show_default=True, help="Nominal tool speed, m/s.")
 @click.option("--rate", type=float, help="Resample to this rate, Hz (default: keep, or median).")
@@ -163,7 +162,7 @@ def learn(
     basis: int,
     description: str | None,
     family: str,
-    mode: str,
+    mode: str | None,
     speed: float,
     rate: float | None,
     smooth: float,

@@ -20,6 +20,8 @@ Family = Literal["cutting", "icing"]
 FAMILIES: tuple[str, ...] = ("cutting", "icing")
 FORMAT = "keymps-primitive/1"
 NAME_PATTERN = re.compile(r"^[a-z][a-z0-9_-]{0,63}$")
+DEFAULT_MODES = {"cutting": "blade", "icing": "axial"}
+"""Re-targeting mode of a learned primitive when none is given, by family."""
 MAX_FIT_RMSE = 0.0005
 """Bundled primitives fit their demonstrations at least this well (metres); `learn` warns above."""
 
@@ -103,7 +105,7 @@ def learn_primitive(
     *,
     description: str,
     family: str = "cutting",
-    mode: str = "similarity",
+    mode: str | None = None,
     nominal_speed: float = 0.03,
     n_basis: int = 50,
     preprocessing: Preprocessing | None = None,
@@ -121,7 +123,9 @@ def learn_primitive(
         name=name,
         description=description.strip(),
         family=_check_choice(family, FAMILIES, "family", str(demo)),  # type: ignore[arg-type]
-        mode=_check_choice(mode, RETARGET_MODES, "mode", str(demo)),
+        mode=_check_choice(
+            mode or DEFAULT_MODES.get(family, "similarity"), RETARGET_MODES, "mode", str(demo)
+        ),
         nominal_speed=_positive(nominal_speed, "nominal_speed", str(demo)),
         dmp=dmp,
         demo=demo,

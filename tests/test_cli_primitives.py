@@ -62,6 +62,7 @@ def test_learn_writes_a_primitive_that_list_and_show_find(
     primitive = load_primitive(tmp_path / "mine" / "push.yaml")
     assert primitive.description == "Push it."
     assert primitive.nominal_speed == 0.025
+    assert primitive.mode == "blade"  # the default for a cutting demo
     assert primitive.fit_rmse < 0.0005
     assert (tmp_path / "mine" / "push.csv").is_file()
     listed = runner.invoke(primitives, ["list", "--dir", "mine"])
