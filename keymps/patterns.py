@@ -113,23 +113,27 @@ def radial_slices(
     overshoot: float = 0.0,
     centre: np.ndarray | None = None,
 ) -> np.ndarray:
-    """`parts` equal-angle wedges: full cuts through the centre when `parts` is even, else rays."""
+    """`parts` equal-angle wedges: full cuts through the centre when `parts` is even, else rays.
+
+    The first cut passes through the point of the boundary at `start_angle` (the top); the next
+    ones follow counter-clockwise as seen in the image. Full cuts start on the `start_angle`
+    side (the first one runs from the top down); rays run from the centre outwards.
+    """
     if parts < 2:
         raise ValueError("radial slices need at least 2 parts")
     c = outline.centre if centre is None else np.asarray(centre, float)
-    step = 2 * math.pi / parts
+    step = 2 * math.pi / parts  # y points down: counter-clockwise on screen is a falling angle
     if parts % 2 == 0:
         pairs = []
         for i in range(parts // 2):
-            angle = start_angle + i * step
-            hits = line_hits(outline, c, direction(angle))
+            dirn = direction(start_angle + math.pi - i * step)
+            hits = line_hits(outline, c, dirn)
             ahead, behind = hits[hits > 0], hits[hits < 0]
             back = float(behind.min()) if len(behind) else 0.0
             front = float(ahead.max()) if len(ahead) else 0.0
-            dirn = direction(angle)
             pairs.append(np.array([c + (back - overshoot) * dirn, c + (front + overshoot) * dirn]))
         return as_pairs(pairs)
-    return as_pairs([ray(outline, c, start_angle + i * step, overshoot) for i in range(parts)])
+    return as_pairs([ray(outline, c, start_angle - i * step, overshoot) for i in range(parts)])
 
 
 def grid_shape(parts: int, aspect: float = 1.0) -> tuple[int, int]:

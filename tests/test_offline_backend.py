@@ -531,6 +531,11 @@ def test_layers_on_a_square_cake_follow_its_edge():
         (["downward", "forward"], "Cut it into french fries potato", "forward"),
         (["downward", "forward"], "Split it into 4 baumkuchen", "downward"),
         (["downward", "forward"], "cut 4 slices tomato", "downward"),
+        (
+            ["downward", "forward"],
+            "This is a block of meat. Cut me 4 2cm slices meat_loaf",
+            "downward",
+        ),
         (["straight", "sawing", "line"], "Put 15 icing dots around the cake", "line"),
     ],
 )

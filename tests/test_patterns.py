@@ -173,3 +173,13 @@ def test_cuts_run_left_to_right_or_top_to_bottom(slicing_deg, start_to_end):
     for start, end in cuts:
         d = (end - start) / np.linalg.norm(end - start)
         assert np.dot(d, start_to_end) > 0.9
+
+
+def test_radial_cuts_start_at_the_top_and_turn_counter_clockwise_on_screen():
+    outline = disk(radius=50.0, centre=(0.0, 0.0))
+    first, second = patterns.radial_slices(outline, 4)
+    assert np.allclose(first, [[0, -50], [0, 50]], atol=0.01)  # top to bottom
+    assert np.allclose(second, [[-50, 0], [50, 0]], atol=0.01)  # then left to right
+    rays = patterns.radial_slices(outline, 3)
+    assert np.allclose(rays[0, 1], [0, -50], atol=0.01)  # the first ray points up
+    assert rays[1, 1, 0] < 0  # the next one to the left of it (counter-clockwise on screen)

@@ -19,7 +19,7 @@ from keymps.errors import KeympsError
 from keymps.hookspecs import hookimpl
 
 HARD_OBJECTS = re.compile(
-    r"\b(hard|crusty|crust|bread|baguette|loaf|sourdough|pumpkin|squash|potato(?:es)?|carrots?|"
+    r"\b(hard|crusty|crust|bread|baguette|sourdough|pumpkin|squash|potato(?:es)?|carrots?|"
     r"frozen|cabbage|melon|pineapple|chocolate|nuts?|coconut)\b",
     re.IGNORECASE,
 )
