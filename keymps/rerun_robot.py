@@ -99,9 +99,50 @@ def _loggable_mesh(uri: str) -> str:
     return _cache_file(f"{path.stem}-{_digest(converted)}.dae", converted).as_uri()
 
 
+JointOrigins = tuple[tuple[str, tuple[float, float, float]], ...]
+"""(URDF joint name, origin xyz) pairs that replace the URDF's own joint offsets."""
+TOOL0_JOINT = "wrist_3_link-tool0_fixed_joint"
+
+
+def arm_joint_origins(task: Task) -> JointOrigins:
+    """The joint offsets keymps.robot's kinematic model uses for this task's arm (the UR3's
+    are the URDF's own; a UR3e's differ by up to 2 cm), so the drawn tool tip is the IK's."""
+    try:
+        from keymps.robot import RobotModel
+
+        robot = RobotModel.from_task(task)
+        model = robot.model
+        origins = []
+        for name in robot.joint_names:
+            placement = model.jointPlacements[model.getJointId(name)]
+            if name == robot.joint_names[0]:  # the base placement is folded into joint 1
+                placement = robot.base_in_board.inverse() * placement
+            origins.append((name, _xyz(placement.translation)))
+        flange = model.frames[model.getFrameId("flange")].placement.translation
+        origins.append((TOOL0_JOINT, _xyz(flange)))
+        return tuple(origins)
+    except (ImportError, AttributeError, KeympsError, IndexError):
+        return ()  # draw the URDF as it is
+
+
+def _xyz(values: Any) -> tuple[float, float, float]:
+    x, y, z = (round(float(v), 9) for v in values)
+    return (x, y, z)
+
+
+def _set_joint_origin(urdf: str, joint: str, xyz: tuple[float, float, float]) -> str:
+    pattern = re.compile(
+        rf'(<joint name="{re.escape(joint)}"[^>]*>(?:(?!</joint>).)*?<origin [^>]*?xyz=")'
+        r'([^"]*)(")',
+        re.DOTALL,
+    )
+    return pattern.sub(lambda m: m.group(1) + " ".join(map(repr, xyz)) + m.group(3), urdf, 1)
+
+
 @cache
-def loggable_urdf() -> Path:
-    """A copy of the UR3 URDF with absolute mesh paths, meshes Rerun can read, no collisions."""
+def loggable_urdf(origins: JointOrigins = ()) -> Path:
+    """A copy of the UR3 URDF with absolute mesh paths, meshes Rerun can read, no collision
+    geometry, and the given joint offsets."""
     source = ur3_urdf_path()
     share = source.parents[3]  # .../share/example-robot-data/robots/ur_description/urdf
     text = source.read_text(encoding="utf-8")
@@ -112,6 +153,8 @@ def loggable_urdf() -> Path:
         lambda match: match.group(1) + _loggable_mesh(match.group(2)) + match.group(3),
         text,
     )
+    for joint, xyz in origins:
+        text = _set_joint_origin(text, joint, xyz)
     return _cache_file(f"ur3-{_digest(text)}.urdf", text)
 
 
@@ -122,11 +165,13 @@ def mount_transform(task: Task) -> tuple[list[float], list[float]]:
     return [x, y, z], [0.0, 0.0, math.sin(half), math.cos(half)]
 
 
-def log_robot_model(rec: Any, task: Task) -> None:
-    """The meshes (static) and the fixed placement of the robot base on the board."""
+def log_robot_model(rec: Any, task: Task) -> Path:
+    """The meshes (static) and the fixed placement of the robot base on the board; returns
+    the URDF logged (log_robot_motion moves its joints)."""
     import rerun as rr
 
-    rec.log_file_from_path(loggable_urdf(), entity_path_prefix=ROBOT_ENTITY, static=True)
+    urdf = loggable_urdf(arm_joint_origins(task))
+    rec.log_file_from_path(urdf, entity_path_prefix=ROBOT_ENTITY, static=True)
     translation, quaternion = mount_transform(task)
     rec.log(
         MOUNT_ENTITY,
@@ -139,6 +184,7 @@ def log_robot_model(rec: Any, task: Task) -> None:
         static=True,
     )
     log_tool(rec, task)
+    return urdf
 
 
 def tool_tcp(task: Task) -> tuple[float, float, float] | None:
@@ -205,12 +251,14 @@ def urdf_joint_order(trajectory_joint_names: tuple[str, ...], urdf_joints: list[
     return moving
 
 
-def log_robot_motion(rec: Any, trajectory: Trajectory, picked: np.ndarray, stage_index: int) -> int:
+def log_robot_motion(
+    rec: Any, urdf: Path, trajectory: Trajectory, picked: np.ndarray, stage_index: int
+) -> int:
     """One Transform3D per moving joint and kept sample, on the `time` timeline; returns samples."""
     import rerun as rr
     from rerun.urdf import UrdfTree
 
-    tree = UrdfTree.from_file_path(loggable_urdf())
+    tree = UrdfTree.from_file_path(urdf)
     joints = urdf_joint_order(trajectory.joint_names, tree.joints())
     times = np.asarray(trajectory.t, dtype=float)[picked]
     indexes = [

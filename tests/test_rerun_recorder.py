@@ -483,6 +483,20 @@ def test_the_recorded_robot_holds_the_tool_tip_on_the_planned_path(recorded):
     np.testing.assert_allclose(tips, results.trajectory.tool_xyz[picked], atol=1e-4)
 
 
+def test_a_ur3e_is_drawn_with_its_own_joint_offsets(tmp_path):
+    """The UR3e's wrist is up to 2 cm longer than the URDF's UR3: the drawn tool tip still
+    lands on keymps.robot's UR3e FK."""
+    task_yaml = TASK_YAML.replace("robot: {base:", "robot: {model: ur3e, base:")
+    run, results = make_run(tmp_path, task_yaml)
+    assert run.task.robot.model == "ur3e"
+    play(run, results)
+    entities = read_recording(run.folder / "run.rrd")
+    picked = subsample_indices(results.trajectory.t, rerun_recorder.ROBOT_RATE_HZ)
+    rows = [0, len(picked) // 2, len(picked) - 1]
+    tips = recorded_tool_tips(entities, rows)
+    np.testing.assert_allclose(tips, results.trajectory.tool_xyz[picked[rows]], atol=1e-4)
+
+
 def test_no_trace_of_the_api_key_in_the_file(recorded):
     path, _, entities = recorded
     raw = path.read_bytes()

@@ -229,9 +229,9 @@ def _log_motion(stream: Any, trajectory: Any, run: Run) -> None:
 
     index = stage_index("time")
     rerun_motion.log_trajectory(stream, trajectory, index, ROBOT_RATE_HZ)
-    rerun_robot.log_robot_model(stream, run.task)
+    urdf = rerun_robot.log_robot_model(stream, run.task)
     picked = rerun_motion.subsample_indices(trajectory.t, ROBOT_RATE_HZ)
-    rerun_robot.log_robot_motion(stream, trajectory, picked, index)
+    rerun_robot.log_robot_motion(stream, urdf, trajectory, picked, index)
 
 
 @hookimpl
