@@ -26,7 +26,8 @@ if TYPE_CHECKING:
 
 PATH_TOLERANCE_M = 0.0005
 BOARD_TOLERANCE_M = 0.0005
-FOOTPRINT_MARGIN_M = 0.01
+FOOTPRINT_MARGIN_M = 0.02
+"""Work may leave the outline by this much: a sawing stroke overshoots a cut's ends by ~15 mm."""
 TILT_TOLERANCE_RAD = math.radians(0.5)
 ARM_CLEARANCE_M = 0.01
 """Elbow, wrists and flange stay this far above the board surface."""

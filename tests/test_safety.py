@@ -106,7 +106,7 @@ def test_a_velocity_spike_is_rejected_even_when_the_tool_stays_on_its_path() -> 
 
 def test_work_outside_the_object_footprint_is_rejected() -> None:
     _, trajectory, _, _ = planned()
-    message = problems_of(trajectory, outline=circle(0.03))
+    message = problems_of(trajectory, outline=circle(0.02))
     assert "work leaves the object's footprint by" in message
 
 
