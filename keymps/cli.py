@@ -2,19 +2,17 @@
 
 from __future__ import annotations
 
-import functools
 import importlib
 import importlib.util
 import sys
 import warnings
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import click
 
 from keymps import __version__
-from keymps.errors import KeympsError
+from keymps.cli_errors import user_errors
 
 _LAZY_GROUPS: dict[str, tuple[str, str]] = {
     "primitives": ("keymps.cli_primitives", "primitives"),
@@ -37,21 +35,6 @@ class _KeympsGroup(click.Group):
             command: click.Command = getattr(importlib.import_module(module_name), attribute)
             return command
         return super().get_command(ctx, cmd_name)
-
-
-def user_errors(command: Callable[..., Any]) -> Callable[..., Any]:
-    """Turn a KeympsError into its one-line message(s) on stderr and exit code 1."""
-
-    @functools.wraps(command)
-    def wrapper(*args: Any, **kwargs: Any) -> Any:
-        try:
-            return command(*args, **kwargs)
-        except KeympsError as error:
-            for line in str(error).splitlines() or ["unknown error"]:
-                click.echo(f"error: {line}", err=True)
-            sys.exit(1)
-
-    return wrapper
 
 
 @click.group(cls=_KeympsGroup, context_settings={"help_option_names": ["-h", "--help"]})

@@ -2,30 +2,13 @@
 
 from __future__ import annotations
 
-import functools
-import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import click
 
-
-def _user_errors(command: Callable[..., Any]) -> Callable[..., Any]:
-    """A KeympsError becomes `error: <message>` on stderr and exit code 1."""
-
-    @functools.wraps(command)
-    def wrapper(*args: Any, **kwargs: Any) -> Any:
-        from keymps.errors import KeympsError
-
-        try:
-            return command(*args, **kwargs)
-        except KeympsError as error:
-            for line in str(error).splitlines() or ["unknown error"]:
-                click.echo(f"error: {line}", err=True)
-            sys.exit(1)
-
-    return wrapper
+from keymps.cli_errors import user_errors
 
 
 def _search_dirs(extra: tuple[Path, ...]) -> list[Path]:
@@ -53,7 +36,7 @@ def primitives() -> None:
 
 @primitives.command("list")
 @_dir_option
-@_user_errors
+@user_errors
 def list_command(dirs: tuple[Path, ...]) -> None:
     """List every primitive found, first match of a name winning."""
     from keymps.primitives import find_primitive_files, load_primitive
@@ -77,7 +60,7 @@ def list_command(dirs: tuple[Path, ...]) -> None:
 @primitives.command()
 @click.argument("name")
 @_dir_option
-@_user_errors
+@user_errors
 def show(name: str, dirs: tuple[Path, ...]) -> None:
     """Show one primitive: what the planner reads, its DMP and its demonstration."""
     import numpy as np
@@ -155,7 +138,7 @@ def _point(text: str) -> tuple[float, float, float]:
     show_default=True,
     help="Folder for NAME.yaml and the prepared NAME.csv.",
 )
-@_user_errors
+@user_errors
 def learn(
     demo: Path,
     name: str,
@@ -213,7 +196,7 @@ def learn(
 @click.option("--mode", type=click.Choice(["similarity", "axial", "blade", "translate"]))
 @click.option("--out", type=click.Path(path_type=Path, dir_okay=False), help="PNG (NAME.png).")
 @_dir_option
-@_user_errors
+@user_errors
 def plot(
     name: str,
     targets: tuple[str, ...],
