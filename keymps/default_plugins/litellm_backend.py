@@ -9,13 +9,16 @@ from __future__ import annotations
 import ipaddress
 import os
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 from urllib.parse import urlparse
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from keymps.errors import KeympsError
 from keymps.hookspecs import hookimpl
+
+if TYPE_CHECKING:
+    from keymps.planning import BackendAnswer, PlanRequest
 
 MAX_RETRIES = 3
 """Further tries after a rate limit (429) or a server error (5xx)."""
@@ -123,7 +126,7 @@ class LitellmBackend:
             logger.setLevel(level)
         self._registered.add(model)
 
-    def complete(self, request: Any) -> Any:
+    def complete(self, request: PlanRequest) -> BackendAnswer:
         from keymps.backend_choice import model_provider
         from keymps.planning import BackendAnswer
 

@@ -11,12 +11,15 @@ import json
 import re
 import time
 from collections.abc import Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from keymps.errors import KeympsError
 from keymps.hookspecs import hookimpl
+
+if TYPE_CHECKING:
+    from keymps.planning import BackendAnswer, PlanRequest
 
 HARD_OBJECTS = re.compile(
     r"\b(hard|crusty|crust|bread|baguette|sourdough|pumpkin|squash|potato(?:es)?|carrots?|"
@@ -120,7 +123,7 @@ class OfflineBackend:
     name = "offline"
     cacheable = False
 
-    def complete(self, request: Any) -> Any:
+    def complete(self, request: PlanRequest) -> BackendAnswer:
         from keymps.crop_shape import measure
         from keymps.instruction import read_instruction
         from keymps.offline_design import design

@@ -9,12 +9,15 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from pydantic import BaseModel, ConfigDict, ValidationError
 
 from keymps.errors import KeympsError
 from keymps.hookspecs import hookimpl
+
+if TYPE_CHECKING:
+    from keymps.planning import BackendAnswer, PlanRequest
 
 
 class ReplayOptions(BaseModel):
@@ -32,7 +35,7 @@ class ReplayBackend:
         self.cassette = cassette
         self.entries = read_cassette(cassette)
 
-    def complete(self, request: Any) -> Any:
+    def complete(self, request: PlanRequest) -> BackendAnswer:
         from keymps.planning import BackendAnswer
         from keymps.vlm_cache import request_digest
 
