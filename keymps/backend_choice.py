@@ -74,6 +74,14 @@ def choose_backend(
         model_provider(model), ()
     )
     need = " or ".join(f"${n}" for n in wanted) or "an api_base"
+    if model_override:
+        # a model asked for on the command line is meant: never fall back silently
+        if model_provider(model) in ("ollama", "ollama_chat"):
+            return "litellm", f"model {model} from Ollama at its default address"
+        raise KeympsError(
+            f"--model {model}: no credentials ({need} unset, no --api-base); set the key's "
+            "environment variable, or drop --model to plan offline"
+        )
     return (
         "offline",
         f"model {model} has no credentials ({need} unset, no api_base): offline planner",

@@ -347,3 +347,14 @@ def test_local_servers_are_recognised():
     assert is_local("http://localhost:11434", "ollama")
     assert is_local(None, "ollama")
     assert not is_local(None, "openai") and not is_local("https://api.example.com", "openai")
+
+
+def test_a_model_named_on_the_command_line_never_falls_back_silently(scene, no_keys):
+    task = make_task("Cut it in half", scene, CUTTING)
+    with pytest.raises(
+        KeympsError, match=r"--model openai/gpt-4o: no credentials \(\$OPENAI_API_KEY"
+    ):
+        choose_backend(task, None, "openai/gpt-4o", None)
+    assert choose_backend(task, None, "ollama/llava", None)[0] == "litellm"
+    in_file = make_task("Cut it in half", scene, CUTTING, model="ollama/llava")
+    assert choose_backend(in_file, None, None, None)[0] == "offline"  # needs $OLLAMA_API_BASE
