@@ -14,6 +14,16 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 from keymps.errors import KeympsError
+from keymps.instruction_words import (
+    ICING_WORDS,
+    LENGTH,
+    NUMBER,
+    PEOPLE,
+    PIECES,
+    UNIT_RE,
+    UNITS,
+    normalise,
+)
 
 Family = Literal["cut", "icing"]
 Design = Literal[
@@ -67,102 +77,6 @@ class Intent:
         return ", ".join(parts)
 
 
-_UNITS = {
-    "mm": 1.0,
-    "millimeter": 1.0,
-    "millimeters": 1.0,
-    "millimetre": 1.0,
-    "millimetres": 1.0,
-    "cm": 10.0,
-    "centimeter": 10.0,
-    "centimeters": 10.0,
-    "centimetre": 10.0,
-    "centimetres": 10.0,
-    "m": 1000.0,
-    "meter": 1000.0,
-    "meters": 1000.0,
-    "metre": 1000.0,
-    "metres": 1000.0,
-    "inch": 25.4,
-    "inches": 25.4,
-    "in": 25.4,
-}
-_ONES = [
-    "zero",
-    "one",
-    "two",
-    "three",
-    "four",
-    "five",
-    "six",
-    "seven",
-    "eight",
-    "nine",
-    "ten",
-    "eleven",
-    "twelve",
-    "thirteen",
-    "fourteen",
-    "fifteen",
-    "sixteen",
-    "seventeen",
-    "eighteen",
-    "nineteen",
-]
-_TENS = {"twenty": 20, "thirty": 30, "forty": 40, "fifty": 50, "sixty": 60}
-_ORDINALS = {
-    "first": 1,
-    "second": 2,
-    "third": 3,
-    "fourth": 4,
-    "fifth": 5,
-    "sixth": 6,
-    "seventh": 7,
-    "eighth": 8,
-    "ninth": 9,
-    "tenth": 10,
-}
-_PIECES = (
-    r"(?:slices?|pieces?|parts?|portions?|wedges?|sections?|segments?|servings?|chunks?|"
-    r"strips?|equal\s+parts?|triangles?|squares?|rounds?)"
-)
-_PEOPLE = r"(?:people|persons?|guests?|friends?|kids?|children|adults?|visitors?|servings?)"
-_UNIT_RE = r"(?:mm|cm|m|millimet(?:er|re)s?|centimet(?:er|re)s?|met(?:er|re)s?|inch(?:es)?|in)"
-_NUMBER = r"(\d+(?:\.\d+)?)"
-_LENGTH = rf"{_NUMBER}\s*-?\s*({_UNIT_RE})\b"
-_ICING_WORDS = (
-    r"\b(?:icing|icings|ice|dots?|rosettes?|decorat\w*|designs?|pip(?:e|ing)|frost\w*|cream|"
-    r"stars?|spirals?|swirls?|layers?|rings?|circles?|digits?|seven[- ]segment|birthday|"
-    r"write|letters?|numbers?)\b"
-)
-
-
-def _words_to_digits(text: str) -> str:
-    def compound(match: re.Match[str]) -> str:
-        return str(_TENS[match.group(1)] + _ONES.index(match.group(2)))
-
-    ones = "|".join(_ONES[1:10])
-    text = re.sub(rf"\b({'|'.join(_TENS)})[- ]({ones})\b", compound, text)
-    for word, value in _TENS.items():
-        text = re.sub(rf"\b{word}\b", str(value), text)
-    for value, word in enumerate(_ONES):
-        text = re.sub(rf"\b{word}\b", str(value), text)
-    for word, value in _ORDINALS.items():
-        text = re.sub(rf"\b{word}\b", f"{value}th", text)
-    text = re.sub(r"\ba dozen\b|\bdozen\b", "12", text)
-    text = re.sub(r"\b(?:a\s+)?single\b", "1", text)
-    text = re.sub(r"\b(?:a\s+)?couple of\b", "2", text)
-    return text
-
-
-def normalise(sentence: str) -> str:
-    text = sentence.lower().replace("’", "'").replace("×", "x")
-    text = re.sub(r"[,;:!?()\[\]\"]", " ", text)
-    text = re.sub(r"\.(?!\d)", " ", text)
-    text = _words_to_digits(text)
-    return re.sub(r"\s+", " ", text).strip()
-
-
 @dataclass
 class _Reader:
     text: str
@@ -179,15 +93,15 @@ class _Reader:
 
 
 def _mm(value: str, unit: str) -> float:
-    return float(value) * _UNITS[unit]
+    return float(value) * UNITS[unit]
 
 
 def _object_length(reader: _Reader) -> float | None:
     patterns = [
-        rf"\b(?:is|it's|about|approximately|roughly)\s+{_LENGTH}\s+long\b",
-        rf"\blength\s+(?:of\s+|is\s+)?{_LENGTH}",
-        rf"\b{_LENGTH}\s+long\b",
-        rf"\b(?:this|the|a|an|my)\s+{_LENGTH}\s+(?!{_PIECES}|thick|wide|apart)[a-z]+",
+        rf"\b(?:is|it's|about|approximately|roughly)\s+{LENGTH}\s+long\b",
+        rf"\blength\s+(?:of\s+|is\s+)?{LENGTH}",
+        rf"\b{LENGTH}\s+long\b",
+        rf"\b(?:this|the|a|an|my)\s+{LENGTH}\s+(?!{PIECES}|thick|wide|apart)[a-z]+",
     ]
     for pattern in patterns:
         match = reader.find(pattern)
@@ -198,10 +112,10 @@ def _object_length(reader: _Reader) -> float | None:
 
 def _slice_width(reader: _Reader) -> float | None:
     patterns = [
-        rf"{_LENGTH}\s+(?:thick\s+|wide\s+)?{_PIECES}",
-        rf"{_PIECES}\s+(?:of\s+|about\s+|each\s+)*{_LENGTH}",
-        rf"{_LENGTH}\s+(?:thick|wide|apart|intervals?|each)\b",
-        rf"\bevery\s+{_LENGTH}",
+        rf"{LENGTH}\s+(?:thick\s+|wide\s+)?{PIECES}",
+        rf"{PIECES}\s+(?:of\s+|about\s+|each\s+)*{LENGTH}",
+        rf"{LENGTH}\s+(?:thick|wide|apart|intervals?|each)\b",
+        rf"\bevery\s+{LENGTH}",
     ]
     for pattern in patterns:
         match = reader.find(pattern)
@@ -230,17 +144,17 @@ def _part_count(reader: _Reader) -> int | None:
         return 7
     if reader.find(r"\bfor (?:a|the|this) week\b|\b7 days\b"):
         return 7
-    match = reader.find(rf"\b(\d+)\s+(?:hungry\s+|other\s+)?{_PEOPLE}")
+    match = reader.find(rf"\b(\d+)\s+(?:hungry\s+|other\s+)?{PEOPLE}")
     if match:
         return int(match.group(1))
     match = reader.find(
-        rf"\b(\d+)\s+(?:{_NUMBER}\s*{_UNIT_RE}\s+)?(?:equal\s+|even\s+|thin\s+|thick\s+|"
-        rf"same[- ]sized?\s+|similar\s+)*{_PIECES}"
+        rf"\b(\d+)\s+(?:{NUMBER}\s*{UNIT_RE}\s+)?(?:equal\s+|even\s+|thin\s+|thick\s+|"
+        rf"same[- ]sized?\s+|similar\s+)*{PIECES}"
     )
     followed = reader.text[match.end() :] if match else ""
     if match and not re.match(r"\s*(?:for|per)\s+(?:each|every)", followed):
         return int(match.group(1))
-    match = reader.find(rf"\b(?:into|in)\s+(\d+)\b(?!\s*(?:\.\d)?\s*{_UNIT_RE}\b)")
+    match = reader.find(rf"\b(?:into|in)\s+(\d+)\b(?!\s*(?:\.\d)?\s*{UNIT_RE}\b)")
     if match:
         return int(match.group(1))
     if reader.find(r"\bin half\b|\bhalve\b|\bin 2\b|\bhalves\b"):
@@ -255,9 +169,9 @@ def _part_count(reader: _Reader) -> int | None:
 def _icing_intent(reader: _Reader) -> Intent | None:
     understood = reader.understood
     match = reader.find(
-        rf"\b(?:1|a|an) (?:\w+ )?(?:dot|drop|rosette|blob)s?\b.*\beach of (?:the )?(\d+) {_PIECES}"
+        rf"\b(?:1|a|an) (?:\w+ )?(?:dot|drop|rosette|blob)s?\b.*\beach of (?:the )?(\d+) {PIECES}"
     ) or reader.find(
-        rf"\b(?:dot|rosette)s? (?:on|in) (?:the middle of )?each of (?:the )?(\d+) {_PIECES}"
+        rf"\b(?:dot|rosette)s? (?:on|in) (?:the middle of )?each of (?:the )?(\d+) {PIECES}"
     )
     if match:
         return Intent(
@@ -319,12 +233,12 @@ def _cut_intent(reader: _Reader) -> Intent | None:
     count = _part_count(reader)
     if width is not None:
         counted = re.search(
-            rf"\b(\d+)\s+(?:{_NUMBER}\s*-?\s*{_UNIT_RE}\s+)?(?:thin\s+|thick\s+|wide\s+)?{_PIECES}",
+            rf"\b(\d+)\s+(?:{NUMBER}\s*-?\s*{UNIT_RE}\s+)?(?:thin\s+|thick\s+|wide\s+)?{PIECES}",
             reader.text,
         )
         slice_count = int(counted.group(1)) if counted else None
         if slice_count is None and re.search(
-            rf"\b(?:a|an)\s+{_LENGTH}\s+(?:thick\s+|wide\s+)?(?:slice|piece|strip)\b", reader.text
+            rf"\b(?:a|an)\s+{LENGTH}\s+(?:thick\s+|wide\s+)?(?:slice|piece|strip)\b", reader.text
         ):
             slice_count = 1
         return Intent(
@@ -355,13 +269,13 @@ def read_instruction(sentence: str) -> Intent:
     text = normalise(sentence)
     reader = _Reader(text)
     vague = re.search(
-        rf"\b(?:a few|several|some|many|a lot of|lots of)\s+(?:\w+\s+)?{_PIECES}", text
+        rf"\b(?:a few|several|some|many|a lot of|lots of)\s+(?:\w+\s+)?{PIECES}", text
     )
     if vague:
         raise UnreadableInstruction(
             unreadable_message(sentence, [f"{vague.group(0)!r} does not say how many"])
         )
-    icing_words = reader.has(_ICING_WORDS)
+    icing_words = reader.has(ICING_WORDS)
     intent = _icing_intent(reader) if icing_words else None
     if intent is None:
         intent = _cut_intent(_Reader(text))

@@ -1,0 +1,100 @@
+"""The vocabulary of the offline planner's grammar: numbers as words, units, kitchen nouns."""
+
+from __future__ import annotations
+
+import re
+
+UNITS = {
+    "mm": 1.0,
+    "millimeter": 1.0,
+    "millimeters": 1.0,
+    "millimetre": 1.0,
+    "millimetres": 1.0,
+    "cm": 10.0,
+    "centimeter": 10.0,
+    "centimeters": 10.0,
+    "centimetre": 10.0,
+    "centimetres": 10.0,
+    "m": 1000.0,
+    "meter": 1000.0,
+    "meters": 1000.0,
+    "metre": 1000.0,
+    "metres": 1000.0,
+    "inch": 25.4,
+    "inches": 25.4,
+    "in": 25.4,
+}
+ONES = [
+    "zero",
+    "one",
+    "two",
+    "three",
+    "four",
+    "five",
+    "six",
+    "seven",
+    "eight",
+    "nine",
+    "ten",
+    "eleven",
+    "twelve",
+    "thirteen",
+    "fourteen",
+    "fifteen",
+    "sixteen",
+    "seventeen",
+    "eighteen",
+    "nineteen",
+]
+TENS = {"twenty": 20, "thirty": 30, "forty": 40, "fifty": 50, "sixty": 60}
+ORDINALS = {
+    "first": 1,
+    "second": 2,
+    "third": 3,
+    "fourth": 4,
+    "fifth": 5,
+    "sixth": 6,
+    "seventh": 7,
+    "eighth": 8,
+    "ninth": 9,
+    "tenth": 10,
+}
+PIECES = (
+    r"(?:slices?|pieces?|parts?|portions?|wedges?|sections?|segments?|servings?|chunks?|"
+    r"strips?|equal\s+parts?|triangles?|squares?|rounds?)"
+)
+PEOPLE = r"(?:people|persons?|guests?|friends?|kids?|children|adults?|visitors?|servings?)"
+UNIT_RE = r"(?:mm|cm|m|millimet(?:er|re)s?|centimet(?:er|re)s?|met(?:er|re)s?|inch(?:es)?|in)"
+NUMBER = r"(\d+(?:\.\d+)?)"
+LENGTH = rf"{NUMBER}\s*-?\s*({UNIT_RE})\b"
+ICING_WORDS = (
+    r"\b(?:icing|icings|ice|dots?|rosettes?|decorat\w*|designs?|pip(?:e|ing)|frost\w*|cream|"
+    r"stars?|spirals?|swirls?|layers?|rings?|circles?|digits?|seven[- ]segment|birthday|"
+    r"write|letters?|numbers?)\b"
+)
+
+
+def words_to_digits(text: str) -> str:
+    def compound(match: re.Match[str]) -> str:
+        return str(TENS[match.group(1)] + ONES.index(match.group(2)))
+
+    ones = "|".join(ONES[1:10])
+    text = re.sub(rf"\b({'|'.join(TENS)})[- ]({ones})\b", compound, text)
+    for word, value in TENS.items():
+        text = re.sub(rf"\b{word}\b", str(value), text)
+    for value, word in enumerate(ONES):
+        text = re.sub(rf"\b{word}\b", str(value), text)
+    for word, value in ORDINALS.items():
+        text = re.sub(rf"\b{word}\b", f"{value}th", text)
+    text = re.sub(r"\ba dozen\b|\bdozen\b", "12", text)
+    text = re.sub(r"\b(?:a\s+)?single\b", "1", text)
+    text = re.sub(r"\b(?:a\s+)?couple of\b", "2", text)
+    return text
+
+
+def normalise(sentence: str) -> str:
+    text = sentence.lower().replace("’", "'").replace("×", "x")
+    text = re.sub(r"[,;:!?()\[\]\"]", " ", text)
+    text = re.sub(r"\.(?!\d)", " ", text)
+    text = words_to_digits(text)
+    return re.sub(r"\s+", " ", text).strip()
