@@ -100,6 +100,7 @@ class _Pipeline:
 
     def execute_all(self) -> None:
         from keymps import geometry, planning
+        from keymps.limits import check_duration, check_tool_path
         from keymps.motion import compose_tool_path
         from keymps.overlay import draw_plan
         from keymps.robot import solve_path
@@ -122,20 +123,24 @@ class _Pipeline:
         tool = parts.robot.tool
         tool_path = self.stage(
             "compose",
-            lambda: compose_tool_path(
-                grounding.segments,
-                parts.primitives[plan.keyword],
-                object_top=task.scene.object_height,
-                clearance=task.motion.clearance,
-                work_speed=task.motion.work_speed,
-                travel_speed=task.motion.travel_speed,
-                yaw_mode=tool.yaw,
-                home=parts.robot.home_tool_position(),
+            lambda: check_tool_path(
+                compose_tool_path(
+                    grounding.segments,
+                    parts.primitives[plan.keyword],
+                    object_top=task.scene.object_height,
+                    clearance=task.motion.clearance,
+                    work_speed=task.motion.work_speed,
+                    travel_speed=task.motion.travel_speed,
+                    yaw_mode=tool.yaw,
+                    home=parts.robot.home_tool_position(),
+                ),
+                task,
             ),
         )
         joint_path = self.stage("solve", lambda: solve_path(parts.robot, tool_path))
         trajectory = self.stage(
-            "time", lambda: time_trajectory(parts.robot, tool_path, joint_path, task)
+            "time",
+            lambda: check_duration(time_trajectory(parts.robot, tool_path, joint_path, task), task),
         )
         outline = geometry.object_outline_m(detection, task, size)
         validated = self.stage(

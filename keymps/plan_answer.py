@@ -10,13 +10,17 @@ import json
 import math
 import re
 from collections.abc import Sequence
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from keymps.limits import max_answer_chars
 
 Step = Literal["combined", "keyword", "pairs"]
 
-Point = tuple[float, float]
+Coordinate = Annotated[float, Field(strict=True)]
+"""A JSON number: true, "12" or null are wrong types, sent back for repair, never coerced."""
+Point = tuple[Coordinate, Coordinate]
 Pair = tuple[Point, Point]
 
 
@@ -89,35 +93,23 @@ def extract_json(text: str) -> Any:
     """The JSON object in a model's text: plain, in a code fence, or surrounded by prose."""
     candidates = [text.strip()]
     candidates += [m.group(1).strip() for m in _FENCE.finditer(text)]
-    for candidate in candidates:
-        try:
-            return json.loads(candidate)
-        except json.JSONDecodeError:
-            pass
-    start = text.find("{")
-    while start != -1:
-        depth, in_string, escaped = 0, False, False
-        for index in range(start, len(text)):
-            ch = text[index]
-            if in_string:
-                if escaped:
-                    escaped = False
-                elif ch == "\\":
-                    escaped = True
-                elif ch == '"':
-                    in_string = False
-            elif ch == '"':
-                in_string = True
-            elif ch == "{":
-                depth += 1
-            elif ch == "}":
-                depth -= 1
-                if depth == 0:
-                    try:
-                        return json.loads(text[start : index + 1])
-                    except json.JSONDecodeError:
-                        break
-        start = text.find("{", start + 1)
+    try:
+        for candidate in candidates:
+            try:
+                return json.loads(candidate)
+            except json.JSONDecodeError:
+                pass
+        # the first "{" that starts a complete JSON value; raw_decode keeps this linear-ish
+        # (a scan per "{" in Python was quadratic: 100 KB of braces took minutes)
+        decoder = json.JSONDecoder()
+        start = text.find("{")
+        while start != -1:
+            try:
+                return decoder.raw_decode(text, start)[0]
+            except json.JSONDecodeError:
+                start = text.find("{", start + 1)
+    except RecursionError:
+        raise ValueError("the JSON is nested too deeply") from None
     raise ValueError("no JSON object found in the answer")
 
 
@@ -129,6 +121,12 @@ def parse_and_validate(
     max_pairs: int,
 ) -> tuple[BaseModel | None, list[str]]:
     """(answer, []) when valid, else (None, the problems in words a model can act on)."""
+    longest = max_answer_chars(max_pairs)
+    if len(text) > longest:
+        return None, [
+            f"the answer is {len(text)} characters long; at most {longest} are read for up to "
+            f"{max_pairs} pairs: answer with the JSON only"
+        ]
     try:
         data = extract_json(text)
     except ValueError as error:
@@ -139,9 +137,11 @@ def parse_and_validate(
         answer = ANSWER_MODELS[step].model_validate(data)
     except ValidationError as error:
         problems = []
-        for item in error.errors(include_url=False):
+        for item in error.errors(include_url=False)[:12]:
             where = ".".join(str(p) for p in item["loc"]) or "(answer)"
             problems.append(f"{where}: {item['msg']}")
+        if error.error_count() > 12:
+            problems.append(f"... ({error.error_count() - 12} more problems not listed)")
         return None, problems
     problems = []
     keyword = getattr(answer, "keyword", None)

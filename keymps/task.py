@@ -60,6 +60,8 @@ class Scene(StrictModel):
     workspace: Workspace = Workspace()
     object_height: Annotated[float, Field(ge=0, le=1.0, allow_inf_nan=False)] = 0.05
     camera: Camera = Camera()
+    max_image_pixels: Annotated[int, Field(ge=1)] = 64_000_000
+    """Larger images are refused from their header, before decoding (keymps.limits)."""
 
     @model_validator(mode="after")
     def _image_for_file_source(self) -> Scene:
@@ -97,6 +99,10 @@ class Motion(StrictModel):
     """Travel moves rise this far above the object's top, metres."""
     work_speed: Annotated[float, Field(gt=0, le=0.5, allow_inf_nan=False)] = 0.03
     travel_speed: Annotated[float, Field(gt=0, le=1.0, allow_inf_nan=False)] = 0.15
+    max_path_length: Annotated[float, Field(gt=0, allow_inf_nan=False)] = 50.0
+    """Longer tool paths are refused before inverse kinematics, metres (keymps.limits)."""
+    max_duration_s: Annotated[float, Field(gt=0, allow_inf_nan=False)] = 1800.0
+    """Longer motions are refused (estimated before IK, measured after timing), seconds."""
 
 
 class ToolSpec(StrictModel):

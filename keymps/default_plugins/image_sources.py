@@ -55,9 +55,14 @@ def to_bgr8(image: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(image)
 
 
-def read_image(path: Path) -> np.ndarray:
-    """Read an image file as BGR uint8 with one clear error per way it can fail."""
+def read_image(path: Path, max_pixels: int | None = None) -> np.ndarray:
+    """Read an image file as BGR uint8 with one clear error per way it can fail.
+
+    With `max_pixels`, a larger image is refused from its header, before it is decoded.
+    """
     import cv2
+
+    from keymps.limits import check_image_pixels, image_size_from_header
 
     if not path.exists():
         raise ImageSourceError(f"scene image not found: {path}")
@@ -69,6 +74,12 @@ def read_image(path: Path) -> np.ndarray:
         raise ImageSourceError(f"cannot read scene image {path}: {error.strerror}") from None
     if not data:
         raise ImageSourceError(f"scene image is empty (0 bytes): {path}")
+    header_size = image_size_from_header(data[:65536])
+    if max_pixels is not None and header_size is not None:
+        try:
+            check_image_pixels(header_size, max_pixels, f"scene image {path}")
+        except KeympsError as error:
+            raise ImageSourceError(str(error)) from None
     decoded = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
     if decoded is None or decoded.size == 0:
         raise ImageSourceError(
@@ -96,7 +107,7 @@ class FileSource:
         if relative is None:
             raise ImageSourceError("scene.image is not set (the file source needs an image)")
         path = task.resolve(Path(relative))
-        return SceneImage(image=read_image(path), source=str(path))
+        return SceneImage(image=read_image(path, task.scene.max_image_pixels), source=str(path))
 
 
 class SyntheticOptions(BaseModel):
@@ -119,6 +130,7 @@ class SyntheticSource:
         self.options = options
 
     def load(self, run: Any) -> SceneImage:
+        from keymps.limits import check_image_pixels
         from keymps.scenes import SceneSpec, render_scene
 
         task = run.task
@@ -134,6 +146,11 @@ class SyntheticSource:
             board_size=tuple(task.scene.workspace.size),
             px_per_m=options.px_per_m,
         )
+        size_px = spec.image_size_px
+        try:
+            check_image_pixels(size_px, task.scene.max_image_pixels, "the synthetic scene")
+        except KeympsError as error:
+            raise ImageSourceError(str(error)) from None
         scene = render_scene(spec)
         notes = getattr(run, "notes", None)
         if isinstance(notes, dict):
