@@ -27,6 +27,9 @@ class Row:
     successes: int | None
     """equal_parts suites: runs whose cuts made the equal parts (None for other suites)."""
     keyword_ok: int | None
+    """Runs that chose the ground truth's primitive (None without a ground truth)."""
+    keyword_runs: int
+    """Runs that chose a primitive at all."""
     vlm_calls: int
     cost_usd: float | None
     errors: tuple[str, ...]
@@ -40,7 +43,8 @@ class Row:
 
     @property
     def d_stats(self) -> tuple[float, float, float] | None:
-        """(mean, std, median) of D in mm over the runs that succeeded."""
+        """(mean, std, median) of D in mm over the runs that generated a motion (including runs
+        a later stage refused: their failure shows in `ok`)."""
         return self._stats(self.d_mm)
 
     @property
@@ -60,16 +64,16 @@ def summarize(records: list[dict[str, Any]], suite: Suite) -> list[Row]:
     ):
         ok = [r for r in runs if r.get("ok")]
         costs = [r["cost_usd"] for r in runs if r.get("cost_usd") is not None]
-        with_truth = [r for r in ok if r.get("truth_keyword")]
+        with_truth = [r for r in runs if r.get("truth_keyword") and r.get("keyword")]
         rows.append(
             Row(
                 case=case,
                 method=method,
                 runs=len(runs),
                 ok=len(ok),
-                d_mm=tuple(r["d_mm"] for r in ok if r.get("d_mm") is not None),
+                d_mm=tuple(r["d_mm"] for r in runs if r.get("d_mm") is not None),
                 d_optimal_mm=tuple(
-                    r["d_optimal_mm"] for r in ok if r.get("d_optimal_mm") is not None
+                    r["d_optimal_mm"] for r in runs if r.get("d_optimal_mm") is not None
                 ),
                 successes=(
                     sum(1 for r in runs if r.get("success"))
@@ -81,6 +85,7 @@ def summarize(records: list[dict[str, Any]], suite: Suite) -> list[Row]:
                     if with_truth
                     else None
                 ),
+                keyword_runs=len(with_truth),
                 vlm_calls=sum(int(r.get("vlm_calls") or 0) for r in runs),
                 cost_usd=sum(costs) if costs else None,
                 errors=tuple(sorted({r["error"] for r in runs if r.get("error")})),
@@ -106,7 +111,7 @@ def markdown_table(rows: list[Row], suite: Suite) -> str:
         d_text = f"{stats[0]:.1f} +- {stats[1]:.1f}" if stats else "-"
         optimal = statistics.fmean(row.d_optimal_mm) if row.d_optimal_mm else None
         count = row.successes if row.successes is not None else row.ok
-        keyword = f"{row.keyword_ok}/{row.ok}" if row.keyword_ok is not None else "-"
+        keyword = f"{row.keyword_ok}/{row.keyword_runs}" if row.keyword_ok is not None else "-"
         lines.append(
             f"| {row.case} | {row.method} | {row.runs} | {count}/{row.runs} "
             f"({100 * row.success_rate:.0f} %) | {d_text} | {_fmt(stats[2] if stats else None)} "
@@ -137,8 +142,10 @@ def write_summary(records: list[dict[str, Any]], suite: Suite, out: Path) -> lis
     text = [
         f"# {suite.name}: {suite.description}",
         "",
-        f"{len(records)} runs. D is the paper's metric (Sec. V-B) in millimetres on work pieces, "
-        "over the runs that succeeded; D opt. pairs the points optimally instead of greedily.",
+        f"{len(records)} runs. D is the paper's metric (Sec. V-B) in millimetres on the work "
+        "pieces, over every run that generated a motion (also runs a later stage, e.g. the "
+        "safety check, refused: those count as failures under ok); D opt. pairs the points "
+        "optimally instead of greedily.",
         "",
         markdown_table(rows, suite),
         "",
@@ -189,7 +196,7 @@ def write_box_plots(records: list[dict[str, Any]], suite: Suite, out: Path) -> l
     """One PNG per method: D per case as box plots, in the style of the paper's Figs. 9-12."""
     values: dict[str, dict[str, list[float]]] = {}
     for record in records:
-        if record.get("ok") and record.get("d_mm") is not None:
+        if record.get("d_mm") is not None:
             values.setdefault(record["method"], {}).setdefault(record["case"], []).append(
                 record["d_mm"]
             )
@@ -205,7 +212,9 @@ def write_box_plots(records: list[dict[str, Any]], suite: Suite, out: Path) -> l
     order = [c.id for c in suite.cases]
     methods = sorted(values)
     cases = [c for c in order if any(c in values[m] for m in methods)]
-    figure, axis = plt.subplots(figsize=(max(6.0, 0.7 * len(cases) * len(methods)), 3.6))
+    figure, axis = plt.subplots(
+        figsize=(min(16.0, max(6.0, 0.45 * len(cases) * len(methods) + 2)), 4.0)
+    )
     width = 0.8 / len(methods)
     for index, method in enumerate(methods):
         data = [values[method].get(c, []) for c in cases]

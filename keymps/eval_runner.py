@@ -194,7 +194,14 @@ def run_job(suite: Suite, job: Job, options: EvalOptions, backend: str) -> dict[
     output = None
     try:
         task_path = write_task_file(suite, job, options.out)
-        context = MethodContext(task_path, folder, backend, options.model, options.api_base)
+        context = MethodContext(
+            task_path,
+            folder,
+            backend,
+            options.model,
+            options.api_base,
+            plan_only=suite.kind == "equal_parts",
+        )
         try:
             output = get_method(job.method).run(context)
             error: str | None = None
@@ -214,6 +221,7 @@ def run_job(suite: Suite, job: Job, options: EvalOptions, backend: str) -> dict[
             f"({Path(where.filename).name}:{where.lineno})",
         )
     if output is not None:
+        _write_design(folder, output)
         record.update(_vlm_totals(output.calls))
         record["images"] = {
             k: str(Path(v).relative_to(options.out)) for k, v in output.images.items()
@@ -222,11 +230,22 @@ def run_job(suite: Suite, job: Job, options: EvalOptions, backend: str) -> dict[
     return record
 
 
+def _write_design(folder: Path, output: Any) -> None:
+    """design.json: what the method generated, seen from above (the equal-parts check's input)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    design = {
+        "keyword": output.keyword,
+        "lines_m": np.round(np.asarray(output.lines_m, dtype=float), 6).tolist(),
+        "work_pieces": len(output.work_pieces),
+    }
+    (folder / "design.json").write_text(json.dumps(design), encoding="utf-8")
+
+
 def _score(suite: Suite, case: Any, job: Job, output: Any, n: int) -> dict[str, Any]:
     from keymps.eval_truth import case_truth
     from keymps.evaluate import metric_d, metric_d_optimal
 
-    truth = case_truth(suite, case, job.seed)
+    truth = case_truth(suite, case, job.seed, sidecar=output.scene)
     scored: dict[str, Any] = {
         "ok": True,
         "error": None,

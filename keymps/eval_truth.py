@@ -158,13 +158,17 @@ def ground_truth_pieces(
     return tuple(pieces)
 
 
-def case_truth(suite: Suite, case: Case, seed: int) -> CaseTruth:
-    """Render the case's scene for `seed` and build its ground truth (if it has one)."""
+def case_truth(
+    suite: Suite, case: Case, seed: int, sidecar: dict[str, Any] | None = None
+) -> CaseTruth:
+    """The case's ground truth for `seed` (if it has one), on its scene's true geometry: the
+    given sidecar of that scene, or the scene rendered again."""
     from keymps.eval_tasks import case_scene, case_task_data
     from keymps.primitives import default_search_dirs
     from keymps.scenes import render_scene
 
-    sidecar = render_scene(case_scene(suite, case, seed).spec()).truth
+    if sidecar is None:
+        sidecar = render_scene(case_scene(suite, case, seed).spec()).truth
     if case.ground_truth is None:
         return CaseTruth(scene=sidecar, lines_m=None, pieces=())
     scene_object = sidecar["objects"][0]

@@ -1,0 +1,182 @@
+"""How `keymps eval` scales with --concurrency against a VLM that answers after a fixed delay.
+
+A local OpenAI-compatible server (127.0.0.1) answers every planning request after --latency
+seconds with six equal wedges of the cake it is shown (a valid design). The script runs the
+cake_six suite's keymps method (plan-only jobs: image, detect, plan, ground, equal-parts check)
+through the real runner and litellm, first with --concurrency 1, then with 8, and finally a long
+run at 8 to see that memory stays flat. A second pair of runs against a slower server
+(--slow-latency, default 1 s) shows how the speedup grows when the VLM, not keymps' own work
+per run (rendering the scene, detection, grounding, about 0.1 s of CPU), dominates.
+
+    python benchmarks/perf/eval_concurrency.py [--requests 80] [--latency 0.2] [--long 1000]
+
+Ends with `name: value` lines (speedup_c8_vs_c1, peak_rss_growth_mb, ...).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import re
+import tempfile
+import threading
+import time
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from pathlib import Path
+from typing import Any
+
+CROP = re.compile(r"(\d+) x (\d+) pixels")
+
+
+def _answer(body: dict[str, Any]) -> str:
+    text = json.dumps(body.get("messages", []))
+    width, height = (int(v) for v in CROP.findall(text)[-1])
+    cx, cy, r = width / 2, height / 2, min(width, height) / 2 - 1
+    pairs = []
+    for k in range(3):  # three diameters at 60 degrees: six equal wedges of a round cake
+        a = math.radians(90 + 60 * k)
+        pairs.append(
+            [
+                [cx - r * math.cos(a), cy - r * math.sin(a)],
+                [cx + r * math.cos(a), cy + r * math.sin(a)],
+            ]
+        )
+    return json.dumps({"keyword": "straight", "pairs": pairs, "rationale": "six wedges"})
+
+
+class Latency:
+    seconds = 0.2
+
+
+def start_server(latency: float) -> tuple[ThreadingHTTPServer, str]:
+    Latency.seconds = latency
+
+    class Handler(BaseHTTPRequestHandler):
+        def log_message(self, format: str, *args: Any) -> None:
+            pass
+
+        def do_POST(self) -> None:
+            body = json.loads(self.rfile.read(int(self.headers["Content-Length"])))
+            time.sleep(Latency.seconds)
+            reply = {
+                "id": "perf",
+                "object": "chat.completion",
+                "created": int(time.time()),
+                "model": body.get("model", "perf"),
+                "choices": [
+                    {
+                        "index": 0,
+                        "message": {"role": "assistant", "content": _answer(body)},
+                        "finish_reason": "stop",
+                    }
+                ],
+                "usage": {"prompt_tokens": 100, "completion_tokens": 50, "total_tokens": 150},
+            }
+            data = json.dumps(reply).encode()
+            self.send_response(200)
+            self.send_header("Content-Type", "application/json")
+            self.send_header("Content-Length", str(len(data)))
+            self.end_headers()
+            self.wfile.write(data)
+
+    server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+    server.daemon_threads = True
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    return server, f"http://127.0.0.1:{server.server_address[1]}/v1"
+
+
+def rss_mb() -> float:
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def run(
+    requests: int, concurrency: int, api_base: str, out: Path, sample: list[float] | None = None
+) -> tuple[float, list[dict[str, Any]]]:
+    from keymps.eval_runner import EvalOptions, run_suite
+    from keymps.eval_suites import load_suite
+
+    suite = load_suite("cake_six")
+    options = EvalOptions(
+        out=out,
+        methods=("keymps",),
+        repeats=requests // len(suite.cases),
+        concurrency=concurrency,
+        backend="litellm",
+        model="openai/perf-vlm",
+        api_base=api_base,
+    )
+
+    def on_result(job: Any, record: dict[str, Any]) -> None:
+        if sample is not None:
+            sample.append(rss_mb())
+
+    # a fresh answer cache: every run must reach the server (the same seeds recur across runs)
+    os.environ["KEYMPS_CACHE_DIR"] = str(out / "cache")
+    started = time.perf_counter()
+    records = run_suite(suite, options, on_result=on_result)
+    return time.perf_counter() - started, records
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--requests", type=int, default=80)
+    parser.add_argument("--latency", type=float, default=0.2)
+    parser.add_argument("--long", type=int, default=1000, help="requests of the memory run")
+    parser.add_argument("--slow-latency", type=float, default=1.0, help="a second, slower server")
+    parser.add_argument("--slow-requests", type=int, default=40)
+    args = parser.parse_args()
+    work = Path(tempfile.mkdtemp(prefix="keymps-eval-perf-"))
+    server, api_base = start_server(args.latency)
+    try:
+        run(4, 2, api_base, work / "warmup")  # imports, litellm, first renders
+        seconds: dict[int, float] = {}
+        for concurrency in (1, 8):
+            seconds[concurrency], records = run(
+                args.requests, concurrency, api_base, work / f"c{concurrency}"
+            )
+            failed = [r for r in records if not r.get("ok")]
+            if failed:
+                raise SystemExit(f"{len(failed)} runs failed, first: {failed[0]['error']}")
+            if any(r.get("cached") for r in records):
+                raise SystemExit("some answers came from the cache: the timing would be wrong")
+            print(f"c{concurrency}: {len(records)} requests in {seconds[concurrency]:.1f} s")
+        Latency.seconds = args.slow_latency
+        slow: dict[int, float] = {}
+        for concurrency in (1, 8):
+            slow[concurrency], _ = run(
+                args.slow_requests, concurrency, api_base, work / f"slow-c{concurrency}"
+            )
+            print(
+                f"slow c{concurrency}: {args.slow_requests} requests in {slow[concurrency]:.1f} s"
+            )
+        Latency.seconds = args.latency
+        cpu_started = time.process_time()
+        samples: list[float] = []
+        long_seconds, records = run(args.long, 8, api_base, work / "long", samples)
+        cpu_per_job = (time.process_time() - cpu_started) / max(1, len(records))
+        settled = samples[min(len(samples) - 1, 100)]
+        growth = max(samples[100:] or samples) - settled
+        print(f"long run: {len(records)} requests in {long_seconds:.1f} s")
+    finally:
+        server.shutdown()
+    serial_floor = args.requests * args.latency
+    print(f"requests: {args.requests}")
+    print(f"server_latency_s: {args.latency}")
+    print(f"seconds_c1: {seconds[1]:.2f}")
+    print(f"seconds_c8: {seconds[8]:.2f}")
+    print(f"latency_share_c1: {serial_floor / seconds[1]:.2f}")
+    print(f"cpu_s_per_request: {cpu_per_job:.3f}")
+    print(f"speedup_c8_vs_c1: {seconds[1] / seconds[8]:.2f}")
+    print(f"speedup_c8_vs_c1_at_{args.slow_latency:g}s: {slow[1] / slow[8]:.2f}")
+    print(f"long_requests: {len(records)}")
+    print(f"rss_after_100_mb: {settled:.1f}")
+    print(f"peak_rss_growth_mb: {growth:.1f}")
+
+
+if __name__ == "__main__":
+    main()
