@@ -30,6 +30,7 @@ METHOD_NAMES = ("keymps", "vlm-keypoint", "keymps-text", "vlm-keyword", "vlm-dmp
 @click.option("--model", help="VLM model for litellm, e.g. openai/gpt-4o.")
 @click.option("--api-base", help="OpenAI-compatible server URL (Ollama, vLLM ...).")
 @click.option("--case", "cases", multiple=True, help="Only this case id (repeatable).")
+@click.option("--no-cache", is_flag=True, help="Always call the VLM, never answer from cache.")
 @click.option(
     "--out", type=click.Path(file_okay=False, path_type=Path),
     help="Results folder (default eval/SUITE[-METHODS]); rerunning into it resumes.",
@@ -45,6 +46,7 @@ def eval_command(
     api_base: str | None,
     cases: tuple[str, ...],
     out: Path | None,
+    no_cache: bool,
     quiet: bool,
 ) -> None:
     """Run every case x method x repeat of SUITE (a file or a shipped suite's name), write
@@ -53,7 +55,17 @@ def eval_command(
 
     try:
         _evaluate(
-            suite_file, methods, repeats, concurrency, backend, model, api_base, cases, out, quiet
+            suite_file,
+            methods,
+            repeats,
+            concurrency,
+            backend,
+            model,
+            api_base,
+            cases,
+            out,
+            no_cache,
+            quiet,
         )
     except KeympsError as error:
         for line in str(error).splitlines() or ["unknown error"]:
@@ -71,6 +83,7 @@ def _evaluate(
     api_base: str | None,
     cases: tuple[str, ...],
     out: Path | None,
+    no_cache: bool,
     quiet: bool,
 ) -> None:
     from keymps.eval_report import markdown_table, write_summary
@@ -89,6 +102,7 @@ def _evaluate(
         model=model,
         api_base=api_base,
         cases=cases,
+        no_cache=no_cache,
     )
     total = len(plan_jobs(suite, options))
     if quiet:

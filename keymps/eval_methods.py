@@ -55,6 +55,8 @@ class MethodContext:
     api_base: str | None
     plan_only: bool = False
     """Stop after grounding: the design is all that is scored (Appendix F's equal parts)."""
+    no_cache: bool = False
+    """Always ask the VLM, never answer from the planner's cache."""
 
 
 MethodRunner = Callable[[MethodContext], MethodOutput]
@@ -89,6 +91,7 @@ def _run_pipeline(context: MethodContext) -> MethodOutput:
             out=context.folder,
             rerun="off",
             quiet=True,
+            no_cache=context.no_cache,
             **overrides,
         )
     except KeympsError as error:
@@ -108,14 +111,14 @@ def _run_plan_only(context: MethodContext) -> MethodOutput:
     from keymps.planning import choose_backend, make_plan
     from keymps.plugins import create_component
     from keymps.primitives import default_search_dirs
-    from keymps.run import Run
+    from keymps.run import Run, RunOptions
     from keymps.task import load_task
 
     overrides = {"backend": context.backend, "model": context.model, "api_base": context.api_base}
     overrides = {k: v for k, v in overrides.items() if v}
     task = apply_overrides(load_task(context.task_path), overrides)
     backend, _ = choose_backend(task, context.backend, context.model, context.api_base)
-    run = Run(task=task, folder=context.folder)
+    run = Run(task=task, folder=context.folder, options=RunOptions(no_cache=context.no_cache))
     context.folder.mkdir(parents=True, exist_ok=True)
     results: dict[str, Any] = {}
     try:

@@ -43,6 +43,8 @@ class EvalOptions:
     """Only these case ids (all when empty)."""
     n: int = 100
     """Ground-truth points of the metric D."""
+    no_cache: bool = False
+    """Always ask the VLM (never answer a run from the planner's answer cache)."""
 
 
 @dataclass(frozen=True)
@@ -201,6 +203,7 @@ def run_job(suite: Suite, job: Job, options: EvalOptions, backend: str) -> dict[
             options.model,
             options.api_base,
             plan_only=suite.kind == "equal_parts",
+            no_cache=options.no_cache,
         )
         try:
             output = get_method(job.method).run(context)

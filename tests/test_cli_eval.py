@@ -276,3 +276,17 @@ def test_a_method_that_fails_is_recorded_not_fatal(tmp_path: Path) -> None:
     assert not failed["ok"] and "no valid answer after 2 attempts" in failed["error"]
     assert "\n" not in failed["error"]
     assert "vlm-mdmp: no valid answer" in (out / "summary.md").read_text()
+
+
+def test_no_cache_asks_the_vlm_for_every_run(tmp_path: Path) -> None:
+    out = tmp_path / "fresh"
+    with VlmServer(responder=_seventh_cuts) as server:
+        result = _eval(
+            "cutting_sim", "--case", "2", "--repeats", "1", "--no-cache",
+            "--method", "keymps", "--method", "vlm-keypoint",
+            "--model", "openai/test-vlm", "--api-base", server.openai_base, "--out", str(out),
+        )  # fmt: skip
+        requests = len(server.chat_requests)
+    assert result.exit_code == 0, result.output
+    records = _records(out)
+    assert requests == 2 and [r["cached"] for r in records] == [0, 0]
