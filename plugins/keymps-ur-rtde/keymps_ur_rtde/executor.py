@@ -122,7 +122,14 @@ class UrRtdeExecutor:
                 f"executor ur-rtde: cannot connect to the arm at {host} (RTDE port 30004): {error}"
             ) from None
         try:
-            offset = self._preflight(receive, trajectory)
+            try:
+                offset = self._preflight(receive, trajectory)
+            except KeympsError:
+                raise
+            except Exception as error:  # the receive interface failed; nothing has moved
+                raise KeympsError(
+                    f"executor ur-rtde: lost the arm at {host} before moving: {error}"
+                ) from None
             figures = {
                 "duration_s": trajectory.duration_s,
                 "samples": float(trajectory.samples),
@@ -193,6 +200,9 @@ class UrRtdeExecutor:
             return self._stopped(control, trajectory, str(reason), figures)
         except Exception as error:  # anything from ur_rtde: stop first, then report
             return self._stopped(control, trajectory, f"error: {error}", figures)
+        except BaseException:  # SystemExit from a signal handler, GeneratorExit ...: stop, re-raise
+            _stop(control)
+            raise
         sent = self.samples_sent
         _stop(control)
         figures["wall_time_s"] = time.monotonic() - started
