@@ -1,0 +1,57 @@
+"""Shared by the tests: the count of fuzzed and fault-injected cases, printed after every run.
+
+The fuzz suites (tests/test_fuzz_*.py, test_safety_invariants.py, test_vlm_faults.py) add each
+distinct case they try to the session's `fuzz_counter`; pytest's terminal summary then prints
+one line per suite, so CI logs show how many cases ran (docs/safety.md).
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections import defaultdict
+from typing import Any
+
+import pytest
+
+
+class FuzzCounter:
+    """Distinct cases per suite (by content digest), and how many ended in success or error."""
+
+    def __init__(self) -> None:
+        self.distinct: dict[str, set[str]] = defaultdict(set)
+        self.outcomes: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
+
+    def add(self, suite: str, case: Any, outcome: str = "tried") -> None:
+        data = case if isinstance(case, bytes) else repr(case).encode("utf-8", "replace")
+        self.distinct[suite].add(hashlib.sha1(data).hexdigest())
+        self.outcomes[suite][outcome] += 1
+
+    def total(self, prefix: str = "") -> int:
+        return sum(len(v) for k, v in self.distinct.items() if k.startswith(prefix))
+
+    def lines(self) -> list[str]:
+        lines = []
+        for suite in sorted(self.distinct):
+            outcomes = ", ".join(f"{k} {v}" for k, v in sorted(self.outcomes[suite].items()))
+            lines.append(f"{suite}: {len(self.distinct[suite])} distinct cases ({outcomes})")
+        return lines
+
+
+COUNTER = FuzzCounter()
+
+
+@pytest.fixture(scope="session")
+def fuzz_counter() -> FuzzCounter:
+    return COUNTER
+
+
+def pytest_terminal_summary(terminalreporter: Any) -> None:
+    if not COUNTER.distinct:
+        return
+    terminalreporter.write_sep("-", "fuzz and fault-injection cases tried")
+    for line in COUNTER.lines():
+        terminalreporter.write_line(line)
+    answers = COUNTER.total("answers")
+    terminalreporter.write_line(
+        f"total: {COUNTER.total()} distinct cases, of which {answers} planner answers"
+    )
