@@ -90,15 +90,17 @@ def resample_ground_truth(ground_truth: Points, n: int = DEFAULT_N) -> np.ndarra
     return np.concatenate([resample_along(p, k) for p, k in zip(pieces, shares, strict=True)])
 
 
+FIRST_NEIGHBOURS = 16
+"""Nearest neighbours fetched per ground-truth point up front; more only when all are taken."""
+
+
 def _greedy_pairing(reference: np.ndarray, candidates: np.ndarray) -> np.ndarray:
     """For each reference point in order, the index of the closest candidate not yet paired."""
     from scipy.spatial import cKDTree
 
     n, m = len(reference), len(candidates)
     tree = cKDTree(candidates)
-    # Within a round fewer than min(n, m) candidates are taken when a point is paired, so one
-    # of its min(n, m) nearest neighbours is always free.
-    k = min(n, m)
+    k = min(m, FIRST_NEIGHBOURS)
     _, neighbours = tree.query(reference, k=k)
     neighbours = np.asarray(neighbours).reshape(n, k)
     taken = np.zeros(m, dtype=bool)
@@ -109,7 +111,16 @@ def _greedy_pairing(reference: np.ndarray, candidates: np.ndarray) -> np.ndarray
             taken[:] = False
             used = 0
         row = neighbours[i]
-        j = int(row[np.argmax(~taken[row])])  # the nearest free one (see above: one is free)
+        free = ~taken[row]
+        wider = k
+        while not free.any():
+            # Fewer than used + 1 candidates are taken, so the used + 1 nearest hold a free one:
+            # widening the search (doubling) always ends.
+            wider = min(2 * wider, used + 1, m)
+            _, found = tree.query(reference[i], k=wider)
+            row = np.atleast_1d(found)
+            free = ~taken[row]
+        j = int(row[np.argmax(free)])  # the nearest free one
         chosen[i] = j
         taken[j] = True
         used += 1
