@@ -235,6 +235,7 @@ class PlanSession:
             "prompt_tokens": answer.prompt_tokens,
             "completion_tokens": answer.completion_tokens,
             "cost_usd": answer.cost_usd,
+            "retries": [redact(line, self.secrets) for line in answer.retries],
         }
         path = self.vlm_folder / f"{index:02d}-{request.step}-attempt{request.attempt}.json"
         path.write_text(json.dumps(record, indent=2), encoding="utf-8")

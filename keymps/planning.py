@@ -80,6 +80,8 @@ class BackendAnswer:
     cost_usd: float | None = None
     """None where the price is unknown (e.g. a local model without a registered price)."""
     model: str | None = None
+    retries: tuple[str, ...] = ()
+    """Failed tries before this answer (rate limits, server errors ...), one line each."""
 
 
 class PlannerBackend(Protocol):

@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import contextlib
 import json
+import socket
+import struct
 import threading
 import time
 from collections.abc import Callable
@@ -47,6 +49,21 @@ class Reply:
     @staticmethod
     def truncated() -> Reply:
         return Reply("truncated")
+
+    @staticmethod
+    def reset() -> Reply:
+        """Read the request, then reset the connection (TCP RST) without a byte of answer."""
+        return Reply("reset")
+
+    @staticmethod
+    def broken_json(status: int = 200) -> Reply:
+        """A complete HTTP response whose JSON body is cut in the middle."""
+        return Reply("broken_json", status=status)
+
+    @staticmethod
+    def not_http() -> Reply:
+        """Bytes that are not an HTTP response at all, then the connection closes."""
+        return Reply("not_http")
 
 
 @dataclass(frozen=True)
@@ -209,6 +226,24 @@ class VlmServer:
                         },
                         reply.headers,
                     )
+                    return
+                if reply.kind == "reset":
+                    linger = struct.pack("ii", 1, 0)  # close with RST, not FIN
+                    self.connection.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, linger)
+                    self.close_connection = True
+                    return
+                if reply.kind == "broken_json":
+                    payload = b'{"id": "chatcmpl-test", "choices": [{"message": {"content": "{\\"ke'
+                    self.send_response(reply.status)
+                    self.send_header("Content-Type", "application/json")
+                    self.send_header("Content-Length", str(len(payload)))
+                    self.end_headers()
+                    self.wfile.write(payload)
+                    return
+                if reply.kind == "not_http":
+                    self.wfile.write(b"\x00\x01garbage, not HTTP\r\n\r\n")
+                    self.wfile.flush()
+                    self.close_connection = True
                     return
                 if reply.kind == "truncated":
                     self.send_response(200)

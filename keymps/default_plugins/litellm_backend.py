@@ -162,7 +162,8 @@ class LitellmBackend:
         if self._supports_schema(litellm, model, provider):
             arguments["response_format"] = {"type": "json_schema", "json_schema": request.schema}
         started = time.perf_counter()
-        response = self._call_with_retries(litellm, arguments)
+        retries: list[str] = []
+        response = self._call_with_retries(litellm, arguments, retries)
         latency = time.perf_counter() - started
         text = _answer_text(response)
         usage = getattr(response, "usage", None)
@@ -178,6 +179,7 @@ class LitellmBackend:
             latency_s=latency,
             cost_usd=cost,
             model=model,
+            retries=tuple(retries),
         )
 
     @staticmethod
@@ -190,7 +192,10 @@ class LitellmBackend:
             return False
         return bool(params) and "response_format" in params
 
-    def _call_with_retries(self, litellm: Any, arguments: dict[str, Any]) -> Any:
+    def _call_with_retries(
+        self, litellm: Any, arguments: dict[str, Any], retries: list[str] | None = None
+    ) -> Any:
+        """litellm.completion, retried on rate limits and server errors (noted in `retries`)."""
         retryable = (
             litellm.RateLimitError,
             litellm.InternalServerError,
@@ -224,7 +229,10 @@ class LitellmBackend:
                         f"{attempt + 1} tries: {_short(error)}"
                     ) from None
                 told = _retry_after(error)
-                time.sleep(min(told if told is not None else wait, MAX_WAIT_S))
+                pause = min(told if told is not None else wait, MAX_WAIT_S)
+                if retries is not None:
+                    retries.append(f"try {attempt + 1}: {_short(error)}; retried after {pause:g} s")
+                time.sleep(pause)
                 wait *= 2
             except litellm.BadRequestError as error:
                 raise KeympsError(

@@ -1,0 +1,210 @@
+"""Faults on the VLM path, injected by a real HTTP server on 127.0.0.1 (tests/vlm_server.py).
+
+Connection refused, a reset mid-answer, answers slower than planner.timeout_s, 429 with
+Retry-After, 500s, cut-off and broken JSON, bytes that are not HTTP: every full run ends either
+in a retry that succeeds or in one clean error line, within a time the configuration bounds; the
+run folder's vlm/ records what happened, and the recording executor (standing in for the robot)
+is never called after an error. test_litellm_backend.py covers the backend alone; here the
+faults go through `keymps.run_task`, alone and in random sequences (hypothesis).
+"""
+
+from __future__ import annotations
+
+import json
+import socket
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+from fuzz_support import RecordingExecutor, assert_clean_error, install, task_copy
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from vlm_server import Reply, VlmServer
+
+import keymps
+from keymps.errors import KeympsError
+from keymps.hookspecs import hookimpl
+
+DOT = {"keyword": "line", "pairs": [[[130, 130], [130, 130]]], "rationale": "one dot"}
+TIMEOUT_S = 0.6
+BACKOFF_S = 0.05
+RETRIES = 3  # the litellm backend's default
+
+
+class QuickRetries:
+    """The real litellm backend, registered with a short first backoff so faults stay cheap."""
+
+    @hookimpl
+    def register_vlm_backends(self, register: Any) -> None:
+        from keymps.default_plugins.litellm_backend import LitellmBackend, LitellmOptions
+
+        register(
+            "litellm-quick",
+            lambda options: LitellmBackend(
+                LitellmOptions.model_validate({**options, "backoff_s": BACKOFF_S})
+            ),
+        )
+
+
+@pytest.fixture(scope="module")
+def server() -> Any:
+    with VlmServer(responder=lambda request: json.dumps(DOT)) as running:
+        yield running
+
+
+@pytest.fixture(scope="module")
+def task(tmp_path_factory: Any) -> Any:
+    path = task_copy(
+        tmp_path_factory.mktemp("faults"),
+        **{
+            "model: openai/gpt-4o": f"model: openai/test-vlm\n  timeout_s: {TIMEOUT_S}\n"
+            "  cache: false",
+            "Put 15 icing dots": "Put 1 icing dot",
+        },
+    )
+    return keymps.load_task(path)
+
+
+@pytest.fixture(autouse=True)
+def _plugins(keymps_plugins: Any, monkeypatch: Any, tmp_path: Path, server: Any) -> None:
+    install(keymps_plugins)
+    if not keymps_plugins.manager.has_plugin("quick-retries"):
+        keymps_plugins.register(QuickRetries(), name="quick-retries")
+    monkeypatch.setenv("KEYMPS_CACHE_DIR", str(tmp_path / "cache"))
+    server.reset()
+
+
+def run_with(task: Any, api_base: str, out: Path, backend: str = "litellm-quick") -> Any:
+    return keymps.run_task(
+        task, backend=backend, api_base=api_base, executor="recording", out=out, rerun="off"
+    )
+
+
+def vlm_records(folder: Path) -> list[dict[str, Any]]:
+    return [json.loads(p.read_text()) for p in sorted((folder / "vlm").glob("*-attempt*.json"))]
+
+
+def worst_case_s(faults: int) -> float:
+    """What the configuration allows: every try may time out, every wait doubles."""
+    waits = sum(min(BACKOFF_S * 2**i, 30.0) for i in range(RETRIES))
+    return 2 * (RETRIES + 1) * TIMEOUT_S + waits + 0.6 * faults + 5.0
+
+
+def test_connection_refused_is_retried_then_a_clean_error(task: Any, tmp_path: Path) -> None:
+    with socket.socket() as probe:  # a port nobody listens on
+        probe.bind(("127.0.0.1", 0))
+        closed = f"http://127.0.0.1:{probe.getsockname()[1]}/v1"
+    started = time.perf_counter()
+    with pytest.raises(KeympsError) as caught:
+        run_with(task, closed, tmp_path / "run")
+    assert time.perf_counter() - started < worst_case_s(0)
+    assert_clean_error(caught.value)
+    assert "failed after 4 tries" in str(caught.value) and "plan:" in str(caught.value)
+    records = vlm_records(tmp_path / "run")
+    assert (
+        records and not records[-1]["valid"] and "failed after 4 tries" in records[-1]["errors"][0]
+    )
+    assert RecordingExecutor.calls == []
+
+
+@pytest.mark.parametrize(
+    ("faults", "what"),
+    [
+        ([Reply.reset()], "reset before any answer"),
+        ([Reply.truncated()], "reset mid-answer"),
+        ([Reply.broken_json()], "complete response, broken JSON"),
+        ([Reply.not_http()], "not HTTP"),
+        ([Reply.error(429, retry_after=0.3)], "429 with Retry-After"),
+        ([Reply.error(500), Reply.error(502), Reply.error(503)], "5xx three times"),
+    ],
+    ids=lambda v: v if isinstance(v, str) else "",
+)
+def test_a_fault_then_a_good_answer_succeeds(
+    faults: list[Reply], what: str, task: Any, server: Any, tmp_path: Path, fuzz_counter: Any
+) -> None:
+    server.script(*faults)
+    started = time.perf_counter()
+    try:
+        run = run_with(task, server.openai_base, tmp_path / "run")
+    except KeympsError as error:
+        assert_clean_error(error)
+        pytest.fail(f"{what}: a retry should have succeeded, got: {error}")
+    elapsed = time.perf_counter() - started
+    fuzz_counter.add("VLM faults/named", what, "recovered")
+    assert elapsed < worst_case_s(len(faults))
+    if what == "429 with Retry-After":
+        assert elapsed >= 0.3, "the server's Retry-After is honoured"
+    assert len(server.chat_requests) == len(faults) + 1
+    assert len(RecordingExecutor.calls) == 1
+    records = vlm_records(run.folder)
+    assert records[-1]["valid"] and records[-1]["latency_s"] > 0
+    assert len(records[-1]["retries"]) == len(faults)  # each failed try, and the wait after it
+    assert all("retried after" in line for line in records[-1]["retries"])
+
+
+@pytest.mark.parametrize(
+    ("faults", "expected"),
+    [
+        ([Reply.error(500)] * 4, "failed after 4 tries"),
+        ([Reply.reset()] * 4, "failed after 4 tries"),
+        ([Reply.text_answer(json.dumps(DOT), delay_s=2.0)], "no answer within 0.6 s"),
+        ([Reply.error(401, message="bad key")], "rejected the credentials"),
+        ([Reply.error(404, message="no such model")], "not found"),
+        ([Reply.error(400, message="image too large")], "refused the request"),
+    ],
+    ids=["5xx", "resets", "slow", "401", "404", "400"],
+)
+def test_faults_that_persist_end_in_one_clean_line(
+    faults: list[Reply], expected: str, task: Any, server: Any, tmp_path: Path, fuzz_counter: Any
+) -> None:
+    server.script(*faults)
+    started = time.perf_counter()
+    with pytest.raises(KeympsError) as caught:
+        run_with(task, server.openai_base, tmp_path / "run")
+    assert time.perf_counter() - started < worst_case_s(len(faults))
+    assert_clean_error(caught.value)
+    assert expected in str(caught.value)
+    fuzz_counter.add("VLM faults/named", expected, "clean error")
+    assert RecordingExecutor.calls == []
+    record = json.loads((tmp_path / "run" / "run.json").read_text())
+    assert record["ok"] is False and expected in record["error"]
+    assert expected in vlm_records(tmp_path / "run")[-1]["errors"][0]
+
+
+FAULTS = {
+    "reset": Reply.reset(),
+    "truncated": Reply.truncated(),
+    "broken json": Reply.broken_json(),
+    "not http": Reply.not_http(),
+    "429": Reply.error(429, retry_after=0.05),
+    "500": Reply.error(500),
+    "503 retry-after 0": Reply.error(503, retry_after=0),
+    "slow": Reply.text_answer(json.dumps(DOT), delay_s=TIMEOUT_S + 0.4),
+    "garbage answer": Reply.text_answer("I would rather not."),
+    "good": Reply.json_answer(DOT),
+}
+
+
+@settings(deadline=None, max_examples=20, suppress_health_check=list(HealthCheck), database=None)
+@given(sequence=st.lists(st.sampled_from(sorted(FAULTS)), min_size=1, max_size=5))
+def test_random_fault_sequences(
+    sequence: list[str], task: Any, server: Any, tmp_path: Path, fuzz_counter: Any
+) -> None:
+    server.reset()
+    RecordingExecutor.calls = []
+    server.script(*(FAULTS[name] for name in sequence))
+    out = tmp_path / f"run-{time.monotonic_ns()}"
+    started = time.perf_counter()
+    try:
+        run_with(task, server.openai_base, out)
+    except KeympsError as error:
+        assert_clean_error(error)
+        assert RecordingExecutor.calls == []
+        assert vlm_records(out), "the run folder records the failed attempt"
+        outcome = "clean error"
+    else:
+        assert len(RecordingExecutor.calls) == 1
+        outcome = "recovered"
+    assert time.perf_counter() - started < worst_case_s(len(sequence))
+    fuzz_counter.add("VLM faults/random sequences", tuple(sequence), outcome)
