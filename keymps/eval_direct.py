@@ -17,6 +17,27 @@ from keymps.eval_methods import MethodContext, MethodOutput
 from keymps.eval_vlm import Seen, ask, look
 
 
+def _finish(
+    context: MethodContext, seen: Seen, output: MethodOutput, calls: list[dict[str, Any]]
+) -> MethodOutput:
+    """Attach the calls, draw the generated motion over the scene (plan.png), keep the sidecar."""
+    import cv2
+
+    from keymps.geometry import ImageFrame
+
+    frame = ImageFrame.from_task(seen.task, seen.scene.size_px)
+    image = seen.scene.image.copy()
+    for index, piece in enumerate(output.work_pieces):
+        pixels = np.round(frame.to_pixels(np.asarray(piece)[:, :2])).astype(np.int32)
+        cv2.polylines(image, [pixels.reshape(-1, 1, 2)], False, (0, 0, 255), 2, cv2.LINE_AA)
+        x, y = (int(v) for v in pixels[0])
+        cv2.putText(image, str(index + 1), (x + 4, y - 4), cv2.FONT_HERSHEY_SIMPLEX, 0.5,
+                    (0, 160, 0), 1, cv2.LINE_AA)  # fmt: skip
+    path = context.folder / "plan.png"
+    cv2.imwrite(str(path), image)
+    return replace(output, calls=tuple(calls), images={"plan": str(path)}, scene=seen.truth)
+
+
 def _number_list(value: Any, length: int, what: str) -> tuple[list[float] | None, str | None]:
     if (
         not isinstance(value, list)
@@ -98,8 +119,7 @@ def keymps_text(context: MethodContext) -> MethodOutput:
     z_start, z_goal = height_pair(seen.task)
     starts = np.column_stack([board[:, 0], np.full(len(board), z_start)])
     goals = np.column_stack([board[:, 1], np.full(len(board), z_goal)])
-    output = _compose(seen, answer.keyword, starts, goals)
-    return replace(output, calls=tuple(calls))
+    return _finish(context, seen, _compose(seen, answer.keyword, starts, goals), calls)
 
 
 def vlm_keyword(context: MethodContext) -> MethodOutput:
@@ -141,8 +161,7 @@ def vlm_keyword(context: MethodContext) -> MethodOutput:
         return (keyword, np.asarray(points, dtype=float).reshape(-1, 2, 3)), []
 
     (keyword, pairs), calls = ask(context, seen, "vlm-keyword", True, schema, validate)
-    output = _compose(seen, keyword, pairs[:, 0], pairs[:, 1])
-    return replace(output, calls=tuple(calls))
+    return _finish(context, seen, _compose(seen, keyword, pairs[:, 0], pairs[:, 1]), calls)
 
 
 def _dmp_from(entry: dict[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -214,7 +233,7 @@ def vlm_dmp(context: MethodContext) -> MethodOutput:
     entries, calls = ask(
         context, seen, "vlm-dmp", True, _dmp_schema("keymps_vlm_dmp_answer", False), validate
     )
-    return replace(_rollout_dmps(entries), calls=tuple(calls))
+    return _finish(context, seen, _rollout_dmps(entries), calls)
 
 
 def vlm_mdmp(context: MethodContext) -> MethodOutput:
@@ -231,4 +250,4 @@ def vlm_mdmp(context: MethodContext) -> MethodOutput:
     entries, calls = ask(
         context, seen, "vlm-mdmp", True, _dmp_schema("keymps_vlm_mdmp_answer", True), validate
     )
-    return replace(_rollout_dmps(entries), calls=tuple(calls))
+    return _finish(context, seen, _rollout_dmps(entries), calls)

@@ -45,6 +45,8 @@ class Seen:
     """Board metres covered by the crop: x_min, y_min, x_max, y_max."""
     metres_per_px: tuple[float, float]
     primitives: dict[str, Any]
+    truth: dict[str, Any] | None = None
+    """The synthetic scene's sidecar, when the image source rendered one."""
 
 
 def look(context: MethodContext) -> Seen:
@@ -79,6 +81,7 @@ def look(context: MethodContext) -> Seen:
         crop_box_m=box,
         metres_per_px=crop_metres_per_px(task, detection, scene),
         primitives=primitives,
+        truth=run.notes.get("synthetic_scene"),
     )
 
 

@@ -231,6 +231,7 @@ def test_every_method_runs_against_a_vlm(vlm_run: tuple[Path, list[Recorded]]) -
         assert record["ok"], record
         assert record["backend"] == "litellm" and record["model"] == "openai/test-vlm"
         assert record["vlm_calls"] == 1
+        assert (out / record["images"]["plan"]).is_file()  # every method draws its motion
         assert record["prompt_tokens"] == 321
         by_method.setdefault(record["method"], []).append(record)
     d = {m: max(r["d_mm"] for r in rs) for m, rs in by_method.items()}
