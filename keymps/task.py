@@ -113,6 +113,9 @@ class ToolSpec(StrictModel):
     """Tool tip in the flange frame, metres; None takes the built-in tool's."""
     yaw: Literal["follow", "fixed"] | None = None
     """'follow': the blade turns with the cut direction (knife); None takes the built-in's."""
+    blade_length: Annotated[float, Field(gt=0, le=0.4, allow_inf_nan=False)] | None = None
+    """A knife's straight edge, from the tip back along the cut, metres; None takes the
+    built-in's (knife 0.16, piping_bag none; a custom tool has none)."""
 
 
 class Robot(StrictModel):

@@ -68,16 +68,19 @@ class Tool:
     tcp: tuple[float, float, float]
     yaw: str
     """'follow': the tool turns with the path direction (a blade); 'fixed': constant yaw."""
+    blade_length: float = 0.0
+    """A straight horizontal edge along the tool x axis, from the tip back against the direction
+    of travel, metres (0: no blade). The sim executor cuts with the whole edge."""
 
 
 BUILTIN_TOOLS: dict[str, Tool] = {
-    "knife": Tool("knife", (0.0, 0.0, 0.10), "follow"),
-    "piping_bag": Tool("piping_bag", (0.0, 0.0, 0.15), "fixed"),
+    "knife": Tool("knife", (0.0, 0.0, 0.10), "follow", blade_length=0.16),  # a chef's knife
+    "piping_bag": Tool("piping_bag", (0.0, 0.0, 0.15), "fixed", blade_length=0.0),
 }
 
 
 def tool_from_task(task: Task) -> Tool:
-    """The task's tool: a built-in by name, possibly with its own TCP and yaw mode."""
+    """The task's tool: a built-in by name, possibly with its own TCP, yaw mode and blade."""
     spec = task.robot.tool
     builtin = BUILTIN_TOOLS.get(spec.name)
     if builtin is None and spec.tcp is None:
@@ -88,7 +91,10 @@ def tool_from_task(task: Task) -> Tool:
         )
     tcp = tuple(float(v) for v in spec.tcp) if spec.tcp is not None else builtin.tcp  # type: ignore[union-attr]
     yaw = spec.yaw or (builtin.yaw if builtin else "fixed")
-    return Tool(spec.name, (tcp[0], tcp[1], tcp[2]), yaw)
+    blade = spec.blade_length
+    if blade is None:
+        blade = builtin.blade_length if builtin else 0.0
+    return Tool(spec.name, (tcp[0], tcp[1], tcp[2]), yaw, float(blade))
 
 
 def ur_urdf_path() -> Path:

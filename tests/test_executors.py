@@ -185,3 +185,123 @@ def test_marks_tell_cuts_from_icing_and_find_contact_below_the_board() -> None:
     assert found.cuts[0][0, 0] == pytest.approx(0.1 + 0.1 * (0.01 / 0.032), abs=0.002)
     assert np.allclose(found.dots[0], [0.05, 0.05])
     assert len(found.contacts) == 5  # z = 0.03 - 0.032 k / 100 < -0.5 mm for k = 96..100
+
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def shipped_cutting(tmp_path_factory: pytest.TempPathFactory) -> Run:
+    """tasks/object_cutting.yaml run end to end offline: 4 diameter cuts of the pizza."""
+    from keymps.engine import run_task
+
+    folder = tmp_path_factory.mktemp("object_cutting")
+    return run_task(REPO / "tasks/object_cutting.yaml", out=folder, backend="offline", rerun="off")
+
+
+def cut_coverage(outcome: np.ndarray, run: Run) -> list[float]:
+    """Per grounded cut, the share of its line inside the pizza (2 mm in from the outline) that
+    outcome.png shows cut, sampled every 0.5 mm."""
+    from keymps.geometry import object_outline_m
+
+    size = (outcome.shape[1], outcome.shape[0])
+    pizza = object_outline_m(run.results["detect"], run.task, size).astype(np.float32)
+    frame = ImageFrame.from_task(run.task, size)
+    shares = []
+    for segment in run.results["ground"].segments:
+        start, goal = np.asarray(segment.start)[:2], np.asarray(segment.goal)[:2]
+        count = int(np.linalg.norm(goal - start) / 0.0005) + 1
+        line = start + np.linspace(0.0, 1.0, count)[:, None] * (goal - start)
+        inside = [cv2.pointPolygonTest(pizza, (float(x), float(y)), True) > 0.002 for x, y in line]
+        pixels = np.round(frame.to_pixels(line[inside])).astype(int)
+        shares.append(float(np.mean([is_cut(outcome[y, x]) for x, y in pixels])))
+    return shares
+
+
+def test_a_knife_cuts_with_its_whole_blade_across_the_pizza(shipped_cutting: Run) -> None:
+    run = shipped_cutting
+    report = run.results["execute"]
+    assert report.ok, report.message
+    assert report.figures["cuts"] == 4 and report.figures["blade_length_mm"] == 160
+    outcome = cv2.imread(str(run.folder / "outcome.png"))
+    coverage = cut_coverage(outcome, run)
+    assert len(coverage) == 4 and min(coverage) >= 0.95, coverage
+    # each cut goes through the whole pizza (300 px across at 0.5 mm per px: 150 mm)
+    x0, _, x1, _ = run.results["detect"].bbox_px
+    diameter_mm = (x1 - x0) * 0.5
+    for k in range(4):
+        assert report.figures[f"cut_{k + 1}_length_mm"] == pytest.approx(diameter_mm, abs=4)
+    # the blade cuts only the food: the board around the pizza is untouched
+    scene = run.results["image"].image
+    x, y = to_pixel(run.task, (0.02, 0.09))  # left of the pizza, on the horizontal cut's line
+    assert np.array_equal(outcome[y, x], scene[y, x])
+    # between the cuts (halfway between two diameters, mid-radius) the pizza is whole
+    centre = np.mean([np.asarray(s.goal)[:2] for s in run.results["ground"].segments], axis=0)
+    between = centre + 0.04 * np.array([math.cos(math.pi / 8), math.sin(math.pi / 8)])
+    x, y = to_pixel(run.task, (float(between[0]), float(between[1])))
+    assert np.array_equal(outcome[y, x], scene[y, x])
+
+
+def test_a_tiny_blade_cuts_only_where_the_tip_went_below_the_top(
+    shipped_cutting: Run, tmp_path: Path
+) -> None:
+    from keymps.task import ToolSpec
+
+    full = shipped_cutting
+    robot = full.task.robot.model_copy(update={"tool": ToolSpec(name="knife", blade_length=0.001)})
+    run = Run(task=full.task.model_copy(update={"robot": robot}), folder=tmp_path)
+    run.results.update({k: v for k, v in full.results.items() if k != "execute"})
+    report = create_component("executor", "sim", {}).execute(full.results["check"], run)
+    assert report.ok, report.message
+    assert report.figures["cuts"] == 4 and report.figures["blade_length_mm"] == 1
+    coverage = cut_coverage(cv2.imread(str(tmp_path / "outcome.png")), run)
+    # the tip descends from 5 mm above the top to the board along the line: it is in the
+    # food over the last 4/5 of each cut only (Appendix C start-height grounding)
+    assert all(0.6 < share < 0.9 for share in coverage), coverage
+    for k in range(4):
+        assert (
+            report.figures[f"cut_{k + 1}_length_mm"]
+            < 0.9 * full.results["execute"].figures[f"cut_{k + 1}_length_mm"]
+        )
+
+
+def test_tool_blade_length_comes_from_the_task_or_the_built_in_tool() -> None:
+    from keymps.ur_description import tool_from_task
+
+    def blade(tool: Any) -> float:
+        task = make_task("knife", 0.02)
+        spec = Task.model_validate({**task.model_dump(), "robot": {"tool": tool}})
+        return tool_from_task(spec).blade_length
+
+    assert blade("knife") == 0.16
+    assert blade("piping_bag") == 0.0
+    assert blade({"name": "knife", "blade_length": 0.2}) == 0.2
+    assert blade({"name": "spatula", "tcp": [0, 0, 0.1]}) == 0.0
+    for bad in (0.0, 0.5):
+        with pytest.raises(ValueError, match="blade_length"):
+            blade({"name": "knife", "blade_length": bad})
+
+
+def test_a_sawing_blade_trails_the_cut_and_stays_inside_the_food() -> None:
+    from keymps.cut_sweep import Footprint, covered_length
+    from keymps.default_plugins.sim_executor import Replay, marks
+
+    # sawing along +x: 10 mm strokes back and forth while descending through a 2 cm top
+    s = np.linspace(0.0, 1.0, 2001)
+    x = 0.10 + 0.08 * s + 0.005 * np.sin(2 * math.pi * 12 * s)
+    xyz = np.column_stack([x, np.full_like(s, 0.09), 0.025 * (1 - s)])
+    yaw_x = np.tile([1.0, 0.0], (len(s), 1))  # the knife's x axis along the cut
+    replay = Replay(s, xyz, xyz, np.zeros(len(s), int), np.full(len(s), "work"), yaw_x)
+    found = marks(replay, 0.02, blade_length=0.16)
+    (sweep,) = found.sweeps
+    assert np.all(sweep[:, 1, 0] < sweep[:, 0, 0])  # the edge points back, whichever stroke
+    assert np.allclose(np.linalg.norm(sweep[:, 1] - sweep[:, 0], axis=1), 0.16)
+    steps = np.linalg.norm(np.diff(sweep[:, 0], axis=0), axis=1)
+    sample_step = np.linalg.norm(np.diff(xyz, axis=0), axis=1).max()
+    assert steps.max() <= 0.0005 + sample_step  # a blade position every 0.5 mm of travel
+    food = Footprint(np.array([[0.10, 0.07], [0.17, 0.07], [0.17, 0.11], [0.10, 0.11]]))
+    assert covered_length(sweep, food) == pytest.approx(0.07, abs=0.001)  # the food's width
+    # the tip alone is in the food only from x = 0.113 (the back end of its first stroke
+    # after it went below the top at s = 0.2)
+    tip_only = marks(replay, 0.02, blade_length=0.0).sweeps[0]
+    assert covered_length(tip_only, food) == pytest.approx(0.17 - 0.113, abs=0.001)

@@ -127,6 +127,11 @@ BROKEN = [
         VALID + "robot: {tool: {name: spatula, tcp: [0, 0]}}\n",
         ["task.yaml:10:36: robot.tool.tcp[2]: field required"],
     ),
+    (
+        "knife blade longer than 40 cm",
+        VALID + "robot: {tool: {name: knife, blade_length: 0.5}}\n",
+        ["task.yaml:10:43: robot.tool.blade_length: Input should be less than or equal to 0.4"],
+    ),
 ]
 
 

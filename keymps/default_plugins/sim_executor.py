@@ -5,17 +5,23 @@ controller's servoJ does; forward kinematics gives where the tool went. It repor
 tool strayed from the planned tool path (tracking error), any contact below the board, and
 draws what the tool did on the scene image: cuts where the tool went below the object's top
 surface, icing strokes and dots where it worked on or above it. Dynamics are not simulated.
+
+A knife cuts with its whole edge, not only its tip: the edge is a horizontal segment at the tip's
+height, `blade_length` long, from the tip back along the tool x axis against the direction the
+work piece travels. A cut is the union of the edge's positions while it was below the object's
+top, inside the object's footprint. A tool without a blade (a piping bag) marks with its tip.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from keymps.cut_sweep import Footprint, blade_backwards, covered_length, edge_segments
 from keymps.errors import KeympsError
 from keymps.hookspecs import Register, hookimpl
 from keymps.stages import ExecutionReport, SceneImage, ToolPath, ValidatedTrajectory
@@ -62,6 +68,8 @@ class Replay:
     planned_xyz: np.ndarray
     piece_index: np.ndarray
     kind: np.ndarray
+    tool_x: np.ndarray | None = None
+    """(n, 2) the tool x axis (a blade's direction) on the board, unit length; None: unknown."""
 
 
 def replay(model: Any, trajectory: Trajectory, rate_hz: float) -> Replay:
@@ -79,13 +87,20 @@ def replay(model: Any, trajectory: Trajectory, rate_hz: float) -> Replay:
         trajectory.tool_xyz[nxt] - trajectory.tool_xyz[base]
     )
     t = trajectory.t[base] + frac / trajectory.rate_hz
+    positions, rotations = model.tool_poses(q)
     return Replay(
         t,
-        model.tool_positions(q),
+        positions,
         planned,
         np.asarray(trajectory.piece_index)[base],
         np.asarray(trajectory.kind)[base],
+        _unit(rotations[:, :2, 0]),
     )
+
+
+def _unit(vectors: np.ndarray) -> np.ndarray:
+    norms = np.linalg.norm(vectors, axis=1, keepdims=True)
+    return np.divide(vectors, norms, out=np.zeros_like(vectors), where=norms > 1e-9)
 
 
 def tracking_errors(result: Replay, tool_path: ToolPath | None) -> np.ndarray:
@@ -113,19 +128,25 @@ class Marks:
     """What the tool left behind, in board metres."""
 
     cuts: list[np.ndarray]
+    """Per cut, the tip's path (n, 2) while below the object's top."""
     strokes: list[np.ndarray]
     dots: list[np.ndarray]
     travel: list[np.ndarray]
     contacts: np.ndarray
+    sweeps: list[np.ndarray] = field(default_factory=list)
+    """Per cut, (k, 2, 2) board segments the cutting edge covered: the blade at each of its
+    positions below the top (tip first), or the tip's path step by step for a tool without one."""
 
 
-def marks(result: Replay, object_top: float) -> Marks:
+def marks(result: Replay, object_top: float, blade_length: float = 0.0) -> Marks:
     """Cuts where a work piece went below the object's top, icing where work stayed on it."""
     work = result.kind == "work"
     below_top = result.tool_xyz[:, 2] < object_top - 1e-4
     cutting_pieces = np.unique(result.piece_index[work & below_top])
     cutting = work & np.isin(result.piece_index, cutting_pieces)
-    cuts = [result.tool_xyz[a:b, :2] for a, b in _runs(cutting & below_top) if b - a >= 2]
+    cut_runs = [(a, b) for a, b in _runs(cutting & below_top) if b - a >= 2]
+    cuts = [result.tool_xyz[a:b, :2] for a, b in cut_runs]
+    sweeps = [_sweep(result, a, b, blade_length) for a, b in cut_runs]
     strokes, dots = [], []
     for a, b in _runs(work & ~cutting):
         for piece in np.unique(result.piece_index[a:b]):
@@ -136,11 +157,32 @@ def marks(result: Replay, object_top: float) -> Marks:
                 strokes.append(xy)
     travel = [result.tool_xyz[a:b, :2] for a, b in _runs(~work) if b - a >= 2]
     contacts = result.tool_xyz[result.tool_xyz[:, 2] < -BOARD_CONTACT_M, :2]
-    return Marks(cuts, strokes, dots, travel, contacts)
+    return Marks(cuts, strokes, dots, travel, contacts, sweeps)
 
 
-def render_outcome(task: Task, scene: np.ndarray | None, found: Marks, options: SimOptions) -> Any:
-    """The scene image with what the tool did drawn where it did it (BGR uint8)."""
+def _sweep(result: Replay, start: int, end: int, blade_length: float) -> np.ndarray:
+    """(k, 2, 2) segments covered by the cutting edge over samples [start, end)."""
+    backwards = None
+    if result.tool_x is not None:
+        backwards = result.tool_x[start:end].copy()
+        pieces = result.piece_index[start:end]
+        for piece in np.unique(pieces):
+            whole = np.flatnonzero(result.piece_index == piece)
+            travel = result.tool_xyz[whole[-1], :2] - result.tool_xyz[whole[0], :2]
+            mine = pieces == piece
+            backwards[mine] = blade_backwards(backwards[mine], travel)
+    return edge_segments(result.tool_xyz[start:end], backwards, blade_length)
+
+
+def render_outcome(
+    task: Task,
+    scene: np.ndarray | None,
+    found: Marks,
+    options: SimOptions,
+    footprint: np.ndarray | None = None,
+) -> Any:
+    """The scene image with what the tool did drawn where it did it (BGR uint8); cuts only
+    inside the `footprint` polygon (board metres) when it is given."""
     import cv2
 
     from keymps.geometry import ImageFrame
@@ -174,20 +216,36 @@ def render_outcome(task: Task, scene: np.ndarray | None, found: Marks, options: 
         radius = icing << shift
         cv2.circle(image, centre, radius + (1 << shift), ICING_EDGE, -1, cv2.LINE_AA, shift)
         cv2.circle(image, centre, radius, ICING_COLOUR, -1, cv2.LINE_AA, shift)
-    for line in found.cuts:
-        cv2.polylines(
-            image,
-            [pixels(line)],
-            False,
-            CUT_COLOUR,
-            width_px(options.cut_width_m),
-            cv2.LINE_AA,
-            shift,
-        )
+    if found.sweeps:
+        _paint_cuts(image, found.sweeps, footprint, pixels, width_px(options.cut_width_m), shift)
     for point in found.contacts:
         centre = tuple(int(v) for v in pixels(point)[0])
         cv2.circle(image, centre, 6 << shift, CONTACT_COLOUR, 2, cv2.LINE_AA, shift)
     return image
+
+
+def _paint_cuts(
+    image: np.ndarray,
+    sweeps: list[np.ndarray],
+    footprint: np.ndarray | None,
+    pixels: Any,
+    width: int,
+    shift: int,
+) -> None:
+    """Darken the union of the swept segments, clipped to the footprint, in place."""
+    import cv2
+
+    covered = np.zeros(image.shape[:2], np.uint8)
+    for sweep in sweeps:
+        segments = pixels(sweep.reshape(-1, 2)).reshape(-1, 2, 2)
+        cv2.polylines(covered, list(segments), False, 255, width, cv2.LINE_AA, shift)
+    alpha = covered.astype(np.float32) / 255.0
+    if footprint is not None:
+        inside = np.zeros(image.shape[:2], np.uint8)
+        cv2.fillPoly(inside, [pixels(footprint)], 255, cv2.LINE_AA, shift)
+        alpha *= inside.astype(np.float32) / 255.0
+    alpha = alpha[:, :, None]
+    image[:] = np.round(image * (1.0 - alpha) + np.array(CUT_COLOUR) * alpha).astype(np.uint8)
 
 
 class SimExecutor:
@@ -208,7 +266,12 @@ class SimExecutor:
         tool_path = run.results.get("compose")
         result = replay(model, trajectory, self.options.replay_rate_hz)
         errors = tracking_errors(result, tool_path if isinstance(tool_path, ToolPath) else None)
-        found = marks(result, float(task.scene.object_height))
+        outline = _footprint(run)
+        # Without the object's footprint a blade's reach cannot be clipped: cut with the tip.
+        blade_length = model.tool.blade_length if outline is not None else 0.0
+        found = marks(result, float(task.scene.object_height), blade_length)
+        clip = Footprint(outline) if outline is not None else None
+        lengths = [covered_length(sweep, clip) for sweep in found.sweeps]
         period = float(np.diff(result.t).mean()) if len(result.t) > 1 else 0.0
         figures = {
             "duration_s": trajectory.duration_s,
@@ -217,7 +280,9 @@ class SimExecutor:
             "min_tool_z_mm": float(result.tool_xyz[:, 2].min() * 1000),
             "below_board_s": float(len(found.contacts) * period),
             "cuts": float(len(found.cuts)),
-            "cut_length_mm": _length_mm(found.cuts),
+            "blade_length_mm": float(blade_length * 1000),
+            "cut_length_mm": round(sum(lengths) * 1000, 1),
+            **{f"cut_{k + 1}_length_mm": round(v * 1000, 1) for k, v in enumerate(lengths)},
             "icing_strokes": float(len(found.strokes)),
             "icing_length_mm": _length_mm(found.strokes),
             "icing_dots": float(len(found.dots)),
@@ -227,7 +292,7 @@ class SimExecutor:
             scene = run.results.get("image")
             picture = scene.image if isinstance(scene, SceneImage) else None
             path = run.path("outcome.png")
-            _write_png(path, render_outcome(task, picture, found, self.options))
+            _write_png(path, render_outcome(task, picture, found, self.options, outline))
             files.append(str(path))
         problems = []
         if len(found.contacts):
@@ -247,6 +312,17 @@ class SimExecutor:
         )
         message = "; ".join(problems) if problems else summary
         return ExecutionReport(self.name, not problems, message, tuple(files), figures)
+
+
+def _footprint(run: Run) -> np.ndarray | None:
+    """The detected object's footprint in board metres, or None without a detection."""
+    from keymps.geometry import object_outline_m
+    from keymps.stages import Detection
+
+    detection, scene = run.results.get("detect"), run.results.get("image")
+    if not isinstance(detection, Detection) or not isinstance(scene, SceneImage):
+        return None
+    return object_outline_m(detection, run.task, scene.size_px)
 
 
 def _length_mm(lines: list[np.ndarray]) -> float:
