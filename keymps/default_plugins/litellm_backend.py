@@ -205,6 +205,7 @@ class LitellmBackend:
         )
         wait = self.options.backoff_s
         where = self.options.api_base or arguments["model"]
+        secrets = _secret_values(arguments)
         for attempt in range(self.options.retries + 1):
             try:
                 return litellm.completion(**arguments)
@@ -226,27 +227,38 @@ class LitellmBackend:
                 if attempt == self.options.retries:
                     raise KeympsError(
                         f"the VLM ({arguments['model']} at {where}) failed after "
-                        f"{attempt + 1} tries: {_short(error)}"
+                        f"{attempt + 1} tries: {_short(error, secrets)}"
                     ) from None
                 told = _retry_after(error)
                 pause = min(told if told is not None else wait, MAX_WAIT_S)
                 if retries is not None:
-                    retries.append(f"try {attempt + 1}: {_short(error)}; retried after {pause:g} s")
+                    retries.append(
+                        f"try {attempt + 1}: {_short(error, secrets)}; retried after {pause:g} s"
+                    )
                 time.sleep(pause)
                 wait *= 2
             except litellm.BadRequestError as error:
                 raise KeympsError(
-                    f"the VLM ({arguments['model']}) refused the request: {_short(error)}"
+                    f"the VLM ({arguments['model']}) refused the request: {_short(error, secrets)}"
                 ) from None
             except litellm.APIError as error:
                 raise KeympsError(
-                    f"the VLM ({arguments['model']}) failed: {_short(error)}"
+                    f"the VLM ({arguments['model']}) failed: {_short(error, secrets)}"
                 ) from None
         raise AssertionError("unreachable")
 
 
-def _short(error: Exception) -> str:
+def _secret_values(arguments: dict[str, Any]) -> list[str]:
+    """The key sent and every credential-like variable: servers may quote them in errors."""
+    names = [n for n in os.environ if n.endswith(("_API_KEY", "_TOKEN", "_SECRET"))]
+    values = [str(arguments.get("api_key") or "")] + [os.environ[n] for n in names]
+    return [v for v in values if len(v) >= 8 and v != "no-key-needed"]
+
+
+def _short(error: Exception, secrets: list[str] | None = None) -> str:
     text = " ".join(str(error).split())
+    for secret in secrets or ():
+        text = text.replace(secret, "[redacted]")
     return text[:300] + ("..." if len(text) > 300 else "")
 
 
