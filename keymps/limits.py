@@ -126,8 +126,26 @@ def path_length_m(tool_path: ToolPath) -> float:
     return float(sum(piece.length_m for piece in tool_path.pieces if len(piece.points) > 1))
 
 
+BELOW_BOARD_M = 0.001
+"""A planned point this far below the board can never pass the safety check (0.5 mm board
+tolerance plus 0.5 mm path tolerance): say so before inverse kinematics, naming the pair."""
+
+
 def check_tool_path(tool_path: ToolPath, task: Task) -> ToolPath:
-    """Refuse a path too long to solve and time in reasonable time, before any IK runs."""
+    """Refuse a path below the board or too long to solve and time, before any IK runs."""
+    for piece in tool_path.pieces:
+        lowest = float(np.min(np.asarray(piece.points, dtype=float)[:, 2], initial=np.inf))
+        if lowest < -BELOW_BOARD_M:
+            where = (
+                f"primitive {tool_path.keyword!r}"
+                if piece.kind == "work"
+                else "the travel move to its start"
+            )
+            raise KeympsError(
+                f"the tool path goes {-lowest * 1000:.1f} mm below the board at pair "
+                f"{piece.pair_index + 1} ({where}); raise height.margin or keep that pair's "
+                "keypoints off the board"
+            )
     motion = task.motion
     length = path_length_m(tool_path)
     if not np.isfinite(length) or length > motion.max_path_length:

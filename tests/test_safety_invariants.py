@@ -14,6 +14,7 @@ Full runs cost about 0.2-0.5 s each, so their number is bounded (see the @fuzz c
 from __future__ import annotations
 
 import json
+import os
 import time
 from pathlib import Path
 from typing import Any
@@ -88,6 +89,8 @@ def _run_one(task: Any, answer: Any, out: Path, counter: Any, suite: str) -> Non
         assert_clean_error(error)
         assert RecordingExecutor.calls == [], "nothing may be executed after an error"
         counter.add(suite, answer.case, "refused: " + str(error).split(":")[0])
+        if os.environ.get("KEYMPS_FUZZ_SHOW"):  # to see why each case was refused (-s)
+            print("refused:", error, answer.case)
         return
     assert len(RecordingExecutor.calls) == 1
     check_invariants(run, RecordingExecutor.calls[0])
@@ -155,6 +158,72 @@ def test_answers_off_the_object_are_refused_or_safe(
     install(keymps_plugins)
     out = tmp_path / f"run-{time.monotonic_ns()}"
     _run_one(tasks["icing"], answer, out, fuzz_counter, "answers/full runs, off the object")
+
+
+@st.composite
+def task_settings(draw: Any) -> dict[str, Any]:
+    """A valid variation of the icing task: placement, tool, heights, speeds and limits."""
+    tool = draw(
+        st.one_of(
+            st.sampled_from(["knife", "piping_bag"]),
+            st.builds(
+                lambda z, y: {"name": "custom", "tcp": [0.0, y, z], "yaw": "fixed"},
+                st.floats(0.05, 0.25),
+                st.floats(-0.02, 0.02),
+            ),
+        )
+    )
+    return {
+        "object_height": draw(st.one_of(st.floats(0.01, 0.12), st.floats(0.0, 0.12))),
+        "height": {  # mostly icing's own mode: 'line' dips below keypoints put on the board
+            "mode": draw(st.sampled_from(["both", "both", "both", "start", "end"])),
+            "margin": draw(
+                st.one_of(st.floats(0.0, 0.02), st.floats(0.0, 0.02), st.floats(-0.01, 0.0))
+            ),
+        },
+        "motion": {
+            "clearance": draw(st.floats(0.005, 0.1)),
+            "work_speed": draw(st.floats(0.005, 0.2)),
+            "travel_speed": draw(st.floats(0.05, 0.5)),
+        },
+        "robot": {
+            "model": draw(st.sampled_from(["ur3", "ur3e"])),
+            "base": [
+                draw(st.floats(0.05, 0.25)),
+                draw(st.floats(-0.35, -0.12)),
+                draw(st.floats(-0.02, 0.05)),
+                draw(st.floats(45, 135)),
+            ],
+            "tool": tool,
+            "max_joint_acceleration": draw(st.floats(0.5, 10)),
+            "max_joint_jerk": draw(st.floats(10, 500)),
+            "max_tool_acceleration": draw(st.floats(0.1, 3)),
+            "max_tool_jerk": draw(st.floats(2, 100)),
+        },
+    }
+
+
+@settings(FAST, max_examples=40)
+@given(config=task_settings(), answer=answers_on_the_object(["line"], spread=1.0, most_pairs=2))
+def test_varied_task_settings_give_safe_trajectories_or_clean_errors(
+    config: dict[str, Any],
+    answer: Any,
+    tasks: dict[str, Any],
+    keymps_plugins: Any,
+    tmp_path: Path,
+    fuzz_counter: Any,
+) -> None:
+    install(keymps_plugins)
+    base = tasks["icing"]
+    data = base.model_dump(mode="python")
+    data["scene"]["object_height"] = config["object_height"]
+    for section in ("height", "motion", "robot"):
+        data[section].update(config[section])
+    data["path"] = base.path
+    task = type(base).model_validate(data)
+    out = tmp_path / f"run-{time.monotonic_ns()}"
+    answer.case = (answer.case, repr(config))
+    _run_one(task, answer, out, fuzz_counter, "answers/full runs, varied task settings")
 
 
 def test_full_run_counts_are_meaningful(fuzz_counter: Any) -> None:
@@ -347,3 +416,30 @@ def test_run_json_after_a_refused_plan_names_the_error(
     record = json.loads((tmp_path / "run.json").read_text())
     assert record["ok"] is False and "outside the image" in record["error"]
     assert record["trajectory"] is None and RecordingExecutor.calls == []
+
+
+def test_a_path_below_the_board_is_refused_before_inverse_kinematics(
+    tasks: dict[str, Any], keymps_plugins: Any, tmp_path: Path
+) -> None:
+    """Found by the fuzzing above: 'line' dips about 4 mm below keypoints placed on the board.
+
+    The safety check refused such paths after solving and timing; they now stop at compose,
+    naming the pair (the check would refuse them anyway: more than 1 mm below the board).
+    """
+    install(keymps_plugins)
+    base = tasks["icing"]
+    data = base.model_dump(mode="python")
+    data["scene"]["object_height"] = 0.0
+    data["height"].update({"mode": "both", "margin": 0.0})
+    data["path"] = base.path
+    task = type(base).model_validate(data)
+    centre = lambda request: answer_text(  # noqa: E731
+        "line", [[[c / 2 for c in request.crop_size_px]] * 2]
+    )
+    ScriptedBackend.answers = [centre, centre]
+    with pytest.raises(KeympsError) as caught:
+        keymps.run_task(task, backend="scripted", executor="recording", out=tmp_path, rerun="off")
+    assert_clean_error(caught.value)
+    assert str(caught.value).startswith("compose: the tool path goes ")
+    assert "mm below the board at pair 1 (primitive 'line')" in str(caught.value)
+    assert RecordingExecutor.calls == []
