@@ -26,6 +26,11 @@ METHOD_NAMES = ("keymps", "vlm-keypoint", "keymps-text", "vlm-keyword", "vlm-dmp
     "--concurrency", type=click.IntRange(1, 64), default=1, show_default=True,
     help="Runs in flight at once (VLM calls overlap).",
 )  # fmt: skip
+@click.option(
+    "--processes", type=click.IntRange(1, 64),
+    help="Worker processes sharing the runs in flight (default: one per core when there are "
+    "enough runs; 1: all in this process).",
+)  # fmt: skip
 @click.option("--backend", help="Planner backend: offline, litellm, replay or a plugin's.")
 @click.option("--model", help="VLM model for litellm, e.g. openai/gpt-4o.")
 @click.option("--api-base", help="OpenAI-compatible server URL (Ollama, vLLM ...).")
@@ -41,6 +46,7 @@ def eval_command(
     methods: tuple[str, ...],
     repeats: int | None,
     concurrency: int,
+    processes: int | None,
     backend: str | None,
     model: str | None,
     api_base: str | None,
@@ -51,6 +57,11 @@ def eval_command(
 ) -> None:
     """Run every case x method x repeat of SUITE (a file or a shipped suite's name), write
     results.jsonl, summary.md, summary.csv, d_boxplot.png and gallery.html, print the table."""
+    import os
+
+    # Runs are the unit of parallelism; set before NumPy loads OpenBLAS, whose helper threads
+    # would otherwise spin on the other core after every matrix product.
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     from keymps.errors import KeympsError
 
     try:
@@ -59,6 +70,7 @@ def eval_command(
             methods,
             repeats,
             concurrency,
+            processes,
             backend,
             model,
             api_base,
@@ -78,6 +90,7 @@ def _evaluate(
     methods: tuple[str, ...],
     repeats: int | None,
     concurrency: int,
+    processes: int | None,
     backend: str | None,
     model: str | None,
     api_base: str | None,
@@ -98,6 +111,7 @@ def _evaluate(
         methods=tuple(dict.fromkeys(chosen)),
         repeats=repeats,
         concurrency=concurrency,
+        processes=processes,
         backend=backend,
         model=model,
         api_base=api_base,

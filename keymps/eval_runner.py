@@ -45,6 +45,9 @@ class EvalOptions:
     """Ground-truth points of the metric D."""
     no_cache: bool = False
     """Always ask the VLM (never answer a run from the planner's answer cache)."""
+    processes: int | None = 1
+    """Worker processes sharing the runs in flight (1: every run in this process; None: one per
+    core when there are enough runs, as `keymps eval` does). See keymps.eval_pool."""
 
 
 @dataclass(frozen=True)
@@ -72,11 +75,12 @@ def plan_jobs(suite: Suite, options: EvalOptions) -> list[Job]:
         get_method(method)
     cases = [suite.case(c) for c in options.cases] if options.cases else suite.cases
     repeats = options.repeats or suite.repeats
+    # the methods of one scene next to each other: they share its rendering (scene cache)
     return [
         Job(case.id, method, r, case.scene.seed + r)
         for case in cases
-        for method in options.methods
         for r in range(repeats)
+        for method in options.methods
     ]
 
 
@@ -291,6 +295,7 @@ def run_suite(
 ) -> list[dict[str, Any]]:
     """Run every job not yet in out/results.jsonl; return all records for these jobs."""
     from keymps.eval_methods import check_runnable, get_method
+    from keymps.eval_pool import default_processes, run_in_processes
 
     backend = resolve_backend(options)
     for name in options.methods:
@@ -310,13 +315,20 @@ def run_suite(
         for job in jobs:
             if key(job) in done:
                 on_result(job, done[key(job)])
-    with ThreadPoolExecutor(max_workers=max(1, options.concurrency)) as pool:
-        futures = {pool.submit(run_job, suite, job, options, backend): job for job in todo}
-        for future in as_completed(futures):
-            job = futures[future]
-            record = future.result()
-            results.append(record)
-            records[key(job)] = record
-            if on_result:
-                on_result(job, record)
+
+    def finished(job: Job, record: dict[str, Any]) -> None:
+        results.append(record)
+        records[key(job)] = record
+        if on_result:
+            on_result(job, record)
+
+    processes = options.processes or default_processes(options.concurrency, len(todo))
+    processes = min(processes, options.concurrency)
+    if processes > 1:
+        run_in_processes(suite, todo, options, backend, processes, finished)
+    else:
+        with ThreadPoolExecutor(max_workers=max(1, options.concurrency)) as pool:
+            futures = {pool.submit(run_job, suite, job, options, backend): job for job in todo}
+            for future in as_completed(futures):
+                finished(futures[future], future.result())
     return [records[key(job)] for job in jobs]

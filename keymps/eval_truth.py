@@ -165,10 +165,10 @@ def case_truth(
     given sidecar of that scene, or the scene rendered again."""
     from keymps.eval_tasks import case_scene, case_task_data
     from keymps.primitives import default_search_dirs
-    from keymps.scenes import render_scene
+    from keymps.scenes import render_scene_cached
 
     if sidecar is None:
-        sidecar = render_scene(case_scene(suite, case, seed).spec()).truth
+        sidecar = render_scene_cached(case_scene(suite, case, seed).spec()).truth
     if case.ground_truth is None:
         return CaseTruth(scene=sidecar, lines_m=None, pieces=())
     scene_object = sidecar["objects"][0]

@@ -10,6 +10,8 @@ are in keymps.scene_objects, their colours in keymps.scene_textures.
 
 from __future__ import annotations
 
+import copy
+import functools
 import json
 import re
 from collections.abc import Sequence
@@ -47,6 +49,8 @@ __all__ = [
 SIDECAR_SCHEMA_VERSION = 1
 MARGIN_M = 0.004
 """Objects keep at least this distance from the board's edges."""
+RENDER_CACHE_SIZE = 16
+"""Scenes render_scene_cached remembers (about 0.7 MB each at the default resolution)."""
 
 
 @dataclass(frozen=True)
@@ -267,6 +271,21 @@ def render_scene(spec: SceneSpec) -> RenderedScene:
         "objects": objects_truth,
     }
     return RenderedScene(pixels, truth)
+
+
+def render_scene_cached(spec: SceneSpec) -> RenderedScene:
+    """render_scene(spec), remembered for the last RENDER_CACHE_SIZE specs (a private copy).
+
+    Rendering costs tens of milliseconds of CPU; `keymps eval` renders the same scene for every
+    method it compares and again for the ground truth.
+    """
+    scene = _render_remembered(spec)
+    return RenderedScene(scene.image.copy(), copy.deepcopy(scene.truth))
+
+
+@functools.lru_cache(maxsize=RENDER_CACHE_SIZE)
+def _render_remembered(spec: SceneSpec) -> RenderedScene:
+    return render_scene(spec)
 
 
 def _rotation(degrees: float) -> np.ndarray:

@@ -165,3 +165,20 @@ def test_shipped_scenes_are_reproduced_by_their_documented_command(
         rendered_truth["objects"][0]["outline_m"],
         atol=1e-6,
     )
+
+
+def test_the_render_cache_returns_the_same_scene_as_a_private_copy() -> None:
+    from keymps.scenes import render_scene_cached
+
+    spec = SceneSpec.from_kinds(["eggplant"], seed=31)
+    fresh = render_scene(spec)
+    first = render_scene_cached(spec)
+    again = render_scene_cached(spec)
+    assert np.array_equal(first.image, fresh.image) and first.truth == fresh.truth
+    assert np.array_equal(again.image, fresh.image) and again.truth == fresh.truth
+    first.image[:] = 0  # a caller drawing on its image changes nobody else's
+    first.truth["objects"][0]["kind"] = "changed"
+    third = render_scene_cached(spec)
+    assert np.array_equal(third.image, fresh.image) and third.truth == fresh.truth
+    other = render_scene_cached(SceneSpec.from_kinds(["eggplant"], seed=32))
+    assert not np.array_equal(other.image, fresh.image)

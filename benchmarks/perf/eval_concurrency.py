@@ -87,15 +87,69 @@ def start_server(latency: float) -> tuple[ThreadingHTTPServer, str]:
     return server, f"http://127.0.0.1:{server.server_address[1]}/v1"
 
 
+def _rss_kb(pid: str) -> int:
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1])
+    except OSError:  # the process ended meanwhile
+        pass
+    return 0
+
+
+def _descendants(pid: str) -> list[str]:
+    found = []
+    for task in Path(f"/proc/{pid}/task").glob("*"):
+        try:
+            children = (task / "children").read_text().split()
+        except OSError:
+            continue
+        for child in children:
+            found += [child, *_descendants(child)]
+    return found
+
+
+def _cpu_s(pid: str) -> float:
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return 0.0
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+class CpuMeter:
+    """CPU seconds used by this process and its descendants since the meter was made; workers
+    that end between samples keep their last sampled value."""
+
+    def __init__(self) -> None:
+        self.first: dict[str, float] = {}
+        self.last: dict[str, float] = {}
+        self.sample()
+
+    def sample(self) -> None:
+        for pid in [str(os.getpid()), *_descendants(str(os.getpid()))]:
+            used = _cpu_s(pid)
+            self.first.setdefault(pid, used if not self.last else 0.0)
+            self.last[pid] = used
+
+    def seconds(self) -> float:
+        self.sample()
+        return sum(self.last[pid] - self.first[pid] for pid in self.last)
+
+
 def rss_mb() -> float:
-    for line in Path("/proc/self/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1]) / 1024
-    return float("nan")
+    """Resident memory of this process and every process it started (the eval workers and
+    their fork server), in MB; pages the workers share with the fork server count twice."""
+    return sum(_rss_kb(pid) for pid in ["self", *_descendants(str(os.getpid()))]) / 1024
 
 
 def run(
-    requests: int, concurrency: int, api_base: str, out: Path, sample: list[float] | None = None
+    requests: int,
+    concurrency: int,
+    api_base: str,
+    out: Path,
+    sample: list[float] | None = None,
+    cpu: CpuMeter | None = None,
 ) -> tuple[float, list[dict[str, Any]]]:
     from keymps.eval_runner import EvalOptions, run_suite
     from keymps.eval_suites import load_suite
@@ -106,6 +160,7 @@ def run(
         methods=("keymps",),
         repeats=requests // len(suite.cases),
         concurrency=concurrency,
+        processes=None,  # as `keymps eval` chooses: one worker process per core
         backend="litellm",
         model="openai/perf-vlm",
         api_base=api_base,
@@ -114,6 +169,8 @@ def run(
     def on_result(job: Any, record: dict[str, Any]) -> None:
         if sample is not None:
             sample.append(rss_mb())
+        if cpu is not None:
+            cpu.sample()
 
     # a fresh answer cache: every run must reach the server (the same seeds recur across runs)
     os.environ["KEYMPS_CACHE_DIR"] = str(out / "cache")
@@ -133,7 +190,9 @@ def main() -> None:
     work = Path(tempfile.mkdtemp(prefix="keymps-eval-perf-"))
     server, api_base = start_server(args.latency)
     try:
-        run(4, 2, api_base, work / "warmup")  # imports, litellm, first renders
+        # imports, litellm's first request, first renders, and the fork server of the worker
+        # processes (started once per process, like the imports)
+        run(16, 8, api_base, work / "warmup")
         seconds: dict[int, float] = {}
         for concurrency in (1, 8):
             seconds[concurrency], records = run(
@@ -155,10 +214,10 @@ def main() -> None:
                 f"slow c{concurrency}: {args.slow_requests} requests in {slow[concurrency]:.1f} s"
             )
         Latency.seconds = args.latency
-        cpu_started = time.process_time()
+        cpu = CpuMeter()
         samples: list[float] = []
-        long_seconds, records = run(args.long, 8, api_base, work / "long", samples)
-        cpu_per_job = (time.process_time() - cpu_started) / max(1, len(records))
+        long_seconds, records = run(args.long, 8, api_base, work / "long", samples, cpu)
+        cpu_per_job = cpu.seconds() / max(1, len(records))
         settled = samples[min(len(samples) - 1, 100)]
         growth = max(samples[100:] or samples) - settled
         print(f"long run: {len(records)} requests in {long_seconds:.1f} s")

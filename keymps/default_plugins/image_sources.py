@@ -131,7 +131,7 @@ class SyntheticSource:
 
     def load(self, run: Any) -> SceneImage:
         from keymps.limits import check_image_pixels
-        from keymps.scenes import SceneSpec, render_scene
+        from keymps.scenes import SceneSpec, render_scene_cached
 
         task = run.task
         options = self.options
@@ -151,7 +151,7 @@ class SyntheticSource:
             check_image_pixels(size_px, task.scene.max_image_pixels, "the synthetic scene")
         except KeympsError as error:
             raise ImageSourceError(str(error)) from None
-        scene = render_scene(spec)
+        scene = render_scene_cached(spec)
         notes = getattr(run, "notes", None)
         if isinstance(notes, dict):
             notes["synthetic_scene"] = scene.truth

@@ -1,0 +1,149 @@
+"""Runs eval jobs in worker processes, several jobs in flight in each.
+
+A run costs about 0.1 s of Python CPU (rendering the scene, litellm's request handling, the
+planner, scoring). In one process the GIL serializes that work, so however many VLM calls
+overlap, throughput stops at about ten runs a second. Worker processes each have their own GIL:
+`processes` workers share the `concurrency` runs in flight (each worker takes a job only when
+one of its threads is free, so at most `concurrency` runs, and VLM calls, are ever in flight).
+
+Workers are forked from a fork server that has imported keymps, OpenCV, NumPy and litellm once
+(keymps.eval_preload): starting one costs milliseconds, not the seconds of those imports, and
+no worker inherits the parent's threads or open connections. Each worker runs with the parent's
+environment as it is when the suite starts (API keys, KEYMPS_CACHE_DIR ...). Records come back
+to the parent, which writes results.jsonl as before.
+
+As in any multiprocessing program, a script that runs a suite with processes > 1 needs the
+`if __name__ == "__main__":` guard: the workers import the script's main module.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import queue
+import threading
+from collections.abc import Callable, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
+from typing import TYPE_CHECKING, Any
+
+from keymps.errors import KeympsError
+
+if TYPE_CHECKING:
+    from keymps.eval_runner import EvalOptions, Job
+    from keymps.eval_suites import Suite
+
+MIN_JOBS_PER_PROCESS = 8
+"""Below this many jobs per worker, starting workers costs more than it saves."""
+POLL_S = 0.5
+
+
+def default_processes(concurrency: int, jobs: int) -> int:
+    """Worker processes for `jobs` runs at `concurrency`: one per core; 1 means in-process."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    processes = min(cores or 1, concurrency)
+    while processes > 1 and jobs < MIN_JOBS_PER_PROCESS * processes:
+        processes -= 1
+    return max(1, processes)
+
+
+def threads_per_process(concurrency: int, processes: int) -> list[int]:
+    """Split `concurrency` runs in flight over the workers (the first ones take the remainder)."""
+    base, extra = divmod(concurrency, processes)
+    return [base + (1 if i < extra else 0) for i in range(processes) if base or i < extra]
+
+
+def _worker(
+    suite: Suite,
+    options: EvalOptions,
+    backend: str,
+    threads: int,
+    environment: dict[str, str],
+    jobs: Any,
+    results: Any,
+) -> None:
+    """A worker process: take a job whenever a thread is free, send each record back."""
+    os.environ.clear()
+    os.environ.update(environment)
+    from keymps.eval_runner import run_job
+
+    free = threading.Semaphore(threads)
+
+    def send(job: Job, future: Future[dict[str, Any]]) -> None:
+        try:
+            record = future.result()
+        except BaseException as error:  # run_job records failures; this is a last resort
+            record = {"ok": False, "error": f"internal error {type(error).__name__}: {error}"}
+        results.put((job, record))
+        free.release()
+
+    with ThreadPoolExecutor(max_workers=threads) as pool:
+        while True:
+            free.acquire()
+            job = jobs.get()
+            if job is None:
+                break
+            future = pool.submit(run_job, suite, job, options, backend)
+            future.add_done_callback(functools.partial(send, job))
+
+
+def run_in_processes(
+    suite: Suite,
+    jobs: Sequence[Job],
+    options: EvalOptions,
+    backend: str,
+    processes: int,
+    on_record: Callable[[Job, dict[str, Any]], None],
+) -> None:
+    """Run `jobs` in `processes` workers; call on_record in this process as each one ends."""
+    import multiprocessing
+
+    context = multiprocessing.get_context("forkserver")
+    context.set_forkserver_preload(["keymps.eval_preload"])
+    job_queue = context.Queue()
+    result_queue = context.Queue()
+    for job in jobs:
+        job_queue.put(job)
+    shares = threads_per_process(options.concurrency, processes)
+    for _ in shares:
+        job_queue.put(None)
+    environment = dict(os.environ)
+    workers = [
+        context.Process(
+            target=_worker,
+            args=(suite, options, backend, threads, environment, job_queue, result_queue),
+            name=f"keymps-eval-{index}",
+            daemon=True,
+        )
+        for index, threads in enumerate(shares)
+    ]
+    received = 0
+    try:
+        for worker in workers:
+            worker.start()
+        while received < len(jobs):
+            try:
+                job, record = result_queue.get(timeout=POLL_S)
+            except queue.Empty:
+                _check_alive(workers)
+                continue
+            on_record(job, record)
+            received += 1
+    finally:
+        for worker in workers:
+            if worker.pid is None:  # never started
+                continue
+            worker.join(timeout=5 if received == len(jobs) else 0)
+            if worker.is_alive():
+                worker.terminate()
+                worker.join(timeout=5)
+        job_queue.close()
+        result_queue.close()
+
+
+def _check_alive(workers: Sequence[Any]) -> None:
+    for worker in workers:
+        if worker.exitcode not in (None, 0):
+            raise KeympsError(
+                f"eval worker process {worker.name} died (exit code {worker.exitcode}); every "
+                "finished run is in results.jsonl: run the same command again to resume"
+            )

@@ -1,0 +1,50 @@
+"""Imported once by the fork server that starts `keymps eval`'s worker processes (eval_pool).
+
+Its whole job is importing what a run needs, so that each forked worker starts with it loaded
+instead of spending seconds importing (about 4 s here, plus 1 s that litellm would import lazily
+during the first request). Nothing else imports this module.
+"""
+
+import contextlib
+import importlib
+import os
+
+# Runs are the unit of parallelism: BLAS helper threads would only spin on the other core.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("LITELLM_LOCAL_MODEL_COST_MAP", "True")
+
+import cv2  # noqa: E402, F401
+import numpy  # noqa: E402, F401
+import pinocchio  # noqa: E402, F401
+import scipy.interpolate  # noqa: E402, F401
+import scipy.spatial  # noqa: E402, F401
+
+import keymps.default_plugins.litellm_backend as litellm_backend  # noqa: E402
+import keymps.engine  # noqa: E402, F401
+import keymps.eval_methods  # noqa: E402, F401
+import keymps.eval_runner  # noqa: E402, F401
+import keymps.eval_truth  # noqa: E402, F401
+import keymps.planning  # noqa: E402, F401
+import keymps.scenes  # noqa: E402, F401
+
+LAZY_MODULES = (
+    "openai.types.chat",
+    "openai.resources.chat",
+    "httpcore",
+    "h11",
+    "litellm.llms.openai.openai",
+    "litellm.proxy.openai_files_endpoints.common_utils",
+)
+"""What litellm and the OpenAI client import during their first request (this litellm)."""
+
+
+def _preload() -> None:
+    litellm_backend.import_litellm()
+    for name in LAZY_MODULES:
+        # another litellm version may not have it: its first request imports what it needs
+        with contextlib.suppress(ImportError):
+            importlib.import_module(name)
+
+
+_preload()
