@@ -2,7 +2,7 @@
 
 A suite lists cases; each case names a synthetic scene object, how its scene is randomized, the
 sentence, and (where the sentence determines one) a ground-truth cut design stated geometrically.
-See docs/evaluation.md for the format and the reasoning behind every ground truth.
+See docs/benchmarks.md for the format and the reasoning behind every ground truth.
 """
 
 from __future__ import annotations
