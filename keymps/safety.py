@@ -29,6 +29,8 @@ BOARD_TOLERANCE_M = 0.0005
 FOOTPRINT_MARGIN_M = 0.02
 """Work may leave the outline by this much: a sawing stroke overshoots a cut's ends by ~15 mm."""
 TILT_TOLERANCE_RAD = math.radians(0.5)
+WORKSPACE_TOLERANCE_M = 0.001
+"""The tool tip stays over the workspace (the board area the image shows) within this."""
 ARM_CLEARANCE_M = 0.01
 """Elbow, wrists and flange stay this far above the board surface."""
 LIMIT_TOLERANCE = {"velocity": 1e-3, "acceleration": 0.01, "jerk": 0.05}
@@ -111,6 +113,7 @@ def validate(
     _check_path(trajectory, tool_path, positions, problems, figures)
     _check_board(model, trajectory, positions, rotations, problems, figures)
     _check_footprint(trajectory, tool_path, positions, outline_m, problems, figures)
+    _check_workspace(trajectory, positions, task, problems, figures)
     if problems:
         raise SafetyError(problems)
     return _issue(trajectory, ValidationReport(True, (), figures))
@@ -367,4 +370,27 @@ def _check_footprint(
             f"work leaves the object's footprint by {outside[i] * 1000:.0f} mm (at most "
             f"{FOOTPRINT_MARGIN_M * 1000:.0f} mm) at board point ({samples[i, 0]:.3f}, "
             f"{samples[i, 1]:.3f})"
+        )
+
+
+def _check_workspace(
+    trajectory: Trajectory,
+    positions: np.ndarray,
+    task: Task,
+    problems: list[str],
+    figures: dict[str, float],
+) -> None:
+    """The tool tip never leaves the area the camera saw (scene.workspace, board frame)."""
+    workspace = task.scene.workspace
+    low = np.asarray(workspace.shift, dtype=float)
+    high = low + np.asarray(workspace.size, dtype=float)
+    xy = positions[:, :2]
+    outside = np.maximum(low - xy, xy - high).max(axis=1)
+    figures["max_outside_workspace_mm"] = float(max(outside.max(), 0.0) * 1000)
+    if outside.max() > WORKSPACE_TOLERANCE_M:
+        i = int(np.argmax(outside))
+        problems.append(
+            f"the tool leaves the workspace (scene.workspace, the board area the image shows) by "
+            f"{outside[i] * 1000:.1f} mm at {_at(trajectory, i)}, board point ({xy[i, 0]:.3f}, "
+            f"{xy[i, 1]:.3f})"
         )

@@ -112,8 +112,13 @@ def check_invariants(run: Any, executed: Any) -> None:
     assert np.isfinite(q).all()
     positions, _ = model.tool_poses(q)
     low, high = workspace_box(task, size)
-    assert (positions[:, :2] >= low - 1e-3).all() and (positions[:, :2] <= high + 1e-3).all(), (
-        "the tool left the workspace"
+    outside = np.maximum(low - positions[:, :2], positions[:, :2] - high).max(axis=1)
+    worst = int(np.argmax(outside))
+    assert outside[worst] <= 1e-3, (
+        f"the tool left the workspace by {outside[worst] * 1000:.1f} mm at "
+        f"{positions[worst].round(4)} ({trajectory.kind[worst]} piece "
+        f"{trajectory.piece_index[worst]}, answer {run.results['plan'].pairs_px.tolist()}, "
+        f"keyword {run.results['plan'].keyword})"
     )
     assert positions[:, 2].min() >= -BOARD_TOLERANCE_M, "the tool went below the board"
     assert (q >= model.lower - 1e-9).all() and (q <= model.upper + 1e-9).all()
@@ -442,4 +447,29 @@ def test_a_path_below_the_board_is_refused_before_inverse_kinematics(
     assert_clean_error(caught.value)
     assert str(caught.value).startswith("compose: the tool path goes ")
     assert "mm below the board at pair 1 (primitive 'line')" in str(caught.value)
+    assert RecordingExecutor.calls == []
+
+
+def test_a_validated_trajectory_never_leaves_the_workspace(
+    tasks: dict[str, Any], keymps_plugins: Any, tmp_path: Path
+) -> None:
+    """Found by the fuzzing above: a sawing cut across the whole pizza crop overshot the image.
+
+    The pizza reaches within 1 cm of the image's top edge; a sawing stroke overshoots a cut's
+    ends by ~15 mm, so the knife went 8 mm past the board area the camera saw, and the check
+    (footprint + 2 cm) let it pass. The check now keeps the tool over scene.workspace.
+    """
+    install(keymps_plugins)
+
+    def edge_to_edge(request: Any) -> str:
+        width, height = request.crop_size_px
+        return answer_text("sawing", [[[width / 2, 0], [width / 2, height]]])
+
+    ScriptedBackend.answers = [edge_to_edge, edge_to_edge]
+    with pytest.raises(KeympsError) as caught:
+        keymps.run_task(
+            tasks["cutting"], backend="scripted", executor="recording", out=tmp_path, rerun="off"
+        )
+    assert_clean_error(caught.value)
+    assert "check: safety: the tool leaves the workspace (scene.workspace" in str(caught.value)
     assert RecordingExecutor.calls == []
