@@ -29,7 +29,6 @@ from fuzz_support import (
     assert_clean_error,
     install,
     task_copy,
-    workspace_box,
 )
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -45,19 +44,19 @@ FAST = settings(deadline=None, suppress_health_check=list(HealthCheck), database
 
 @st.composite
 def answers_on_the_object(
-    draw: Any, keywords: list[str], spread: float, most_pairs: int = 4
+    draw: Any, keywords: list[str], spread: float, most_pairs: int = 4, edges: bool = False
 ) -> Any:
     """A function of the request giving K pairs on a round object (crop-relative), as JSON.
 
     `spread` > 1 lets points leave the object (then the footprint check should refuse).
     """
     count = draw(st.integers(min_value=1, max_value=most_pairs))
+    # crop edges and centre lines are drawn often: objects near the image border live there
+    inside = st.floats(-0.45 * spread, 0.45 * spread)
+    edge = st.sampled_from([-0.5, 0.5, 0.0, -0.4, 0.4])
+    offsets = st.one_of(inside, inside, inside, edge) if edges else inside
     relative = [
-        [
-            [draw(st.floats(-0.45 * spread, 0.45 * spread)) for _ in range(2)],
-            [draw(st.floats(-0.45 * spread, 0.45 * spread)) for _ in range(2)],
-        ]
-        for _ in range(count)
+        [[draw(offsets) for _ in range(2)], [draw(offsets) for _ in range(2)]] for _ in range(count)
     ]
     dot = draw(st.booleans())
     keyword = draw(st.sampled_from(keywords))
@@ -111,7 +110,8 @@ def check_invariants(run: Any, executed: Any) -> None:
     q = np.asarray(trajectory.q)
     assert np.isfinite(q).all()
     positions, _ = model.tool_poses(q)
-    low, high = workspace_box(task, size)
+    low = np.asarray(task.scene.workspace.shift, dtype=float)  # the board area the image shows
+    high = low + np.asarray(task.scene.workspace.size, dtype=float)
     outside = np.maximum(low - positions[:, :2], positions[:, :2] - high).max(axis=1)
     worst = int(np.argmax(outside))
     assert outside[worst] <= 1e-3, (
@@ -145,8 +145,8 @@ def test_valid_icing_answers_give_safe_trajectories(
     _run_one(tasks["icing"], answer, out, fuzz_counter, "answers/full runs, icing (both)")
 
 
-@settings(FAST, max_examples=24)
-@given(answer=answers_on_the_object(["straight", "sawing"], spread=1.0, most_pairs=2))
+@settings(FAST, max_examples=30)
+@given(answer=answers_on_the_object(["straight", "sawing"], 1.0, most_pairs=2, edges=True))
 def test_valid_cutting_answers_give_safe_trajectories(
     answer: Any, tasks: dict[str, Any], keymps_plugins: Any, tmp_path: Path, fuzz_counter: Any
 ) -> None:
@@ -237,7 +237,7 @@ def test_full_run_counts_are_meaningful(fuzz_counter: Any) -> None:
         outcomes = fuzz_counter.outcomes.get(suite, {})
         if not outcomes:
             pytest.skip("run with the fuzz tests above")
-        assert outcomes.get("executed and checked", 0) >= sum(outcomes.values()) // 2, outcomes
+        assert outcomes.get("executed and checked", 0) >= sum(outcomes.values()) // 3, outcomes
 
 
 # the real-robot guard (keymps-ur-rtde): mocks stand in for the physical arm's interfaces
