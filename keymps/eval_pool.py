@@ -72,7 +72,17 @@ def _worker(
         try:
             record = future.result()
         except BaseException as error:  # run_job records failures; this is a last resort
-            record = {"ok": False, "error": f"internal error {type(error).__name__}: {error}"}
+            record = {
+                "suite": suite.name,
+                "case": job.case_id,
+                "method": job.method,
+                "repeat": job.repeat,
+                "seed": job.seed,
+                "backend": backend,
+                "model": options.model,
+                "ok": False,
+                "error": f"internal error {type(error).__name__}: {error}",
+            }
         results.put((job, record))
         free.release()
 
