@@ -48,9 +48,11 @@ class AnswerCache:
         path = self._path(key)
         try:
             data = json.loads(path.read_text(encoding="utf-8"))
-        except (OSError, json.JSONDecodeError):
+        except (OSError, ValueError, RecursionError):  # unreadable, not UTF-8, not JSON: a miss
             return None
-        return data if isinstance(data, dict) and isinstance(data.get("text"), str) else None
+        if not isinstance(data, dict) or not isinstance(data.get("text"), str):
+            return None
+        return data if _counts_are_valid(data) else None
 
     def put(self, key: str, entry: dict[str, Any]) -> None:
         path = self._path(key)
@@ -83,6 +85,8 @@ def read_cassette(path: Path) -> dict[str, dict[str, Any]]:
         raise KeympsError(f"cassette not found: {path}") from None
     except OSError as error:
         raise KeympsError(f"cannot read the cassette {path}: {error.strerror}") from None
+    except UnicodeDecodeError:
+        raise KeympsError(f"cassette {path} is not a UTF-8 text (JSONL) file") from None
     entries: dict[str, dict[str, Any]] = {}
     for number, line in enumerate(lines, start=1):
         if not line.strip():
@@ -91,7 +95,21 @@ def read_cassette(path: Path) -> dict[str, dict[str, Any]]:
             entry = json.loads(line)
         except json.JSONDecodeError as error:
             raise KeympsError(f"{path}:{number}: not a JSON line ({error.msg})") from None
+        except (ValueError, RecursionError):  # a 5000-digit number, nesting 100,000 deep
+            raise KeympsError(f"{path}:{number}: not a JSON line keymps can read") from None
         if not isinstance(entry, dict) or "digest" not in entry or "answer" not in entry:
             raise KeympsError(f"{path}:{number}: a cassette line needs 'digest' and 'answer'")
+        if not isinstance(entry["answer"], str) or not _counts_are_valid(entry):
+            raise KeympsError(
+                f"{path}:{number}: 'answer' must be text and the token counts whole numbers"
+            )
         entries[str(entry["digest"])] = entry
     return entries
+
+
+def _counts_are_valid(entry: dict[str, Any]) -> bool:
+    """Token counts are whole numbers or missing (run.json adds them up)."""
+    return all(
+        entry.get(name) is None or (type(entry[name]) is int and entry[name] >= 0)
+        for name in ("prompt_tokens", "completion_tokens")
+    )

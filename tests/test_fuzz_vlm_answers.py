@@ -365,3 +365,96 @@ def test_hostile_answers_in_full_runs_never_reach_the_executor(
     # an answer the rules accept: executed once, validated
     assert len(RecordingExecutor.calls) == 1
     assert run.results["check"].report.ok
+
+
+# cassettes (--backend replay) and the answer cache are files a user can edit or break
+
+
+@fuzz(300)
+@given(data=st.one_of(st.binary(max_size=300), st.text(max_size=300).map(str.encode)))
+def test_random_cassette_bytes_fail_cleanly(data: bytes, tmp_path: Path, fuzz_counter: Any) -> None:
+    from keymps.vlm_cache import read_cassette
+
+    path = tmp_path / "fuzz.jsonl"
+    path.write_bytes(data)
+    try:
+        entries = read_cassette(path)
+    except KeympsError as error:
+        assert_clean_error(error)
+        fuzz_counter.add("cassettes/random bytes", data, "refused")
+        return
+    for entry in entries.values():
+        assert isinstance(entry["answer"], str)
+    fuzz_counter.add("cassettes/random bytes", data, "read")
+
+
+@fuzz(300)
+@given(
+    entry=st.one_of(
+        st.dictionaries(st.sampled_from(["digest", "answer", "prompt_tokens"]), json_values),
+        st.fixed_dictionaries(
+            {"digest": st.text(max_size=8), "answer": st.one_of(st.text(max_size=30), json_values)},
+            optional={"prompt_tokens": json_values, "completion_tokens": json_values},
+        ),
+    )
+)
+def test_random_cassette_lines_fail_cleanly(
+    entry: dict[str, Any], tmp_path: Path, fuzz_counter: Any
+) -> None:
+    from keymps.vlm_cache import read_cassette
+
+    path = tmp_path / "fuzz.jsonl"
+    path.write_text(json.dumps(entry) + "\n")
+    try:
+        entries = read_cassette(path)
+    except KeympsError as error:
+        assert_clean_error(error)
+        fuzz_counter.add("cassettes/random lines", entry, "refused")
+        return
+    (read,) = entries.values()
+    assert isinstance(read["answer"], str)
+    for name in ("prompt_tokens", "completion_tokens"):
+        assert read.get(name) is None or type(read[name]) is int
+    fuzz_counter.add("cassettes/random lines", entry, "read")
+
+
+@fuzz(200)
+@given(data=st.one_of(st.binary(max_size=200), json_values.map(lambda v: json.dumps(v).encode())))
+def test_a_corrupt_cache_entry_is_a_miss(data: bytes, tmp_path: Path, fuzz_counter: Any) -> None:
+    from keymps.vlm_cache import AnswerCache
+
+    cache = AnswerCache(tmp_path / "cache")
+    key = "ab" + "0" * 62
+    cache.put(key, {"text": "{}", "prompt_tokens": 3, "completion_tokens": 4})
+    assert cache.get(key) is not None
+    cache._path(key).write_bytes(data)
+    hit = cache.get(key)  # never raises
+    if hit is not None:
+        assert isinstance(hit["text"], str)
+        assert all(type(hit.get(n, 0)) is int for n in ("prompt_tokens", "completion_tokens"))
+    fuzz_counter.add("cassettes/corrupt cache entries", data, "hit" if hit else "miss")
+
+
+@pytest.mark.parametrize(
+    ("name", "data"),
+    [
+        ("not UTF-8", b"\xff\xfe\x00garbage\n"),
+        ("nested 100,000 deep", ("[" * 100_000 + "]" * 100_000 + "\n").encode()),
+        ("5000-digit number", ('{"digest": "x", "answer": 1' + "0" * 5000 + "}\n").encode()),
+        ("tokens as text", b'{"digest": "x", "answer": "{}", "prompt_tokens": "lots"}\n'),
+    ],
+)
+def test_broken_cassettes_in_full_runs(
+    name: str, data: bytes, icing_task: Any, tmp_path: Path, fuzz_counter: Any
+) -> None:
+    """Found by fuzzing: each of these was a raw traceback (UnicodeDecodeError, RecursionError,
+    ValueError, and a TypeError when run.json added up the token counts)."""
+    cassette = tmp_path / "broken.jsonl"
+    cassette.write_bytes(data)
+    with pytest.raises(KeympsError) as caught:
+        keymps.run_task(
+            icing_task, backend="replay", cassette=cassette, out=tmp_path / "run", rerun="off"
+        )
+    assert_clean_error(caught.value)
+    assert str(caught.value).startswith("plan: ") and "broken.jsonl" in str(caught.value)
+    fuzz_counter.add("cassettes/named, full runs", name, "refused")
