@@ -182,7 +182,7 @@ def make_plan(
         backend_name=backend,
         backend=backend_object,
         base=base,
-        system_template=prompt_path.read_text(encoding="utf-8"),
+        system_template=_read_prompt(prompt_path),
         template_source=str(prompt_path),
         image_url=image_url,
     )
@@ -208,6 +208,15 @@ def make_plan(
         rationale=rationale,
         calls=tuple(session.calls),
     )
+
+
+def _read_prompt(path: Path) -> str:
+    try:
+        return path.read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        raise KeympsError(f"prompt template {path} is not a UTF-8 text file") from None
+    except OSError as error:
+        raise KeympsError(f"cannot read the prompt template {path}: {error.strerror}") from None
 
 
 def _write_crop(path: Path, crop: np.ndarray) -> None:

@@ -154,3 +154,52 @@ def test_a_vlm_backend_receives_the_sentence_unchanged(
         assert request.instruction == sentence
         user_text = str(request.messages[-1]["content"])
         assert sentence in user_text or repr(sentence)[1:-1] in user_text
+
+
+# the prompt template is the other text the planner reads (planner.prompt)
+
+
+@settings(FAST, max_examples=25)
+@given(
+    data=st.one_of(
+        st.binary(max_size=200),
+        st.text(max_size=200).map(str.encode),
+        st.lists(
+            st.sampled_from(
+                ["{{instruction}}", "{{", "}}", "{{nope}}", "{{max_pairs}}", "é", "\x00"]
+            ),
+            max_size=12,
+        ).map(lambda parts: "".join(parts).encode()),
+    )
+)
+def test_fuzzed_prompt_templates(
+    data: bytes, task: Any, keymps_plugins: Any, tmp_path: Path, fuzz_counter: Any
+) -> None:
+    """Found by fuzzing: a template that is not UTF-8 was a raw UnicodeDecodeError."""
+    install(keymps_plugins)
+    template = tmp_path / "prompt.md"
+    template.write_bytes(data)
+    with_template = task.model_copy(
+        update={"planner": task.planner.model_copy(update={"prompt": template})}
+    )
+    dot = lambda request: answer_text("line", [[[c / 2 for c in request.crop_size_px]] * 2])  # noqa: E731
+    ScriptedBackend.answers = [dot, dot]
+    outcome = _run(
+        with_template, "Put 1 icing dot", tmp_path / f"run-{time.monotonic_ns()}", "scripted"
+    )
+    fuzz_counter.add("instructions/prompt templates", data, outcome)
+    if outcome == "executed":
+        sent = ScriptedBackend.requests[0].messages[0]["content"]
+        assert "Put 1 icing dot" in str(sent) or "{{instruction}}" not in data.decode()
+
+
+def test_a_prompt_template_that_is_not_text(task: Any, keymps_plugins: Any, tmp_path: Path) -> None:
+    install(keymps_plugins)
+    template = tmp_path / "prompt.md"
+    template.write_bytes(b"\xff\xfe\x00\x01 not UTF-8")
+    with_template = task.model_copy(
+        update={"planner": task.planner.model_copy(update={"prompt": template})}
+    )
+    with pytest.raises(KeympsError, match=r"plan: prompt template .*prompt.md is not a UTF-8 text"):
+        keymps.run_task(with_template, backend="offline", executor="recording", out=tmp_path / "r")
+    assert RecordingExecutor.calls == []
