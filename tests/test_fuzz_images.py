@@ -9,6 +9,7 @@ runs with a recording executor standing in for the robot.
 
 from __future__ import annotations
 
+import os
 import struct
 import time
 import zlib
@@ -248,3 +249,44 @@ def test_the_image_limit_is_configurable(tmp_path: Path, keymps_plugins: Any) ->
     with pytest.raises(KeympsError, match=r"the synthetic scene is 400000 x 400000 pixels"):
         keymps.run_task(synthetic, executor="recording", out=tmp_path / "s", rerun="off")
     assert time.perf_counter() - started < 5.0
+
+
+@pytest.mark.parametrize("kind", ["/dev/zero", "fifo", "sparse 2 GB file"])
+def test_files_that_never_end_are_not_read(kind: str, tmp_path: Path, keymps_plugins: Any) -> None:
+    """Found by probing: scene.source_options.path: /dev/zero read forever (memory, no end)."""
+    install(keymps_plugins)
+    if kind == "/dev/zero":
+        target = Path("/dev/zero")
+    elif kind == "fifo":
+        target = tmp_path / "pipe.png"
+        os.mkfifo(target)
+    else:
+        target = tmp_path / "huge.png"
+        with target.open("wb") as handle:
+            handle.truncate(2 * 2**30)  # sparse: no disk used
+    path = task_copy(
+        tmp_path / "task",
+        **{"image: ": f"source_options: {{path: {target}}}\n  image: "},
+    )
+    started = time.perf_counter()
+    with pytest.raises(KeympsError) as caught:
+        keymps.run_task(path, backend="offline", executor="recording", out=tmp_path / "r")
+    assert time.perf_counter() - started < 5.0
+    assert_clean_error(caught.value)
+    expected = "more than any image within" if kind.startswith("sparse") else "not a regular file"
+    assert expected in str(caught.value)
+    assert RecordingExecutor.calls == []
+
+
+def test_a_header_opencv_asserts_on_is_a_clean_error(stage_parts: Any) -> None:
+    """Found by the fuzzer above: a BMP claiming 1 x 1048577 pixels made cv2.imdecode raise."""
+    folder, detector, task = stage_parts
+    image = np.zeros((1, 1), np.uint8)
+    data = bytearray(cv2.imencode(".bmp", image)[1].tobytes())
+    data[22:26] = struct.pack("<i", 1_048_577)
+    path = folder / "tall.bmp"
+    path.write_bytes(bytes(data))
+    with pytest.raises(KeympsError, match="cannot decode scene image"):
+        create_component("image_source", "file", {"path": str(path)}).load(
+            Run(task=task, folder=folder)
+        )

@@ -68,6 +68,14 @@ def read_image(path: Path, max_pixels: int | None = None) -> np.ndarray:
         raise ImageSourceError(f"scene image not found: {path}")
     if path.is_dir():
         raise ImageSourceError(f"scene image is a folder, not an image: {path}")
+    if not path.is_file():  # a device or a pipe (/dev/zero) would be read forever
+        raise ImageSourceError(f"scene image is not a regular file: {path}")
+    size_bytes = path.stat().st_size
+    if max_pixels is not None and size_bytes > 8 * max_pixels + 2**20:
+        raise ImageSourceError(
+            f"scene image {path} is {size_bytes / 2**20:.0f} MB, more than any image within "
+            f"scene.max_image_pixels = {max_pixels} could be"
+        )
     try:
         data = path.read_bytes()
     except OSError as error:
@@ -80,7 +88,10 @@ def read_image(path: Path, max_pixels: int | None = None) -> np.ndarray:
             check_image_pixels(header_size, max_pixels, f"scene image {path}")
         except KeympsError as error:
             raise ImageSourceError(str(error)) from None
-    decoded = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    try:
+        decoded = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    except cv2.error:  # OpenCV asserts on some corrupt headers (e.g. a BMP 1 x 1048577)
+        decoded = None
     if decoded is None or decoded.size == 0:
         raise ImageSourceError(
             f"cannot decode scene image {path}: not an image OpenCV can read "
