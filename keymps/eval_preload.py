@@ -2,7 +2,8 @@
 
 Its whole job is importing what a run needs, so that each forked worker starts with it loaded
 instead of spending seconds importing (about 4 s here, plus 1 s that litellm would import lazily
-during the first request). Nothing else imports this module.
+during the first request). Nothing else imports this module. A module missing from the list
+costs only time: the worker's first run imports it.
 """
 
 import contextlib
@@ -29,14 +30,39 @@ import keymps.planning  # noqa: E402, F401
 import keymps.scenes  # noqa: E402, F401
 
 LAZY_MODULES = (
+    # what a run's stages and the default plugins import when first used
+    "keymps.default_plugins.file_executor",
+    "keymps.default_plugins.image_sources",
+    "keymps.default_plugins.offline_backend",
+    "keymps.default_plugins.rerun_recorder",
+    "keymps.default_plugins.replay_backend",
+    "keymps.default_plugins.sim_executor",
+    "keymps.default_plugins.threshold_detector",
+    "keymps.dmp_retarget",
+    "keymps.eval_parts",
+    "keymps.evaluate",
+    "keymps.geometry",
+    "keymps.overlay",
+    "keymps.plan_prompt",
+    "keymps.plan_session",
+    "keymps.primitives",
+    "keymps.vlm_cache",
+    "keymps_ur_rtde",
+    # what litellm and the OpenAI client import during their first request (this litellm)
     "openai.types.chat",
     "openai.resources.chat",
     "httpcore",
     "h11",
     "litellm.llms.openai.openai",
+    "litellm.llms.openai.chat.gpt_audio_transformation",
+    "litellm.llms.openai_like.dynamic_config",
+    "litellm.llms.litellm_proxy.chat.transformation",
+    "litellm.llms.fal_ai.chat.transformation",
+    "litellm.llms.edenai.chat.transformation",
+    "litellm.llms.vertex_ai.vertex_ai_partner_models.anthropic.transformation",
     "litellm.proxy.openai_files_endpoints.common_utils",
+    "litellm._service_logger",
 )
-"""What litellm and the OpenAI client import during their first request (this litellm)."""
 
 
 def _preload() -> None:
