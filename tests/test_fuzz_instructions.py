@@ -124,7 +124,7 @@ def test_the_grammar_never_crashes_or_hangs(sentence: str, fuzz_counter: Any) ->
         read_instruction(sentence)
     except KeympsError as error:
         assert_clean_error(error)
-    assert time.perf_counter() - started < 1.0
+    assert time.perf_counter() - started < 8.0, "no hang (4000 digits take about 2 s)"
     fuzz_counter.add("instructions/grammar", sentence)
 
 

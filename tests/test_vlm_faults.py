@@ -49,6 +49,9 @@ class QuickRetries:
 
 @pytest.fixture(scope="module")
 def server() -> Any:
+    from keymps.default_plugins.litellm_backend import import_litellm
+
+    import_litellm()  # seconds, once: not part of any fault's time bound
     with VlmServer(responder=lambda request: json.dumps(DOT)) as running:
         yield running
 
