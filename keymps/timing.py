@@ -159,12 +159,9 @@ def _significant_points(points: np.ndarray, yaw: np.ndarray) -> np.ndarray:
     for i in range(1, len(points)):
         if np.linalg.norm(geometry[i] - geometry[kept[-1]]) >= MIN_STEP_M:
             kept.append(i)
-    last = len(points) - 1
-    if kept[-1] != last:
-        if len(kept) > 1:
-            kept[-1] = last
-        else:
-            kept.append(last)
+    if len(kept) == 1:
+        return np.array(kept)  # a pure dwell: nothing for the timing to move along
+    kept[-1] = len(points) - 1
     return np.array(kept)
 
 

@@ -146,3 +146,14 @@ def test_a_dwell_that_jitters_by_micrometres_is_one_reversal_not_a_slow_crawl() 
     bottom = np.argmin(np.where(work, trajectory.tool_xyz[:, 2], np.inf))
     assert trajectory.tool_xyz[bottom, 2] == pytest.approx(0.061, abs=2e-5)
     assert np.abs(trajectory.qd[bottom]).max() < 1e-9
+
+
+def test_a_work_piece_that_never_moves_is_skipped_not_a_crash() -> None:
+    # a dot with all DMP weights zero (the vlm-keypoint ablation): start = goal, no motion
+    still = np.repeat([[0.15, 0.09, 0.065]], 20, axis=0)
+    path = assemble([(still, np.zeros(len(still)))], 0.095, "line", 0.03)
+    model, trajectory = plan(path, tool="piping_bag")
+    assert trajectory.duration_s > 0
+    assert not (trajectory.kind == "work").any()
+    reached = np.linalg.norm(trajectory.tool_xyz - still[0], axis=1).min()
+    assert reached < 1e-6  # the travel move still brings the nozzle to the dot
