@@ -54,7 +54,12 @@ def _create(
 
 def _new_run_folder(task: Task, out: Path | None) -> Path:
     if out is not None:
-        out.mkdir(parents=True, exist_ok=True)
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+        except OSError as error:  # a file of that name, a read-only place ...
+            raise KeympsError(
+                f"--out {out}: cannot create the run folder: {error.strerror}"
+            ) from None
         return out
     stamp = time.strftime("%Y%m%d-%H%M%S")
     base = Path("runs") / f"{task.name}-{stamp}"
@@ -62,7 +67,12 @@ def _new_run_folder(task: Task, out: Path | None) -> Path:
     while folder.exists():
         n += 1
         folder = base.with_name(f"{base.name}-{n}")
-    folder.mkdir(parents=True)
+    try:
+        folder.mkdir(parents=True)
+    except OSError as error:
+        raise KeympsError(
+            f"cannot create the run folder {folder}: {error.strerror} (choose one with --out)"
+        ) from None
     return folder
 
 

@@ -265,10 +265,20 @@ def _check_referenced_files(task: Task, source: str, parsed: PositionedYaml) -> 
     return problems
 
 
+MAX_TASK_FILE_BYTES = 1_000_000
+"""Task files are a few hundred bytes; /dev/zero or a mistaken 4 GB file is not read."""
+
+
 def load_task(path: str | Path) -> Task:
     """Read and validate a task file. Errors name the file, line, column and field."""
     path = Path(path)
     source = _display_path(path)
+    if path.exists() and not path.is_dir() and not path.is_file():
+        raise TaskFileError([f"{source}: not a regular file (a device or a pipe)"])
+    if path.is_file() and path.stat().st_size > MAX_TASK_FILE_BYTES:
+        raise TaskFileError(
+            [f"{source}: {path.stat().st_size} bytes; a task file is at most 1 MB of YAML"]
+        )
     try:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:

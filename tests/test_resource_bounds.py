@@ -140,3 +140,43 @@ def test_bad_bounds_in_a_task_file_are_located_errors(
         keymps.load_task(task_copy(tmp_path, **replace))
     assert message in str(caught.value) and str(caught.value).count("\n") == 0
     assert ":" in str(caught.value).split(" ")[0]  # file:line:col first
+
+
+# paths on the command line that are not what they claim (found by probing the CLI)
+
+
+@pytest.mark.parametrize(
+    ("args", "expected"),
+    [
+        (["validate", "/dev/zero"], "/dev/zero: not a regular file (a device or a pipe)"),
+        (["run", "/dev/zero"], "error: /dev/zero: not a regular file"),
+        (["run", "{task}", "--out", "{file}", "-q"], "cannot create the run folder: File exists"),
+        (["validate", "{big}"], "a task file is at most 1 MB of YAML"),
+    ],
+    ids=["validate /dev/zero", "run /dev/zero", "--out is a file", "4 GB task file"],
+)
+def test_cli_paths_that_are_not_what_they_claim(
+    args: list[str], expected: str, tmp_path: Path
+) -> None:
+    """Each was a hang (reading /dev/zero forever) or a raw FileExistsError traceback."""
+    from click.testing import CliRunner
+
+    from keymps.cli import cli
+
+    task = task_copy(tmp_path / "task")
+    taken = tmp_path / "a-file"
+    taken.write_text("")
+    big = tmp_path / "big.yaml"
+    with big.open("wb") as handle:
+        handle.truncate(4 * 2**30)  # sparse: no disk used
+    filled = [a.format(task=task, file=taken, big=big) for a in args]
+    started = time.perf_counter()
+    result = CliRunner().invoke(cli, filled)
+    assert time.perf_counter() - started < 10.0
+    assert (
+        result.exit_code == 1
+        and result.exception is None
+        or isinstance(result.exception, SystemExit)
+    ), result.exception
+    assert expected in result.output
+    assert "Traceback" not in result.output
