@@ -173,10 +173,9 @@ def test_cli_paths_that_are_not_what_they_claim(
     started = time.perf_counter()
     result = CliRunner().invoke(cli, filled)
     assert time.perf_counter() - started < 10.0
-    assert (
-        result.exit_code == 1
-        and result.exception is None
-        or isinstance(result.exception, SystemExit)
-    ), result.exception
+    assert result.exit_code == 1, result.output
+    assert result.exception is None or isinstance(result.exception, SystemExit), repr(
+        result.exception
+    )
     assert expected in result.output
     assert "Traceback" not in result.output
