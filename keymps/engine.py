@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import time
 import warnings
 from collections.abc import Callable
@@ -91,6 +92,17 @@ class _Pipeline:
             result = work()
         except KeympsError as error:
             raise StageError(name, str(error)) from None
+        except Exception as error:
+            # A bug in keymps or in a plugin: still one line (and nothing after this stage
+            # runs); KEYMPS_DEBUG=1 shows the traceback for whoever fixes it.
+            if os.environ.get("KEYMPS_DEBUG"):
+                raise
+            detail = " ".join(str(error).split()) or "no message"
+            raise StageError(
+                name,
+                f"unexpected {type(error).__name__}: {detail} "
+                "(a bug in keymps or a plugin; KEYMPS_DEBUG=1 shows the traceback)",
+            ) from error
         seconds = time.perf_counter() - started
         self.run.results[name] = result
         self.run.timings_s[name] = seconds

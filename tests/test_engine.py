@@ -128,3 +128,35 @@ def test_a_failing_observer_is_a_warning_not_a_failed_run(tmp_path: Path, keymps
         run = keymps.run_task(_task_copy(tmp_path), out=tmp_path / "run", rerun="off")
     assert "execute" in run.results
     assert any("observer bug" in w for w in run.warnings)
+
+
+class _CrashingDetector:
+    def __init__(self, options: dict) -> None:
+        pass
+
+    def detect(self, scene):
+        raise ZeroDivisionError("plugin bug")
+
+
+class _CrashPlugin:
+    @hookimpl
+    def register_detectors(self, register):
+        register("crashing", _CrashingDetector)
+
+
+def test_a_plugin_bug_is_one_line_and_nothing_runs_after_it(
+    tmp_path: Path, observer: EnginePlugin, keymps_plugins, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.delenv("KEYMPS_DEBUG", raising=False)
+    keymps_plugins.register(_CrashPlugin(), name="crash-plugin")
+    path = _task_copy(tmp_path, ("detector: {name: threshold}", "detector: {name: crashing}"))
+    with pytest.raises(StageError) as caught:
+        keymps.run_task(path, executor="recording", out=tmp_path / "run", rerun="off")
+    assert str(caught.value) == (
+        "detect: unexpected ZeroDivisionError: plugin bug "
+        "(a bug in keymps or a plugin; KEYMPS_DEBUG=1 shows the traceback)"
+    )
+    assert RecordingExecutor.calls == []
+    monkeypatch.setenv("KEYMPS_DEBUG", "1")
+    with pytest.raises(ZeroDivisionError):
+        keymps.run_task(path, executor="recording", out=tmp_path / "run2", rerun="off")
