@@ -55,3 +55,12 @@ def pytest_terminal_summary(terminalreporter: Any) -> None:
     terminalreporter.write_line(
         f"total: {COUNTER.total()} distinct cases, of which {answers} planner answers"
     )
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _private_vlm_cache(tmp_path_factory: pytest.TempPathFactory) -> Any:
+    """No test writes VLM answers into the user's own cache folder."""
+    mp = pytest.MonkeyPatch()
+    mp.setenv("KEYMPS_CACHE_DIR", str(tmp_path_factory.mktemp("vlm-cache")))
+    yield
+    mp.undo()
