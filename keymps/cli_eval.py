@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import click
+
+from keymps.cli_errors import user_errors
 
 METHOD_NAMES = ("keymps", "vlm-keypoint", "keymps-text", "vlm-keyword", "vlm-dmp", "vlm-mdmp")
 
@@ -41,6 +42,7 @@ METHOD_NAMES = ("keymps", "vlm-keypoint", "keymps-text", "vlm-keyword", "vlm-dmp
     help="Results folder (default eval/SUITE[-METHODS]); rerunning into it resumes.",
 )  # fmt: skip
 @click.option("--quiet", is_flag=True, help="No progress bar.")
+@user_errors
 def eval_command(
     suite_file: str,
     methods: tuple[str, ...],
@@ -62,43 +64,6 @@ def eval_command(
     # Runs are the unit of parallelism; set before NumPy loads OpenBLAS, whose helper threads
     # would otherwise spin on the other core after every matrix product.
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-    from keymps.errors import KeympsError
-
-    try:
-        _evaluate(
-            suite_file,
-            methods,
-            repeats,
-            concurrency,
-            processes,
-            backend,
-            model,
-            api_base,
-            cases,
-            out,
-            no_cache,
-            quiet,
-        )
-    except KeympsError as error:
-        for line in str(error).splitlines() or ["unknown error"]:
-            click.echo(f"error: {line}", err=True)
-        sys.exit(1)
-
-
-def _evaluate(
-    suite_file: str,
-    methods: tuple[str, ...],
-    repeats: int | None,
-    concurrency: int,
-    processes: int | None,
-    backend: str | None,
-    model: str | None,
-    api_base: str | None,
-    cases: tuple[str, ...],
-    out: Path | None,
-    no_cache: bool,
-    quiet: bool,
-) -> None:
     from keymps.eval_report import markdown_table, write_summary
     from keymps.eval_runner import EvalOptions, plan_jobs, run_suite
     from keymps.eval_suites import load_suite
