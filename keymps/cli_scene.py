@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import click
+
+from keymps.cli_errors import user_errors
 
 
 def _pair(text: str | None) -> tuple[float, float] | None:
@@ -42,6 +43,7 @@ def scene() -> None:
     "--out", required=True, type=click.Path(dir_okay=False, path_type=Path),
     help="PNG to write; the sidecar is written next to it (.json).",
 )  # fmt: skip
+@user_errors
 def render(
     objects: tuple[str, ...],
     length: float | None,
@@ -59,27 +61,22 @@ def render(
     chiffon_cake, baumkuchen, meat_loaf, cucumber, potato, banana. Sizes not given are the
     object's defaults, varied slightly by the seed.
     """
-    from keymps.errors import KeympsError
     from keymps.scenes import SceneSpec, render_scene
 
     board_size = _pair(board)
     assert board_size is not None
-    try:
-        spec = SceneSpec.from_kinds(
-            objects,
-            seed=seed,
-            length=length,
-            width=width,
-            height=height,
-            rotation=rotation,
-            board_size=board_size,
-            px_per_m=px_per_m,
-        )
-        rendered = render_scene(spec)
-        png, sidecar = rendered.save(out)
-    except KeympsError as error:
-        click.echo(f"error: {error}", err=True)
-        sys.exit(1)
+    spec = SceneSpec.from_kinds(
+        objects,
+        seed=seed,
+        length=length,
+        width=width,
+        height=height,
+        rotation=rotation,
+        board_size=board_size,
+        px_per_m=px_per_m,
+    )
+    rendered = render_scene(spec)
+    png, sidecar = rendered.save(out)
     width_px, height_px = spec.image_size_px
     for item in rendered.truth["objects"]:
         click.echo(
