@@ -23,6 +23,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from keymps.dmp_filters import workspace
 from keymps.dmp_retarget import RETARGET_MODES, ZERO_LENGTH_M, heading_rotation, retarget_map
 from keymps.dmp_system import (
     ALPHA_S,
@@ -36,7 +37,6 @@ from keymps.dmp_system import (
     fit_basis,
     phase_features,
     respond,
-    workspace,
 )
 
 __all__ = [

@@ -1,0 +1,166 @@
+"""Linear time-invariant filters along the rows of an array, for the DMP transformation system.
+
+Two ways to run a filter B(q) / A(q) with a monic second-order A and zero history:
+
+- `fir` then `all_pole`: the two halves, the recursion solved sample after sample (a few rows:
+  rollouts);
+- `block_convolve`: the whole filter for many rows at once (a fit's 51 basis responses). The
+  samples are cut into blocks; within a block the output is a small Toeplitz product, and what
+  earlier blocks contribute is carried by two numbers per block (an impulse response of a
+  second-order system obeys a two-term recursion, so two of its values fix all later ones).
+  One matrix product does almost all of the work: for 51 rows of 1000 samples it takes about
+  0.23 ms against 0.40 ms for the recursive pair.
+
+Helpers of keymps.dmp_system; not a public API.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+
+import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
+
+from keymps.errors import KeympsError
+
+BLOCK = 25
+"""Samples per block: small enough that the Toeplitz products waste little, large enough that
+the products stay efficient and the blocks few."""
+
+
+class FilterError(KeympsError):
+    """An internal filtering step failed (never expected for valid coefficients)."""
+
+
+def all_pole(a: np.ndarray, x: np.ndarray, overwrite: bool = False) -> np.ndarray:
+    """1 / A(q) along the last axis with zero history, for monic second-order A: the recursion
+    y[n] = x[n] - a1 y[n-1] - a2 y[n-2] is a unit lower-triangular banded system (LAPACK dtbtrs,
+    the all-pole pass of scipy.signal.lfilter without the second it takes to import it)."""
+    from scipy.linalg.lapack import dtbtrs
+
+    columns = x.reshape(1, -1) if x.ndim == 1 else x
+    length = columns.shape[-1]
+    band = np.empty((3, length))
+    band[0] = 1.0
+    band[1] = a[1]
+    band[2] = a[2]
+    # x.T of a C-ordered (m, N) array is a Fortran-ordered (N, m) right-hand side: no copy.
+    solution, info = dtbtrs(band, columns.T, uplo="L", diag="U", overwrite_b=int(overwrite))
+    if info != 0:  # pragma: no cover - a unit diagonal cannot be singular
+        raise FilterError(f"internal error: banded solve failed (info {info})")
+    return np.asarray(solution.T).reshape(x.shape)
+
+
+def fir(
+    b: np.ndarray, v: np.ndarray, out: np.ndarray | None = None, scratch: np.ndarray | None = None
+) -> np.ndarray:
+    """B(q) along the last axis, zero history (the moving-average half of the filter)."""
+    out = np.multiply(v, b[0], out=out)
+    scratch = np.empty_like(v) if scratch is None else scratch
+    for lag in range(1, len(b)):
+        np.multiply(v[..., :-lag], b[lag], out=scratch[..., lag:])
+        out[..., lag:] += scratch[..., lag:]
+    return out
+
+
+def block_convolve(
+    rows: np.ndarray,
+    impulse: np.ndarray,
+    a: np.ndarray,
+    all_pole_impulse: np.ndarray | None = None,
+    block: int = BLOCK,
+) -> np.ndarray:
+    """y[n] = sum over m <= n of impulse[n - m] rows[m], along the last axis of a 2D array.
+
+    `impulse` (at least `block` + 2 samples) must obey impulse[n] = -a1 impulse[n-1]
+    - a2 impulse[n-2] from n = 3 on, as the impulse response of B(q) / A(q) with B of degree at
+    most 2 does. Then, for d >= 1, impulse[d + i] = alpha[i] impulse[d] + beta[i] impulse[d + 1]
+    with alpha, beta the recursion's two fundamental solutions, so what block k receives from
+    all earlier inputs is fixed by two carries: the outputs at its first two samples that the
+    earlier blocks alone produce. `all_pole_impulse`, 1 / A(q)'s impulse response, saves
+    computing it again when the caller has it (at least as long as the rows plus `block`).
+    """
+    count, length = rows.shape
+    blocks = -(-length // block)
+    if len(impulse) < block + 2:
+        raise FilterError(f"internal error: impulse response shorter than {block + 2} samples")
+    alpha, beta = _fundamental_solutions(a, blocks * block + 2, all_pole_impulse)
+    # Each block's samples, then its two carries: one product then gives the block's output.
+    augmented = workspace("block_augmented", (count, blocks, block + 2))
+    samples = augmented[:, :, :block]
+    full = length // block
+    samples[:, :full] = rows[:, : full * block].reshape(count, full, block)
+    if full < blocks:
+        samples[:, full:] = 0.0
+        samples[:, full, : length - full * block] = rows[:, full * block :]
+    # What each block alone passes on: its response at the next block's first two samples,
+    # laid out (carry, row, block) so that the blocks run along the last axis.
+    passed_on = np.stack([impulse[block:0:-1], impulse[block + 1 : 1 : -1]])
+    own = (passed_on @ samples.reshape(count * blocks, block).T).reshape(2, count, blocks)
+    carries = _accumulate_carries(own, alpha, beta, a, block)
+    augmented[:, 0, block:] = 0.0
+    augmented[:, 1:, block] = carries[0, :, :-1]
+    augmented[:, 1:, block + 1] = carries[1, :, :-1]
+    kernel = np.empty((block + 2, block))
+    shifted = np.zeros(2 * block - 1)
+    shifted[block - 1 :] = impulse[:block]
+    kernel[:block] = sliding_window_view(shifted, block)[::-1]  # kernel[j, i] = impulse[i - j]
+    kernel[block] = alpha[:block]
+    kernel[block + 1] = beta[:block]
+    output = augmented.reshape(count * blocks, block + 2) @ kernel
+    return np.ascontiguousarray(output.reshape(count, blocks * block)[:, :length])
+
+
+def _fundamental_solutions(
+    a: np.ndarray, length: int, all_pole_impulse: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """alpha, beta: solutions of x[n] = -a1 x[n-1] - a2 x[n-2] starting (1, 0) and (0, 1),
+    from the all-pole impulse response r (beta[n] = r[n-1], alpha[n] = -a2 r[n-2])."""
+    if all_pole_impulse is not None and len(all_pole_impulse) >= length - 1:
+        r = all_pole_impulse[: length - 1]
+    else:
+        unit = np.zeros(length - 1)
+        unit[0] = 1.0
+        r = all_pole(a, unit)
+    beta = np.empty(length)
+    beta[0] = 0.0
+    beta[1:] = r
+    alpha = np.empty(length)
+    alpha[:2] = (1.0, 0.0)
+    np.multiply(r[:-1], -a[2], out=alpha[2:])
+    return alpha, beta
+
+
+def _accumulate_carries(
+    own: np.ndarray, alpha: np.ndarray, beta: np.ndarray, a: np.ndarray, block: int
+) -> np.ndarray:
+    """Carries leaving every block, from what each block alone passes on: (2, count, blocks).
+
+    Carries advance by one block through the 2 x 2 map F below: c[k+1] = F c[k] + own[k]. By
+    Cayley-Hamilton each component then obeys a scalar second-order recursion, c[k+1] - tr(F)
+    c[k] + det(F) c[k-1] = own[k] - det(F) F^-1 own[k-1]: one all-pole pass along the blocks
+    instead of a loop over them (det(F) F^-1 is F's adjugate)."""
+    f00, f01, f10, f11 = alpha[block], beta[block], alpha[block + 1], beta[block + 1]
+    drive = own.copy()
+    drive[0, :, 1:] -= f11 * own[0, :, :-1] - f01 * own[1, :, :-1]
+    drive[1, :, 1:] -= f00 * own[1, :, :-1] - f10 * own[0, :, :-1]
+    poles = np.array([1.0, -(f00 + f11), f00 * f11 - f01 * f10])
+    return all_pole(poles, drive.reshape(-1, own.shape[-1])).reshape(own.shape)
+
+
+_WORKSPACE = threading.local()
+_WORKSPACE_MAX_ELEMENTS = 1 << 19
+
+
+def workspace(name: str, shape: tuple[int, ...]) -> np.ndarray:
+    """A per-thread scratch array (contents undefined), reused across calls: large temporaries
+    would otherwise be fresh memory mappings, and page faults, on every call. Arrays above
+    4 MB are not kept."""
+    if math.prod(shape) > _WORKSPACE_MAX_ELEMENTS:
+        return np.empty(shape)
+    pool: dict[str, np.ndarray] = _WORKSPACE.__dict__.setdefault("pool", {})
+    array = pool.get(name)
+    if array is None or array.shape != shape:
+        array = pool[name] = np.empty(shape)
+    return array
