@@ -16,11 +16,11 @@ Helpers of keymps.dmp_system; not a public API.
 
 from __future__ import annotations
 
+import functools
 import math
 import threading
 
 import numpy as np
-from numpy.lib.stride_tricks import sliding_window_view
 
 from keymps.errors import KeympsError
 
@@ -96,7 +96,9 @@ def block_convolve(
         samples[:, full, : length - full * block] = rows[:, full * block :]
     # What each block alone passes on: its response at the next block's first two samples,
     # laid out (carry, row, block) so that the blocks run along the last axis.
-    passed_on = np.stack([impulse[block:0:-1], impulse[block + 1 : 1 : -1]])
+    passed_on = np.empty((2, block))
+    passed_on[0] = impulse[block:0:-1]
+    passed_on[1] = impulse[block + 1 : 1 : -1]
     own = (passed_on @ samples.reshape(count * blocks, block).T).reshape(2, count, blocks)
     carries = _accumulate_carries(own, alpha, beta, a, block)
     augmented[:, 0, block:] = 0.0
@@ -105,11 +107,18 @@ def block_convolve(
     kernel = np.empty((block + 2, block))
     shifted = np.zeros(2 * block - 1)
     shifted[block - 1 :] = impulse[:block]
-    kernel[:block] = sliding_window_view(shifted, block)[::-1]  # kernel[j, i] = impulse[i - j]
+    kernel[:block] = shifted[_toeplitz_index(block)]  # kernel[j, i] = impulse[i - j], 0 if i < j
     kernel[block] = alpha[:block]
     kernel[block + 1] = beta[:block]
     output = augmented.reshape(count * blocks, block + 2) @ kernel
     return np.ascontiguousarray(output.reshape(count, blocks * block)[:, :length])
+
+
+@functools.lru_cache(maxsize=8)
+def _toeplitz_index(block: int) -> np.ndarray:
+    """Where kernel[j, i] sits in [0] * (block - 1) + impulse[:block]: block - 1 + i - j."""
+    offsets = np.arange(block)
+    return block - 1 + offsets[None, :] - offsets[:, None]
 
 
 def _fundamental_solutions(

@@ -98,8 +98,8 @@ def phase_features(
 ) -> np.ndarray:
     """psi_i(s) s / sum psi(s) for phases s, one row per basis function: (n_basis, N), times
     `scale`."""
-    centers, _ = basis_centers_widths(n_basis, alpha_s)
-    # Widths equal in time make h_i c_i^2 one constant, root^2, for every basis function:
+    centers = np.exp(np.arange(n_basis) * (-alpha_s / max(n_basis - 1, 1)))
+    # The centres of basis_centers_widths. Widths equal in time make h_i c_i^2 one constant, root^2, for every basis function:
     # -h_i (s - c_i)^2 = -(a_i s - root)^2 with a_i = root / c_i, expanded so that one small
     # matrix product gives every exponent (its rounding, 1e-14 near a centre, is harmless).
     spacing = 1.0 / max(n_basis - 1, 1)
