@@ -12,6 +12,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from keymps.bundled import bundled_dir
 from keymps.errors import KeympsError
 from keymps.yaml_positions import PositionedYaml, YamlSyntaxError, load_yaml_with_positions
 
@@ -262,7 +263,7 @@ def load_suite(path: str | Path) -> Suite:
     return parse_suite(text, source=str(path), path=path.resolve())
 
 
-SUITES_DIR = Path(__file__).resolve().parent.parent / "benchmarks" / "suites"
+SUITES_DIR = bundled_dir("suites")
 
 
 def resolve_suite_path(path: str | Path) -> Path:

@@ -12,10 +12,11 @@ from typing import Any
 
 import numpy as np
 
+from keymps.bundled import bundled_dir
 from keymps.errors import KeympsError
 from keymps.eval_methods import MethodContext
 
-PROMPTS_DIR = Path(__file__).resolve().parent.parent / "prompts" / "methods"
+PROMPTS_DIR = bundled_dir("prompts") / "methods"
 
 
 _PLACEHOLDER = re.compile(r"\{\{\s*([a-z_]+)\s*\}\}")

@@ -13,6 +13,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from keymps.bundled import bundled_dir
 from keymps.errors import KeympsError
 from keymps.plan_answer import Step
 
@@ -67,7 +68,7 @@ def prompt_family(primitives: Mapping[str, str]) -> str:
 def prompt_search_dirs(task_folder: Path) -> list[Path]:
     dirs = [task_folder / "prompts", task_folder.parent / "prompts"]
     dirs += [Path(p) for p in os.environ.get("KEYMPS_PROMPTS_PATH", "").split(os.pathsep) if p]
-    dirs += [Path.cwd() / "prompts", Path(__file__).resolve().parent.parent / "prompts"]
+    dirs += [Path.cwd() / "prompts", bundled_dir("prompts")]
     return dirs
 
 

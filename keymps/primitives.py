@@ -12,6 +12,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from keymps.bundled import bundled_dir
 from keymps.demos import Preprocessing, fit_rmse, load_demo_csv, prepare_demo, write_demo_csv
 from keymps.dmp import DMP, RETARGET_MODES, DmpError, Rollout
 from keymps.errors import KeympsError
@@ -303,8 +304,8 @@ def _positive(value: Any, key: str, where: str) -> float:
 
 # --------------------------------------------------------------------------- the dictionary
 
-BUNDLED_DIR = Path(__file__).resolve().parent.parent / "primitives"
-"""The dictionary shipped in the source tree (found last)."""
+BUNDLED_DIR = bundled_dir("primitives")
+"""The dictionary shipped with keymps (found last)."""
 
 
 def default_search_dirs(task_folder: Path) -> list[Path]:
