@@ -8,9 +8,10 @@ that the Appendix A detector separates them (see docs/perception.md).
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -224,10 +225,29 @@ PAINTERS: dict[str, Callable[[Paint], np.ndarray]] = {
 """Object kind -> the function that colours it."""
 
 
+BOARD_SPARE = 0.15
+"""The board is this much longer and wider than the image: each seed sees its own part of it."""
+CACHED_PIXELS = 4_000_000
+"""Boards and noise fields of images up to this size are computed once per process."""
+
+
 def board_texture(
     size_px: tuple[int, int], px_per_m: float, rng: np.random.Generator
 ) -> np.ndarray:
-    """Wood: grain running along x, slow colour changes, a little fibre texture."""
+    """Wood under the objects: the part of one board (the same for every scene of this size and
+    resolution, as in a lab) that the seed picks, in a tint the seed varies a little."""
+    width, height = size_px
+    spare_x, spare_y = int(BOARD_SPARE * width), int(BOARD_SPARE * height)
+    shade = _cached(_wood, (width + spare_x, height + spare_y), px_per_m)
+    x0, y0 = int(rng.integers(0, spare_x + 1)), int(rng.integers(0, spare_y + 1))
+    base = np.array([70, 118, 162], np.float32) * np.float32(rng.uniform(0.98, 1.02))
+    window = shade[y0 : y0 + height, x0 : x0 + width] + np.float32(1.0)
+    return window[..., None] * base
+
+
+def _wood(size_px: tuple[int, int], px_per_m: float) -> np.ndarray:
+    """Shade of the board: grain running along x, slow colour changes, a little fibre texture."""
+    rng = np.random.default_rng([0, 2])
     width, height = size_px
     rows = np.arange(height, dtype=np.float32)[:, None] / px_per_m
     warp = smooth_noise((height, width), 0.05 * px_per_m, rng)
@@ -235,11 +255,48 @@ def board_texture(
     grain = np.sin(2 * np.pi * (rows / period + 0.6 * warp))
     fibres = smooth_noise((height, width), 1.0, rng)
     fibres = fibres.mean(axis=1, keepdims=True) * 0.5 + 0.5 * smooth_noise((height, width), 2, rng)
-    base = np.array([70, 118, 162], np.float32) * rng.uniform(0.98, 1.02)
-    shade = (
-        0.035 * grain + 0.012 * fibres + 0.015 * smooth_noise((height, width), 0.08 * px_per_m, rng)
+    return np.asarray(
+        0.035 * grain
+        + 0.012 * fibres
+        + 0.015 * smooth_noise((height, width), 0.08 * px_per_m, rng),
+        dtype=np.float32,
     )
-    return base * (1.0 + shade)[..., None]
+
+
+def sensor_noise(size_px: tuple[int, int], rng: np.random.Generator) -> np.ndarray:
+    """Camera noise (standard deviation 2 grey levels) for a BGR image: the seed picks where in
+    one larger noise field its image lies (drawing fresh noise costs more than the rest)."""
+    width, height = size_px
+    spare = 64
+    field_ = _cached(_noise, (width + spare, height + spare))
+    x0, y0 = int(rng.integers(0, spare + 1)), int(rng.integers(0, spare + 1))
+    return field_[y0 : y0 + height, x0 : x0 + width]
+
+
+def _noise(size_px: tuple[int, int]) -> np.ndarray:
+    width, height = size_px
+    rng = np.random.default_rng([0, 3])
+    return rng.normal(0.0, 2.0, size=(height, width, 3)).astype(np.float32)
+
+
+_FIELDS: dict[tuple[Any, ...], np.ndarray] = {}
+_FIELDS_LOCK = threading.Lock()
+
+
+def _cached(make: Callable[..., np.ndarray], *args: Any) -> np.ndarray:
+    """make(*args), read-only, remembered when small (the last few); a pure function of args."""
+    key = (make.__name__, *args)
+    with _FIELDS_LOCK:
+        found = _FIELDS.get(key)
+    if found is None:
+        found = make(*args)
+        found.flags.writeable = False
+        if found.size <= 3 * CACHED_PIXELS:
+            with _FIELDS_LOCK:
+                while len(_FIELDS) >= 6:
+                    _FIELDS.pop(next(iter(_FIELDS)))
+                _FIELDS[key] = found
+    return found
 
 
 def lighting(size_px: tuple[int, int], rng: np.random.Generator) -> np.ndarray:
