@@ -128,14 +128,20 @@ def template_values(
     }
 
 
-def png_data_url(image: Any) -> str:
-    """The image as a base64 PNG data URL (what the VLM receives)."""
+def png_bytes(image: Any) -> bytes:
+    """The image encoded as PNG."""
     import cv2
 
     ok, encoded = cv2.imencode(".png", image)
     if not ok:
         raise KeympsError("cannot encode the crop as PNG")
-    return "data:image/png;base64," + base64.b64encode(encoded.tobytes()).decode("ascii")
+    return bytes(encoded.tobytes())
+
+
+def png_data_url(image: Any, png: bytes | None = None) -> str:
+    """The image as a base64 PNG data URL (what the VLM receives); `png`: already encoded."""
+    encoded = png if png is not None else png_bytes(image)
+    return "data:image/png;base64," + base64.b64encode(encoded).decode("ascii")
 
 
 def build_messages(

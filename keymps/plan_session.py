@@ -52,11 +52,18 @@ def redact(value: Any, secrets: list[str]) -> Any:
     return value
 
 
-def _without_image(messages: list[dict[str, Any]], image_url: str, image_file: str) -> list[Any]:
-    digest = "sha256:" + hashlib.sha256(image_url.encode()).hexdigest()
-    text = json.dumps(messages)
-    text = text.replace(json.dumps(image_url), json.dumps(f"{digest} (file: {image_file})"))
-    return list(json.loads(text))
+def image_reference(image_url: str, image_file: str) -> str:
+    """What the records hold instead of the image: its digest and the file it is kept in."""
+    return f"sha256:{hashlib.sha256(image_url.encode()).hexdigest()} (file: {image_file})"
+
+
+def _without_image(value: Any, image_url: str, reference: str) -> Any:
+    """`value` with every string equal to the image's data URL replaced by `reference`."""
+    if isinstance(value, dict):
+        return {k: _without_image(v, image_url, reference) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_without_image(v, image_url, reference) for v in value]
+    return reference if isinstance(value, str) and value == image_url else value
 
 
 @dataclass
@@ -80,6 +87,7 @@ class PlanSession:
         )
         self.secrets = _secrets(self.task)
         self.vlm_folder = self.run.folder / "vlm"
+        self.image_reference = image_reference(self.image_url, "crop.png")
 
     def request_for(
         self, step: Step, keyword: str | None, history: list[tuple[str, list[str]]]
@@ -206,7 +214,7 @@ class PlanSession:
             "step": request.step,
             "attempt": request.attempt,
             "temperature": request.temperature,
-            "messages": _without_image(request.messages, self.image_url, "crop.png"),
+            "messages": _without_image(request.messages, self.image_url, self.image_reference),
             "response_format": {"type": "json_schema", "json_schema": request.schema},
         }
         request_record = redact(request_record, self.secrets)

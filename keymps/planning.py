@@ -147,7 +147,7 @@ def make_plan(
     backend: str,
 ) -> Plan:
     """Ask `backend` for the keyword and keypoint pairs; validated, repaired, recorded."""
-    from keymps.plan_prompt import find_prompt, png_data_url, prompt_family
+    from keymps.plan_prompt import find_prompt, png_bytes, png_data_url, prompt_family
     from keymps.plan_session import PlanSession
     from keymps.plugins import create_component
 
@@ -160,7 +160,8 @@ def make_plan(
         task.folder,
         prompt_family(primitives),
     )
-    image_url = png_data_url(detection.crop)
+    crop_png = png_bytes(detection.crop)  # encoded once: sent, and kept as vlm/crop.png
+    image_url = png_data_url(detection.crop, crop_png)
     base = PlanRequest(
         instruction=task.instruction,
         crop=detection.crop,
@@ -187,7 +188,7 @@ def make_plan(
         image_url=image_url,
     )
     session.vlm_folder.mkdir(parents=True, exist_ok=True)
-    _write_crop(session.vlm_folder / "crop.png", detection.crop)
+    (session.vlm_folder / "crop.png").write_bytes(crop_png)
     if planner.combined:
         combined = session.ask("combined")
         keyword, pairs, rationale = combined.keyword, combined.pairs, combined.rationale
@@ -217,12 +218,6 @@ def _read_prompt(path: Path) -> str:
         raise KeympsError(f"prompt template {path} is not a UTF-8 text file") from None
     except OSError as error:
         raise KeympsError(f"cannot read the prompt template {path}: {error.strerror}") from None
-
-
-def _write_crop(path: Path, crop: np.ndarray) -> None:
-    import cv2
-
-    cv2.imwrite(str(path), crop)
 
 
 __all__ = [

@@ -84,10 +84,28 @@ class _Walker:
         return self.scalar(node)
 
 
+FAST_PARSE_CHARS = 8000
+"""Texts up to this long may be parsed by libyaml: they cannot nest deep enough (one level per
+character at most) to overflow its recursive composer's C stack, which longer ones can."""
+
+
+def _compose(text: str) -> yaml.Node | None:
+    """The YAML node tree: libyaml's parser for short texts when there is one (ten times
+    faster), the pure Python one otherwise and for text libyaml refuses, so that every error
+    reads the same everywhere."""
+    fast = getattr(yaml, "CSafeLoader", None)
+    if fast is not None and len(text) <= FAST_PARSE_CHARS:
+        try:
+            return yaml.compose(text, Loader=fast)
+        except (yaml.YAMLError, RecursionError):
+            pass
+    return yaml.compose(text, Loader=yaml.SafeLoader)
+
+
 def load_yaml_with_positions(text: str) -> PositionedYaml:
     """Parse YAML text; raise YamlSyntaxError with the position of the first problem."""
     try:
-        root = yaml.compose(text, Loader=yaml.SafeLoader)
+        root = _compose(text)
     except yaml.MarkedYAMLError as error:
         mark = error.problem_mark or error.context_mark
         location = (mark.line + 1, mark.column + 1) if mark else (1, 1)
