@@ -6,9 +6,11 @@ LITELLM_LOCAL_MODEL_COST_MAP=True so that the import never reaches for the netwo
 
 from __future__ import annotations
 
+import functools
 import ipaddress
 import os
 import time
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 from urllib.parse import urlparse
 
@@ -16,6 +18,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from keymps.errors import KeympsError
 from keymps.hookspecs import hookimpl
+from keymps.vlm_retry import Retrying
 
 if TYPE_CHECKING:
     from keymps.planning import BackendAnswer, PlanRequest
@@ -23,8 +26,7 @@ if TYPE_CHECKING:
 MAX_RETRIES = 3
 """Further tries after a rate limit (429) or a server error (5xx)."""
 BACKOFF_S = 1.0
-"""First wait between tries; doubled each time unless the server sends Retry-After."""
-MAX_WAIT_S = 30.0
+"""First wait between tries; doubled each time (plus jitter) unless the server sends Retry-After."""
 
 _LOCAL_PROVIDERS = {"ollama", "ollama_chat", "hosted_vllm", "lm_studio", "llamafile"}
 
@@ -64,20 +66,6 @@ def is_local(api_base: str | None, provider: str) -> bool:
         return ipaddress.ip_address(host).is_loopback
     except ValueError:
         return False
-
-
-def _retry_after(error: Exception) -> float | None:
-    headers: Any = getattr(error, "litellm_response_headers", None)
-    response = getattr(error, "response", None)
-    if headers is None and response is not None:
-        headers = getattr(response, "headers", None)
-    if not headers:
-        return None
-    value = headers.get("retry-after") or headers.get("Retry-After")
-    try:
-        return float(value) if value is not None else None
-    except ValueError:
-        return None
 
 
 class LitellmBackend:
@@ -127,8 +115,45 @@ class LitellmBackend:
         self._registered.add(model)
 
     def complete(self, request: PlanRequest) -> BackendAnswer:
+        from keymps import vlm_broker
+
+        broker = vlm_broker.active()
+        if broker is not None:  # `keymps eval`: its event loop makes the call (acomplete)
+            return broker.complete(self.options, request)
+        call = self._prepare(request)
+        started = time.perf_counter()
+        retrying = self._retrying(call)
+        for attempt in range(self.options.retries + 1):
+            try:
+                response = call.litellm.completion(**call.arguments)
+                break
+            except Exception as error:
+                pause = retrying.pause_after(error, attempt)
+                if pause is None:
+                    raise
+                time.sleep(pause)
+        return self._answer(call, response, time.perf_counter() - started, retrying.notes)
+
+    async def acomplete(self, request: PlanRequest) -> BackendAnswer:
+        """complete() through litellm's async API: waits and retries without blocking a thread."""
+        import asyncio
+
+        call = self._prepare(request)
+        started = time.perf_counter()
+        retrying = self._retrying(call)
+        for attempt in range(self.options.retries + 1):
+            try:
+                response = await call.litellm.acompletion(**call.arguments)
+                break
+            except Exception as error:
+                pause = retrying.pause_after(error, attempt)
+                if pause is None:
+                    raise
+                await asyncio.sleep(pause)
+        return self._answer(call, response, time.perf_counter() - started, retrying.notes)
+
+    def _prepare(self, request: PlanRequest) -> _Call:
         from keymps.backend_choice import model_provider
-        from keymps.planning import BackendAnswer
 
         model = request.model or self.options.model
         if not model:
@@ -159,107 +184,64 @@ class LitellmBackend:
             key = key or "no-key-needed"  # OpenAI-compatible local servers want some key
         if key is not None:
             arguments["api_key"] = key
-        if self._supports_schema(litellm, model, provider):
+        if _supports_schema(litellm, model, provider):
             arguments["response_format"] = {"type": "json_schema", "json_schema": request.schema}
-        started = time.perf_counter()
-        retries: list[str] = []
-        response = self._call_with_retries(litellm, arguments, retries)
-        latency = time.perf_counter() - started
-        text = _answer_text(response)
-        usage = getattr(response, "usage", None)
-        cost: float | None
-        try:
-            cost = float(litellm.completion_cost(completion_response=response, model=model))
-        except Exception:
-            cost = 0.0 if local else None
-        return BackendAnswer(
-            text=text,
-            prompt_tokens=getattr(usage, "prompt_tokens", None),
-            completion_tokens=getattr(usage, "completion_tokens", None),
-            latency_s=latency,
-            cost_usd=cost,
-            model=model,
-            retries=tuple(retries),
+        return _Call(litellm, model, local, arguments)
+
+    def _retrying(self, call: _Call) -> Retrying:
+        return Retrying(
+            call.litellm,
+            call.arguments,
+            retries=self.options.retries,
+            backoff_s=self.options.backoff_s,
+            timeout_s=self.options.timeout_s,
+            where=self.options.api_base or call.model,
         )
 
     @staticmethod
-    def _supports_schema(litellm: Any, model: str, provider: str) -> bool:
-        try:
-            params = litellm.get_supported_openai_params(
-                model=model.split("/", 1)[-1], custom_llm_provider=provider
-            )
-        except Exception:
-            return False
-        return bool(params) and "response_format" in params
+    def _answer(call: _Call, response: Any, latency: float, notes: list[str]) -> BackendAnswer:
+        from keymps.planning import BackendAnswer
 
-    def _call_with_retries(
-        self, litellm: Any, arguments: dict[str, Any], retries: list[str] | None = None
-    ) -> Any:
-        """litellm.completion, retried on rate limits and server errors (noted in `retries`)."""
-        retryable = (
-            litellm.RateLimitError,
-            litellm.InternalServerError,
-            litellm.ServiceUnavailableError,
-            litellm.APIConnectionError,
-            litellm.BadGatewayError,
-        )
-        wait = self.options.backoff_s
-        where = self.options.api_base or arguments["model"]
-        secrets = _secret_values(arguments)
-        for attempt in range(self.options.retries + 1):
+        usage = getattr(response, "usage", None)
+        # litellm prices every response it returns; ask again only when it could not
+        cost: Any = (getattr(response, "_hidden_params", None) or {}).get("response_cost")
+        if cost is None:
             try:
-                return litellm.completion(**arguments)
-            except litellm.Timeout:
-                raise KeympsError(
-                    f"the VLM ({arguments['model']} at {where}) gave no answer within "
-                    f"{self.options.timeout_s:g} s (planner.timeout_s)"
-                ) from None
-            except litellm.AuthenticationError:
-                raise KeympsError(
-                    f"the VLM ({arguments['model']}) rejected the credentials; check the API key "
-                    "environment variable (keys are never read from files)"
-                ) from None
-            except litellm.NotFoundError:
-                raise KeympsError(
-                    f"model {arguments['model']} not found at {where}; check planner.model"
-                ) from None
-            except retryable as error:
-                if attempt == self.options.retries:
-                    raise KeympsError(
-                        f"the VLM ({arguments['model']} at {where}) failed after "
-                        f"{attempt + 1} tries: {_short(error, secrets)}"
-                    ) from None
-                told = _retry_after(error)
-                pause = min(told if told is not None else wait, MAX_WAIT_S)
-                if retries is not None:
-                    retries.append(
-                        f"try {attempt + 1}: {_short(error, secrets)}; retried after {pause:g} s"
-                    )
-                time.sleep(pause)
-                wait *= 2
-            except litellm.BadRequestError as error:
-                raise KeympsError(
-                    f"the VLM ({arguments['model']}) refused the request: {_short(error, secrets)}"
-                ) from None
-            except litellm.APIError as error:
-                raise KeympsError(
-                    f"the VLM ({arguments['model']}) failed: {_short(error, secrets)}"
-                ) from None
-        raise AssertionError("unreachable")
+                cost = call.litellm.completion_cost(completion_response=response, model=call.model)
+            except Exception:
+                cost = None
+        if cost is None and call.local:
+            cost = 0.0
+        return BackendAnswer(
+            text=_answer_text(response),
+            prompt_tokens=getattr(usage, "prompt_tokens", None),
+            completion_tokens=getattr(usage, "completion_tokens", None),
+            latency_s=latency,
+            cost_usd=float(cost) if cost is not None else None,
+            model=call.model,
+            retries=tuple(notes),
+        )
 
 
-def _secret_values(arguments: dict[str, Any]) -> list[str]:
-    """The key sent and every credential-like variable: servers may quote them in errors."""
-    names = [n for n in os.environ if n.endswith(("_API_KEY", "_TOKEN", "_SECRET"))]
-    values = [str(arguments.get("api_key") or "")] + [os.environ[n] for n in names]
-    return [v for v in values if len(v) >= 8 and v != "no-key-needed"]
+@dataclass(frozen=True)
+class _Call:
+    """One prepared call: litellm, the model, whether it runs locally, the arguments."""
+
+    litellm: Any
+    model: str
+    local: bool
+    arguments: dict[str, Any]
 
 
-def _short(error: Exception, secrets: list[str] | None = None) -> str:
-    text = " ".join(str(error).split())
-    for secret in secrets or ():
-        text = text.replace(secret, "[redacted]")
-    return text[:300] + ("..." if len(text) > 300 else "")
+@functools.lru_cache(maxsize=64)
+def _supports_schema(litellm: Any, model: str, provider: str) -> bool:
+    try:
+        params = litellm.get_supported_openai_params(
+            model=model.split("/", 1)[-1], custom_llm_provider=provider
+        )
+    except Exception:
+        return False
+    return bool(params) and "response_format" in params
 
 
 def _answer_text(response: Any) -> str:

@@ -1,0 +1,131 @@
+"""When and how long to retry a failed VLM call (shared by litellm's blocking and async calls).
+
+Rate limits (429), server errors (5xx) and lost connections are retried a bounded number of
+times: after the server's Retry-After (seconds, milliseconds or an HTTP date) when it sends one,
+else after an exponential backoff with jitter, so that many runs told to wait do not all come
+back at the same instant. Every other failure, and the last retryable one, becomes one line.
+"""
+
+from __future__ import annotations
+
+import email.utils
+import os
+import random
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+from keymps.errors import KeympsError
+
+MAX_WAIT_S = 30.0
+"""No single wait is longer, whatever the server asks."""
+JITTER = 0.5
+"""A backoff wait is stretched by a random fraction of itself, up to this much."""
+
+
+def retry_after_s(error: Exception, now: float | None = None) -> float | None:
+    """The wait the server asked for (Retry-After, retry-after-ms), if it asked."""
+    headers: Any = getattr(error, "litellm_response_headers", None)
+    response = getattr(error, "response", None)
+    if not headers and response is not None:
+        headers = getattr(response, "headers", None)
+    if not headers:
+        return None
+    milliseconds = headers.get("retry-after-ms")
+    try:
+        if milliseconds is not None:
+            return max(0.0, float(milliseconds) / 1000)
+    except ValueError:
+        pass
+    value = headers.get("retry-after") or headers.get("Retry-After")
+    if value is None:
+        return None
+    try:
+        return max(0.0, float(value))
+    except ValueError:
+        pass
+    try:
+        when = email.utils.parsedate_to_datetime(value)
+    except (TypeError, ValueError):
+        return None
+    return max(0.0, when.timestamp() - (time.time() if now is None else now))
+
+
+def secret_values(arguments: dict[str, Any]) -> list[str]:
+    """The key sent and every credential-like variable: servers may quote them in errors."""
+    names = [n for n in os.environ if n.endswith(("_API_KEY", "_TOKEN", "_SECRET"))]
+    values = [str(arguments.get("api_key") or "")] + [os.environ[n] for n in names]
+    return [v for v in values if len(v) >= 8 and v != "no-key-needed"]
+
+
+def short(error: Exception, secrets: list[str] | None = None) -> str:
+    """The error as one line of at most 300 characters, secrets blanked out."""
+    text = " ".join(str(error).split())
+    for secret in secrets or ():
+        text = text.replace(secret, "[redacted]")
+    return text[:300] + ("..." if len(text) > 300 else "")
+
+
+@dataclass
+class Retrying:
+    """The retry state of one call: what to do after each failed try."""
+
+    litellm: Any
+    arguments: dict[str, Any]
+    retries: int
+    backoff_s: float
+    timeout_s: float
+    where: str
+    notes: list[str] = field(default_factory=list)
+    """One line per failed try that was retried (the run's vlm/ records show them)."""
+
+    def __post_init__(self) -> None:
+        self.secrets = secret_values(self.arguments)
+        self.wait = self.backoff_s
+
+    def pause_after(self, error: Exception, attempt: int) -> float | None:
+        """Seconds to wait before the next try; None for an error that is not litellm's; a
+        KeympsError (one line) when the call has failed for good."""
+        litellm, model = self.litellm, self.arguments["model"]
+        if isinstance(error, litellm.Timeout):
+            raise KeympsError(
+                f"the VLM ({model} at {self.where}) gave no answer within {self.timeout_s:g} s "
+                "(planner.timeout_s)"
+            )
+        if isinstance(error, litellm.AuthenticationError):
+            raise KeympsError(
+                f"the VLM ({model}) rejected the credentials; check the API key environment "
+                "variable (keys are never read from files)"
+            )
+        if isinstance(error, litellm.NotFoundError):
+            raise KeympsError(f"model {model} not found at {self.where}; check planner.model")
+        retryable = (
+            litellm.RateLimitError,
+            litellm.InternalServerError,
+            litellm.ServiceUnavailableError,
+            litellm.APIConnectionError,
+            litellm.BadGatewayError,
+        )
+        if isinstance(error, retryable):
+            if attempt >= self.retries:
+                status = getattr(error, "status_code", None)
+                last = f" (the last one: HTTP {status})" if isinstance(status, int) else ""
+                raise KeympsError(
+                    f"the VLM ({model} at {self.where}) failed after {attempt + 1} tries{last}: "
+                    f"{short(error, self.secrets)}"
+                )
+            told = retry_after_s(error)
+            pause = told if told is not None else self.wait * (1 + JITTER * random.random())
+            pause = min(pause, MAX_WAIT_S)
+            self.notes.append(
+                f"try {attempt + 1}: {short(error, self.secrets)}; retried after {pause:.3g} s"
+            )
+            self.wait *= 2
+            return pause
+        if isinstance(error, litellm.BadRequestError):
+            raise KeympsError(
+                f"the VLM ({model}) refused the request: {short(error, self.secrets)}"
+            )
+        if isinstance(error, litellm.APIError):
+            raise KeympsError(f"the VLM ({model}) failed: {short(error, self.secrets)}")
+        return None
