@@ -2,11 +2,17 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import click
 
 from keymps.cli_errors import user_errors
+
+if TYPE_CHECKING:
+    from keymps.eval_runner import EvalOptions
+    from keymps.eval_suites import Suite
 
 METHOD_NAMES = ("keymps", "vlm-keypoint", "keymps-text", "vlm-keyword", "vlm-dmp", "vlm-mdmp")
 
@@ -65,7 +71,7 @@ def eval_command(
     # would otherwise spin on the other core after every matrix product.
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     from keymps.eval_report import markdown_table, write_summary
-    from keymps.eval_runner import EvalOptions, plan_jobs, run_suite
+    from keymps.eval_runner import EvalOptions
     from keymps.eval_suites import load_suite
 
     suite = load_suite(suite_file)
@@ -83,26 +89,18 @@ def eval_command(
         cases=cases,
         no_cache=no_cache,
     )
-    total = len(plan_jobs(suite, options))
-    if quiet:
-        records = run_suite(suite, options)
-    else:
-        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn
+    try:
+        records = _run(suite, options, quiet)
+    except KeyboardInterrupt:
+        from keymps.eval_runner import RESULTS_FILE, read_results
 
-        with Progress(
-            "[progress.description]{task.description}",
-            BarColumn(),
-            MofNCompleteColumn(),
-            TimeElapsedColumn(),
-            transient=True,
-        ) as progress:
-            bar = progress.add_task(f"{suite.name}", total=total)
-
-            def advance(job: object, record: dict[str, object]) -> None:
-                status = "ok" if record.get("ok") else "failed"
-                progress.update(bar, advance=1, description=f"{suite.name}: {job.label} {status}")  # type: ignore[attr-defined]
-
-            records = run_suite(suite, options, on_result=advance)
+        kept = len(read_results(folder / RESULTS_FILE))
+        click.echo(
+            f"interrupted: {kept} finished runs are in {folder / RESULTS_FILE}; run the same "
+            "command again to resume",
+            err=True,
+        )
+        sys.exit(130)
     rows = write_summary(records, suite, folder)
     click.echo(markdown_table(rows, suite))
     failed = sum(1 for r in records if not r.get("ok"))
@@ -110,3 +108,28 @@ def eval_command(
         f"{len(records)} runs ({failed} failed); results in {folder}/ "
         "(results.jsonl, summary.md, summary.csv, gallery.html)"
     )
+
+
+def _run(suite: Suite, options: EvalOptions, quiet: bool) -> list[dict[str, Any]]:
+    """Every run of the suite, with a progress bar unless quiet."""
+    from keymps.eval_runner import plan_jobs, run_suite
+
+    total = len(plan_jobs(suite, options))
+    if quiet:
+        return run_suite(suite, options)
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn
+
+    with Progress(
+        "[progress.description]{task.description}",
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        transient=True,
+    ) as progress:
+        bar = progress.add_task(f"{suite.name}", total=total)
+
+        def advance(job: object, record: dict[str, object]) -> None:
+            status = "ok" if record.get("ok") else "failed"
+            progress.update(bar, advance=1, description=f"{suite.name}: {job.label} {status}")  # type: ignore[attr-defined]
+
+        return run_suite(suite, options, on_result=advance)

@@ -1,16 +1,19 @@
 """Runs eval jobs in worker processes, several jobs in flight in each.
 
-A run costs about 0.1 s of Python CPU (rendering the scene, litellm's request handling, the
-planner, scoring). In one process the GIL serializes that work, so however many VLM calls
-overlap, throughput stops at about ten runs a second. Worker processes each have their own GIL:
-`processes` workers share the `concurrency` runs in flight (each worker takes a job only when
-one of its threads is free, so at most `concurrency` runs, and VLM calls, are ever in flight).
+A run's own work (rendering the scene, detection, the prompt, parsing the answer, grounding,
+scoring, writing its files) is about 40 ms of Python CPU, and in one process the GIL runs it one
+run at a time. Worker processes each have their own GIL: `processes` workers share the
+`concurrency` runs in flight (each worker takes a job only when one of its threads is free, so
+at most `concurrency` runs are ever in flight). A run's VLM call does not happen in the worker:
+it goes to the parent's event loop (keymps.vlm_broker), which makes it with litellm's async API,
+at most `concurrency` at once; the worker's thread waits for the answer, its other threads work.
 
-Workers are forked from a fork server that has imported keymps, OpenCV, NumPy and litellm once
-(keymps.eval_preload): starting one costs milliseconds, not the seconds of those imports, and
-no worker inherits the parent's threads or open connections. Each worker runs with the parent's
-environment as it is when the suite starts (API keys, KEYMPS_CACHE_DIR ...). Records come back
-to the parent, which writes results.jsonl as before.
+Workers are forked from a fork server that has imported keymps, OpenCV, NumPy and Pinocchio
+once (keymps.eval_preload): starting one costs milliseconds, not the second of those imports,
+and no worker inherits the parent's threads or open connections. Each worker runs with the
+parent's environment as it is when the suite starts (KEYMPS_CACHE_DIR ...) and ignores Ctrl-C:
+the parent stops, then ends them. Records come back to the parent, which alone writes
+results.jsonl.
 
 As in any multiprocessing program, a script that runs a suite with processes > 1 needs the
 `if __name__ == "__main__":` guard: the workers import the script's main module.
@@ -31,6 +34,7 @@ from keymps.errors import KeympsError
 if TYPE_CHECKING:
     from keymps.eval_runner import EvalOptions, Job
     from keymps.eval_suites import Suite
+    from keymps.vlm_broker import VlmBroker
 
 MIN_JOBS_PER_PROCESS = 8
 """Below this many jobs per worker, starting workers costs more than it saves."""
@@ -60,11 +64,32 @@ def _worker(
     environment: dict[str, str],
     jobs: Any,
     results: Any,
+    vlm: tuple[int, Any, Any],
 ) -> None:
-    """A worker process: take a job whenever a thread is free, send each record back."""
+    """A worker process: take a job whenever a thread is free, send each record back; its VLM
+    calls go to the parent's broker (keymps.vlm_broker)."""
+    import signal
+
+    # Ctrl-C reaches the whole process group: the parent alone stops, then ends its workers
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     os.environ.clear()
     os.environ.update(environment)
     from keymps.eval_runner import run_job
+    from keymps.vlm_broker import BrokerClient, activated
+
+    with activated(BrokerClient(*vlm)):
+        _take_jobs(suite, options, backend, threads, jobs, results, run_job)
+
+
+def _take_jobs(
+    suite: Suite,
+    options: EvalOptions,
+    backend: str,
+    threads: int,
+    jobs: Any,
+    results: Any,
+    run_job: Any,
+) -> None:
 
     free = threading.Semaphore(threads)
 
@@ -103,6 +128,7 @@ def run_in_processes(
     backend: str,
     processes: int,
     on_record: Callable[[Job, dict[str, Any]], None],
+    broker: VlmBroker,
 ) -> None:
     """Run `jobs` in `processes` workers; call on_record in this process as each one ends."""
     import multiprocessing
@@ -117,16 +143,22 @@ def run_in_processes(
     for _ in shares:
         job_queue.put(None)
     environment = dict(os.environ)
+    vlm_requests = context.Queue()
+    vlm_replies = [context.Queue() for _ in shares]
     workers = [
         context.Process(
             target=_worker,
-            args=(suite, options, backend, threads, environment, job_queue, result_queue),
+            args=(
+                suite, options, backend, threads, environment, job_queue, result_queue,
+                (index, vlm_requests, vlm_replies[index]),
+            ),
             name=f"keymps-eval-{index}",
             daemon=True,
         )
         for index, threads in enumerate(shares)
-    ]
+    ]  # fmt: skip
     received = 0
+    serving = broker.serve(vlm_requests, vlm_replies)
     try:
         for worker in workers:
             worker.start()
@@ -146,8 +178,11 @@ def run_in_processes(
             if worker.is_alive():
                 worker.terminate()
                 worker.join(timeout=5)
-        job_queue.close()
-        result_queue.close()
+        broker.close()
+        vlm_requests.put(None)  # ends the thread serving the workers' calls
+        serving.join(timeout=5)
+        for channel in (job_queue, result_queue, vlm_requests, *vlm_replies):
+            channel.close()
 
 
 def _check_alive(workers: Sequence[Any]) -> None:

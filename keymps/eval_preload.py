@@ -1,9 +1,10 @@
 """Imported once by the fork server that starts `keymps eval`'s worker processes (eval_pool).
 
 Its whole job is importing what a run needs, so that each forked worker starts with it loaded
-instead of spending seconds importing (about 4 s here, plus 1 s that litellm would import lazily
-during the first request). Nothing else imports this module. A module missing from the list
-costs only time: the worker's first run imports it.
+instead of spending a second or more importing. litellm is not among them: the workers hand
+their VLM calls to the parent's event loop (keymps.vlm_broker), which alone imports it. Nothing
+else imports this module. A module missing from the list costs only time: the worker's first
+run imports it.
 """
 
 import contextlib
@@ -13,7 +14,6 @@ import os
 # Runs are the unit of parallelism: BLAS helper threads would only spin on the other core.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
-os.environ.setdefault("LITELLM_LOCAL_MODEL_COST_MAP", "True")
 
 import cv2  # noqa: E402, F401
 import numpy  # noqa: E402, F401
@@ -21,7 +21,7 @@ import pinocchio  # noqa: E402, F401
 import scipy.interpolate  # noqa: E402, F401
 import scipy.spatial  # noqa: E402, F401
 
-import keymps.default_plugins.litellm_backend as litellm_backend  # noqa: E402
+import keymps.default_plugins.litellm_backend  # noqa: E402, F401
 import keymps.engine  # noqa: E402, F401
 import keymps.eval_methods  # noqa: E402, F401
 import keymps.eval_runner  # noqa: E402, F401
@@ -48,27 +48,13 @@ LAZY_MODULES = (
     "keymps.primitives",
     "keymps.vlm_cache",
     "keymps_ur_rtde",
-    # what litellm and the OpenAI client import during their first request (this litellm)
-    "openai.types.chat",
-    "openai.resources.chat",
-    "httpcore",
-    "h11",
-    "litellm.llms.openai.openai",
-    "litellm.llms.openai.chat.gpt_audio_transformation",
-    "litellm.llms.openai_like.dynamic_config",
-    "litellm.llms.litellm_proxy.chat.transformation",
-    "litellm.llms.fal_ai.chat.transformation",
-    "litellm.llms.edenai.chat.transformation",
-    "litellm.llms.vertex_ai.vertex_ai_partner_models.anthropic.transformation",
-    "litellm.proxy.openai_files_endpoints.common_utils",
-    "litellm._service_logger",
+    "keymps.vlm_broker",
 )
 
 
 def _preload() -> None:
-    litellm_backend.import_litellm()
     for name in LAZY_MODULES:
-        # another litellm version may not have it: its first request imports what it needs
+        # a plugin that is not installed is imported by nobody
         with contextlib.suppress(ImportError):
             importlib.import_module(name)
 

@@ -5,10 +5,7 @@ from __future__ import annotations
 
 import csv
 import json
-import math
 import re
-import threading
-import time
 from pathlib import Path
 from typing import Any
 
@@ -294,52 +291,3 @@ def test_no_cache_asks_the_vlm_for_every_run(tmp_path: Path) -> None:
     assert result.exit_code == 0, result.output
     records = _records(out)
     assert requests == 2 and [r["cached"] for r in records] == [0, 0]
-
-
-# --------------------------------------------------------------------------- concurrency
-
-
-def _six_wedges_slowly(tracker: dict[str, Any]) -> Any:
-    """Six equal wedges of the crop's cake, answered after 0.2 s; counts requests in flight."""
-    lock = threading.Lock()
-
-    def answer(request: Recorded) -> str:
-        with lock:
-            tracker["now"] += 1
-            tracker["peak"] = max(tracker["peak"], tracker["now"])
-        time.sleep(0.2)
-        with lock:
-            tracker["now"] -= 1
-        messages = request.body["messages"]
-        text = " ".join(_text(m) for m in messages)
-        width, height = (int(v) for v in CROP.findall(text)[-1])
-        cx, cy, r = width / 2, height / 2, min(width, height) / 2 - 1
-        pairs = []
-        for k in range(3):
-            a = math.radians(90 + 60 * k)
-            dx, dy = r * math.cos(a), r * math.sin(a)
-            pairs.append([[cx - dx, cy - dy], [cx + dx, cy + dy]])
-        return json.dumps({"keyword": "straight", "pairs": pairs, "rationale": "six"})
-
-    return answer
-
-
-@pytest.mark.parametrize("processes", ["1", "2"])
-def test_concurrency_bounds_the_requests_in_flight(tmp_path: Path, processes: str) -> None:
-    """--concurrency 3: the VLM server never sees more than 3 requests at once, and does see
-    them overlap, whether the runs share this process or two worker processes."""
-    tracker = {"now": 0, "peak": 0}
-    out = tmp_path / "c3"
-    with VlmServer(responder=_six_wedges_slowly(tracker)) as server:
-        result = _eval(
-            "cake_six", "--case", "round", "--repeats", "12", "--concurrency", "3",
-            "--processes", processes,
-            "--model", "openai/test-vlm", "--api-base", server.openai_base, "--out", str(out),
-        )  # fmt: skip
-        assert result.exit_code == 0, result.output
-        asked = len(server.chat_requests)
-    records = _records(out)
-    assert len(records) == 12 and asked == 12
-    assert all(r["ok"] and r["success"] and not r["cached"] for r in records), records
-    assert sorted(r["repeat"] for r in records) == list(range(12))
-    assert 2 <= tracker["peak"] <= 3

@@ -71,6 +71,8 @@ class Recorded:
     path: str
     headers: dict[str, str]
     body: Any
+    at: float = field(default_factory=time.monotonic)
+    """When the request arrived (time.monotonic)."""
 
 
 Responder = Callable[[Recorded], str]

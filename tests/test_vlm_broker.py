@@ -1,0 +1,248 @@
+"""`keymps eval`'s VLM calls through litellm's async API against a real local server (127.0.0.1):
+bounded by --concurrency, backing off on rate limits, and an interruption that keeps every
+finished run."""
+
+from __future__ import annotations
+
+import asyncio
+import email.utils
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from vlm_server import Recorded, Reply, VlmServer
+
+from keymps.cli import cli
+from keymps.eval_runner import read_results
+
+SIX = '{"keyword": "straight", "pairs": [[[10, 10], [90, 90]]], "rationale": "r"}'
+
+
+@pytest.fixture(autouse=True)
+def _isolated(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    monkeypatch.setenv("KEYMPS_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.chdir(tmp_path)
+
+
+def _request(model: str = "openai/test-vlm") -> Any:
+    from keymps.plan_answer import answer_schema
+    from keymps.planning import PlanRequest
+
+    return PlanRequest(
+        instruction="cut it",
+        crop=np.zeros((100, 100, 3), np.uint8),
+        crop_mask=None,
+        metres_per_px=(0.0005, 0.0005),
+        primitives={"straight": "a straight cut"},
+        object_height=0.05,
+        max_pairs=8,
+        messages=[{"role": "user", "content": "crop 100 x 100 pixels"}],
+        schema=answer_schema("combined", ["straight"], 8),
+        model=model,
+    )
+
+
+def _options(server: VlmServer, **extra: Any) -> Any:
+    from keymps.default_plugins.litellm_backend import LitellmOptions
+
+    return LitellmOptions(model="openai/test-vlm", api_base=server.openai_base, **extra)
+
+
+def _in_flight(tracker: dict[str, int], delay_s: float) -> Any:
+    """A responder that counts the requests being answered at once."""
+    lock = threading.Lock()
+
+    def answer(request: Recorded) -> str:
+        with lock:
+            tracker["now"] += 1
+            tracker["peak"] = max(tracker["peak"], tracker["now"])
+        time.sleep(delay_s)
+        with lock:
+            tracker["now"] -= 1
+        return SIX
+
+    return answer
+
+
+def test_the_broker_keeps_exactly_concurrency_calls_in_flight() -> None:
+    """Twenty calls submitted at once, concurrency 4: the server sees 4 at a time, never 5."""
+    from keymps.vlm_broker import VlmBroker
+
+    tracker = {"now": 0, "peak": 0}
+    with VlmServer(responder=_in_flight(tracker, 0.3)) as server:
+        broker = VlmBroker(4)
+        started = time.perf_counter()
+        futures = [broker.submit(_options(server), _request()) for _ in range(20)]
+        answers = [f.result(timeout=60) for f in futures]
+        elapsed = time.perf_counter() - started
+        broker.close()
+    assert tracker["peak"] == 4
+    assert all(a.text == SIX and a.prompt_tokens == 321 for a in answers)
+    assert elapsed >= 5 * 0.3  # 20 calls, 4 at a time
+
+
+def test_rate_limits_back_off_exponentially_with_jitter() -> None:
+    """Three 429s without Retry-After: waits of 1, 2 and 4 x the backoff, each stretched by up
+    to 50 % at random, then the answer; every wait is noted for the run's vlm/ records."""
+    from keymps.default_plugins.litellm_backend import LitellmBackend
+
+    with VlmServer() as server:
+        server.script(*[Reply.error(429)] * 3, Reply.text_answer(SIX))
+        backend = LitellmBackend(_options(server, backoff_s=0.1))
+        answer = asyncio.run(backend.acomplete(_request()))
+        arrivals = [r.at for r in server.chat_requests]
+    assert answer.text == SIX and len(arrivals) == 4
+    gaps = np.diff(arrivals)
+    for gap, base in zip(gaps, (0.1, 0.2, 0.4), strict=True):
+        assert base <= gap < 1.5 * base + 0.15, (gaps, base)
+    assert len(answer.retries) == 3 and all("retried after" in n for n in answer.retries)
+
+
+def test_retry_after_is_honoured_in_seconds_and_as_a_date() -> None:
+    from keymps.default_plugins.litellm_backend import LitellmBackend
+
+    date = email.utils.formatdate(time.time() + 2, usegmt=True)  # whole seconds: 1-2 s ahead
+    with VlmServer() as server:
+        server.script(
+            Reply.error(429, retry_after=0.5),
+            Reply("error", status=429, headers={"Retry-After": date}, text="slow down"),
+            Reply.text_answer(SIX),
+        )
+        backend = LitellmBackend(_options(server, backoff_s=0.01))
+        answer = asyncio.run(backend.acomplete(_request()))
+        arrivals = [r.at for r in server.chat_requests]
+    assert answer.text == SIX
+    first, second = np.diff(arrivals)
+    assert 0.5 <= first < 1.0
+    assert 0.9 <= second < 2.5
+
+
+def _eval(*args: str) -> Any:
+    return CliRunner().invoke(cli, ["eval", *args, "--quiet"], catch_exceptions=False)
+
+
+@pytest.mark.parametrize("processes", ["1", "2"])
+def test_eval_reaches_but_never_exceeds_its_concurrency(tmp_path: Path, processes: str) -> None:
+    tracker = {"now": 0, "peak": 0}
+    out = tmp_path / "c3"
+    wedges = _in_flight(tracker, 0.5)
+
+    def six_wedges(request: Recorded) -> str:
+        wedges(request)
+        return _six_wedges(request)
+
+    with VlmServer(responder=six_wedges) as server:
+        result = _eval(
+            "cake_six", "--case", "round", "--repeats", "16", "--concurrency", "3",
+            "--processes", processes, "--model", "openai/test-vlm",
+            "--api-base", server.openai_base, "--out", str(out),
+        )  # fmt: skip
+        assert result.exit_code == 0, result.output
+        asked = len(server.chat_requests)
+    records = read_results(out / "results.jsonl")
+    assert len(records) == 16 and asked == 16
+    assert all(r["ok"] and r["success"] and not r["cached"] for r in records), records
+    assert tracker["peak"] == 3
+
+
+def _six_wedges(request: Recorded) -> str:
+    import math
+    import re
+
+    text = json.dumps(request.body["messages"][1]["content"][0])
+    width, height = (int(v) for v in re.findall(r"(\d+) x (\d+) pixels", text)[-1])
+    cx, cy, r = width / 2, height / 2, min(width, height) / 2 - 1
+    pairs = []
+    for k in range(3):
+        a = math.radians(90 + 60 * k)
+        dx, dy = r * math.cos(a), r * math.sin(a)
+        pairs.append([[cx - dx, cy - dy], [cx + dx, cy + dy]])
+    return json.dumps({"keyword": "straight", "pairs": pairs, "rationale": "six"})
+
+
+def test_eval_waits_out_a_rate_limit_then_records_the_run(tmp_path: Path) -> None:
+    out = tmp_path / "limited"
+    with VlmServer(responder=_six_wedges) as server:
+        server.script(Reply.error(429, retry_after=0.4))
+        result = _eval(
+            "cake_six", "--case", "round", "--repeats", "1", "--model", "openai/test-vlm",
+            "--api-base", server.openai_base, "--out", str(out),
+        )  # fmt: skip
+        arrivals = [r.at for r in server.chat_requests]
+    assert result.exit_code == 0, result.output
+    (record,) = read_results(out / "results.jsonl")
+    assert record["ok"] and record["success"], record
+    assert len(arrivals) == 2 and arrivals[1] - arrivals[0] >= 0.4
+    (call,) = [json.loads(p.read_text()) for p in (out / record["folder"] / "vlm").glob("01-*")]
+    assert len(call["retries"]) == 1 and "retried after 0.4 s" in call["retries"][0]
+
+
+def test_eval_records_exhausted_retries_as_one_line(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    out = tmp_path / "exhausted"
+    secret = "sk-test-0123456789abcdef"
+    monkeypatch.setenv("OPENAI_API_KEY", secret)
+    with VlmServer() as server:
+        server.script(*[Reply.error(429, retry_after=0.05, message=f"no, {secret}")] * 8)
+        result = _eval(
+            "cake_six", "--case", "round", "--repeats", "2", "--concurrency", "2",
+            "--model", "openai/test-vlm", "--api-base", server.openai_base, "--out", str(out),
+        )  # fmt: skip
+        asked = len(server.chat_requests)
+    assert result.exit_code == 0, result.output  # a failed run never stops the suite
+    records = read_results(out / "results.jsonl")
+    assert len(records) == 2 and asked == 8  # 1 try + 3 retries each
+    for record in records:
+        assert not record["ok"]
+        assert "failed after 4 tries" in record["error"] and "429" in record["error"]
+        assert "\n" not in record["error"] and "Traceback" not in record["error"]
+    written = "".join(p.read_text() for p in out.rglob("*") if p.suffix in (".json", ".jsonl"))
+    assert secret not in written + result.output and "[redacted]" in written
+    assert "Traceback" not in result.output
+
+
+def test_ctrl_c_keeps_every_finished_run_and_a_rerun_does_the_rest(tmp_path: Path) -> None:
+    """Ctrl-C (SIGINT to the process group, as a terminal sends it) in the middle of a suite:
+    it stops within seconds with one line, results.jsonl holds whole records only, and the
+    same command again runs exactly the runs that are missing."""
+    out = tmp_path / "interrupted"
+    with VlmServer(responder=lambda r: (time.sleep(0.4), _six_wedges(r))[1]) as server:
+        command = [
+            sys.executable, "-c", "from keymps.cli import main; main()", "eval", "cake_six",
+            "--case", "round",
+            "--repeats", "24", "--concurrency", "2", "--processes", "2", "--quiet",
+            "--model", "openai/test-vlm", "--api-base", server.openai_base, "--out", str(out),
+        ]  # fmt: skip
+        process = subprocess.Popen(
+            command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True
+        )
+        results = out / "results.jsonl"
+        deadline = time.monotonic() + 120
+        while len(read_results(results)) < 3 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        os.killpg(process.pid, signal.SIGINT)
+        stopped = time.monotonic()
+        _, stderr = process.communicate(timeout=30)
+        assert time.monotonic() - stopped < 10
+        assert process.returncode == 130, stderr.decode()
+        assert "interrupted:" in stderr.decode() and "Traceback" not in stderr.decode()
+        lines = results.read_text().splitlines()
+        kept = [json.loads(line) for line in lines]  # every line a whole record
+        assert 3 <= len(kept) < 24 and len({r["repeat"] for r in kept}) == len(kept)
+        asked_before = len(server.chat_requests)
+        rerun = subprocess.run(command, capture_output=True, timeout=300)
+        assert rerun.returncode == 0, rerun.stderr.decode()
+        asked_again = len(server.chat_requests) - asked_before
+    records = read_results(results)
+    assert sorted(r["repeat"] for r in records) == list(range(24))  # none twice, none lost
+    assert asked_again == 24 - len(kept)
