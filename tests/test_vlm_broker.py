@@ -220,7 +220,7 @@ def test_ctrl_c_keeps_every_finished_run_and_a_rerun_does_the_rest(tmp_path: Pat
         command = [
             sys.executable, "-c", "from keymps.cli import main; main()", "eval", "cake_six",
             "--case", "round",
-            "--repeats", "24", "--concurrency", "2", "--processes", "2", "--quiet",
+            "--repeats", "24", "--concurrency", "2", "--processes", "2", "--quiet", "--no-cache",
             "--model", "openai/test-vlm", "--api-base", server.openai_base, "--out", str(out),
         ]  # fmt: skip
         process = subprocess.Popen(
