@@ -28,6 +28,8 @@ MAX_RETRIES = 3
 BACKOFF_S = 1.0
 """First wait between tries; doubled each time (plus jitter) unless the server sends Retry-After."""
 
+_REGISTERED: set[str] = set()
+"""Local models registered with litellm at zero price in this process."""
 _LOCAL_PROVIDERS = {"ollama", "ollama_chat", "hosted_vllm", "lm_studio", "llamafile"}
 
 
@@ -74,7 +76,6 @@ class LitellmBackend:
 
     def __init__(self, options: LitellmOptions):
         self.options = options
-        self._registered: set[str] = set()
 
     def _api_key(self) -> str | None:
         env = self.options.api_key_env
@@ -87,7 +88,7 @@ class LitellmBackend:
 
     def _register_local_model(self, litellm: Any, model: str) -> None:
         # litellm does not price local models; registering them at zero gives a cost of 0.0
-        if model in self._registered:
+        if model in _REGISTERED:  # once per process: every call of an eval builds a backend
             return
         import logging
 
@@ -112,7 +113,7 @@ class LitellmBackend:
             return
         finally:
             logger.setLevel(level)
-        self._registered.add(model)
+        _REGISTERED.add(model)
 
     def complete(self, request: PlanRequest) -> BackendAnswer:
         from keymps import vlm_broker
