@@ -78,7 +78,7 @@ def split_areas(
     cv2.fillPoly(mask, [to_px(outline)], 1)
     if hole_m is not None and len(hole_m) >= 3:
         cv2.fillPoly(mask, [to_px(np.asarray(hole_m, dtype=float))], 0)
-    object_pixels = int(mask.sum())
+    object_pixels = cv2.countNonZero(mask)
     for start, end in cuts:
         length = float(np.linalg.norm(end - start))
         if length > 0:
