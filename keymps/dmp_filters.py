@@ -9,7 +9,7 @@ Two ways to run a filter B(q) / A(q) with a monic second-order A and zero histor
   earlier blocks contribute is carried by two numbers per block (an impulse response of a
   second-order system obeys a two-term recursion, so two of its values fix all later ones).
   One matrix product does almost all of the work: for 51 rows of 1000 samples it takes about
-  0.23 ms against 0.40 ms for the recursive pair.
+  0.2 ms against 0.4 ms for the recursive pair, and agrees with it to 1e-13.
 
 Helpers of keymps.dmp_system; not a public API.
 """

@@ -43,16 +43,7 @@ class Filters:
 @functools.lru_cache(maxsize=64)
 def discretize(step: float, stiffness: float, damping: float) -> Filters:
     """First-order-hold discretization of p' = z, z' = u - K p - D z (normalized time)."""
-    block = np.zeros((4, 4))
-    block[0, 1] = 1.0
-    block[1, 0] = -stiffness
-    block[1, 1] = -damping
-    block[1, 2] = 1.0
-    block[2, 3] = 1.0 / step
-    from scipy.linalg import expm
-
-    big = expm(block * step).tolist()  # plain floats: the rest is 2 x 2 algebra
-    (p00, p01, g1_0, g2_0), (p10, p11, g1_1, g2_1) = big[0], big[1]
+    (p00, p01, p10, p11), (g1_0, g1_1), (g2_0, g2_1) = _hold_exponential(step, stiffness, damping)
     a = np.array([1.0, -(p00 + p11), p00 * p11 - p01 * p10])
     # x[n] = Phi x[n-1] + g_prev u[n-1] + g_now u[n]; C (I - Phi q^-1)^-1 G = (C G + c q^-1) /
     # (1 - tr q^-1 + det q^-2) for a 2 x 2 Phi, with c the "tail" below.
@@ -65,6 +56,51 @@ def discretize(step: float, stiffness: float, damping: float) -> Filters:
     first_pos = np.array([now[0], pos_tail_now])
     first_vel = np.array([now[1], vel_tail_now])
     return Filters(a, b_pos, b_vel, first_pos, first_vel)
+
+
+def _hold_exponential(
+    step: float, stiffness: float, damping: float
+) -> tuple[tuple[float, float, float, float], tuple[float, float], tuple[float, float]]:
+    """Phi = e^(A h) (row-major) and the first-order-hold input vectors gamma1 = integral of
+    e^(A s) b over [0, h] and gamma2 = the same weighted by (h - s) / h, for A = [[0, 1], [-K,
+    -D]], b = [0, 1], h = step: the blocks of the exponential of [[A, b, 0], [0, 0, 1/h],
+    [0, 0, 0]] h. Scaling and squaring of a Taylor series in plain floats (a 2 x 2 problem:
+    array calls would cost more than the arithmetic)."""
+    norm = step * max(abs(stiffness), 1.0 + abs(damping))
+    squarings = max(0, math.ceil(math.log2(norm / 0.5))) if norm > 0.5 else 0
+    h = step / 2.0**squarings
+    x00, x01, x10, x11 = 0.0, h, -stiffness * h, -damping * h  # X = A h, norm <= 1/2
+    # X^j / j! summed three ways: e^X, phi1(X) = sum X^j / (j+1)!, phi2(X) = sum X^j / (j+2)!
+    t00, t01, t10, t11 = 1.0, 0.0, 0.0, 1.0
+    e00, e01, e10, e11 = 1.0, 0.0, 0.0, 1.0
+    f01, f11 = 0.0, 1.0  # phi1(X) b: the second column (b = [0, 1]); likewise s for phi2
+    s01, s11 = 0.0, 0.5
+    for j in range(1, 18):  # the next term would be below 1e-19 of the first
+        t00, t01, t10, t11 = (
+            (t00 * x00 + t01 * x10) / j,
+            (t00 * x01 + t01 * x11) / j,
+            (t10 * x00 + t11 * x10) / j,
+            (t10 * x01 + t11 * x11) / j,
+        )
+        e00, e01, e10, e11 = e00 + t00, e01 + t01, e10 + t10, e11 + t11
+        c1 = 1.0 / (j + 1)
+        c2 = c1 / (j + 2)
+        f01, f11 = f01 + t01 * c1, f11 + t11 * c1
+        s01, s11 = s01 + t01 * c2, s11 + t11 * c2
+    g1 = (h * f01, h * f11)
+    g2 = (h * s01, h * s11)
+    for _ in range(squarings):  # from step h to 2h: g1 += E g1, g2 = (g1 + g2 + E g2) / 2, E = E^2
+        eg1 = (e00 * g1[0] + e01 * g1[1], e10 * g1[0] + e11 * g1[1])
+        eg2 = (e00 * g2[0] + e01 * g2[1], e10 * g2[0] + e11 * g2[1])
+        g2 = ((g1[0] + g2[0] + eg2[0]) / 2.0, (g1[1] + g2[1] + eg2[1]) / 2.0)
+        g1 = (g1[0] + eg1[0], g1[1] + eg1[1])
+        e00, e01, e10, e11 = (
+            e00 * e00 + e01 * e10,
+            e00 * e01 + e01 * e11,
+            e10 * e00 + e11 * e10,
+            e10 * e01 + e11 * e11,
+        )
+    return (e00, e01, e10, e11), g1, g2
 
 
 def respond(filters: Filters, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from keymps.dmp_filters import BLOCK, FilterError, all_pole, block_convolve, fir
-from keymps.dmp_system import discretize
+from keymps.dmp_system import _hold_exponential, discretize
 
 
 def recursive(rows: np.ndarray, b: np.ndarray, a: np.ndarray) -> np.ndarray:
@@ -63,3 +63,26 @@ def test_too_short_an_impulse_response_is_refused() -> None:
     impulse, _ = impulse_response(filters.b_pos, filters.a, BLOCK)
     with pytest.raises(FilterError, match="impulse response shorter"):
         block_convolve(np.ones((2, 100)), impulse, filters.a)
+
+
+@pytest.mark.parametrize(
+    "stiffness, damping", [(156.25, 25.0), (2500.0, 0.3), (1.0, 100.0), (0.0, 25.0)]
+)
+@pytest.mark.parametrize("samples", [2, 3, 9, 100, 1000, 100_000])
+def test_hold_discretization_matches_the_matrix_exponential(
+    stiffness: float, damping: float, samples: int
+) -> None:
+    """The plain-float scaling and squaring equals scipy's expm of the augmented matrix, for
+    the DMP's gains and for under- and overdamped ones, from 2 to 100,000 samples."""
+    from scipy.linalg import expm
+
+    step = 1.0 / (samples - 1)
+    augmented = np.zeros((4, 4))
+    augmented[0, 1] = 1.0
+    augmented[1] = [-stiffness, -damping, 1.0, 0.0]
+    augmented[2, 3] = 1.0 / step
+    expected = expm(augmented * step)[:2]
+    (p00, p01, p10, p11), gamma1, gamma2 = _hold_exponential(step, stiffness, damping)
+    got = np.array([[p00, p01, gamma1[0], gamma2[0]], [p10, p11, gamma1[1], gamma2[1]]])
+    scale = np.abs(expected).max(axis=1, keepdims=True)
+    assert (np.abs(got - expected) <= 1e-12 * scale).all()
