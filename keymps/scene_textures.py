@@ -233,16 +233,24 @@ CACHED_PIXELS = 4_000_000
 
 def board_texture(
     size_px: tuple[int, int], px_per_m: float, rng: np.random.Generator
-) -> np.ndarray:
-    """Wood under the objects: the part of one board (the same for every scene of this size and
-    resolution, as in a lab) that the seed picks, in a tint the seed varies a little."""
+) -> tuple[np.ndarray, np.ndarray]:
+    """Wood under the objects, as (1 + its shade) (H x W) and its BGR colour: the part of one
+    board (the same for every scene of this size and resolution, as in a lab) that the seed
+    picks, in a tint the seed varies a little."""
     width, height = size_px
     spare_x, spare_y = int(BOARD_SPARE * width), int(BOARD_SPARE * height)
     shade = _cached(_wood, (width + spare_x, height + spare_y), px_per_m)
     x0, y0 = int(rng.integers(0, spare_x + 1)), int(rng.integers(0, spare_y + 1))
     base = np.array([70, 118, 162], np.float32) * np.float32(rng.uniform(0.98, 1.02))
-    window = shade[y0 : y0 + height, x0 : x0 + width] + np.float32(1.0)
-    return window[..., None] * base
+    return shade[y0 : y0 + height, x0 : x0 + width] + np.float32(1.0), base
+
+
+def coloured(factor: np.ndarray, colour: np.ndarray) -> np.ndarray:
+    """An H x W x 3 float32 image: `factor` (H x W) times a BGR colour."""
+    import cv2
+
+    # one plane per channel, then interleaved: a tenth of numpy's broadcast over the last axis
+    return np.asarray(cv2.merge([factor * channel for channel in colour]))
 
 
 def _wood(size_px: tuple[int, int], px_per_m: float) -> np.ndarray:
@@ -300,6 +308,7 @@ def _cached(make: Callable[..., np.ndarray], *args: Any) -> np.ndarray:
 
 
 def lighting(size_px: tuple[int, int], rng: np.random.Generator) -> np.ndarray:
+    """A brightness gradient of +-3 % across the image, in a direction the seed picks."""
     width, height = size_px
     direction = rng.uniform(0, 2 * np.pi)
     x = np.linspace(-0.5, 0.5, width, dtype=np.float32)[None, :]

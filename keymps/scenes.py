@@ -32,7 +32,14 @@ from keymps.scene_objects import (
     outline_local,
     to_board_frame,
 )
-from keymps.scene_textures import PAINTERS, Paint, board_texture, lighting, sensor_noise
+from keymps.scene_textures import (
+    PAINTERS,
+    Paint,
+    board_texture,
+    coloured,
+    lighting,
+    sensor_noise,
+)
 
 __all__ = [
     "KINDS",
@@ -213,6 +220,8 @@ def half_covered_box(alpha: np.ndarray, origin: tuple[int, int]) -> list[int]:
 
 def render_scene(spec: SceneSpec) -> RenderedScene:
     """The image and the true geometry of a scene; the same spec gives the same pixels."""
+    import cv2
+
     from keymps import __version__
     from keymps.geometry import ImageFrame
 
@@ -227,7 +236,9 @@ def render_scene(spec: SceneSpec) -> RenderedScene:
     rng = np.random.default_rng([spec.seed, 1])
     frame = ImageFrame.linear((width, height), spec.board_size)
     centres = _place(spec, rng)
-    image = board_texture((width, height), spec.px_per_m, rng)
+    wood, wood_colour = board_texture((width, height), spec.px_per_m, rng)
+    light = lighting((width, height), rng)
+    image = coloured(wood * light, wood_colour)
     objects_truth = []
     for index, (obj, centre) in enumerate(zip(spec.objects, centres, strict=True)):
         object_rng = np.random.default_rng([spec.seed, 100 + index])
@@ -244,6 +255,7 @@ def render_scene(spec: SceneSpec) -> RenderedScene:
         colour = PAINTERS[obj.kind](
             Paint(u, v, obj, object_rng, spec.px_per_m, KINDS[obj.kind].shape)
         )
+        colour *= light[box[1] : box[3], box[0] : box[2], None]
         region = image[box[1] : box[3], box[0] : box[2]]
         image[box[1] : box[3], box[0] : box[2]] = (
             region * (1 - alpha[..., None]) + colour * alpha[..., None]
@@ -252,9 +264,8 @@ def render_scene(spec: SceneSpec) -> RenderedScene:
             _object_truth(obj, centre, outline_m, hole_m, outline_px, index)
             | {"bbox_px": half_covered_box(alpha, (box[0], box[1]))}
         )
-    image *= lighting((width, height), rng)[..., None]
-    image += sensor_noise((width, height), rng)
-    pixels = np.clip(np.rint(image, out=image), 0, 255, out=image).astype(np.uint8)
+    # rounded to the nearest (ties to even) and saturated, as np.clip(np.rint(...)), in one pass
+    pixels = cv2.add(image, sensor_noise((width, height), rng), dtype=cv2.CV_8U)
     truth = {
         "schema_version": SIDECAR_SCHEMA_VERSION,
         "generator": f"keymps {__version__} keymps.scenes",
