@@ -68,7 +68,6 @@ def block_convolve(
     rows: np.ndarray,
     impulse: np.ndarray,
     a: np.ndarray,
-    all_pole_impulse: np.ndarray | None = None,
     block: int = BLOCK,
 ) -> np.ndarray:
     """y[n] = sum over m <= n of impulse[n - m] rows[m], along the last axis of a 2D array.
@@ -78,14 +77,13 @@ def block_convolve(
     most 2 does. Then, for d >= 1, impulse[d + i] = alpha[i] impulse[d] + beta[i] impulse[d + 1]
     with alpha, beta the recursion's two fundamental solutions, so what block k receives from
     all earlier inputs is fixed by two carries: the outputs at its first two samples that the
-    earlier blocks alone produce. `all_pole_impulse`, 1 / A(q)'s impulse response, saves
-    computing it again when the caller has it (at least as long as the rows plus `block`).
+    earlier blocks alone produce.
     """
     count, length = rows.shape
     blocks = -(-length // block)
     if len(impulse) < block + 2:
         raise FilterError(f"internal error: impulse response shorter than {block + 2} samples")
-    alpha, beta = _fundamental_solutions(a, blocks * block + 2, all_pole_impulse)
+    alpha, beta = _fundamental_solutions(a, block + 2)
     # Each block's samples, then its two carries: one product then gives the block's output.
     augmented = workspace("block_augmented", (count, blocks, block + 2))
     samples = augmented[:, :, :block]
@@ -119,24 +117,15 @@ def _toeplitz_index(block: int) -> np.ndarray:
     return block - 1 + offsets[None, :] - offsets[:, None]
 
 
-def _fundamental_solutions(
-    a: np.ndarray, length: int, all_pole_impulse: np.ndarray | None
-) -> tuple[np.ndarray, np.ndarray]:
-    """alpha, beta: solutions of x[n] = -a1 x[n-1] - a2 x[n-2] starting (1, 0) and (0, 1),
-    from the all-pole impulse response r (beta[n] = r[n-1], alpha[n] = -a2 r[n-2])."""
-    if all_pole_impulse is not None and len(all_pole_impulse) >= length - 1:
-        r = all_pole_impulse[: length - 1]
-    else:
-        unit = np.zeros(length - 1)
-        unit[0] = 1.0
-        r = all_pole(a, unit)
-    beta = np.empty(length)
-    beta[0] = 0.0
-    beta[1:] = r
-    alpha = np.empty(length)
-    alpha[:2] = (1.0, 0.0)
-    np.multiply(r[:-1], -a[2], out=alpha[2:])
-    return alpha, beta
+def _fundamental_solutions(a: np.ndarray, length: int) -> tuple[np.ndarray, np.ndarray]:
+    """The first `length` values of alpha and beta, the solutions of x[n] = -a1 x[n-1] - a2
+    x[n-2] that start (1, 0) and (0, 1) (a few dozen values: plain floats)."""
+    a1, a2 = float(a[1]), float(a[2])
+    alpha, beta = [1.0, 0.0], [0.0, 1.0]
+    for _ in range(length - 2):
+        alpha.append(-a1 * alpha[-1] - a2 * alpha[-2])
+        beta.append(-a1 * beta[-1] - a2 * beta[-2])
+    return np.array(alpha), np.array(beta)
 
 
 def _accumulate_carries(

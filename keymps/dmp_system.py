@@ -38,6 +38,8 @@ class Filters:
     first_pos: np.ndarray
     """Impulse correction: output response to u[0] that the zero-history filter adds."""
     first_vel: np.ndarray
+    numerators: np.ndarray
+    """(4, 3): b_pos, first_pos, b_vel and first_vel (zero-padded), one per row."""
 
 
 @functools.lru_cache(maxsize=64)
@@ -55,7 +57,8 @@ def discretize(step: float, stiffness: float, damping: float) -> Filters:
     b_vel = np.array([now[1], vel_tail_now + prev[1], vel_tail_prev])
     first_pos = np.array([now[0], pos_tail_now])
     first_vel = np.array([now[1], vel_tail_now])
-    return Filters(a, b_pos, b_vel, first_pos, first_vel)
+    numerators = np.array([b_pos, [*first_pos, 0.0], b_vel, [*first_vel, 0.0]], dtype=float)
+    return Filters(a, b_pos, b_vel, first_pos, first_vel, numerators)
 
 
 def _hold_exponential(
@@ -213,19 +216,26 @@ def fit_basis(phase_time: np.ndarray, n_basis: int, regularization: float) -> Fi
     phase_features(s, n_basis, ALPHA_S, out=inputs[:n_basis], scale=stiffness)
     np.multiply(stiffness, 1.0 - s, out=inputs[n_basis])
     filters = discretize(float(grid[1]), stiffness, damping)
-    impulse = np.zeros(num + BLOCK + 2)  # block_convolve reads a little past num
+    impulse = np.zeros(num + BLOCK + 2)  # block_convolve needs BLOCK + 2 samples at least
     impulse[0] = 1.0
     free = all_pole(filters.a, impulse)
-    pos = block_convolve(inputs, fir(filters.b_pos, free), filters.a, free)
-    free = free[:num]
+    # The four responses a fit needs, in one product with the lagged all-pole response: the
+    # numerators for positions and velocities, and the corrections for u[0] (below).
+    lagged = np.zeros((3, len(free)))
+    lagged[0] = free
+    lagged[1, 1:] = free[:-1]
+    lagged[2, 2:] = free[:-2]
+    position, correction, velocity, velocity_correction = filters.numerators @ lagged
+    pos = block_convolve(inputs, position, filters.a)
     # Undo the filter's response to u[0] arriving with zero history (x[0] must be 0); only the
     # first few basis functions (the leading rows) are active at t = 0.
-    first = np.abs(inputs[:, 0])
-    active = int(np.flatnonzero(first > 1e-14 * first.max())[-1]) + 1
-    pos[:active] -= np.outer(inputs[:active, 0], fir(filters.first_pos, free))
+    first = inputs[:, 0]
+    magnitude = np.abs(first)
+    active = int(np.flatnonzero(magnitude > 1e-14 * magnitude.max())[-1]) + 1
+    pos[:active] -= np.outer(first[:active], correction[:num])
     # Only the last velocity is needed: one dot product with the reversed impulse response.
-    vel_end = inputs @ np.ascontiguousarray(fir(filters.b_vel, free)[::-1])
-    vel_end -= inputs[:, 0] * fir(filters.first_vel, free)[-1]
+    vel_end = inputs @ velocity[num - 1 :: -1].copy()
+    vel_end -= first * velocity_correction[num - 1]
     if not uniform:
         pos = _interp_rows(grid, pos.T, phase_time).T
     design = pos[:n_basis]
