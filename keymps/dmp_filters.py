@@ -79,35 +79,38 @@ def block_convolve(
     all earlier inputs is fixed by two carries: the outputs at its first two samples that the
     earlier blocks alone produce.
     """
+    from scipy.linalg.blas import dgemm
+
     count, length = rows.shape
-    blocks = -(-length // block)
     if len(impulse) < block + 2:
         raise FilterError(f"internal error: impulse response shorter than {block + 2} samples")
+    blocks = -(-length // block)
+    if blocks * block != length or not rows.flags.c_contiguous:
+        padded = np.zeros((count, blocks * block))
+        padded[:, :length] = rows
+        rows = padded
+    samples = rows.reshape(count * blocks, block)  # one block per row, read in place
     alpha, beta = _fundamental_solutions(a, block + 2)
-    # Each block's samples, then its two carries: one product then gives the block's output.
-    augmented = workspace("block_augmented", (count, blocks, block + 2))
-    samples = augmented[:, :, :block]
-    full = length // block
-    samples[:, :full] = rows[:, : full * block].reshape(count, full, block)
-    if full < blocks:
-        samples[:, full:] = 0.0
-        samples[:, full, : length - full * block] = rows[:, full * block :]
     # What each block alone passes on: its response at the next block's first two samples.
     passed_on = np.empty((block, 2))
     passed_on[:, 0] = impulse[block:0:-1]
     passed_on[:, 1] = impulse[block + 1 : 1 : -1]
-    own = samples.reshape(count * blocks, block) @ passed_on  # (count, blocks, 2) flattened
-    carries = _accumulate_carries(own.reshape(count, 2 * blocks), alpha, beta, block)
-    augmented[:, 0, block:] = 0.0
-    augmented[:, 1:, block:] = carries.reshape(count, blocks, 2)[:, :-1]
-    kernel = np.empty((block + 2, block))
+    carries = _accumulate_carries(
+        (samples @ passed_on).reshape(count, 2 * blocks), alpha, beta, block
+    )
+    entering = np.zeros((count, blocks, 2))  # block k receives what leaves block k - 1
+    entering[:, 1:] = carries.reshape(count, blocks, 2)[:, :-1]
     shifted = np.zeros(2 * block - 1)
     shifted[block - 1 :] = impulse[:block]
-    kernel[:block] = shifted[_toeplitz_index(block)]  # kernel[j, i] = impulse[i - j], 0 if i < j
-    kernel[block] = alpha[:block]
-    kernel[block + 1] = beta[:block]
-    output = augmented.reshape(count * blocks, block + 2) @ kernel
-    return np.ascontiguousarray(output.reshape(count, blocks * block)[:, :length])
+    output = samples @ shifted[_toeplitz_index(block)]  # toeplitz[j, i] = impulse[i - j]
+    # ... plus what the carries bring, alpha[i] c0 + beta[i] c1, accumulated in place by BLAS
+    # (output^T += [alpha; beta]^T entering^T, both transposes free views).
+    spread = np.array([alpha[:block], beta[:block]])
+    dgemm(
+        1.0, spread, entering.reshape(count * blocks, 2).T, 1.0, output.T, trans_a=1, overwrite_c=1
+    )
+    output = output.reshape(count, blocks * block)
+    return output if blocks * block == length else np.ascontiguousarray(output[:, :length])
 
 
 @functools.lru_cache(maxsize=8)

@@ -209,12 +209,16 @@ def fit_basis(phase_time: np.ndarray, n_basis: int, regularization: float) -> Fi
         return _FIT_BASES[key]
     stiffness, damping = ALPHA_Z * BETA_Z, ALPHA_Z
     num = len(phase_time) if uniform else max(len(phase_time), 1000)
-    grid = np.arange(num) * (1.0 / (num - 1))
-    s = np.exp(-ALPHA_S * grid)
-    # Inputs as rows (one per basis function, then the goal term): the filters run along rows.
-    inputs = workspace("inputs", (n_basis + 1, num))
+    # Inputs as rows (one per basis function, then the goal term): the filters run along rows,
+    # zero-padded to whole blocks so that block_convolve reads them in place.
+    padded = -(-num // BLOCK) * BLOCK
+    times = np.arange(padded) * (1.0 / (num - 1))
+    s = np.exp(-ALPHA_S * times)
+    grid = times[:num]
+    inputs = workspace("inputs", (n_basis + 1, padded))
     phase_features(s, n_basis, ALPHA_S, out=inputs[:n_basis], scale=stiffness)
     np.multiply(stiffness, 1.0 - s, out=inputs[n_basis])
+    inputs[:, num:] = 0.0
     filters = discretize(float(grid[1]), stiffness, damping)
     impulse = np.zeros(num + BLOCK + 2)  # block_convolve needs BLOCK + 2 samples at least
     impulse[0] = 1.0
@@ -226,7 +230,8 @@ def fit_basis(phase_time: np.ndarray, n_basis: int, regularization: float) -> Fi
     lagged[1, 1:] = free[:-1]
     lagged[2, 2:] = free[:-2]
     position, correction, velocity, velocity_correction = filters.numerators @ lagged
-    pos = block_convolve(inputs, position, filters.a)
+    pos = block_convolve(inputs, position, filters.a)[:, :num]
+    inputs = inputs[:, :num]
     # Undo the filter's response to u[0] arriving with zero history (x[0] must be 0); only the
     # first few basis functions (the leading rows) are active at t = 0.
     first = inputs[:, 0]
