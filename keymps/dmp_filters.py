@@ -69,6 +69,7 @@ def block_convolve(
     impulse: np.ndarray,
     a: np.ndarray,
     block: int = BLOCK,
+    overwrite: bool = False,
 ) -> np.ndarray:
     """y[n] = sum over m <= n of impulse[n - m] rows[m], along the last axis of a 2D array.
 
@@ -77,40 +78,40 @@ def block_convolve(
     most 2 does. Then, for d >= 1, impulse[d + i] = alpha[i] impulse[d] + beta[i] impulse[d + 1]
     with alpha, beta the recursion's two fundamental solutions, so what block k receives from
     all earlier inputs is fixed by two carries: the outputs at its first two samples that the
-    earlier blocks alone produce.
+    earlier blocks alone produce. With `overwrite`, C-ordered rows of whole blocks are replaced
+    by the result (no copy, half the memory traffic).
     """
-    from scipy.linalg.blas import dgemm
+    from scipy.linalg.blas import dgemm, dtrmm
 
     count, length = rows.shape
     if len(impulse) < block + 2:
         raise FilterError(f"internal error: impulse response shorter than {block + 2} samples")
     blocks = -(-length // block)
-    if blocks * block != length or not rows.flags.c_contiguous:
-        padded = np.zeros((count, blocks * block))
-        padded[:, :length] = rows
-        rows = padded
-    samples = rows.reshape(count * blocks, block)  # one block per row, read in place
+    if overwrite and blocks * block == length and rows.flags.c_contiguous:
+        work = rows
+    else:
+        work = np.zeros((count, blocks * block))
+        work[:, :length] = rows
+    samples = work.reshape(count * blocks, block)  # one block per row
     alpha, beta = _fundamental_solutions(a, block + 2)
     # What each block alone passes on: its response at the next block's first two samples.
     passed_on = np.empty((block, 2))
     passed_on[:, 0] = impulse[block:0:-1]
     passed_on[:, 1] = impulse[block + 1 : 1 : -1]
-    carries = _accumulate_carries(
-        (samples @ passed_on).reshape(count, 2 * blocks), alpha, beta, block
-    )
+    own = (samples @ passed_on).reshape(count, 2 * blocks)
+    carries = _accumulate_carries(own, alpha, beta, block)
     entering = np.zeros((count, blocks, 2))  # block k receives what leaves block k - 1
     entering[:, 1:] = carries.reshape(count, blocks, 2)[:, :-1]
+    # Within each block, in place: samples := samples @ toeplitz (upper triangular,
+    # toeplitz[j, i] = impulse[i - j]), as BLAS's triangular product on the transposed view.
     shifted = np.zeros(2 * block - 1)
     shifted[block - 1 :] = impulse[:block]
-    output = samples @ shifted[_toeplitz_index(block)]  # toeplitz[j, i] = impulse[i - j]
-    # ... plus what the carries bring, alpha[i] c0 + beta[i] c1, accumulated in place by BLAS
-    # (output^T += [alpha; beta]^T entering^T, both transposes free views).
+    toeplitz = np.triu(shifted[_toeplitz_index(block)])
+    dtrmm(1.0, toeplitz, samples.T, side=0, lower=0, trans_a=1, overwrite_b=1)
+    # ... plus what the carries bring, alpha[i] c0 + beta[i] c1, accumulated in place.
     spread = np.array([alpha[:block], beta[:block]])
-    dgemm(
-        1.0, spread, entering.reshape(count * blocks, 2).T, 1.0, output.T, trans_a=1, overwrite_c=1
-    )
-    output = output.reshape(count, blocks * block)
-    return output if blocks * block == length else np.ascontiguousarray(output[:, :length])
+    dgemm(1.0, spread, entering.reshape(-1, 2).T, 1.0, samples.T, trans_a=1, overwrite_c=1)
+    return work if blocks * block == length else work[:, :length]
 
 
 @functools.lru_cache(maxsize=8)

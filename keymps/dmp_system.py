@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from keymps.dmp_filters import BLOCK, all_pole, block_convolve, fir, workspace
+from keymps.dmp_filters import BLOCK, all_pole, block_convolve, fir
 from keymps.errors import KeympsError
 
 ALPHA_Z = 25.0
@@ -215,7 +215,8 @@ def fit_basis(phase_time: np.ndarray, n_basis: int, regularization: float) -> Fi
     times = np.arange(padded) * (1.0 / (num - 1))
     s = np.exp(-ALPHA_S * times)
     grid = times[:num]
-    inputs = workspace("inputs", (n_basis + 1, padded))
+    # A fresh array: the block convolution turns it into the responses, which the cache keeps.
+    inputs = np.empty((n_basis + 1, padded))
     phase_features(s, n_basis, ALPHA_S, out=inputs[:n_basis], scale=stiffness)
     np.multiply(stiffness, 1.0 - s, out=inputs[n_basis])
     inputs[:, num:] = 0.0
@@ -230,17 +231,16 @@ def fit_basis(phase_time: np.ndarray, n_basis: int, regularization: float) -> Fi
     lagged[1, 1:] = free[:-1]
     lagged[2, 2:] = free[:-2]
     position, correction, velocity, velocity_correction = filters.numerators @ lagged
-    pos = block_convolve(inputs, position, filters.a)[:, :num]
-    inputs = inputs[:, :num]
+    # Only the last velocity is needed: one dot product with the reversed impulse response.
+    first = inputs[:, 0].copy()
+    vel_end = inputs[:, :num] @ velocity[num - 1 :: -1].copy()
+    vel_end -= first * velocity_correction[num - 1]
+    pos = block_convolve(inputs, position, filters.a, overwrite=True)[:, :num]
     # Undo the filter's response to u[0] arriving with zero history (x[0] must be 0); only the
     # first few basis functions (the leading rows) are active at t = 0.
-    first = inputs[:, 0]
     magnitude = np.abs(first)
     active = int(np.flatnonzero(magnitude > 1e-14 * magnitude.max())[-1]) + 1
     pos[:active] -= np.outer(first[:active], correction[:num])
-    # Only the last velocity is needed: one dot product with the reversed impulse response.
-    vel_end = inputs @ velocity[num - 1 :: -1].copy()
-    vel_end -= first * velocity_correction[num - 1]
     if not uniform:
         pos = _interp_rows(grid, pos.T, phase_time).T
     design = pos[:n_basis]
