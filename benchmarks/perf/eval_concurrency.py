@@ -1,16 +1,19 @@
 """How `keymps eval` scales with --concurrency against a VLM that answers after a fixed delay.
 
-A local OpenAI-compatible server (127.0.0.1) answers every planning request after --latency
-seconds with six equal wedges of the cake it is shown (a valid design). The script runs the
-cake_six suite's keymps method (plan-only jobs: image, detect, plan, ground, equal-parts check)
-through the real runner and litellm, first with --concurrency 1, then with 8, and finally a long
-run at 8 to see that memory stays flat. A second pair of runs against a slower server
-(--slow-latency, default 1 s) shows how the speedup grows when the VLM, not keymps' own work
-per run (rendering the scene, detection, grounding, about 0.1 s of CPU), dominates.
+A local OpenAI-compatible server (127.0.0.1, a process of its own, keeping connections open as
+VLM servers do) answers every planning request after --latency seconds with six equal wedges of
+the cake it is shown (a valid design). The script runs the cake_six suite's keymps method
+(plan-only jobs: image, detect, plan, ground, equal-parts check) through the real runner and
+litellm, with a fresh answer cache per run so that every request reaches the server: first with
+--concurrency 1, then with 8 (the same jobs), and finally a long run at 8 to see that memory
+stays flat. A second pair of runs against a slower server (--slow-latency, default 1 s) shows how
+the speedup grows when the VLM, not keymps' own work per run (about 45 ms of CPU), dominates.
+CPU and memory are those of this process and the processes it starts for the evaluation (the
+fork server and its workers), not the server's.
 
     python benchmarks/perf/eval_concurrency.py [--requests 80] [--latency 0.2] [--long 1000]
 
-Ends with `name: value` lines (speedup_c8_vs_c1, peak_rss_growth_mb, ...).
+Ends with `name: value` lines (speedup_c8_vs_c1, cpu_s_per_request, peak_rss_growth_mb, ...).
 """
 
 from __future__ import annotations
@@ -21,7 +24,6 @@ import math
 import os
 import re
 import tempfile
-import threading
 import time
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
@@ -33,8 +35,12 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 
 def _answer(body: dict[str, Any]) -> str:
-    text = json.dumps(body.get("messages", []))
-    width, height = (int(v) for v in CROP.findall(text)[-1])
+    texts = []
+    for message in body.get("messages", []):
+        content = message.get("content")
+        parts = content if isinstance(content, list) else [{"text": str(content)}]
+        texts += [part.get("text", "") for part in parts if isinstance(part, dict)]
+    width, height = (int(v) for v in CROP.findall(json.dumps(texts))[-1])
     cx, cy, r = width / 2, height / 2, min(width, height) / 2 - 1
     pairs = []
     for k in range(3):  # three diameters at 60 degrees: six equal wedges of a round cake
@@ -48,20 +54,18 @@ def _answer(body: dict[str, Any]) -> str:
     return json.dumps({"keyword": "straight", "pairs": pairs, "rationale": "six wedges"})
 
 
-class Latency:
-    seconds = 0.2
-
-
-def start_server(latency: float) -> tuple[ThreadingHTTPServer, str]:
-    Latency.seconds = latency
+def _serve(latency: Any, port: Any) -> None:
+    """The server process: answers every request after latency.value seconds."""
 
     class Handler(BaseHTTPRequestHandler):
+        protocol_version = "HTTP/1.1"  # keeps connections open, as VLM servers do
+
         def log_message(self, format: str, *args: Any) -> None:
             pass
 
         def do_POST(self) -> None:
             body = json.loads(self.rfile.read(int(self.headers["Content-Length"])))
-            time.sleep(Latency.seconds)
+            time.sleep(latency.value)
             reply = {
                 "id": "perf",
                 "object": "chat.completion",
@@ -85,8 +89,33 @@ def start_server(latency: float) -> tuple[ThreadingHTTPServer, str]:
 
     server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
     server.daemon_threads = True
-    threading.Thread(target=server.serve_forever, daemon=True).start()
-    return server, f"http://127.0.0.1:{server.server_address[1]}/v1"
+    port.value = server.server_address[1]
+    server.serve_forever()
+
+
+class Server:
+    """The VLM stand-in, in a process of its own (a VLM server is not part of keymps' work:
+    its CPU and memory are left out of the figures, its answers still cost their latency)."""
+
+    def __init__(self, latency: float):
+        import multiprocessing
+
+        context = multiprocessing.get_context("spawn")
+        self.latency = context.Value("d", latency)
+        port = context.Value("i", 0)
+        self.process = context.Process(target=_serve, args=(self.latency, port), daemon=True)
+        self.process.start()
+        while not port.value:
+            time.sleep(0.01)
+        self.api_base = f"http://127.0.0.1:{port.value}/v1"
+        self.pid = str(self.process.pid)
+
+    def set_latency(self, seconds: float) -> None:
+        self.latency.value = seconds
+
+    def close(self) -> None:
+        self.process.terminate()
+        self.process.join(timeout=5)
 
 
 def _rss_kb(pid: str) -> int:
@@ -99,6 +128,10 @@ def _rss_kb(pid: str) -> int:
     return 0
 
 
+EXCLUDED: set[str] = set()
+"""Processes left out of the figures (the VLM server)."""
+
+
 def _descendants(pid: str) -> list[str]:
     found = []
     for task in Path(f"/proc/{pid}/task").glob("*"):
@@ -107,7 +140,8 @@ def _descendants(pid: str) -> list[str]:
         except OSError:
             continue
         for child in children:
-            found += [child, *_descendants(child)]
+            if child not in EXCLUDED:
+                found += [child, *_descendants(child)]
     return found
 
 
@@ -190,7 +224,9 @@ def main() -> None:
     parser.add_argument("--slow-requests", type=int, default=40)
     args = parser.parse_args()
     work = Path(tempfile.mkdtemp(prefix="keymps-eval-perf-"))
-    server, api_base = start_server(args.latency)
+    server = Server(args.latency)
+    EXCLUDED.add(server.pid)
+    api_base = server.api_base
     try:
         # imports, litellm's first request, first renders, and the fork server of the worker
         # processes (started once per process, like the imports)
@@ -206,7 +242,7 @@ def main() -> None:
             if any(r.get("cached") for r in records):
                 raise SystemExit("some answers came from the cache: the timing would be wrong")
             print(f"c{concurrency}: {len(records)} requests in {seconds[concurrency]:.1f} s")
-        Latency.seconds = args.slow_latency
+        server.set_latency(args.slow_latency)
         slow: dict[int, float] = {}
         for concurrency in (1, 8):
             slow[concurrency], _ = run(
@@ -215,7 +251,7 @@ def main() -> None:
             print(
                 f"slow c{concurrency}: {args.slow_requests} requests in {slow[concurrency]:.1f} s"
             )
-        Latency.seconds = args.latency
+        server.set_latency(args.latency)
         cpu = CpuMeter()
         samples: list[float] = []
         long_seconds, records = run(args.long, 8, api_base, work / "long", samples, cpu)
@@ -224,7 +260,7 @@ def main() -> None:
         growth = max(samples[100:] or samples) - settled
         print(f"long run: {len(records)} requests in {long_seconds:.1f} s")
     finally:
-        server.shutdown()
+        server.close()
     serial_floor = args.requests * args.latency
     print(f"requests: {args.requests}")
     print(f"server_latency_s: {args.latency}")
