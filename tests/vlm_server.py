@@ -172,6 +172,7 @@ class VlmServer:
 
         class Handler(BaseHTTPRequestHandler):
             protocol_version = "HTTP/1.1"
+            disable_nagle_algorithm = True  # else each answer waits 40 ms for a delayed ACK
 
             def log_message(self, format: str, *args: Any) -> None:
                 return None

@@ -59,6 +59,9 @@ def _serve(latency: Any, port: Any) -> None:
 
     class Handler(BaseHTTPRequestHandler):
         protocol_version = "HTTP/1.1"  # keeps connections open, as VLM servers do
+        # Headers and body go out as two writes; with Nagle's algorithm on, the body would wait
+        # for the client's delayed ACK (40 ms on Linux). Servers like uvicorn set TCP_NODELAY.
+        disable_nagle_algorithm = True
 
         def log_message(self, format: str, *args: Any) -> None:
             pass
