@@ -15,6 +15,7 @@ import numpy as np
 
 from keymps.eval_methods import MethodContext, MethodOutput
 from keymps.eval_vlm import Seen, ask, look
+from keymps.plan_answer import strict_object_schema
 
 
 def _finish(
@@ -46,19 +47,6 @@ def _number_list(value: Any, length: int, what: str) -> tuple[list[float] | None
     ):
         return None, f"{what} must be a list of {length} finite numbers"
     return [float(v) for v in value], None
-
-
-def _schema(name: str, properties: dict[str, Any]) -> dict[str, Any]:
-    return {
-        "name": name,
-        "strict": True,
-        "schema": {
-            "type": "object",
-            "properties": properties,
-            "required": list(properties),
-            "additionalProperties": False,
-        },
-    }
 
 
 _NUMBERS = {"type": "array", "items": {"type": "number"}}
@@ -127,7 +115,7 @@ def vlm_keyword(context: MethodContext) -> MethodOutput:
     seen = look(context)
     keywords = list(seen.primitives)
     point3 = {**_NUMBERS, "description": "[x, y, z] in metres, board frame"}
-    schema = _schema(
+    schema = strict_object_schema(
         "keymps_vlm_keyword_answer",
         {
             "keyword": {"type": "string", "enum": keywords},
@@ -218,8 +206,10 @@ def _dmp_schema(name: str, several: bool) -> dict[str, Any]:
         "additionalProperties": False,
     }
     if several:
-        return _schema(name, {"dmps": {"type": "array", "items": dmp}, "rationale": _RATIONALE})
-    return _schema(name, {**properties, "rationale": _RATIONALE})
+        return strict_object_schema(
+            name, {"dmps": {"type": "array", "items": dmp}, "rationale": _RATIONALE}
+        )
+    return strict_object_schema(name, {**properties, "rationale": _RATIONALE})
 
 
 def vlm_dmp(context: MethodContext) -> MethodOutput:

@@ -97,14 +97,10 @@ def _take_jobs(
         try:
             record = future.result()
         except BaseException as error:  # run_job records failures; this is a last resort
+            from keymps.eval_runner import job_record
+
             record = {
-                "suite": suite.name,
-                "case": job.case_id,
-                "method": job.method,
-                "repeat": job.repeat,
-                "seed": job.seed,
-                "backend": backend,
-                "model": options.model,
+                **job_record(suite, job, options, backend),
                 "ok": False,
                 "error": f"internal error {type(error).__name__}: {error}",
             }

@@ -189,13 +189,9 @@ def _vlm_totals(calls: tuple[dict[str, Any], ...]) -> dict[str, Any]:
     }
 
 
-def run_job(suite: Suite, job: Job, options: EvalOptions, backend: str) -> dict[str, Any]:
-    """Run and score one job; failures become a record with ok = False and the error."""
-    from keymps.eval_methods import MethodContext, PartialRunError, get_method, partial_output
-
-    started = time.perf_counter()
-    folder = options.out / "runs" / job.method / job.case_id / f"r{job.repeat}"
-    record: dict[str, Any] = {
+def job_record(suite: Suite, job: Job, options: EvalOptions, backend: str) -> dict[str, Any]:
+    """The fields that name a run in results.jsonl, first in every record, failed or not."""
+    return {
         "suite": suite.name,
         "case": job.case_id,
         "method": job.method,
@@ -203,6 +199,17 @@ def run_job(suite: Suite, job: Job, options: EvalOptions, backend: str) -> dict[
         "seed": job.seed,
         "backend": backend,
         "model": options.model,
+    }
+
+
+def run_job(suite: Suite, job: Job, options: EvalOptions, backend: str) -> dict[str, Any]:
+    """Run and score one job; failures become a record with ok = False and the error."""
+    from keymps.eval_methods import MethodContext, PartialRunError, get_method, partial_output
+
+    started = time.perf_counter()
+    folder = options.out / "runs" / job.method / job.case_id / f"r{job.repeat}"
+    record = {
+        **job_record(suite, job, options, backend),
         "folder": str(folder.relative_to(options.out)),
     }
     case = suite.case(job.case_id)

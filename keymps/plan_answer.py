@@ -74,8 +74,14 @@ def answer_schema(step: Step, keywords: Sequence[str], max_pairs: int) -> dict[s
             "items": pair,
         }
     properties["rationale"] = {"type": "string", "description": "one or two sentences"}
+    return strict_object_schema(f"keymps_{step}_answer", properties)
+
+
+def strict_object_schema(name: str, properties: dict[str, Any]) -> dict[str, Any]:
+    """A named JSON schema for an object with exactly these properties, all required (the form
+    OpenAI's strict structured output accepts)."""
     return {
-        "name": f"keymps_{step}_answer",
+        "name": name,
         "strict": True,
         "schema": {
             "type": "object",
