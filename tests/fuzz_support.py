@@ -14,11 +14,15 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from hypothesis import HealthCheck, settings
 
 from keymps.errors import KeympsError
 from keymps.hookspecs import hookimpl
 from keymps.planning import BackendAnswer, PlanRequest
 from keymps.stages import ExecutionReport
+
+FAST = settings(deadline=None, suppress_health_check=list(HealthCheck), database=None)
+"""The fuzz suites' base settings: no deadline (runs vary), no health checks, no example file."""
 
 REPO = Path(__file__).resolve().parents[1]
 ONE_LINE = re.compile(r"^[^\n]+$")

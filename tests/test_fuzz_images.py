@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 import pytest
 from fuzz_support import (
+    FAST,
     RecordingExecutor,
     ScriptedBackend,
     answer_text,
@@ -27,7 +28,7 @@ from fuzz_support import (
     install,
     task_copy,
 )
-from hypothesis import HealthCheck, given, settings
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import keymps
@@ -36,7 +37,6 @@ from keymps.limits import image_size_from_header
 from keymps.plugins import create_component
 from keymps.run import Run
 
-FAST = settings(deadline=None, suppress_health_check=list(HealthCheck), database=None)
 REPO = Path(__file__).resolve().parents[1]
 FORMATS = [".png", ".jpg", ".bmp", ".tiff", ".webp"]
 

@@ -14,6 +14,7 @@ from typing import Any
 
 import pytest
 from fuzz_support import (
+    FAST,
     RecordingExecutor,
     ScriptedBackend,
     answer_text,
@@ -21,14 +22,12 @@ from fuzz_support import (
     install,
     task_copy,
 )
-from hypothesis import HealthCheck, given, settings
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import keymps
 from keymps.errors import KeympsError
 from keymps.instruction import read_instruction
-
-FAST = settings(deadline=None, suppress_health_check=list(HealthCheck), database=None)
 
 SENTENCES = [
     "Cut it into 8 equal slices",

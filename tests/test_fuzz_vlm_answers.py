@@ -22,6 +22,7 @@ from typing import Any
 
 import pytest
 from fuzz_support import (
+    FAST,
     RecordingExecutor,
     ScriptedBackend,
     answer_text,
@@ -29,7 +30,7 @@ from fuzz_support import (
     install,
     task_copy,
 )
-from hypothesis import HealthCheck, given, settings
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import keymps
@@ -39,7 +40,6 @@ from keymps.plan_answer import parse_and_validate
 KEYWORDS = ["straight", "sawing"]
 CROP = (240, 180)
 MAX_PAIRS = 64
-FAST = settings(deadline=None, suppress_health_check=list(HealthCheck), database=None)
 
 
 def fuzz(examples: int) -> settings:

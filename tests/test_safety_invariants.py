@@ -23,6 +23,7 @@ from unittest import mock
 import numpy as np
 import pytest
 from fuzz_support import (
+    FAST,
     RecordingExecutor,
     ScriptedBackend,
     answer_text,
@@ -30,7 +31,7 @@ from fuzz_support import (
     install,
     task_copy,
 )
-from hypothesis import HealthCheck, given, settings
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import keymps
@@ -38,8 +39,6 @@ from keymps.errors import KeympsError
 from keymps.geometry import object_outline_m
 from keymps.run import Run, RunOptions
 from keymps.safety import BOARD_TOLERANCE_M, require_validated, validate
-
-FAST = settings(deadline=None, suppress_health_check=list(HealthCheck), database=None)
 
 
 @st.composite
