@@ -52,15 +52,11 @@ def all_pole(a: np.ndarray, x: np.ndarray, overwrite: bool = False) -> np.ndarra
     return np.asarray(solution.T).reshape(x.shape)
 
 
-def fir(
-    b: np.ndarray, v: np.ndarray, out: np.ndarray | None = None, scratch: np.ndarray | None = None
-) -> np.ndarray:
+def fir(b: np.ndarray, v: np.ndarray) -> np.ndarray:
     """B(q) along the last axis, zero history (the moving-average half of the filter)."""
-    out = np.multiply(v, b[0], out=out)
-    scratch = np.empty_like(v) if scratch is None else scratch
+    out = np.multiply(v, b[0])
     for lag in range(1, len(b)):
-        np.multiply(v[..., :-lag], b[lag], out=scratch[..., lag:])
-        out[..., lag:] += scratch[..., lag:]
+        out[..., lag:] += b[lag] * v[..., :-lag]
     return out
 
 
@@ -106,7 +102,7 @@ def block_convolve(
     # toeplitz[j, i] = impulse[i - j]), as BLAS's triangular product on the transposed view.
     shifted = np.zeros(2 * block - 1)
     shifted[block - 1 :] = impulse[:block]
-    toeplitz = np.triu(shifted[_toeplitz_index(block)])
+    toeplitz = shifted[_toeplitz_index(block)]  # zero below the diagonal: shifted starts with zeros
     dtrmm(1.0, toeplitz, samples.T, side=0, lower=0, trans_a=1, overwrite_b=1)
     # ... plus what the carries bring, alpha[i] c0 + beta[i] c1, accumulated in place.
     spread = np.array([alpha[:block], beta[:block]])

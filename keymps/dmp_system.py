@@ -38,8 +38,13 @@ class Filters:
     first_pos: np.ndarray
     """Impulse correction: output response to u[0] that the zero-history filter adds."""
     first_vel: np.ndarray
-    numerators: np.ndarray
-    """(4, 3): b_pos, first_pos, b_vel and first_vel (zero-padded), one per row."""
+
+    @property
+    def numerators(self) -> np.ndarray:
+        """(4, 3): b_pos, first_pos, b_vel and first_vel (zero-padded), one per row."""
+        return np.array(
+            [self.b_pos, [*self.first_pos, 0.0], self.b_vel, [*self.first_vel, 0.0]], dtype=float
+        )
 
 
 @functools.lru_cache(maxsize=64)
@@ -57,8 +62,7 @@ def discretize(step: float, stiffness: float, damping: float) -> Filters:
     b_vel = np.array([now[1], vel_tail_now + prev[1], vel_tail_prev])
     first_pos = np.array([now[0], pos_tail_now])
     first_vel = np.array([now[1], vel_tail_now])
-    numerators = np.array([b_pos, [*first_pos, 0.0], b_vel, [*first_vel, 0.0]], dtype=float)
-    return Filters(a, b_pos, b_vel, first_pos, first_vel, numerators)
+    return Filters(a, b_pos, b_vel, first_pos, first_vel)
 
 
 def _hold_exponential(
@@ -121,9 +125,8 @@ def respond(filters: Filters, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def basis_centers_widths(n_basis: int, alpha_s: float = ALPHA_S) -> tuple[np.ndarray, np.ndarray]:
     """Phase centres of Gaussians spread evenly in time, with widths equal in time."""
-    times = np.linspace(0.0, 1.0, n_basis)
-    centers = np.exp(-alpha_s * times)
     spacing = 1.0 / max(n_basis - 1, 1)
+    centers = np.exp(np.arange(n_basis) * (-alpha_s * spacing))
     widths = 1.0 / (2.0 * (spacing * alpha_s * centers) ** 2)
     return centers, widths
 
@@ -137,8 +140,8 @@ def phase_features(
 ) -> np.ndarray:
     """psi_i(s) s / sum psi(s) for phases s, one row per basis function: (n_basis, N), times
     `scale`."""
-    centers = np.exp(np.arange(n_basis) * (-alpha_s / max(n_basis - 1, 1)))
-    # The centres of basis_centers_widths. Widths equal in time make h_i c_i^2 one constant, root^2, for every basis function:
+    centers, _ = basis_centers_widths(n_basis, alpha_s)
+    # Widths equal in time make h_i c_i^2 one constant, root^2, for every basis function:
     # -h_i (s - c_i)^2 = -(a_i s - root)^2 with a_i = root / c_i, expanded so that one small
     # matrix product gives every exponent (its rounding, 1e-14 near a centre, is harmless).
     spacing = 1.0 / max(n_basis - 1, 1)
