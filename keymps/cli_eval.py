@@ -31,11 +31,11 @@ METHOD_NAMES = ("keymps", "vlm-keypoint", "keymps-text", "vlm-keyword", "vlm-dmp
 @click.option("--repeats", type=click.IntRange(1, 1000), help="Runs per case (suite default).")
 @click.option(
     "--concurrency", type=click.IntRange(1, 64), default=1, show_default=True,
-    help="Runs in flight at once (VLM calls overlap).",
+    help="VLM calls made at once (a few more runs prepare theirs meanwhile).",
 )  # fmt: skip
 @click.option(
     "--processes", type=click.IntRange(1, 64),
-    help="Worker processes sharing the runs in flight (default: one per core when there are "
+    help="Worker processes sharing the runs (default: one per core when there are "
     "enough runs; 1: all in this process).",
 )  # fmt: skip
 @click.option("--backend", help="Planner backend: offline, litellm, replay or a plugin's.")

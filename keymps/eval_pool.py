@@ -2,11 +2,14 @@
 
 A run's own work (rendering the scene, detection, the prompt, parsing the answer, grounding,
 scoring, writing its files) is about 40 ms of Python CPU, and in one process the GIL runs it one
-run at a time. Worker processes each have their own GIL: `processes` workers share the
-`concurrency` runs in flight (each worker takes a job only when one of its threads is free, so
-at most `concurrency` runs are ever in flight). A run's VLM call does not happen in the worker:
-it goes to the parent's event loop (keymps.vlm_broker), which makes it with litellm's async API,
-at most `concurrency` at once; the worker's thread waits for the answer, its other threads work.
+run at a time. Worker processes each have their own GIL. A run's VLM call does not happen in the
+worker: it goes to the parent's event loop (keymps.vlm_broker), which makes it with litellm's
+async API, at most `concurrency` at once; the worker's thread waits for the answer.
+
+Each process keeps RUNS_AHEAD more runs in flight than its share of the VLM calls: while its
+calls are out, it prepares the next runs, so that a VLM slot that frees up never waits for
+keymps' own work. Within a process one run computes at a time (keymps.eval_turn) and gives its
+turn up while it waits for the VLM. A worker takes a job only when one of its threads is free.
 
 Workers are forked from a fork server that has imported keymps, OpenCV, NumPy and Pinocchio
 once (keymps.eval_preload): starting one costs milliseconds, not the second of those imports,
@@ -34,8 +37,11 @@ from keymps.errors import KeympsError
 if TYPE_CHECKING:
     from keymps.eval_runner import EvalOptions, Job
     from keymps.eval_suites import Suite
+    from keymps.eval_turn import CpuTurn
     from keymps.vlm_broker import VlmBroker
 
+RUNS_AHEAD = 2
+"""Runs each process prepares beyond its share of the VLM calls in flight."""
 MIN_JOBS_PER_PROCESS = 8
 """Below this many jobs per worker, starting workers costs more than it saves."""
 POLL_S = 0.5
@@ -50,9 +56,14 @@ def default_processes(concurrency: int, jobs: int) -> int:
     return max(1, processes)
 
 
-def threads_per_process(concurrency: int, processes: int) -> list[int]:
-    """Split `concurrency` runs in flight over the workers (the first ones take the remainder)."""
-    base, extra = divmod(concurrency, processes)
+def runs_in_flight(concurrency: int, processes: int) -> int:
+    """Runs started at once: the VLM calls allowed at once, and RUNS_AHEAD per process."""
+    return max(1, concurrency) + RUNS_AHEAD * max(1, processes)
+
+
+def threads_per_process(runs: int, processes: int) -> list[int]:
+    """Split `runs` in flight over the workers (the first ones take the remainder)."""
+    base, extra = divmod(runs, processes)
     return [base + (1 if i < extra else 0) for i in range(processes) if base or i < extra]
 
 
@@ -75,10 +86,12 @@ def _worker(
     os.environ.clear()
     os.environ.update(environment)
     from keymps.eval_runner import run_job
+    from keymps.eval_turn import CpuTurn
     from keymps.vlm_broker import BrokerClient, activated
 
-    with activated(BrokerClient(*vlm)):
-        _take_jobs(suite, options, backend, threads, jobs, results, run_job)
+    turn = CpuTurn()
+    with activated(BrokerClient(*vlm, turn=turn)):
+        _take_jobs(suite, options, backend, threads, jobs, results, run_job, turn)
 
 
 def _take_jobs(
@@ -89,6 +102,7 @@ def _take_jobs(
     jobs: Any,
     results: Any,
     run_job: Any,
+    turn: CpuTurn,
 ) -> None:
 
     free = threading.Semaphore(threads)
@@ -113,7 +127,7 @@ def _take_jobs(
             job = jobs.get()
             if job is None:
                 break
-            future = pool.submit(run_job, suite, job, options, backend)
+            future = pool.submit(turn.run, run_job, suite, job, options, backend)
             future.add_done_callback(functools.partial(send, job))
 
 
@@ -135,7 +149,7 @@ def run_in_processes(
     result_queue = context.Queue()
     for job in jobs:
         job_queue.put(job)
-    shares = threads_per_process(options.concurrency, processes)
+    shares = threads_per_process(runs_in_flight(options.concurrency, processes), processes)
     for _ in shares:
         job_queue.put(None)
     environment = dict(os.environ)

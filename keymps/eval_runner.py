@@ -6,9 +6,10 @@ synced at once: an interrupted evaluation loses no finished result, and a rerun 
 folder skips every job already recorded (same case, method, repeat, backend and model).
 A job that fails is recorded as a failure with its one-line error; it never stops the suite.
 
-At most `concurrency` jobs are in flight, in threads of this process or of worker processes
-(keymps.eval_pool); their VLM calls are made by one asyncio event loop in this process
-(keymps.vlm_broker), so the waits overlap each other and the other runs' CPU work.
+Jobs run in threads of this process or of worker processes (keymps.eval_pool); their VLM calls
+are made by one asyncio event loop in this process (keymps.vlm_broker), at most `concurrency`
+at once, so the waits overlap each other and the other runs' CPU work. A few more runs than
+that are in flight, preparing their calls while the others wait (eval_pool.runs_in_flight).
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from keymps.errors import KeympsError
 from keymps.eval_suites import Suite
 
 if TYPE_CHECKING:
+    from keymps.eval_turn import CpuTurn
     from keymps.vlm_broker import VlmBroker
 
 RESULTS_FILE = "results.jsonl"
@@ -42,6 +44,7 @@ class EvalOptions:
     repeats: int | None = None
     """Runs per case and method (the suite's `repeats` when None)."""
     concurrency: int = 1
+    """VLM calls made at once."""
     backend: str | None = None
     """None: offline, or litellm when a model or an API base is given."""
     model: str | None = None
@@ -312,6 +315,7 @@ def run_suite(
     """Run every job not yet in out/results.jsonl; return all records for these jobs."""
     from keymps.eval_methods import check_runnable, get_method
     from keymps.eval_pool import default_processes, run_in_processes
+    from keymps.eval_turn import CpuTurn
     from keymps.vlm_broker import VlmBroker, activated
 
     backend = resolve_backend(options)
@@ -341,13 +345,14 @@ def run_suite(
 
     processes = options.processes or default_processes(options.concurrency, len(todo))
     processes = min(processes, options.concurrency)
-    broker = VlmBroker(options.concurrency, warm_up=backend == "litellm" and bool(todo))
+    turn = CpuTurn()  # given up by the broker while a run of this process waits for the VLM
+    broker = VlmBroker(options.concurrency, warm_up=backend == "litellm" and bool(todo), turn=turn)
     try:
         if processes > 1:
             run_in_processes(suite, todo, options, backend, processes, finished, broker)
         else:
             with activated(broker):
-                _run_in_threads(suite, todo, options, backend, finished, broker)
+                _run_in_threads(suite, todo, options, backend, finished, broker, turn)
     finally:
         broker.close()
     return [records[key(job)] for job in jobs]
@@ -360,11 +365,16 @@ def _run_in_threads(
     backend: str,
     finished: ProgressCallback,
     broker: VlmBroker,
+    turn: CpuTurn,
 ) -> None:
-    """Run `jobs` in threads of this process, `options.concurrency` at once."""
-    pool = ThreadPoolExecutor(max_workers=max(1, options.concurrency))
+    """Run `jobs` in threads of this process, taking turns to compute."""
+    from keymps.eval_pool import runs_in_flight
+
+    pool = ThreadPoolExecutor(max_workers=runs_in_flight(options.concurrency, 1))
     try:
-        futures = {pool.submit(run_job, suite, job, options, backend): job for job in jobs}
+        futures = {
+            pool.submit(turn.run, run_job, suite, job, options, backend): job for job in jobs
+        }
         for future in as_completed(futures):
             finished(futures[future], future.result())
     finally:

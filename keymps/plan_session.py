@@ -175,7 +175,9 @@ class PlanSession:
         if self.use_cache:
             from keymps.vlm_cache import AnswerCache
 
-            hit = AnswerCache().get(self._cache_key(request))
+            key = self._cache_key(request)
+            request = replace(request, share_key=key)
+            hit = AnswerCache().get(key)
             if hit is not None:
                 return (
                     BackendAnswer(
@@ -200,7 +202,7 @@ class PlanSession:
                 f"planner backend {self.backend_name!r} returned {type(answer).__name__}, "
                 "not a BackendAnswer"
             )
-        return answer, False
+        return answer, answer.shared
 
     def _record(
         self, request: PlanRequest, answer: BackendAnswer, problems: list[str], cached: bool

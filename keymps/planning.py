@@ -63,6 +63,9 @@ class PlanRequest:
     temperature: float = 0.0
     timeout_s: float = 60.0
     task_name: str = ""
+    share_key: str | None = None
+    """Set when answers may be shared (the answer cache is on): identical requests out at the
+    same time then share one answer (keymps.vlm_broker)."""
 
     @property
     def crop_size_px(self) -> tuple[int, int]:
@@ -82,6 +85,9 @@ class BackendAnswer:
     model: str | None = None
     retries: tuple[str, ...] = ()
     """Failed tries before this answer (rate limits, server errors ...), one line each."""
+    shared: bool = False
+    """The answer to an identical request of another run, out at the same time: no call of its
+    own (recorded as cached)."""
 
 
 class PlannerBackend(Protocol):

@@ -29,6 +29,7 @@ from keymps.errors import KeympsError
 
 if TYPE_CHECKING:
     from keymps.default_plugins.litellm_backend import LitellmOptions
+    from keymps.eval_turn import CpuTurn
     from keymps.planning import BackendAnswer, PlanRequest
 
 _LOOP: asyncio.AbstractEventLoop | None = None
@@ -64,6 +65,11 @@ def activated(broker: Any) -> Iterator[Any]:
         _ACTIVE = previous
 
 
+def _waiting(turn: CpuTurn | None) -> contextlib.AbstractContextManager[None]:
+    """While a call waits for its answer, the next run of this process computes."""
+    return turn.given_up() if turn is not None else contextlib.nullcontext()
+
+
 def _portable(request: PlanRequest) -> PlanRequest:
     """The request without its pixel arrays (the messages carry the image): cheap to send."""
     return replace(request, crop=np.zeros((0, 0, 3), np.uint8), crop_mask=None)
@@ -72,11 +78,15 @@ def _portable(request: PlanRequest) -> PlanRequest:
 class VlmBroker:
     """Makes VLM calls on the event loop, at most `concurrency` at once."""
 
-    def __init__(self, concurrency: int, warm_up: bool = False):
+    def __init__(self, concurrency: int, warm_up: bool = False, turn: CpuTurn | None = None):
         self.loop = event_loop()
+        self.turn = turn
+        """Given up while a caller of `complete` waits for its answer (keymps.eval_turn)."""
         self.concurrency = max(1, concurrency)
         self._semaphore = asyncio.Semaphore(self.concurrency)
         self._pending: set[Future[Any]] = set()
+        self._asking: dict[str, asyncio.Future[BackendAnswer]] = {}
+        """Calls out now, by share key (only the loop's thread reads or writes it)."""
         self._lock = threading.Lock()
         self._closed = False
         if warm_up:  # import litellm (seconds) while the first runs render and detect
@@ -85,6 +95,19 @@ class VlmBroker:
             self.loop.call_soon_threadsafe(import_litellm)
 
     async def _call(self, options: LitellmOptions, request: PlanRequest) -> BackendAnswer:
+        """One call, or the answer of the identical call already out (same share key): runs
+        that ask the same at the same time (keymps and vlm-keypoint on one scene) pay once."""
+        key = request.share_key
+        if key is not None and key in self._asking:
+            answer = await asyncio.shield(self._asking[key])
+            return replace(answer, shared=True, cost_usd=0.0, retries=())
+        call = asyncio.ensure_future(self._ask(options, request))
+        if key is not None:
+            self._asking[key] = call
+            call.add_done_callback(lambda _: self._asking.pop(key, None))
+        return await call
+
+    async def _ask(self, options: LitellmOptions, request: PlanRequest) -> BackendAnswer:
         from keymps.default_plugins.litellm_backend import LitellmBackend
 
         async with self._semaphore:
@@ -106,8 +129,10 @@ class VlmBroker:
 
     def complete(self, options: LitellmOptions, request: PlanRequest) -> BackendAnswer:
         """The answer to one call made on the loop (this thread waits)."""
+        future = self.submit(options, request)
         try:
-            return self.submit(options, request).result()
+            with _waiting(self.turn):
+                return future.result()
         except (asyncio.CancelledError, concurrent.futures.CancelledError):
             raise KeympsError(STOPPED) from None
 
@@ -162,8 +187,11 @@ class VlmBroker:
 class BrokerClient:
     """A worker process's side: send each call to the broker, wait for its answer."""
 
-    def __init__(self, worker: int, requests: Any, replies: Any):
+    def __init__(
+        self, worker: int, requests: Any, replies: Any, turn: CpuTurn | None = None
+    ) -> None:
         self.worker = worker
+        self.turn = turn
         self.requests = requests
         self.replies = replies
         self._ids = itertools.count()
@@ -188,7 +216,8 @@ class BrokerClient:
         with self._lock:
             self._waiting[call_id] = future
         self.requests.put((self.worker, call_id, options, _portable(request)))
-        status, value = future.result()
+        with _waiting(self.turn):
+            status, value = future.result()
         if status == "ok":
             answer: BackendAnswer = value
             return answer

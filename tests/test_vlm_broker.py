@@ -90,6 +90,27 @@ def test_the_broker_keeps_exactly_concurrency_calls_in_flight() -> None:
     assert elapsed >= 5 * 0.3  # 20 calls, 4 at a time
 
 
+def test_identical_requests_out_at_once_share_one_call() -> None:
+    """keymps and vlm-keypoint ask the same for one scene: when both are out at once, the
+    server answers once and the second run gets that answer as shared (no cost of its own)."""
+    from dataclasses import replace
+
+    from keymps.vlm_broker import VlmBroker
+
+    tracker = {"now": 0, "peak": 0}
+    with VlmServer(responder=_in_flight(tracker, 0.3)) as server:
+        broker = VlmBroker(4)
+        same = replace(_request(), share_key="scene-1")
+        other = replace(_request(), share_key="scene-2")
+        futures = [broker.submit(_options(server), r) for r in (same, same, other, _request())]
+        answers = [f.result(timeout=60) for f in futures]
+        asked = len(server.chat_requests)
+        broker.close()
+    assert asked == 3  # scene-1 once, scene-2 once, and the request that shares nothing
+    assert [a.shared for a in answers] == [False, True, False, False]
+    assert answers[1].text == answers[0].text and answers[1].cost_usd == 0.0
+
+
 def test_rate_limits_back_off_exponentially_with_jitter() -> None:
     """Three 429s without Retry-After: waits of 1, 2 and 4 x the backoff, each stretched by up
     to 50 % at random, then the answer; every wait is noted for the run's vlm/ records."""
@@ -157,6 +178,40 @@ def test_eval_reaches_but_never_exceeds_its_concurrency(tmp_path: Path, processe
     assert len(records) == 16 and asked == 16
     assert all(r["ok"] and r["success"] and not r["cached"] for r in records), records
     assert tracker["peak"] == 3
+
+
+@pytest.mark.parametrize(("processes", "concurrency"), [("1", "1"), ("2", "2")])
+def test_the_next_runs_are_prepared_while_the_vlm_answers(
+    tmp_path: Path, processes: str, concurrency: str
+) -> None:
+    """While the first calls are out, more runs than --concurrency have started (their scenes,
+    prompts ...), so a slot that frees up is used at once; the calls stay within --concurrency."""
+    out = tmp_path / "ahead"
+    runs = out / "runs" / "keymps" / "round"
+    started: list[int] = []
+    tracker = {"now": 0, "peak": 0}
+    counted = _in_flight(tracker, 0.0)
+
+    def answer(request: Recorded) -> str:
+        if not started:  # the first call waits until the runs beyond it show up (10 s at most)
+            deadline = time.monotonic() + 10
+            while time.monotonic() < deadline and len(list(runs.glob("r*"))) <= int(concurrency):
+                time.sleep(0.01)
+            started.append(len(list(runs.glob("r*"))))
+        counted(request)
+        return _six_wedges(request)
+
+    with VlmServer(responder=answer) as server:
+        result = _eval(
+            "cake_six", "--case", "round", "--repeats", "8", "--concurrency", concurrency,
+            "--processes", processes, "--model", "openai/test-vlm",
+            "--api-base", server.openai_base, "--out", str(out),
+        )  # fmt: skip
+        assert result.exit_code == 0, result.output
+    records = read_results(out / "results.jsonl")
+    assert len(records) == 8 and all(r["ok"] and r["success"] for r in records), records
+    assert started[0] > int(concurrency)
+    assert tracker["peak"] <= int(concurrency)
 
 
 def _six_wedges(request: Recorded) -> str:
