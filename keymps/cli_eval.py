@@ -44,6 +44,10 @@ METHOD_NAMES = ("keymps", "vlm-keypoint", "keymps-text", "vlm-keyword", "vlm-dmp
 @click.option("--case", "cases", multiple=True, help="Only this case id (repeatable).")
 @click.option("--no-cache", is_flag=True, help="Always call the VLM, never answer from cache.")
 @click.option(
+    "--image-format", type=click.Choice(["jpg", "png"]), default="jpg", show_default=True,
+    help="Each run's plan and outcome images (png: lossless, ten times the size).",
+)  # fmt: skip
+@click.option(
     "--out", type=click.Path(file_okay=False, path_type=Path),
     help="Results folder (default eval/SUITE[-METHODS]); rerunning into it resumes.",
 )  # fmt: skip
@@ -61,6 +65,7 @@ def eval_command(
     cases: tuple[str, ...],
     out: Path | None,
     no_cache: bool,
+    image_format: str,
     quiet: bool,
 ) -> None:
     """Run every case x method x repeat of SUITE (a file or a shipped suite's name), write
@@ -88,6 +93,7 @@ def eval_command(
         api_base=api_base,
         cases=cases,
         no_cache=no_cache,
+        image_format=image_format,
     )
     try:
         records = _run(suite, options, quiet)

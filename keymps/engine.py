@@ -140,7 +140,7 @@ class _Pipeline:
             "plan",
             lambda: planning.make_plan(task, detection, scene, descriptions, run, parts.backend),
         )
-        _write_png(run.path("plan.png"), draw_plan(scene.image, detection, plan))
+        run.write_image("plan", draw_plan(scene.image, detection, plan))
         grounding = self.stage("ground", lambda: geometry.ground(plan, detection, task, size))
         tool = parts.robot.tool
         tool_path = self.stage(
@@ -174,13 +174,6 @@ class _Pipeline:
             raise StageError("execute", report.message or f"executor {report.executor} failed")
 
 
-def _write_png(path: Path, image: Any) -> None:
-    import cv2
-
-    if not cv2.imwrite(str(path), image):
-        raise KeympsError(f"cannot write {path}")
-
-
 def run_task(
     task: Task | str | Path,
     *,
@@ -191,7 +184,7 @@ def run_task(
     """Run a task end to end; return the finished Run (its folder holds run.json and the rest).
 
     Keyword overrides: instruction, image, backend, model, api_base, executor, out, rerun,
-    rerun_url, no_cache, record, confirm. Raises KeympsError on the first problem; nothing after
+    rerun_url, no_cache, record, confirm, quiet, image_format. Raises KeympsError on the first problem; nothing after
     the failing stage runs, above all no executor.
     """
     from keymps.planning import choose_backend
@@ -200,7 +193,7 @@ def run_task(
     if not isinstance(task, Task):
         task = load_task(task)
     options = options or RunOptions()
-    for key in ("rerun", "rerun_url", "no_cache", "record", "confirm", "quiet"):
+    for key in ("rerun", "rerun_url", "no_cache", "record", "confirm", "quiet", "image_format"):
         if key in overrides:
             setattr(options, key, overrides.pop(key))
     out = overrides.pop("out", None)

@@ -21,10 +21,12 @@ from keymps.plan_answer import strict_object_schema
 def _finish(
     context: MethodContext, seen: Seen, output: MethodOutput, calls: list[dict[str, Any]]
 ) -> MethodOutput:
-    """Attach the calls, draw the generated motion over the scene (plan.png), keep the sidecar."""
+    """Attach the calls, draw the generated motion over the scene (the plan image), keep the
+    sidecar."""
     import cv2
 
     from keymps.geometry import ImageFrame
+    from keymps.run import write_image
 
     frame = ImageFrame.from_task(seen.task, seen.scene.size_px)
     image = seen.scene.image.copy()
@@ -34,8 +36,7 @@ def _finish(
         x, y = (int(v) for v in pixels[0])
         cv2.putText(image, str(index + 1), (x + 4, y - 4), cv2.FONT_HERSHEY_SIMPLEX, 0.5,
                     (0, 160, 0), 1, cv2.LINE_AA)  # fmt: skip
-    path = context.folder / "plan.png"
-    cv2.imwrite(str(path), image)
+    path = write_image(context.folder / f"plan.{context.image_format}", image)
     return replace(output, calls=tuple(calls), images={"plan": str(path)}, scene=seen.truth)
 
 

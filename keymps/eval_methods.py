@@ -57,6 +57,8 @@ class MethodContext:
     """Stop after grounding: the design is all that is scored (Appendix F's equal parts)."""
     no_cache: bool = False
     """Always ask the VLM, never answer from the planner's cache."""
+    image_format: str = "jpg"
+    """plan and outcome images: jpg or png (keymps.run.RunOptions.image_format)."""
 
 
 MethodRunner = Callable[[MethodContext], MethodOutput]
@@ -92,19 +94,16 @@ def _run_pipeline(context: MethodContext) -> MethodOutput:
             rerun="off",
             quiet=True,
             no_cache=context.no_cache,
+            image_format=context.image_format,
             **overrides,
         )
     except KeympsError as error:
         raise PartialRunError(str(error), results) from None
-    return replace(
-        _pipeline_output(results, context.folder), scene=run.notes.get("synthetic_scene")
-    )
+    return replace(_pipeline_output(results, context), scene=run.notes.get("synthetic_scene"))
 
 
 def _run_plan_only(context: MethodContext) -> MethodOutput:
     """The pipeline's first stages (image, detect, plan, ground), nothing executed."""
-    import cv2
-
     from keymps.geometry import ground
     from keymps.overlay import draw_plan
     from keymps.overrides import apply_overrides
@@ -118,7 +117,8 @@ def _run_plan_only(context: MethodContext) -> MethodOutput:
     overrides = {k: v for k, v in overrides.items() if v}
     task = apply_overrides(load_task(context.task_path), overrides)
     backend, _ = choose_backend(task, context.backend, context.model, context.api_base)
-    run = Run(task=task, folder=context.folder, options=RunOptions(no_cache=context.no_cache))
+    options = RunOptions(no_cache=context.no_cache, image_format=context.image_format)
+    run = Run(task=task, folder=context.folder, options=options)
     context.folder.mkdir(parents=True, exist_ok=True)
     results: dict[str, Any] = {}
     try:
@@ -128,13 +128,11 @@ def _run_plan_only(context: MethodContext) -> MethodOutput:
         detection = results["detect"] = detector.detect(scene)
         descriptions = primitive_descriptions(task.primitives, default_search_dirs(task.folder))
         plan = results["plan"] = make_plan(task, detection, scene, descriptions, run, backend)
-        cv2.imwrite(str(context.folder / "plan.png"), draw_plan(scene.image, detection, plan))
+        run.write_image("plan", draw_plan(scene.image, detection, plan))
         results["ground"] = ground(plan, detection, task, scene.size_px)
     except KeympsError as error:
         raise PartialRunError(str(error), results) from None
-    return replace(
-        _pipeline_output(results, context.folder), scene=run.notes.get("synthetic_scene")
-    )
+    return replace(_pipeline_output(results, context), scene=run.notes.get("synthetic_scene"))
 
 
 def primitive_descriptions(names: list[str], search_dirs: list[Path]) -> dict[str, str]:
@@ -168,18 +166,17 @@ class PartialRunError(KeympsError):
         self.results = results
 
 
-def _pipeline_output(results: dict[str, Any], folder: Path) -> MethodOutput:
+def _pipeline_output(results: dict[str, Any], context: MethodContext) -> MethodOutput:
     plan = results.get("plan")
     grounding = results.get("ground")
     tool_path = results.get("compose")
     pieces = tuple(p.points for p in tool_path.pieces if p.kind == "work") if tool_path else ()
     lines = grounding.segments_m[:, :, :2] if grounding is not None else np.zeros((0, 2, 2))
     calls = tuple(_call_summary(c) for c in plan.calls) if plan is not None else ()
-    images = {
-        name: str(folder / f"{name}.png")
-        for name in ("plan", "outcome")
-        if (folder / f"{name}.png").is_file()
+    paths = {
+        name: context.folder / f"{name}.{context.image_format}" for name in ("plan", "outcome")
     }
+    images = {name: str(path) for name, path in paths.items() if path.is_file()}
     return MethodOutput(
         work_pieces=pieces,
         lines_m=np.asarray(lines, dtype=float),
@@ -189,9 +186,9 @@ def _pipeline_output(results: dict[str, Any], folder: Path) -> MethodOutput:
     )
 
 
-def partial_output(error: PartialRunError, folder: Path) -> MethodOutput:
+def partial_output(error: PartialRunError, context: MethodContext) -> MethodOutput:
     """What a stopped pipeline run had produced (e.g. a plan refused later by the safety check)."""
-    return _pipeline_output(error.results, folder)
+    return _pipeline_output(error.results, context)
 
 
 def _call_summary(call: Any) -> dict[str, Any]:

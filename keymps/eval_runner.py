@@ -55,6 +55,8 @@ class EvalOptions:
     """Ground-truth points of the metric D."""
     no_cache: bool = False
     """Always ask the VLM (never answer a run from the planner's answer cache)."""
+    image_format: str = "jpg"
+    """Each run's plan and outcome images: jpg (30 KB, 0.5 ms to write) or png (300 KB, 7 ms)."""
     processes: int | None = 1
     """Worker processes sharing the runs in flight (1: every run in this process; None: one per
     core when there are enough runs, as `keymps eval` does). See keymps.eval_pool."""
@@ -227,12 +229,13 @@ def run_job(suite: Suite, job: Job, options: EvalOptions, backend: str) -> dict[
             options.api_base,
             plan_only=suite.kind == "equal_parts",
             no_cache=options.no_cache,
+            image_format=options.image_format,
         )
         try:
             output = get_method(job.method).run(context)
             error: str | None = None
         except PartialRunError as stopped:
-            output, error = partial_output(stopped, folder), str(stopped)
+            output, error = partial_output(stopped, context), str(stopped)
         record.update(_score(suite, case, job, output, options.n))
         if error is not None:
             record["ok"], record["error"] = False, " ".join(error.split())

@@ -267,11 +267,11 @@ def log_grounding(rec: Any, grounding: Grounding) -> None:
 
 
 def log_outcome(rec: Any, run: Run) -> None:
-    """The executor's outcome.png (the simulated result), when it wrote one."""
+    """The executor's outcome image (the simulated result), when it wrote one."""
     import cv2
     import rerun as rr
 
-    outcome = run.folder / "outcome.png"
+    outcome = run.image_path("outcome")
     if not outcome.is_file():
         return
     image = cv2.imread(str(outcome), cv2.IMREAD_COLOR)

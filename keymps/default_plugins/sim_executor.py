@@ -291,8 +291,9 @@ class SimExecutor:
         if self.options.image:
             scene = run.results.get("image")
             picture = scene.image if isinstance(scene, SceneImage) else None
-            path = run.path("outcome.png")
-            _write_png(path, render_outcome(task, picture, found, self.options, outline))
+            path = run.write_image(
+                "outcome", render_outcome(task, picture, found, self.options, outline)
+            )
             files.append(str(path))
         problems = []
         if len(found.contacts):
@@ -327,13 +328,6 @@ def _footprint(run: Run) -> np.ndarray | None:
 
 def _length_mm(lines: list[np.ndarray]) -> float:
     return float(sum(np.linalg.norm(np.diff(line, axis=0), axis=1).sum() for line in lines) * 1000)
-
-
-def _write_png(path: Any, image: np.ndarray) -> None:
-    import cv2
-
-    if not cv2.imwrite(str(path), image):
-        raise KeympsError(f"cannot write {path}")
 
 
 def make_sim_executor(options: dict[str, Any]) -> SimExecutor:
