@@ -7,7 +7,7 @@ the cake it is shown (a valid design). The script runs the cake_six suite's keym
 litellm, with a fresh answer cache per run so that every request reaches the server: first with
 --concurrency 1, then with 8 (the same jobs), and finally a long run at 8 to see that memory
 stays flat. A second pair of runs against a slower server (--slow-latency, default 1 s) shows how
-the speedup grows when the VLM, not keymps' own work per run (about 45 ms of CPU), dominates.
+the speedup grows when the VLM, not keymps' own work per run (about 40 ms of CPU), dominates.
 CPU and memory are those of this process and the processes it starts for the evaluation (the
 fork server and its workers), not the server's.
 
