@@ -292,7 +292,12 @@ def test_ctrl_c_keeps_every_finished_run_and_a_rerun_does_the_rest(tmp_path: Pat
             time.sleep(0.05)
         os.killpg(process.pid, signal.SIGINT)
         stopped = time.monotonic()
-        _, stderr = process.communicate(timeout=30)
+        try:
+            _, stderr = process.communicate(timeout=30)
+        except subprocess.TimeoutExpired:  # say where it hung: before or after its last line
+            os.killpg(process.pid, signal.SIGKILL)
+            _, stderr = process.communicate()
+            pytest.fail(f"keymps eval still running 30 s after Ctrl-C; stderr: {stderr.decode()}")
         assert time.monotonic() - stopped < 10
         assert process.returncode == 130, stderr.decode()
         assert "interrupted:" in stderr.decode() and "Traceback" not in stderr.decode()
