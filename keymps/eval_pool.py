@@ -6,10 +6,12 @@ run at a time. Worker processes each have their own GIL. A run's VLM call does n
 worker: it goes to the parent's event loop (keymps.vlm_broker), which makes it with litellm's
 async API, at most `concurrency` at once; the worker's thread waits for the answer.
 
-Each process keeps RUNS_AHEAD more runs in flight than its share of the VLM calls: while its
-calls are out, it prepares the next runs, so that a VLM slot that frees up never waits for
-keymps' own work. Within a process one run computes at a time (keymps.eval_turn) and gives its
-turn up while it waits for the VLM. A worker takes a job only when one of its threads is free.
+With the litellm backend each process keeps RUNS_AHEAD more runs in flight than its share of
+the VLM calls: while its calls are out, it prepares the next runs, so that a VLM slot that frees
+up never waits for keymps' own work. Within a process one run computes at a time
+(keymps.eval_turn) and gives its turn up while it waits for the VLM. (A plugin backend makes its
+calls itself, in the run's thread: its runs in flight are the calls allowed at once, and they
+share the core as threads do.) A worker takes a job only when one of its threads is free.
 
 Workers are forked from a fork server that has imported keymps, OpenCV, NumPy and Pinocchio
 once (keymps.eval_preload): starting one costs milliseconds, not the second of those imports,
@@ -56,9 +58,13 @@ def default_processes(concurrency: int, jobs: int) -> int:
     return max(1, processes)
 
 
-def runs_in_flight(concurrency: int, processes: int) -> int:
-    """Runs started at once: the VLM calls allowed at once, and RUNS_AHEAD per process."""
-    return max(1, concurrency) + RUNS_AHEAD * max(1, processes)
+def runs_in_flight(concurrency: int, processes: int, backend: str) -> int:
+    """Runs started at once: the VLM calls allowed at once, and RUNS_AHEAD per process when the
+    calls go through the broker (which alone keeps them to `concurrency`)."""
+    from keymps.vlm_broker import BROKERED_BACKEND
+
+    ahead = RUNS_AHEAD * max(1, processes) if backend == BROKERED_BACKEND else 0
+    return max(1, concurrency) + ahead
 
 
 def threads_per_process(runs: int, processes: int) -> list[int]:
@@ -87,9 +93,9 @@ def _worker(
     os.environ.update(environment)
     from keymps.eval_runner import run_job
     from keymps.eval_turn import CpuTurn
-    from keymps.vlm_broker import BrokerClient, activated
+    from keymps.vlm_broker import BROKERED_BACKEND, BrokerClient, activated
 
-    turn = CpuTurn()
+    turn = CpuTurn(active=backend == BROKERED_BACKEND)
     with activated(BrokerClient(*vlm, turn=turn)):
         _take_jobs(suite, options, backend, threads, jobs, results, run_job, turn)
 
@@ -149,7 +155,8 @@ def run_in_processes(
     result_queue = context.Queue()
     for job in jobs:
         job_queue.put(job)
-    shares = threads_per_process(runs_in_flight(options.concurrency, processes), processes)
+    runs = runs_in_flight(options.concurrency, processes, backend)
+    shares = threads_per_process(runs, processes)
     for _ in shares:
         job_queue.put(None)
     environment = dict(os.environ)

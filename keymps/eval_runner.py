@@ -8,8 +8,9 @@ A job that fails is recorded as a failure with its one-line error; it never stop
 
 Jobs run in threads of this process or of worker processes (keymps.eval_pool); their VLM calls
 are made by one asyncio event loop in this process (keymps.vlm_broker), at most `concurrency`
-at once, so the waits overlap each other and the other runs' CPU work. A few more runs than
-that are in flight, preparing their calls while the others wait (eval_pool.runs_in_flight).
+at once, so the waits overlap each other and the other runs' CPU work. With litellm, a few more
+runs than that are in flight, preparing their calls while the others wait
+(eval_pool.runs_in_flight).
 """
 
 from __future__ import annotations
@@ -319,7 +320,7 @@ def run_suite(
     from keymps.eval_methods import check_runnable, get_method
     from keymps.eval_pool import default_processes, run_in_processes
     from keymps.eval_turn import CpuTurn
-    from keymps.vlm_broker import VlmBroker, activated
+    from keymps.vlm_broker import BROKERED_BACKEND, VlmBroker, activated
 
     backend = resolve_backend(options)
     for name in options.methods:
@@ -348,7 +349,8 @@ def run_suite(
 
     processes = options.processes or default_processes(options.concurrency, len(todo))
     processes = min(processes, options.concurrency)
-    turn = CpuTurn()  # given up by the broker while a run of this process waits for the VLM
+    # given up by the broker while a run of this process waits for the VLM
+    turn = CpuTurn(active=backend == BROKERED_BACKEND)
     broker = VlmBroker(options.concurrency, warm_up=backend == "litellm" and bool(todo), turn=turn)
     try:
         if processes > 1:
@@ -373,7 +375,7 @@ def _run_in_threads(
     """Run `jobs` in threads of this process, taking turns to compute."""
     from keymps.eval_pool import runs_in_flight
 
-    pool = ThreadPoolExecutor(max_workers=runs_in_flight(options.concurrency, 1))
+    pool = ThreadPoolExecutor(max_workers=runs_in_flight(options.concurrency, 1, backend))
     try:
         futures = {
             pool.submit(turn.run, run_job, suite, job, options, backend): job for job in jobs

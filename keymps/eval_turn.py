@@ -1,6 +1,8 @@
 """Whose turn it is to compute in an eval process: one run at a time, none while it waits.
 
-The GIL lets one thread run Python at a time anyway; left to itself it switches between the
+Only for runs whose VLM calls go through keymps.vlm_broker (the litellm backend): a plugin
+backend that waits inside its own complete() would keep the turn, so its runs get an inactive
+turn and share the core as threads do. The GIL lets one thread run Python at a time anyway; left to itself it switches between the
 runs of a process every few milliseconds, so runs started together all finish their CPU work
 late, together, and their VLM calls go out in a bunch. A run that holds the turn computes to its
 VLM call undisturbed; while it waits for the answer (keymps.vlm_broker gives the turn up) the
@@ -20,12 +22,16 @@ Result = TypeVar("Result")
 class CpuTurn:
     """A lock that the thread holding it gives up while it waits for something else."""
 
-    def __init__(self) -> None:
+    def __init__(self, active: bool = True) -> None:
+        self.active = active
+        """False: run() calls the function at once, nothing is ever waited for."""
         self._lock = threading.Lock()
         self._holder = threading.local()
 
     def run(self, function: Callable[..., Result], *args: Any) -> Result:
         """Call function(*args) holding the turn (waiting for it first)."""
+        if not self.active:
+            return function(*args)
         with self._lock:
             self._holder.holding = True
             try:

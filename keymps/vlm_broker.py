@@ -32,6 +32,8 @@ if TYPE_CHECKING:
     from keymps.eval_turn import CpuTurn
     from keymps.planning import BackendAnswer, PlanRequest
 
+BROKERED_BACKEND = "litellm"
+"""The planner backend whose calls a broker makes (other backends call out themselves)."""
 _LOOP: asyncio.AbstractEventLoop | None = None
 _LOOP_LOCK = threading.Lock()
 _ACTIVE: Any = None

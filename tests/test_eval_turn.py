@@ -67,3 +67,15 @@ def test_giving_up_a_turn_one_does_not_hold_changes_nothing() -> None:
         pass
     assert turn.run(lambda value: value + 1, 41) == 42
     assert turn.run(lambda: "free again") == "free again"  # the turn was released after use
+
+
+def test_an_inactive_turn_lets_runs_compute_together() -> None:
+    """For plugin backends, which wait inside their own calls: no turn is ever waited for."""
+    turn = CpuTurn(active=False)
+    both_inside = threading.Barrier(2, timeout=5)
+    threads = [threading.Thread(target=turn.run, args=(both_inside.wait,)) for _ in range(2)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join(timeout=10)
+    assert not both_inside.broken  # both threads were inside run() at the same time

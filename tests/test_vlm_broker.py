@@ -214,6 +214,59 @@ def test_the_next_runs_are_prepared_while_the_vlm_answers(
     assert tracker["peak"] <= int(concurrency)
 
 
+def test_a_plugin_backend_keeps_its_calls_concurrent_and_within_concurrency(
+    tmp_path: Path, keymps_plugins: Any
+) -> None:
+    """A plugin backend calls out itself, in the run's thread (no broker): --concurrency runs
+    are in flight, their calls overlap, and no run ahead makes a call beyond the bound."""
+    import math
+
+    from keymps.hookspecs import hookimpl
+    from keymps.planning import BackendAnswer
+
+    tracker = {"now": 0, "peak": 0}
+    lock = threading.Lock()
+
+    class Blocking:
+        name, cacheable = "blocking", False
+
+        def complete(self, request: Any) -> BackendAnswer:
+            with lock:
+                tracker["now"] += 1
+                tracker["peak"] = max(tracker["peak"], tracker["now"])
+            time.sleep(0.3)  # a synchronous HTTP call, say
+            with lock:
+                tracker["now"] -= 1
+            width, height = request.crop_size_px
+            cx, cy, r = width / 2, height / 2, min(width, height) / 2 - 1
+            pairs = [
+                [
+                    [cx - r * math.cos(a), cy - r * math.sin(a)],
+                    [cx + r * math.cos(a), cy + r * math.sin(a)],
+                ]
+                for a in (math.radians(90 + 60 * k) for k in range(3))
+            ]
+            return BackendAnswer(
+                text=json.dumps({"keyword": "straight", "pairs": pairs, "rationale": "six"})
+            )
+
+    class Plugin:
+        @hookimpl
+        def register_vlm_backends(self, register: Any) -> None:
+            register("blocking", lambda options: Blocking())
+
+    keymps_plugins.register(Plugin(), name="blocking-plugin")
+    out = tmp_path / "plugin"
+    result = _eval(
+        "cake_six", "--case", "round", "--repeats", "9", "--concurrency", "3",
+        "--processes", "1", "--backend", "blocking", "--out", str(out),
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    records = read_results(out / "results.jsonl")
+    assert len(records) == 9 and all(r["ok"] and r["success"] for r in records), records
+    assert tracker["peak"] == 3
+
+
 def _six_wedges(request: Recorded) -> str:
     import math
     import re
