@@ -175,7 +175,8 @@ def run_in_processes(
         for index, threads in enumerate(shares)
     ]  # fmt: skip
     received = 0
-    serving = broker.serve(vlm_requests, vlm_replies)
+    stop_serving = threading.Event()
+    serving = broker.serve(vlm_requests, vlm_replies, stop_serving)
     try:
         for worker in workers:
             worker.start()
@@ -196,9 +197,13 @@ def run_in_processes(
                 worker.terminate()
                 worker.join(timeout=5)
         broker.close()
-        vlm_requests.put(None)  # ends the thread serving the workers' calls
+        stop_serving.set()
         serving.join(timeout=5)
         for channel in (job_queue, result_queue, vlm_requests, *vlm_replies):
+            # The workers are gone: what this process still has to send (jobs never taken,
+            # replies to ended runs) is dropped instead of waited for, which could be forever
+            # (a full pipe nobody reads, or a lock held by a worker ended mid-write).
+            channel.cancel_join_thread()
             channel.close()
 
 

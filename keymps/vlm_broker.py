@@ -17,6 +17,7 @@ import asyncio
 import concurrent.futures
 import contextlib
 import itertools
+import queue
 import threading
 from collections.abc import Iterator
 from concurrent.futures import Future
@@ -138,9 +139,11 @@ class VlmBroker:
         except (asyncio.CancelledError, concurrent.futures.CancelledError):
             raise KeympsError(STOPPED) from None
 
-    def serve(self, requests: Any, replies: list[Any]) -> threading.Thread:
+    def serve(self, requests: Any, replies: list[Any], stop: threading.Event) -> threading.Thread:
         """Answer worker processes' calls: (worker, id, options, request) from `requests`,
-        (id, "ok", answer) or (id, "error" | "failure", message) to replies[worker]."""
+        (id, "ok", answer) or (id, "error" | "failure", message) to replies[worker], until
+        `stop` is set. (Not stopped by a sentinel put on `requests`: a worker ended while it
+        was writing to that queue would keep its lock, and the put would wait forever.)"""
 
         def reply(worker: int, call_id: int, future: Future[BackendAnswer]) -> None:
             try:
@@ -155,12 +158,12 @@ class VlmBroker:
                 replies[worker].put(message)
 
         def read() -> None:
-            while True:
+            while not stop.is_set():
                 try:
-                    item = requests.get()
+                    item = requests.get(timeout=0.1)
+                except queue.Empty:
+                    continue
                 except (EOFError, OSError, ValueError):  # the queue was closed
-                    return
-                if item is None:
                     return
                 worker, call_id, options, request = item
                 try:
