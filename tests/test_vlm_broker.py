@@ -90,6 +90,24 @@ def test_the_broker_keeps_exactly_concurrency_calls_in_flight() -> None:
     assert elapsed >= 5 * 0.3  # 20 calls, 4 at a time
 
 
+def test_the_thread_serving_workers_stops_even_if_a_dead_worker_kept_the_queue_lock() -> None:
+    """A worker ended (Ctrl-C) while its queue feeder was writing keeps the requests queue's
+    write lock: stopping the serving thread must not need a put on that queue."""
+    import multiprocessing
+
+    from keymps.vlm_broker import VlmBroker
+
+    requests, replies = multiprocessing.Queue(), [multiprocessing.Queue()]
+    requests._wlock.acquire()  # what the ended worker left behind (private, on purpose)
+    stop = threading.Event()
+    broker = VlmBroker(1)
+    serving = broker.serve(requests, replies, stop)
+    stop.set()
+    serving.join(timeout=5)
+    assert not serving.is_alive()
+    broker.close()
+
+
 def test_identical_requests_out_at_once_share_one_call() -> None:
     """keymps and vlm-keypoint ask the same for one scene: when both are out at once, the
     server answers once and the second run gets that answer as shared (no cost of its own)."""
