@@ -12,7 +12,7 @@ from typing import Any
 from keymps.errors import KeympsError, StageError
 from keymps.overrides import apply_overrides
 from keymps.plugins import create_component, get_manager
-from keymps.run import Run, RunOptions
+from keymps.run import IMAGE_FORMATS, Run, RunOptions
 from keymps.stages import SceneImage
 from keymps.task import Task, load_task
 
@@ -196,6 +196,10 @@ def run_task(
     for key in ("rerun", "rerun_url", "no_cache", "record", "confirm", "quiet", "image_format"):
         if key in overrides:
             setattr(options, key, overrides.pop(key))
+    if options.image_format not in IMAGE_FORMATS:
+        raise KeympsError(
+            f"image_format {options.image_format!r} is not one of: {', '.join(IMAGE_FORMATS)}"
+        )
     out = overrides.pop("out", None)
     task = apply_overrides(task, overrides)
     backend, reason = choose_backend(

@@ -1,12 +1,14 @@
 """Whose turn it is to compute in an eval process: one run at a time, none while it waits.
 
-Only for runs whose VLM calls go through keymps.vlm_broker (the litellm backend): a plugin
-backend that waits inside its own complete() would keep the turn, so its runs get an inactive
-turn and share the core as threads do. The GIL lets one thread run Python at a time anyway; left to itself it switches between the
+The GIL lets one thread run Python at a time anyway; left to itself it switches between the
 runs of a process every few milliseconds, so runs started together all finish their CPU work
 late, together, and their VLM calls go out in a bunch. A run that holds the turn computes to its
 VLM call undisturbed; while it waits for the answer (keymps.vlm_broker gives the turn up) the
 next run computes. The first calls go out one run's work apart instead of all runs' work late.
+
+Only for runs whose VLM calls go through the broker (the litellm backend): a plugin backend that
+waits inside its own complete() would keep the turn, so its runs get an inactive turn and share
+the core as threads do.
 """
 
 from __future__ import annotations

@@ -109,6 +109,19 @@ def test_configuration_errors_stop_before_any_stage(tmp_path: Path, observer: En
     assert not (tmp_path / "run").exists()
 
 
+def test_images_can_be_written_as_jpeg_and_other_formats_are_refused_first(
+    tmp_path: Path, observer: EnginePlugin
+) -> None:
+    with pytest.raises(KeympsError, match="image_format 'gif' is not one of: png, jpg"):
+        keymps.run_task(_task_copy(tmp_path), image_format="gif", out=tmp_path / "gif")
+    assert observer.events == [] and not (tmp_path / "gif").exists()
+    run = keymps.run_task(
+        _task_copy(tmp_path), image_format="jpg", out=tmp_path / "jpg", rerun="off"
+    )
+    assert (run.folder / "plan.jpg").read_bytes()[:3] == b"\xff\xd8\xff"  # a JPEG
+    assert (run.folder / "outcome.jpg").is_file() and not list(run.folder.glob("*.png"))
+
+
 def test_overrides_are_validated(tmp_path: Path, observer: EnginePlugin) -> None:
     with pytest.raises(KeympsError, match="override instruction"):
         keymps.run_task(_task_copy(tmp_path), instruction="   ", out=tmp_path / "run")
