@@ -121,6 +121,7 @@ class PlanSession:
             keyword=keyword,
             previous_errors=tuple(history[-1][1]) if history else (),
             attempt=len(history) + 1,
+            share_key=self._cache_key(messages, schema) if self.use_cache else None,
         )
 
     def ask(self, step: Step, keyword: str | None = None) -> Any:
@@ -140,8 +141,8 @@ class PlanSession:
             )
             self._record(request, answer, problems, cached)
             if parsed is not None:
-                if self.use_cache and not cached:
-                    self._cache_put(request, answer)
+                if request.share_key is not None and not cached:
+                    self._cache_put(request.share_key, answer)
                 return parsed
             history.append((answer.text, problems))
         last = "; ".join(history[-1][1][:4])
@@ -150,18 +151,19 @@ class PlanSession:
             f"attempt(s): {last} (every attempt is in {self.vlm_folder})"
         )
 
-    def _cache_key(self, request: PlanRequest) -> str:
+    def _cache_key(self, messages: list[dict[str, Any]], schema: dict[str, Any]) -> str:
+        """The answer cache's key, also the request's share key (keymps.vlm_broker)."""
         from keymps.vlm_cache import request_digest
 
         # the server is part of the key: two servers may serve different weights under one name
-        where = f"{request.model or self.backend_name}@{self.task.planner.api_base or ''}"
-        return request_digest(request.messages, request.schema, where)
+        where = f"{self.base.model or self.backend_name}@{self.task.planner.api_base or ''}"
+        return request_digest(messages, schema, where)
 
-    def _cache_put(self, request: PlanRequest, answer: Any) -> None:
+    def _cache_put(self, key: str, answer: Any) -> None:
         from keymps.vlm_cache import AnswerCache
 
         AnswerCache().put(
-            self._cache_key(request),
+            key,
             {
                 "text": answer.text,
                 "prompt_tokens": answer.prompt_tokens,
@@ -172,12 +174,10 @@ class PlanSession:
         )
 
     def _complete(self, request: PlanRequest) -> tuple[BackendAnswer, bool]:
-        if self.use_cache:
+        if request.share_key is not None:
             from keymps.vlm_cache import AnswerCache
 
-            key = self._cache_key(request)
-            request = replace(request, share_key=key)
-            hit = AnswerCache().get(key)
+            hit = AnswerCache().get(request.share_key)
             if hit is not None:
                 return (
                     BackendAnswer(
