@@ -184,8 +184,8 @@ def run_task(
     """Run a task end to end; return the finished Run (its folder holds run.json and the rest).
 
     Keyword overrides: instruction, image, backend, model, api_base, executor, out, rerun,
-    rerun_url, no_cache, record, confirm, quiet, image_format. Raises KeympsError on the first problem; nothing after
-    the failing stage runs, above all no executor.
+    rerun_url, no_cache, record, confirm, quiet, image_format. Raises KeympsError on the first
+    problem; nothing after the failing stage runs, above all no executor.
     """
     from keymps.planning import choose_backend
     from keymps.run_folder import write_run_json

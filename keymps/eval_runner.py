@@ -351,7 +351,8 @@ def run_suite(
     processes = min(processes, options.concurrency)
     # given up by the broker while a run of this process waits for the VLM
     turn = CpuTurn(active=backend == BROKERED_BACKEND)
-    broker = VlmBroker(options.concurrency, warm_up=backend == "litellm" and bool(todo), turn=turn)
+    warm_up = backend == BROKERED_BACKEND and bool(todo)
+    broker = VlmBroker(options.concurrency, warm_up=warm_up, turn=turn)
     try:
         if processes > 1:
             run_in_processes(suite, todo, options, backend, processes, finished, broker)
