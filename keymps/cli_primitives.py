@@ -157,7 +157,10 @@ def learn(
     A robot log is cleaned first: resampled to a uniform rate, smoothed (with --smooth:
     Savitzky-Golay, cubic) and trimmed of the still samples at both ends; pauses in the middle
     are kept."""
+    import numpy as np
+
     from keymps.demos import Preprocessing
+    from keymps.dmp_retarget import BLADE_MIN_SLOPE, blade_applies
     from keymps.primitives import MAX_FIT_RMSE, PrimitiveError, learn_primitive
 
     if (rate is not None and rate <= 0) or smooth < 0 or trim < 0:
@@ -175,8 +178,19 @@ def learn(
     )
     click.echo(
         f"wrote {primitive.path}: {primitive.dmp.n_basis} basis functions, "
-        f"{primitive.dmp.demo_duration:.2f} s, fit RMSE {primitive.fit_rmse * 1000:.3f} mm"
+        f"{primitive.dmp.demo_duration:.2f} s, fit RMSE {primitive.fit_rmse * 1000:.3f} mm, "
+        f"mode {primitive.mode}"
     )
+    wants_blade = mode == "blade" or (mode is None and family == "cutting")
+    if wants_blade and not blade_applies(primitive.dmp.demo_delta):
+        vertical_mm = abs(primitive.dmp.demo_delta[2]) * 1000
+        length_mm = float(np.linalg.norm(primitive.dmp.demo_delta)) * 1000
+        click.echo(
+            f"note: the demo moves only {vertical_mm:.1f} mm vertically over {length_mm:.1f} mm "
+            f"(blade needs at least {BLADE_MIN_SLOPE:.0%} of its length), so it re-targets as "
+            "axial",
+            err=True,
+        )
     if primitive.fit_rmse > MAX_FIT_RMSE:
         click.echo(
             f"warning: fit RMSE above {MAX_FIT_RMSE * 1000:.1f} mm; try more --basis or --smooth",
@@ -190,7 +204,8 @@ def learn(
     "--to",
     "targets",
     multiple=True,
-    help="Re-target to this goal A,B,C in metres (from the demo's start). Repeatable.",
+    help="Re-target to the goal A,B,C, metres in the demo's frame (the path starts at the "
+    "demo's start, or --from). Repeatable.",
 )
 @click.option("--from", "start", help="Start A,B,C in metres (default: the demo's start).")
 @click.option("--mode", type=click.Choice(["similarity", "axial", "blade", "translate"]))

@@ -11,6 +11,17 @@ from keymps.dmp_system import DmpError
 RETARGET_MODES: tuple[str, ...] = ("similarity", "axial", "blade", "translate")
 ZERO_LENGTH_M = 1e-9
 """Segments and demonstrations shorter than this are treated as zero-length (dots)."""
+BLADE_MIN_SLOPE = 0.1
+"""`blade` needs a demonstration whose vertical travel is at least this fraction of its length
+(about 6 degrees). It divides the horizontal mismatch by the demo's depth: a draw along the
+board, or a logged stroke whose height only drifts by sensor noise, would be thrown metres away.
+Flatter demos re-target as `axial`."""
+
+
+def blade_applies(demo_delta: np.ndarray) -> bool:
+    """Whether a demonstration descends (or rises) enough for `blade` re-targeting."""
+    length = float(np.linalg.norm(demo_delta))
+    return length >= ZERO_LENGTH_M and abs(float(demo_delta[2])) >= BLADE_MIN_SLOPE * length
 
 
 def _rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -72,7 +83,8 @@ def retarget_map(
 
     similarity: |delta|/|demo_delta| times the heading rotation; axial: the heading rotation
     after stretching only along demo_delta (a zero-length delta collapses the demo's travel along
-    its own direction and keeps the rest: a dot); blade: see `blade_map`; translate: identity.
+    its own direction and keeps the rest: a dot); blade: see `blade_map` (as axial for a demo
+    flatter than BLADE_MIN_SLOPE); translate: identity.
     Zero-length demos, and zero-length deltas in similarity mode, use the identity (the demo is
     replayed translated). `heading` orients the demo about z when delta is vertical (e.g. the
     blade's current yaw).
@@ -85,7 +97,7 @@ def retarget_map(
     target_len = float(np.linalg.norm(delta))
     if mode == "translate" or demo_len < ZERO_LENGTH_M:
         return np.eye(3)
-    if mode == "blade" and abs(demo_delta[2]) >= ZERO_LENGTH_M:
+    if mode == "blade" and blade_applies(demo_delta):
         return blade_map(demo_delta, delta, heading)
     demo_dir = demo_delta / demo_len
     if target_len < ZERO_LENGTH_M:
@@ -111,12 +123,16 @@ def blade_map(
         S = [[R, c], [0, k]],   R: 2x2 turn,   k = delta_z / demo_z,
         c = (delta_xy - R demo_xy) / demo_z   (so that S demo_delta = delta)
 
-    The demo needs vertical travel (demo_z != 0). A demo without horizontal travel is taken to
-    point along +x; a segment without any takes `heading` (or the demo's own)."""
+    The demo's vertical travel must be at least BLADE_MIN_SLOPE of its length. A demo without
+    horizontal travel is taken to point along +x; a segment without any takes `heading` (or the
+    demo's own)."""
     demo_delta = np.asarray(demo_delta, dtype=float)
     delta = np.asarray(delta, dtype=float)
-    if abs(demo_delta[2]) < ZERO_LENGTH_M:
-        raise DmpError("blade re-targeting needs a demonstration that moves vertically")
+    if not blade_applies(demo_delta):
+        raise DmpError(
+            f"blade re-targeting needs a demonstration whose vertical travel is at least "
+            f"{BLADE_MIN_SLOPE:.0%} of its length; this one moves {demo_delta.tolist()} m"
+        )
     level = 1e-9
     demo_heading = (
         math.atan2(demo_delta[1], demo_delta[0])

@@ -15,6 +15,7 @@ import numpy as np
 from keymps.bundled import bundled_dir
 from keymps.demos import Preprocessing, fit_rmse, load_demo_csv, prepare_demo, write_demo_csv
 from keymps.dmp import DMP, RETARGET_MODES, DmpError, Rollout
+from keymps.dmp_retarget import blade_applies
 from keymps.errors import KeympsError
 
 Family = Literal["cutting", "icing"]
@@ -100,6 +101,12 @@ def _sample_bin(needed: float) -> int:
     return int(min(math.ceil(50 * 1.125**k - 1e-9), _MAX_SAMPLES))
 
 
+def default_mode(family: str, demo_delta: np.ndarray) -> str:
+    """The family's re-targeting mode; a cutting demo too flat for `blade` gets `axial`."""
+    mode = DEFAULT_MODES.get(family, "similarity")
+    return "axial" if mode == "blade" and not blade_applies(demo_delta) else mode
+
+
 def learn_primitive(
     name: str,
     demo: Path,
@@ -125,7 +132,7 @@ def learn_primitive(
         description=description.strip(),
         family=_check_choice(family, FAMILIES, "family", str(demo)),  # type: ignore[arg-type]
         mode=_check_choice(
-            mode or DEFAULT_MODES.get(family, "similarity"), RETARGET_MODES, "mode", str(demo)
+            mode or default_mode(family, dmp.demo_delta), RETARGET_MODES, "mode", str(demo)
         ),
         nominal_speed=_positive(nominal_speed, "nominal_speed", str(demo)),
         dmp=dmp,

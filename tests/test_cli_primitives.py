@@ -6,6 +6,7 @@ import re
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 from click.testing import CliRunner
 
@@ -69,6 +70,32 @@ def test_learn_writes_a_primitive_that_list_and_show_find(
     assert "push" in listed.output
     shown = runner.invoke(primitives, ["show", "push", "--dir", "mine"])
     assert "learned from:  push.csv" in shown.output
+
+
+def test_a_flat_cutting_log_is_learned_as_axial_and_stays_on_its_segment(
+    runner: CliRunner, tmp_path: Path
+) -> None:
+    """A logged slicing stroke along the board: 8 cm along x, its height drifting 0.07 mm with
+    sensor noise. blade would divide by that drift; learn picks axial and says why."""
+    rng = np.random.default_rng(3)
+    t = np.cumsum(rng.uniform(0.006, 0.010, 600))
+    x = np.clip((t - t[0] - 0.5) / 3.0, 0.0, 1.0)
+    y = np.stack([0.3 + 0.08 * x, 0.2 + 0.01 * np.sin(4 * np.pi * x), 0.1 - 7e-5 * x], axis=1)
+    write_demo_csv(tmp_path / "slice.csv", t, y + rng.normal(0.0, 5e-5, y.shape))
+    result = runner.invoke(primitives, ["learn", "slice.csv", "--name", "slice"])
+    assert result.exit_code == 0, result.output
+    assert "mode axial" in result.output
+    assert "so it re-targets as axial" in result.output
+    primitive = load_primitive(tmp_path / "primitives" / "slice.yaml")
+    assert primitive.mode == "axial"
+    start = primitive.dmp.demo_start
+    goal = start + np.array([0.1, 0.05, 0.0])
+    path = primitive.dmp.rollout(start, goal, mode=primitive.mode).y
+    # Within the demo's own 1 cm wave of the straight line start -> goal.
+    direction = (goal - start) / np.linalg.norm(goal - start)
+    offsets = (path - start) - np.outer((path - start) @ direction, direction)
+    assert np.linalg.norm(offsets, axis=1).max() < 0.012
+    assert np.linalg.norm(path[-1] - goal) < 1e-4
 
 
 def test_learn_from_a_bad_csv_is_one_error_line(runner: CliRunner, tmp_path: Path) -> None:

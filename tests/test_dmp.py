@@ -10,6 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from keymps.dmp import DMP, ZERO_LENGTH_M, DmpError, heading_rotation, retarget_map
+from keymps.dmp_retarget import blade_map
 from keymps.errors import KeympsError
 
 
@@ -224,6 +225,21 @@ def test_axial_mode_keeps_the_depth_across_the_segment() -> None:
     assert np.abs(dot.y[:, :2] - 0.1).max() < 1e-6
     assert dot.y[:, 2].min() == pytest.approx(0.046, abs=2e-4)
     assert np.allclose(dot.y[-1], [0.1, 0.1, 0.05], atol=1e-6)
+
+
+def test_blade_mode_re_targets_a_flat_demo_as_axial() -> None:
+    """A stroke along the board whose height only drifts (0.07 mm over 8 cm, as in a robot
+    log): dividing by that depth threw the path 35 m away. Below 10% slope blade is axial."""
+    flat = np.array([0.08, 0.0, -7e-5])
+    for delta in ([0.1, 0.05, 0.0], [0.0, 0.0, -0.03], [0.0, 0.0, 0.0], [-0.02, 0.01, 0.01]):
+        S = retarget_map(flat, np.array(delta), "blade")
+        assert np.allclose(S, retarget_map(flat, np.array(delta), "axial"))
+        assert np.abs(S).max() < 3.0
+    with pytest.raises(DmpError, match="at least 10% of its length"):
+        blade_map(flat, np.array([0.1, 0.05, 0.0]))
+    steep = np.array([0.08, 0.0, -0.01])  # 12% of its length: a shallow cut, still blade
+    S = retarget_map(steep, np.array([0.0, 0.1, -0.01]), "blade")
+    assert np.allclose(S, blade_map(steep, np.array([0.0, 0.1, -0.01])))
 
 
 def test_dots_and_closed_demos_replay_the_demo_translated(sawing: DMP) -> None:
