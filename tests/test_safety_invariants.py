@@ -231,12 +231,19 @@ def test_varied_task_settings_give_safe_trajectories_or_clean_errors(
 
 
 def test_full_run_counts_are_meaningful(fuzz_counter: Any) -> None:
-    """Most valid answers on the object really reach the executor (the invariants bite)."""
+    """Valid answers on the object really reach the executor, so the invariants are checked on
+    executed trajectories, not only on refusals.
+
+    About 55 % of the random cutting answers execute (the rest are refused by the safety check,
+    e.g. a sawing stroke overshooting the workspace): 9 to 21 of 30 in ten full runs. Asking
+    for a third (10 of 30) failed by chance in 0.5-2 % of runs (binomial tail; seen once);
+    a sixth (5 of 30) fails by chance with a probability of about 3e-6, and still catches a
+    change that refuses nearly everything."""
     for suite in ("answers/full runs, icing (both)", "answers/full runs, cutting (start)"):
         outcomes = fuzz_counter.outcomes.get(suite, {})
         if not outcomes:
             pytest.skip("run with the fuzz tests above")
-        assert outcomes.get("executed and checked", 0) >= sum(outcomes.values()) // 3, outcomes
+        assert outcomes.get("executed and checked", 0) >= sum(outcomes.values()) // 6, outcomes
 
 
 # the real-robot guard (keymps-ur-rtde): mocks stand in for the physical arm's interfaces
