@@ -271,6 +271,7 @@ class DMP:
         for key in ("n_basis", "demo_duration", "demo_start", "demo_goal", "weights"):
             if key not in data:
                 raise DmpError(f"{where}: dmp.{key} is missing")
+        _check_weight_rows(data["weights"], where)
         try:
             weights = np.asarray(data["weights"], dtype=float)
             start = np.asarray(data["demo_start"], dtype=float)
@@ -305,6 +306,19 @@ class DMP:
 
 
 _GAIN_DEFAULTS = {"alpha_z": ALPHA_Z, "beta_z": BETA_Z, "alpha_s": ALPHA_S}
+
+
+def _check_weight_rows(rows: Any, where: str) -> None:
+    """Weights that are not a list of rows of three, with the bad row named by its index
+    (numpy's own message would not say which)."""
+    if not isinstance(rows, (list, tuple)):
+        raise DmpError(f"{where}: dmp.weights must be a list of [wx, wy, wz] rows")
+    for index, row in enumerate(rows):
+        if not isinstance(row, (list, tuple)) or len(row) != 3:
+            size = f"{len(row)} values" if isinstance(row, (list, tuple)) else repr(row)
+            raise DmpError(
+                f"{where}: dmp.weights row {index + 1} is {size}; each row is [wx, wy, wz]"
+            )
 
 
 def _point(value: Sequence[float] | np.ndarray, name: str) -> np.ndarray:
