@@ -549,3 +549,23 @@ def test_primitive_choice_reads_the_shipped_descriptions(names, context, expecte
     family = "icing" if "icing" in context else "cut"
     chosen, why = choose_primitive(family, descriptions, context)
     assert chosen == expected, why
+
+
+def test_a_primitive_the_sentence_names_is_taken_first():
+    """A user's own primitive, asked for by name, beats the object rules; two names asked for
+    at once decide nothing, and the usual rules apply."""
+    from keymps.default_plugins.offline_backend import choose_primitive
+
+    cutting = {
+        "straight": "Straight cut down through the object. For soft objects (cake, banana).",
+        "sawing": "Sawing cut. For hard or crusty objects (crusty bread, baguette).",
+        "rocking": "Rocking cut: rock the blade forward and back while descending.",
+    }
+    sentence = "Cut the baguette into 4 slices with a rocking cut"
+    assert choose_primitive("cut", cutting, sentence) == ("rocking", "the sentence names it")
+    assert choose_primitive("cut", cutting, "Cut the baguette into 4 slices")[0] == "sawing"
+    either = "Cut the baguette into 4 slices, rocking or straight"
+    assert choose_primitive("cut", cutting, either)[0] == "sawing"
+    icing = {"line": "Icing line with a piping bag.", "rosette": "Icing rosette: pipe a swirl."}
+    assert choose_primitive("icing", icing, "Pipe 6 rosettes around the cake")[0] == "rosette"
+    assert choose_primitive("icing", icing, "Put 6 icing dots around the cake")[0] == "line"

@@ -56,20 +56,25 @@ def _named_objects(description: str) -> set[str]:
 def choose_primitive(family: str, primitives: Mapping[str, str], context: str) -> tuple[str, str]:
     """(name, why) of the primitive for this design, from names and descriptions.
 
-    Icing designs take the icing primitive. Cuts take the one primitive whose description names
-    the object (from the sentence or the task name), else a hard-object primitive for a hard or
-    crusty object, else a soft-object one.
+    A primitive of the design's family named in the sentence ("with a rocking cut") is taken
+    first. Otherwise icing designs take the icing primitive, and cuts the one primitive whose
+    description names the object (from the sentence or the task name), else a hard-object
+    primitive for a hard or crusty object, else a soft-object one.
     """
     names = list(primitives)
     if len(names) == 1:
         return names[0], "the only primitive"
     icing = [n for n in names if n.lower() in ICING_NAMES or ICING_PRIMITIVE.search(primitives[n])]
+    cutting = [n for n in names if n not in icing] or names
+    mentioned = _words(context)
+    family_names = icing if family == "icing" else cutting
+    asked = [n for n in family_names if _words(n) and _words(n) <= mentioned]
+    if len(asked) == 1:
+        return asked[0], "the sentence names it"
     if family == "icing":
         if icing:
             return icing[0], "its description is for icing"
         return names[0], "the first primitive (none is described for icing)"
-    cutting = [n for n in names if n not in icing] or names
-    mentioned = _words(context)
     named = [n for n in cutting if mentioned & _named_objects(primitives[n])]
     if len(named) == 1:
         word = sorted(mentioned & _named_objects(primitives[named[0]]))[0]
