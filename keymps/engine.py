@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 import time
 import warnings
 from collections.abc import Callable
@@ -40,8 +41,23 @@ class Components:
             self.primitives = load_primitives(task.primitives, default_search_dirs(task.folder))
         except KeympsError as error:
             raise KeympsError(f"{task.where('primitives')}: primitives: {error}") from None
-        self.robot = RobotModel.from_task(task)
+        try:
+            self.robot = RobotModel.from_task(task)
+        except KeympsError as error:
+            raise _located(task, error) from None
         self.backend = backend
+
+
+_FIELD_PREFIX = re.compile(r"^([a-z_]+(?:\.[a-z_]+)+): ")
+"""An error that starts with a task field ("robot.tool: ...") can point into the task file."""
+
+
+def _located(task: Task, error: KeympsError) -> KeympsError:
+    """The error with the file:line:col of the task field it names, when it names one."""
+    named = _FIELD_PREFIX.match(str(error))
+    if named is None:
+        return error
+    return KeympsError(f"{task.where(*named.group(1).split('.'))}: {error}")
 
 
 def _create(

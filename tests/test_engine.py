@@ -107,6 +107,10 @@ def test_configuration_errors_stop_before_any_stage(tmp_path: Path, observer: En
         keymps.run_task(path, executor="nope", out=tmp_path / "run")
     assert observer.events == []
     assert not (tmp_path / "run").exists()
+    spoon = _task_copy(tmp_path, ("tool: piping_bag", "tool: spoon"))
+    with pytest.raises(KeympsError, match=r"task.yaml:\d+:\d+: robot.tool: unknown tool 'spoon'"):
+        keymps.run_task(spoon, out=tmp_path / "run")
+    assert observer.events == [] and not (tmp_path / "run").exists()
 
 
 def test_images_can_be_written_as_jpeg_and_other_formats_are_refused_first(
