@@ -113,7 +113,7 @@ def validate(
     _check_path(trajectory, tool_path, positions, problems, figures)
     _check_board(model, trajectory, positions, rotations, problems, figures)
     _check_footprint(trajectory, tool_path, positions, outline_m, problems, figures)
-    _check_workspace(trajectory, positions, task, problems, figures)
+    _check_workspace(trajectory, tool_path, positions, task, problems, figures)
     if problems:
         raise SafetyError(problems)
     return _issue(trajectory, ValidationReport(True, (), figures))
@@ -375,6 +375,7 @@ def _check_footprint(
 
 def _check_workspace(
     trajectory: Trajectory,
+    tool_path: ToolPath,
     positions: np.ndarray,
     task: Task,
     problems: list[str],
@@ -392,5 +393,18 @@ def _check_workspace(
         problems.append(
             f"the tool leaves the workspace (scene.workspace, the board area the image shows) by "
             f"{outside[i] * 1000:.1f} mm at {_at(trajectory, i)}, board point ({xy[i, 0]:.3f}, "
-            f"{xy[i, 1]:.3f})"
+            f"{xy[i, 1]:.3f}), {_workspace_hint(tool_path, int(trajectory.piece_index[i]))}"
         )
+
+
+def _workspace_hint(tool_path: ToolPath, index: int) -> str:
+    """Which pair left the workspace. Keypoints are inside the image, so a work piece leaves it
+    only where its primitive reaches past the pair's ends (a sawing stroke at the edge)."""
+    piece = tool_path.pieces[index]
+    pair = piece.pair_index + 1
+    if piece.kind != "work":
+        return f"on the travel move to pair {pair}"
+    return (
+        f"during pair {pair}: primitive {tool_path.keyword!r} reaches past the pair's ends "
+        "(leave more board around the object, or choose a primitive without strokes)"
+    )

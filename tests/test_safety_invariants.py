@@ -478,4 +478,6 @@ def test_a_validated_trajectory_never_leaves_the_workspace(
         )
     assert_clean_error(caught.value)
     assert "check: safety: the tool leaves the workspace (scene.workspace" in str(caught.value)
+    # ... and says which pair, and why: the sawing strokes reach past the board's edge.
+    assert "during pair 1: primitive 'sawing' reaches past the pair's ends" in str(caught.value)
     assert RecordingExecutor.calls == []
