@@ -136,7 +136,7 @@ def test_executors_refuse_forged_or_modified_validated_trajectories() -> None:
 
 
 def test_distance_to_polyline_is_exact_on_large_inputs() -> None:
-    from keymps.safety import distance_to_polyline
+    from keymps.safety_geometry import distance_to_polyline
 
     rng = np.random.default_rng(3)
     s = np.linspace(0, 4 * math.pi, 2500)

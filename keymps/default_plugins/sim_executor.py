@@ -105,7 +105,7 @@ def _unit(vectors: np.ndarray) -> np.ndarray:
 
 def tracking_errors(result: Replay, tool_path: ToolPath | None) -> np.ndarray:
     """Distance of each replayed tool position to its piece of the tool path (or the plan)."""
-    from keymps.safety import distance_to_polyline
+    from keymps.safety_geometry import distance_to_polyline
 
     if tool_path is None:
         return np.linalg.norm(result.tool_xyz - result.planned_xyz, axis=1)
