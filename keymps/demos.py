@@ -14,6 +14,9 @@ from keymps.errors import KeympsError
 
 DEMO_COLUMNS = ("t", "x", "y", "z")
 MIN_DEMO_SAMPLES = 10
+STILL_WINDOW_S = 0.05
+"""Trimming judges where the tool starts and stops moving on positions averaged over this
+window: in a raw log, sensor noise alone takes single samples past the trim distance."""
 
 
 class DemoError(KeympsError):
@@ -30,7 +33,8 @@ class Preprocessing:
     smooth_s: float = 0.0
     """Savitzky-Golay window (cubic) in seconds; 0 turns smoothing off."""
     trim_mm: float = 0.5
-    """Drop still samples at both ends: those within this distance of the first/last position."""
+    """Drop still samples at both ends: those within this distance of the first/last position
+    (both judged on positions averaged over STILL_WINDOW_S)."""
 
     def to_dict(self) -> dict[str, Any]:
         return {"rate_hz": self.rate_hz, "smooth_s": self.smooth_s, "trim_mm": self.trim_mm}
@@ -110,8 +114,11 @@ def prepare_demo(
             y = savgol_filter(y, window, 3, axis=0, mode="interp")
     if settings.trim_mm > 0:
         tolerance = settings.trim_mm / 1000.0
-        moved_from_start = np.linalg.norm(y - y[0], axis=1) > tolerance
-        moved_from_end = np.linalg.norm(y - y[-1], axis=1) > tolerance
+        window = max(1, min(int(round(STILL_WINDOW_S * rate)), len(t)))
+        averaged = _moving_average(y, window)
+        start, end = y[:window].mean(axis=0), y[-window:].mean(axis=0)
+        moved_from_start = np.linalg.norm(averaged - start, axis=1) > tolerance
+        moved_from_end = np.linalg.norm(averaged - end, axis=1) > tolerance
         if not moved_from_start.any():
             raise DemoError(
                 f"{where}: the tool never moves more than {settings.trim_mm} mm; nothing to learn"
@@ -122,6 +129,16 @@ def prepare_demo(
     if len(t) < MIN_DEMO_SAMPLES:
         raise DemoError(f"{where}: fewer than {MIN_DEMO_SAMPLES} samples after trimming")
     return t, y
+
+
+def _moving_average(y: np.ndarray, samples: int) -> np.ndarray:
+    """Centred running mean of each column over `samples` samples (ends padded with the end)."""
+    if samples <= 1:
+        return y
+    before = samples // 2
+    padded = np.pad(y, ((before, samples - 1 - before), (0, 0)), mode="edge")
+    sums = np.cumsum(np.vstack([np.zeros((1, y.shape[1])), padded]), axis=0)
+    return (sums[samples:] - sums[:-samples]) / samples
 
 
 def fit_rmse(dmp: DMP, t: np.ndarray, y: np.ndarray) -> float:

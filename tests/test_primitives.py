@@ -242,6 +242,18 @@ def test_learning_from_a_noisy_robot_log_with_pauses(tmp_path: Path) -> None:
     assert np.abs(a - again.dmp.rollout([0, 0, 0], [0.1, 0, 0]).y).max() < 1e-8
 
 
+def test_the_default_trim_finds_the_still_ends_of_a_raw_noisy_log(tmp_path: Path) -> None:
+    """No smoothing asked for: 0.2 mm of noise takes single samples past the 0.5 mm trim
+    distance, which used to leave both 1 s waits in the primitive (7.4 s instead of 5.4 s)."""
+    t, noisy, clean, _ = robot_log(np.random.default_rng(4))
+    write_demo_csv(tmp_path / "raw.csv", t, noisy)
+    primitive = learn_primitive("raw", tmp_path / "raw.csv", description="Raw log.")
+    assert primitive.preprocessing == Preprocessing()  # the CLI's defaults: trim 0.5 mm only
+    assert 5.0 <= primitive.dmp.demo_duration <= 5.6
+    assert np.linalg.norm(primitive.dmp.demo_start - clean[0]) < 0.0015
+    assert np.linalg.norm(primitive.dmp.demo_goal - clean[-1]) < 0.0015
+
+
 def test_a_log_where_nothing_moves_is_refused(tmp_path: Path) -> None:
     log = tmp_path / "still.csv"
     write_demo_csv(log, np.arange(50) / 10, np.zeros((50, 3)))
