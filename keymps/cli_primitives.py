@@ -72,11 +72,13 @@ def show(name: str, dirs: tuple[Path, ...]) -> None:
     dmp = p.dmp
     rollout = dmp.rollout(dmp.demo_start, dmp.demo_goal)
     extent = np.ptp(rollout.y, axis=0) * 1000
+    flat = _flat_for_blade(dmp.demo_delta)
     lines = [
         f"name:          {p.name}",
         f"file:          {p.path}",
         f"family:        {p.family}",
-        f"mode:          {p.mode}",
+        f"mode:          {p.mode}"
+        + (f" (re-targets as axial: {flat})" if p.mode == "blade" and flat else ""),
         f"nominal speed: {p.nominal_speed:.3f} m/s (average along the path)",
         f"description:   {p.description}",
         f"DMP:           {dmp.n_basis} basis functions per axis, alpha_z {dmp.alpha_z:g}, "
@@ -97,6 +99,22 @@ def show(name: str, dirs: tuple[Path, ...]) -> None:
     if p.source:
         lines.append(f"learned from:  {p.source}")
     click.echo("\n".join(lines))
+
+
+def _flat_for_blade(demo_delta: Any) -> str | None:
+    """Why `blade` re-targets this demo as `axial` (too little vertical travel), or None."""
+    import numpy as np
+
+    from keymps.dmp_retarget import BLADE_MIN_SLOPE, blade_applies
+
+    if blade_applies(demo_delta):
+        return None
+    vertical_mm = abs(float(demo_delta[2])) * 1000
+    length_mm = float(np.linalg.norm(demo_delta)) * 1000
+    return (
+        f"the demo moves only {vertical_mm:.1f} mm vertically over {length_mm:.1f} mm, "
+        f"under the {BLADE_MIN_SLOPE:.0%} blade needs"
+    )
 
 
 def _mm(point: Any) -> str:
@@ -157,10 +175,7 @@ def learn(
     A robot log is cleaned first: resampled to a uniform rate, smoothed (with --smooth:
     Savitzky-Golay, cubic) and trimmed of the still samples at both ends; pauses in the middle
     are kept."""
-    import numpy as np
-
     from keymps.demos import Preprocessing
-    from keymps.dmp_retarget import BLADE_MIN_SLOPE, blade_applies
     from keymps.primitives import MAX_FIT_RMSE, PrimitiveError, learn_primitive
 
     if (rate is not None and rate <= 0) or smooth < 0 or trim < 0:
@@ -182,15 +197,9 @@ def learn(
         f"mode {primitive.mode}"
     )
     wants_blade = mode == "blade" or (mode is None and family == "cutting")
-    if wants_blade and not blade_applies(primitive.dmp.demo_delta):
-        vertical_mm = abs(primitive.dmp.demo_delta[2]) * 1000
-        length_mm = float(np.linalg.norm(primitive.dmp.demo_delta)) * 1000
-        click.echo(
-            f"note: the demo moves only {vertical_mm:.1f} mm vertically over {length_mm:.1f} mm "
-            f"(blade needs at least {BLADE_MIN_SLOPE:.0%} of its length), so it re-targets as "
-            "axial",
-            err=True,
-        )
+    flat = _flat_for_blade(primitive.dmp.demo_delta)
+    if wants_blade and flat:
+        click.echo(f"note: {flat}, so it re-targets as axial", err=True)
     if primitive.fit_rmse > MAX_FIT_RMSE:
         click.echo(
             f"warning: fit RMSE above {MAX_FIT_RMSE * 1000:.1f} mm; try more --basis or --smooth",

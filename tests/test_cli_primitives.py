@@ -96,6 +96,11 @@ def test_a_flat_cutting_log_is_learned_as_axial_and_stays_on_its_segment(
     offsets = (path - start) - np.outer((path - start) @ direction, direction)
     assert np.linalg.norm(offsets, axis=1).max() < 0.012
     assert np.linalg.norm(path[-1] - goal) < 1e-4
+    # Asked for blade anyway: kept as asked, and show tells how it behaves.
+    forced = runner.invoke(primitives, ["learn", "slice.csv", "--name", "hard", "--mode", "blade"])
+    assert "mode blade" in forced.output and "so it re-targets as axial" in forced.output
+    shown = runner.invoke(primitives, ["show", "hard"])
+    assert "mode:          blade (re-targets as axial: the demo moves only" in shown.output
 
 
 def test_learn_from_a_bad_csv_is_one_error_line(runner: CliRunner, tmp_path: Path) -> None:
