@@ -14,6 +14,10 @@ from keymps.errors import KeympsError
 
 DEMO_COLUMNS = ("t", "x", "y", "z")
 MIN_DEMO_SAMPLES = 10
+MAX_DEMO_EXTENT_M = 2.0
+"""A demonstration larger than this is not a kitchen motion: its positions are not metres."""
+MAX_DEMO_DURATION_S = 600.0
+"""A demonstration longer than this is not one motion primitive: its time is not seconds."""
 STILL_WINDOW_S = 0.05
 """Trimming judges where the tool starts and stops moving on positions averaged over this
 window: in a raw log, sensor noise alone takes single samples past the trim distance."""
@@ -91,9 +95,10 @@ def write_demo_csv(path: Path, t: np.ndarray, y: np.ndarray) -> None:
 def prepare_demo(
     t: np.ndarray, y: np.ndarray, settings: Preprocessing, where: str = "demonstration"
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Resample to a uniform rate, smooth, and trim still ends (in that order)."""
+    """Check the units, then resample to a uniform rate, smooth, and trim still ends."""
     t = np.asarray(t, float) - float(t[0])
     y = np.asarray(y, float)
+    _check_units(t, y, where)
     steps = np.diff(t)
     rate = settings.rate_hz or 1.0 / float(np.median(steps))
     uneven = np.abs(steps - np.median(steps)).max() > 0.01 * np.median(steps)
@@ -129,6 +134,21 @@ def prepare_demo(
     if len(t) < MIN_DEMO_SAMPLES:
         raise DemoError(f"{where}: fewer than {MIN_DEMO_SAMPLES} samples after trimming")
     return t, y
+
+
+def _check_units(t: np.ndarray, y: np.ndarray, where: str) -> None:
+    """Refuse a log in millimetres or milliseconds: it would fit, and be useless."""
+    extent = float(np.ptp(y, axis=0).max())
+    if extent > MAX_DEMO_EXTENT_M:
+        raise DemoError(
+            f"{where}: the tool moves over {extent:g} m; positions must be metres "
+            "(a log in millimetres? divide x, y, z by 1000)"
+        )
+    if t[-1] > MAX_DEMO_DURATION_S:
+        raise DemoError(
+            f"{where}: the demonstration lasts {t[-1]:g} s; time must be seconds "
+            "(a log in milliseconds? divide t by 1000)"
+        )
 
 
 def _moving_average(y: np.ndarray, samples: int) -> np.ndarray:

@@ -254,6 +254,26 @@ def test_the_default_trim_finds_the_still_ends_of_a_raw_noisy_log(tmp_path: Path
     assert np.linalg.norm(primitive.dmp.demo_goal - clean[-1]) < 0.0015
 
 
+@pytest.mark.parametrize(
+    ("column", "message"),
+    [
+        (slice(1, 4), r"moves over 130\.\d+ m; positions must be metres \(a log in millimetres"),
+        (slice(0, 1), r"lasts 5000 s; time must be seconds \(a log in milliseconds"),
+    ],
+)
+def test_a_log_in_millimetres_or_milliseconds_is_one_error_line(
+    tmp_path: Path, column: slice, message: str
+) -> None:
+    """Both used to be learned: a 130 m sawing stroke, or an 83-minute one."""
+    t, y = load_demo_csv(BUNDLED_DIR / "sawing.csv")
+    values = np.column_stack([t, y])
+    values[:, column] *= 1000.0
+    write_demo_csv(tmp_path / "log.csv", values[:, 0], values[:, 1:])
+    with pytest.raises(KeympsError, match=message) as info:
+        learn_primitive("log", tmp_path / "log.csv", description="x")
+    assert "\n" not in str(info.value) and "log.csv" in str(info.value)
+
+
 def test_a_log_where_nothing_moves_is_refused(tmp_path: Path) -> None:
     log = tmp_path / "still.csv"
     write_demo_csv(log, np.arange(50) / 10, np.zeros((50, 3)))
