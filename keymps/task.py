@@ -40,8 +40,12 @@ class PluginSection(BaseModel):
         return dict(self.model_extra or {})
 
 
+BoardSide = Annotated[float, Field(gt=0, le=3.0, allow_inf_nan=False)]
+"""A side of the imaged board, metres: over 3 m is a board no tabletop arm reaches (or mm)."""
+
+
 class Workspace(StrictModel):
-    size: tuple[PositiveFloat, PositiveFloat] = (0.30, 0.18)
+    size: tuple[BoardSide, BoardSide] = (0.30, 0.18)
     """s_env: (width, height) of the area the image spans, metres."""
     shift: tuple[FiniteFloat, FiniteFloat] = (0.0, 0.0)
     """g_shift: offset of the board frame's origin, metres."""

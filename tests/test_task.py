@@ -77,6 +77,11 @@ BROKEN = [
         ["task.yaml:5:28: scene.workspace.size[1]: Input should be greater than 0"],
     ),
     (
+        "workspace in millimetres",
+        VALID.replace("size: [0.30, 0.18]", "size: [0.30, 180]"),
+        ["task.yaml:5:28: scene.workspace.size[1]: Input should be less than or equal to 3"],
+    ),
+    (
         "NaN height",
         VALID.replace("object_height: 0.02", "object_height: .nan"),
         ["task.yaml:6:18: scene.object_height: Input should be a finite number"],
