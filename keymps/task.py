@@ -44,6 +44,11 @@ BoardSide = Annotated[float, Field(gt=0, le=3.0, allow_inf_nan=False)]
 """A side of the imaged board, metres: over 3 m is a board no tabletop arm reaches (or mm)."""
 
 
+BaseOffset = Annotated[float, Field(ge=-3.0, le=3.0, allow_inf_nan=False)]
+"""A coordinate of the robot base on the board, metres: beyond 3 m no tabletop arm reaches the
+board (and millimetres are caught where they are written)."""
+
+
 class Workspace(StrictModel):
     size: tuple[BoardSide, BoardSide] = (0.30, 0.18)
     """s_env: (width, height) of the area the image spans, metres."""
@@ -124,7 +129,7 @@ class ToolSpec(StrictModel):
 
 class Robot(StrictModel):
     model: Literal["ur3", "ur3e"] = "ur3"
-    base: tuple[FiniteFloat, FiniteFloat, FiniteFloat, FiniteFloat] = (0.15, -0.20, 0.0, 90.0)
+    base: tuple[BaseOffset, BaseOffset, BaseOffset, FiniteFloat] = (0.15, -0.20, 0.0, 90.0)
     """x, y, z in metres and yaw in degrees of the robot base in the board frame."""
     tool: ToolSpec = ToolSpec(name="knife")
     rate_hz: Annotated[float, Field(ge=10, le=1000)] | None = None

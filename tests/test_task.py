@@ -82,6 +82,14 @@ BROKEN = [
         ["task.yaml:5:28: scene.workspace.size[1]: Input should be less than or equal to 3"],
     ),
     (
+        "robot base in millimetres",
+        VALID + "robot: {base: [150, -200, 0, 90]}\n",
+        [
+            "task.yaml:10:16: robot.base[0]: Input should be less than or equal to 3",
+            "task.yaml:10:21: robot.base[1]: Input should be greater than or equal to -3",
+        ],
+    ),
+    (
         "NaN height",
         VALID.replace("object_height: 0.02", "object_height: .nan"),
         ["task.yaml:6:18: scene.object_height: Input should be a finite number"],
