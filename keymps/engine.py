@@ -149,6 +149,9 @@ class _Pipeline:
         run, parts, task = self.run, self.parts, self.run.task
         scene: SceneImage = self.stage("image", lambda: parts.image_source.load(run))
         size = scene.size_px
+        pixel_shape = geometry.pixel_shape_warning(task, size)
+        if pixel_shape:
+            run.warnings.append(pixel_shape)
         detection = self.stage("detect", lambda: parts.detector.detect(scene))
         run.warnings.extend(detection.warnings)
         descriptions = {name: p.description for name, p in parts.primitives.items()}

@@ -147,6 +147,29 @@ class ImageFrame:
         )
 
 
+SQUARE_PIXEL_TOLERANCE = 0.05
+"""Pixels more than 5 % wider than tall (or the reverse) mean the image does not span
+scene.workspace.size: a photo not cropped to the board, or a size written wrong."""
+
+
+def pixel_shape_warning(task: Task, image_size_px: tuple[int, int]) -> str | None:
+    """Why the image and scene.workspace.size disagree (pixels far from square), or None.
+    Only for the linear frame: with board corners a homography maps any pixel shape."""
+    if task.scene.camera.board_corners_px is not None:
+        return None
+    width_px, height_px = _check_size(image_size_px)
+    w_env, h_env = task.scene.workspace.size
+    wide_mm, tall_mm = 1000.0 * w_env / width_px, 1000.0 * h_env / height_px
+    if abs(wide_mm / tall_mm - 1.0) <= SQUARE_PIXEL_TOLERANCE:
+        return None
+    return (
+        f"the image is {width_px} x {height_px} px but scene.workspace.size is "
+        f"{w_env:g} x {h_env:g} m, so a pixel is {wide_mm:.2f} mm wide and {tall_mm:.2f} mm "
+        "tall: crop the image to the board, correct the size, or give "
+        "scene.camera.board_corners_px"
+    )
+
+
 def _homography(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     """The 3x3 map taking four points to four points (direct linear solve in float64)."""
     rows = []

@@ -177,3 +177,22 @@ def test_a_plugin_bug_is_one_line_and_nothing_runs_after_it(
     monkeypatch.setenv("KEYMPS_DEBUG", "1")
     with pytest.raises(ZeroDivisionError):
         keymps.run_task(path, executor="recording", out=tmp_path / "run2", rerun="off")
+
+
+def test_an_image_that_does_not_span_the_workspace_is_a_warning(
+    tmp_path: Path, observer: EnginePlugin
+) -> None:
+    """A square photo of the 0.30 x 0.18 m board: pixels 0.50 mm wide and 0.30 mm tall."""
+    import cv2
+
+    image = cv2.imread(str(REPO / "tasks/scenes/round_cake.png"))
+    cv2.imwrite(str(tmp_path / "square.png"), cv2.resize(image, (600, 600)))
+    run = keymps.run_task(
+        _task_copy(tmp_path), image=tmp_path / "square.png", out=tmp_path / "run", rerun="off"
+    )
+    expected = "a pixel is 0.50 mm wide and 0.30 mm tall: crop the image to the board"
+    assert any(expected in warning for warning in run.warnings), run.warnings
+    record = json.loads((tmp_path / "run/run.json").read_text())
+    assert any(expected in warning for warning in record["warnings"])
+    same_shape = keymps.run_task(_task_copy(tmp_path), out=tmp_path / "plain", rerun="off")
+    assert not any("a pixel is" in warning for warning in same_shape.warnings)
