@@ -242,11 +242,11 @@ def test_the_image_limit_is_configurable(tmp_path: Path, keymps_plugins: Any) ->
         tmp_path / "synthetic",
         **{
             "image: ": "source: synthetic\n  source_options: {px_per_m: 20000}\n  image: ",
-            "size: [0.30, 0.18]": "size: [20.0, 20.0]",
+            "size: [0.30, 0.18]": "size: [3.0, 3.0]",  # the largest board a task allows
         },
     )
     started = time.perf_counter()
-    with pytest.raises(KeympsError, match=r"the synthetic scene is 400000 x 400000 pixels"):
+    with pytest.raises(KeympsError, match=r"the synthetic scene is 60000 x 60000 pixels"):
         keymps.run_task(synthetic, executor="recording", out=tmp_path / "s", rerun="off")
     assert time.perf_counter() - started < 5.0
 
