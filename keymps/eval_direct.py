@@ -26,7 +26,7 @@ def _finish(
     import cv2
 
     from keymps.geometry import ImageFrame
-    from keymps.run import write_image
+    from keymps.run import image_file, write_image
 
     frame = ImageFrame.from_task(seen.task, seen.scene.size_px)
     image = seen.scene.image.copy()
@@ -36,7 +36,7 @@ def _finish(
         x, y = (int(v) for v in pixels[0])
         cv2.putText(image, str(index + 1), (x + 4, y - 4), cv2.FONT_HERSHEY_SIMPLEX, 0.5,
                     (0, 160, 0), 1, cv2.LINE_AA)  # fmt: skip
-    path = write_image(context.folder / f"plan.{context.image_format}", image)
+    path = write_image(image_file(context.folder, "plan", context.image_format), image)
     return replace(output, calls=tuple(calls), images={"plan": str(path)}, scene=seen.truth)
 
 

@@ -167,6 +167,8 @@ class PartialRunError(KeympsError):
 
 
 def _pipeline_output(results: dict[str, Any], context: MethodContext) -> MethodOutput:
+    from keymps.run import image_file
+
     plan = results.get("plan")
     grounding = results.get("ground")
     tool_path = results.get("compose")
@@ -174,7 +176,7 @@ def _pipeline_output(results: dict[str, Any], context: MethodContext) -> MethodO
     lines = grounding.segments_m[:, :, :2] if grounding is not None else np.zeros((0, 2, 2))
     calls = tuple(_call_summary(c) for c in plan.calls) if plan is not None else ()
     paths = {
-        name: context.folder / f"{name}.{context.image_format}" for name in ("plan", "outcome")
+        name: image_file(context.folder, name, context.image_format) for name in ("plan", "outcome")
     }
     images = {name: str(path) for name, path in paths.items() if path.is_file()}
     return MethodOutput(

@@ -53,11 +53,17 @@ class Run:
 
     def image_path(self, stem: str) -> Path:
         """Where the run's image `stem` (plan, outcome) is, in the run's image format."""
-        return self.folder / f"{stem}.{self.options.image_format}"
+        return image_file(self.folder, stem, self.options.image_format)
 
     def write_image(self, stem: str, image: Any) -> Path:
         """Write a BGR image as `stem` in the run folder, in the run's image format."""
-        return write_image(self.path(f"{stem}.{self.options.image_format}"), image)
+        self.folder.mkdir(parents=True, exist_ok=True)
+        return write_image(self.image_path(stem), image)
+
+
+def image_file(folder: Path, stem: str, image_format: str) -> Path:
+    """The file of image `stem` (plan, outcome) in `folder`, for one of IMAGE_FORMATS."""
+    return folder / f"{stem}.{image_format}"
 
 
 def write_image(path: Path, image: Any) -> Path:
