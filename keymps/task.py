@@ -40,13 +40,13 @@ class PluginSection(BaseModel):
         return dict(self.model_extra or {})
 
 
-BoardSide = Annotated[float, Field(gt=0, le=3.0, allow_inf_nan=False)]
-"""A side of the imaged board, metres: over 3 m is a board no tabletop arm reaches (or mm)."""
-
-
-BaseOffset = Annotated[float, Field(ge=-3.0, le=3.0, allow_inf_nan=False)]
-"""A coordinate of the robot base on the board, metres: beyond 3 m no tabletop arm reaches the
-board (and millimetres are caught where they are written)."""
+MAX_BOARD_M = 3.0
+"""No tabletop arm works on a board larger than this, or from further away: a bigger number in
+a task file is millimetres, caught where it is written."""
+BoardSide = Annotated[float, Field(gt=0, le=MAX_BOARD_M, allow_inf_nan=False)]
+"""A side of the imaged board, metres."""
+BaseOffset = Annotated[float, Field(ge=-MAX_BOARD_M, le=MAX_BOARD_M, allow_inf_nan=False)]
+"""A coordinate of the robot base on the board, metres."""
 
 
 class Workspace(StrictModel):
