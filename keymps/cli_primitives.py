@@ -176,7 +176,7 @@ def learn(
     Savitzky-Golay, cubic) and trimmed of the still samples at both ends; pauses in the middle
     are kept."""
     from keymps.demos import Preprocessing
-    from keymps.primitives import MAX_FIT_RMSE, PrimitiveError, learn_primitive
+    from keymps.primitives import DEFAULT_MODES, MAX_FIT_RMSE, PrimitiveError, learn_primitive
 
     if (rate is not None and rate <= 0) or smooth < 0 or trim < 0:
         raise PrimitiveError("--rate must be positive, --smooth and --trim not negative")
@@ -196,9 +196,8 @@ def learn(
         f"{primitive.dmp.demo_duration:.2f} s, fit RMSE {primitive.fit_rmse * 1000:.3f} mm, "
         f"mode {primitive.mode}"
     )
-    wants_blade = mode == "blade" or (mode is None and family == "cutting")
     flat = _flat_for_blade(primitive.dmp.demo_delta)
-    if wants_blade and flat:
+    if (mode or DEFAULT_MODES.get(family)) == "blade" and flat:
         click.echo(f"note: {flat}, so it re-targets as axial", err=True)
     if primitive.fit_rmse > MAX_FIT_RMSE:
         click.echo(

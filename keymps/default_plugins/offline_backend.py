@@ -68,7 +68,7 @@ def choose_primitive(family: str, primitives: Mapping[str, str], context: str) -
     cutting = [n for n in names if n not in icing] or names
     mentioned = _words(context)
     family_names = icing if family == "icing" else cutting
-    asked = [n for n in family_names if _words(n) and _words(n) <= mentioned]
+    asked = [n for n in family_names if (words := _words(n)) and words <= mentioned]
     if len(asked) == 1:
         return asked[0], "the sentence names it"
     if family == "icing":
