@@ -6,8 +6,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from keymps.config.task import Task
 from keymps.errors import KeympsError
-from keymps.task import Task
 
 IMAGE_FORMATS = ("png", "jpg")
 JPEG_QUALITY = 92

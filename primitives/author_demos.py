@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from keymps.demos import Preprocessing, write_demo_csv
-from keymps.primitives import learn_primitive
+from keymps.primitives.demos import Preprocessing, write_demo_csv
+from keymps.primitives.dictionary import learn_primitive
 
 HERE = Path(__file__).resolve().parent
 RATE_HZ = 100.0

@@ -17,9 +17,9 @@ import numpy as np
 from hypothesis import HealthCheck, settings
 
 from keymps.errors import KeympsError
-from keymps.hookspecs import hookimpl
-from keymps.planning import BackendAnswer, PlanRequest
-from keymps.stages import ExecutionReport
+from keymps.planning.planner import BackendAnswer, PlanRequest
+from keymps.plugin.hookspecs import hookimpl
+from keymps.types import ExecutionReport
 
 FAST = settings(deadline=None, suppress_health_check=list(HealthCheck), database=None)
 """The fuzz suites' base settings: no deadline (runs vary), no health checks, no example file."""
@@ -37,7 +37,7 @@ class RecordingExecutor:
         self.options = options
 
     def execute(self, validated: Any, run: Any) -> ExecutionReport:
-        from keymps.safety import require_validated
+        from keymps.robot.safety import require_validated
 
         require_validated(validated, "recording")  # what every real executor must do
         RecordingExecutor.calls.append(validated)
@@ -114,7 +114,7 @@ def assert_clean_error(error: BaseException) -> None:
 
 def workspace_box(task: Any, size_px: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
     """The board-frame xy extent of the image (the workspace), from the task's pixel mapping."""
-    from keymps.geometry import ImageFrame
+    from keymps.perception.frames import ImageFrame
 
     width, height = size_px
     corners = np.array([[0, 0], [width, 0], [width, height], [0, height]], dtype=float)

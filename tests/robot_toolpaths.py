@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from keymps.stages import Piece, ToolPath
+from keymps.types import Piece, ToolPath
 
 HOME = np.array([0.15, 0.09, 0.13])
 

@@ -12,9 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
+from keymps.config.task import Task
 from keymps.run import Run, RunOptions
-from keymps.stages import Detection, Plan, SceneImage
-from keymps.task import Task
+from keymps.types import Detection, Plan, SceneImage
 
 MM_PER_PX = 0.5
 BOARD_BGR = (205, 205, 205)
@@ -103,7 +103,7 @@ def plan_for(
     options: RunOptions | None = None,
     **planner,
 ) -> tuple[Plan, Run]:
-    from keymps.planning import make_plan
+    from keymps.planning.planner import make_plan
 
     """Plan with `backend`; without `folder` the run folder is temporary (gone on return)."""
     task = make_task(instruction, scene, primitives, **planner)

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from click.testing import CliRunner
 
-from keymps.cli import cli
+from keymps.cli.app import cli
 
 REPO = Path(__file__).resolve().parents[1]
 HEAVY = ("litellm", "rerun", "pinocchio", "cv2", "matplotlib", "ruckig", "scipy")
@@ -18,7 +18,7 @@ def test_help_lists_commands_without_heavy_imports() -> None:
     code = (
         "import sys\n"
         "from click.testing import CliRunner\n"
-        "from keymps.cli import cli\n"
+        "from keymps.cli.app import cli\n"
         "for args in (['--help'], ['run', '--help'], ['primitives', '--help'], ['scene', '--help']):\n"
         "    result = CliRunner().invoke(cli, args)\n"
         "    assert result.exit_code == 0, (args, result.output)\n"

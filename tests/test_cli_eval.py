@@ -14,8 +14,8 @@ import pytest
 from click.testing import CliRunner
 from vlm_server import Recorded, VlmServer
 
-from keymps.cli import cli
-from keymps.eval_runner import read_results
+from keymps.cli.app import cli
+from keymps.eval.runner import read_results
 
 
 def _eval(*args: str) -> Any:
@@ -103,7 +103,7 @@ def test_offline_eval_writes_the_summary_files(offline_run: Path) -> None:
 def test_vlm_keypoint_uses_straight_pieces(offline_run: Path) -> None:
     import numpy as np
 
-    from keymps.primitives import load_primitive
+    from keymps.primitives.dictionary import load_primitive
 
     zeroed = load_primitive(offline_run / "tasks" / "vlm-keypoint" / "primitives" / "sawing.yaml")
     assert not np.any(zeroed.dmp.weights)

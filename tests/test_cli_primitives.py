@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from keymps.cli_primitives import primitives
-from keymps.demos import load_demo_csv, write_demo_csv
-from keymps.primitives import BUNDLED_DIR, load_primitive
+from keymps.cli.primitives import primitives
+from keymps.primitives.demos import load_demo_csv, write_demo_csv
+from keymps.primitives.dictionary import BUNDLED_DIR, load_primitive
 
 
 @pytest.fixture
@@ -143,8 +143,8 @@ def test_bad_point_is_a_usage_error(runner: CliRunner) -> None:
 
 
 def test_module_imports_only_click_at_top() -> None:
-    source = Path(sys.modules["keymps.cli_primitives"].__file__ or "").read_text()
+    source = Path(sys.modules["keymps.cli.primitives"].__file__ or "").read_text()
     top_imports = [line for line in source.splitlines() if line.startswith(("import ", "from "))]
     allowed = {"__future__", "sys", "collections.abc", "pathlib", "typing", "click"}
-    allowed |= {"keymps.cli_errors"}
+    allowed |= {"keymps.cli.errors"}
     assert {line.split()[1] for line in top_imports} <= allowed

@@ -5,13 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from keymps.config.task import Task
 from keymps.default_plugins.threshold_detector import ThresholdDetector, ThresholdOptions
 from keymps.errors import KeympsError
-from keymps.geometry import object_outline_m
-from keymps.plugins import create_component
-from keymps.scenes import KINDS, ObjectSpec, SceneSpec, render_scene
-from keymps.stages import SceneImage
-from keymps.task import Task
+from keymps.perception.frames import object_outline_m
+from keymps.plugin.manager import create_component
+from keymps.scenes.render import KINDS, ObjectSpec, SceneSpec, render_scene
+from keymps.types import SceneImage
 
 SEEDS = range(20)
 

@@ -1,4 +1,4 @@
-"""keymps.dmp: fitting, exact re-targeting in every mode, temporal scaling, bad input."""
+"""keymps.primitives.dmp: fitting, exact re-targeting in every mode, temporal scaling, bad input."""
 
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from keymps.dmp import DMP, ZERO_LENGTH_M, DmpError, heading_rotation, retarget_map
-from keymps.dmp_retarget import blade_map
 from keymps.errors import KeympsError
+from keymps.primitives.dmp import DMP, ZERO_LENGTH_M, DmpError, heading_rotation, retarget_map
+from keymps.primitives.retarget import blade_map
 
 
 def min_jerk(x: np.ndarray) -> np.ndarray:

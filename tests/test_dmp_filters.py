@@ -7,8 +7,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from keymps.dmp_filters import BLOCK, FilterError, all_pole, block_convolve, fir
-from keymps.dmp_system import _hold_exponential, discretize
+from keymps.primitives.filters import BLOCK, FilterError, all_pole, block_convolve, fir
+from keymps.primitives.system import _hold_exponential, discretize
 
 
 def recursive(rows: np.ndarray, b: np.ndarray, a: np.ndarray) -> np.ndarray:

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from keymps.cli import cli
+from keymps.cli.app import cli
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -9,8 +9,8 @@ import pytest
 
 import keymps
 from keymps.errors import KeympsError, StageError
-from keymps.hookspecs import hookimpl
-from keymps.stages import STAGES, ExecutionReport
+from keymps.plugin.hookspecs import hookimpl
+from keymps.types import STAGES, ExecutionReport
 
 REPO = Path(__file__).resolve().parents[1]
 

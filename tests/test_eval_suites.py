@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from keymps.eval_parts import check_equal_parts, split_areas
-from keymps.eval_suites import SuiteError, load_suite, parse_suite
-from keymps.eval_tasks import case_scene, case_task_data
-from keymps.eval_truth import case_truth, line_hits
-from keymps.task import Task
+from keymps.config.task import Task
+from keymps.eval.parts import check_equal_parts, split_areas
+from keymps.eval.suites import SuiteError, load_suite, parse_suite
+from keymps.eval.tasks import case_scene, case_task_data
+from keymps.eval.truth import case_truth, line_hits
 
 SUITES = Path(__file__).resolve().parent.parent / "benchmarks" / "suites"
 

@@ -1,11 +1,11 @@
-"""keymps.eval_turn: one run computes at a time in a process, and none while it waits."""
+"""keymps.eval.turn: one run computes at a time in a process, and none while it waits."""
 
 from __future__ import annotations
 
 import threading
 import time
 
-from keymps.eval_turn import CpuTurn
+from keymps.eval.turn import CpuTurn
 
 
 def test_a_run_waiting_for_the_vlm_lets_the_next_run_compute() -> None:

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from keymps.evaluate import (
+from keymps.eval.metric import (
     metric_d,
     metric_d_optimal,
     pair_distances,

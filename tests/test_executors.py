@@ -13,16 +13,16 @@ import numpy as np
 import pytest
 from robot_toolpaths import radial_cuts, ring_of_dots
 
+from keymps.config.task import Task
 from keymps.errors import KeympsError
-from keymps.geometry import ImageFrame
-from keymps.plugins import create_component
-from keymps.robot import RobotModel, solve_path
+from keymps.motion.timing import time_trajectory
+from keymps.motion.trajectory_io import CSV_HEADER, read_trajectory_csv
+from keymps.perception.frames import ImageFrame
+from keymps.plugin.manager import create_component
+from keymps.robot.model import RobotModel, solve_path
+from keymps.robot.safety import SafetyError, validate
 from keymps.run import Run
-from keymps.safety import SafetyError, validate
-from keymps.stages import SceneImage, ToolPath, ValidatedTrajectory, ValidationReport
-from keymps.task import Task
-from keymps.timing import time_trajectory
-from keymps.trajectory_io import CSV_HEADER, read_trajectory_csv
+from keymps.types import SceneImage, ToolPath, ValidatedTrajectory, ValidationReport
 
 CENTER = (0.15, 0.09)
 
@@ -172,7 +172,7 @@ def test_executors_refuse_anything_not_validated(name: str, tmp_path: Path) -> N
 
 
 def test_marks_tell_cuts_from_icing_and_find_contact_below_the_board() -> None:
-    from keymps.default_plugins.sim_executor import Replay, marks
+    from keymps.default_plugins.sim.executor import Replay, marks
 
     line = np.linspace([0.1, 0.1, 0.03], [0.2, 0.1, -0.002], 101)  # a cut ending 2 mm too deep
     dot = np.tile([0.05, 0.05, 0.065], (30, 1))
@@ -193,7 +193,7 @@ REPO = Path(__file__).resolve().parents[1]
 @pytest.fixture(scope="module")
 def shipped_cutting(tmp_path_factory: pytest.TempPathFactory) -> Run:
     """tasks/object_cutting.yaml run end to end offline: 4 diameter cuts of the pizza."""
-    from keymps.engine import run_task
+    from keymps.pipeline.engine import run_task
 
     folder = tmp_path_factory.mktemp("object_cutting")
     return run_task(REPO / "tasks/object_cutting.yaml", out=folder, backend="offline", rerun="off")
@@ -202,7 +202,7 @@ def shipped_cutting(tmp_path_factory: pytest.TempPathFactory) -> Run:
 def cut_coverage(outcome: np.ndarray, run: Run) -> list[float]:
     """Per grounded cut, the share of its line inside the pizza (2 mm in from the outline) that
     outcome.png shows cut, sampled every 0.5 mm."""
-    from keymps.geometry import object_outline_m
+    from keymps.perception.frames import object_outline_m
 
     size = (outcome.shape[1], outcome.shape[0])
     pizza = object_outline_m(run.results["detect"], run.task, size).astype(np.float32)
@@ -245,7 +245,7 @@ def test_a_knife_cuts_with_its_whole_blade_across_the_pizza(shipped_cutting: Run
 def test_a_tiny_blade_cuts_only_where_the_tip_went_below_the_top(
     shipped_cutting: Run, tmp_path: Path
 ) -> None:
-    from keymps.task import ToolSpec
+    from keymps.config.task import ToolSpec
 
     full = shipped_cutting
     robot = full.task.robot.model_copy(update={"tool": ToolSpec(name="knife", blade_length=0.001)})
@@ -266,7 +266,7 @@ def test_a_tiny_blade_cuts_only_where_the_tip_went_below_the_top(
 
 
 def test_tool_blade_length_comes_from_the_task_or_the_built_in_tool() -> None:
-    from keymps.ur_description import tool_from_task
+    from keymps.robot.description import tool_from_task
 
     def blade(tool: Any) -> float:
         task = make_task("knife", 0.02)
@@ -283,8 +283,8 @@ def test_tool_blade_length_comes_from_the_task_or_the_built_in_tool() -> None:
 
 
 def test_a_sawing_blade_trails_the_cut_and_stays_inside_the_food() -> None:
-    from keymps.cut_sweep import Footprint, covered_length
-    from keymps.default_plugins.sim_executor import Replay, marks
+    from keymps.default_plugins.sim.cut_sweep import Footprint, covered_length
+    from keymps.default_plugins.sim.executor import Replay, marks
 
     # sawing along +x: 10 mm strokes back and forth while descending through a 2 cm top
     s = np.linspace(0.0, 1.0, 2001)

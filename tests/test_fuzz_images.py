@@ -32,9 +32,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import keymps
+from keymps.config.limits import image_size_from_header
 from keymps.errors import KeympsError
-from keymps.limits import image_size_from_header
-from keymps.plugins import create_component
+from keymps.plugin.manager import create_component
 from keymps.run import Run
 
 REPO = Path(__file__).resolve().parents[1]

@@ -26,8 +26,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import keymps
+from keymps.designs.grammar import read_instruction
 from keymps.errors import KeympsError
-from keymps.instruction import read_instruction
 
 SENTENCES = [
     "Cut it into 8 equal slices",

@@ -9,8 +9,8 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from keymps.config.task import parse_task
 from keymps.errors import TaskFileError
-from keymps.task import parse_task
 
 REPO = Path(__file__).resolve().parents[1]
 BASE = yaml.safe_load((REPO / "tasks/cake_icing.yaml").read_text())

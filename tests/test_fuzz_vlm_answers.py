@@ -1,6 +1,6 @@
 """Hostile planner answers: every one is accepted within the rules or refused with problems.
 
-Two levels. The answer check itself (keymps.plan_answer.parse_and_validate, the function every
+Two levels. The answer check itself (keymps.planning.answer.parse_and_validate, the function every
 backend's text goes through) is fuzzed with thousands of answers: random text, random JSON,
 near-valid answers with wrong types, NaN/inf and far-away points, prompt-injection text,
 prose and code fences. Invariant: it never raises and never hangs; it returns either a valid
@@ -35,7 +35,7 @@ from hypothesis import strategies as st
 
 import keymps
 from keymps.errors import KeympsError
-from keymps.plan_answer import parse_and_validate
+from keymps.planning.answer import parse_and_validate
 
 KEYWORDS = ["straight", "sawing"]
 CROP = (240, 180)
@@ -373,7 +373,7 @@ def test_hostile_answers_in_full_runs_never_reach_the_executor(
 @fuzz(300)
 @given(data=st.one_of(st.binary(max_size=300), st.text(max_size=300).map(str.encode)))
 def test_random_cassette_bytes_fail_cleanly(data: bytes, tmp_path: Path, fuzz_counter: Any) -> None:
-    from keymps.vlm_cache import read_cassette
+    from keymps.planning.cache import read_cassette
 
     path = tmp_path / "fuzz.jsonl"
     path.write_bytes(data)
@@ -401,7 +401,7 @@ def test_random_cassette_bytes_fail_cleanly(data: bytes, tmp_path: Path, fuzz_co
 def test_random_cassette_lines_fail_cleanly(
     entry: dict[str, Any], tmp_path: Path, fuzz_counter: Any
 ) -> None:
-    from keymps.vlm_cache import read_cassette
+    from keymps.planning.cache import read_cassette
 
     path = tmp_path / "fuzz.jsonl"
     path.write_text(json.dumps(entry) + "\n")
@@ -421,7 +421,7 @@ def test_random_cassette_lines_fail_cleanly(
 @fuzz(200)
 @given(data=st.one_of(st.binary(max_size=200), json_values.map(lambda v: json.dumps(v).encode())))
 def test_a_corrupt_cache_entry_is_a_miss(data: bytes, tmp_path: Path, fuzz_counter: Any) -> None:
-    from keymps.vlm_cache import AnswerCache
+    from keymps.planning.cache import AnswerCache
 
     cache = AnswerCache(tmp_path / "cache")
     key = "ab" + "0" * 62

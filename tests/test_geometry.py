@@ -7,10 +7,10 @@ from typing import Any
 import numpy as np
 import pytest
 
+from keymps.config.task import Task
 from keymps.errors import KeympsError
-from keymps.geometry import ImageFrame, ground, height_pair, object_outline_m, polygon_area
-from keymps.stages import Detection, Plan
-from keymps.task import Task
+from keymps.perception.frames import ImageFrame, ground, height_pair, object_outline_m, polygon_area
+from keymps.types import Detection, Plan
 
 
 def make_task(**scene: Any) -> Task:
@@ -178,7 +178,7 @@ def test_homography_recovers_board_coordinates_from_a_perspective_warped_scene(k
     import cv2
 
     from keymps.default_plugins.threshold_detector import ThresholdDetector
-    from keymps.scenes import SceneSpec, render_scene
+    from keymps.scenes.render import SceneSpec, render_scene
 
     scene = render_scene(SceneSpec.from_kinds([kind], seed=3, px_per_m=2000))
     (truth,) = scene.truth["objects"]

@@ -9,10 +9,10 @@ import cv2
 import numpy as np
 import pytest
 
+from keymps.config.task import Task
 from keymps.errors import KeympsError
-from keymps.plugins import create_component
+from keymps.plugin.manager import create_component
 from keymps.run import Run
-from keymps.task import Task
 
 
 def make_run(tmp_path: Path, **scene: Any) -> Run:

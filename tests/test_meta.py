@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from keymps import hookspecs
+from keymps.plugin import hookspecs
 
 REPO = Path(__file__).resolve().parents[1]
 HOOKS = sorted(

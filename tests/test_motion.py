@@ -1,4 +1,4 @@
-"""keymps.motion: composing travel moves and re-targeted primitives into one tool path."""
+"""keymps.motion.compose: composing travel moves and re-targeted primitives into one tool path."""
 
 from __future__ import annotations
 
@@ -11,9 +11,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from keymps.errors import KeympsError
-from keymps.motion import compose_tool_path
-from keymps.primitives import BUNDLED_DIR, load_primitives
-from keymps.stages import Segment, ToolPath
+from keymps.motion.compose import compose_tool_path
+from keymps.primitives.dictionary import BUNDLED_DIR, load_primitives
+from keymps.types import Segment, ToolPath
 
 TOP = 0.05
 MARGIN = 0.005
@@ -213,10 +213,10 @@ def test_a_vertical_plunge_saws_along_the_blade(dictionary: dict) -> None:
 def test_a_sawing_path_runs_on_the_real_ur3_pipeline(dictionary: dict) -> None:
     """Real Pinocchio IK, Ruckig timing and the safety validator accept a composed sawing path,
     and the timed tool follows the composed points."""
-    from keymps.robot import RobotModel, solve_path
-    from keymps.safety import validate
-    from keymps.task import load_task
-    from keymps.timing import time_trajectory
+    from keymps.config.task import load_task
+    from keymps.motion.timing import time_trajectory
+    from keymps.robot.model import RobotModel, solve_path
+    from keymps.robot.safety import validate
 
     task = load_task(Path(__file__).resolve().parents[1] / "tasks" / "object_cutting.yaml")
     robot = RobotModel.from_task(task)

@@ -381,7 +381,7 @@ def test_the_offline_planner_is_deterministic():
     ],
 )
 def test_paraphrases_read_the_same(canonical, paraphrase):
-    from keymps.instruction import read_instruction
+    from keymps.designs.grammar import read_instruction
 
     first, second = read_instruction(canonical), read_instruction(paraphrase)
     assert first.describe() == second.describe()
@@ -398,7 +398,7 @@ def test_paraphrases_read_the_same(canonical, paraphrase):
     ],
 )
 def test_table_v_sentences_that_need_kitchen_knowledge_are_left_to_a_vlm(sentence):
-    from keymps.instruction import UnreadableInstruction, read_instruction
+    from keymps.designs.grammar import UnreadableInstruction, read_instruction
 
     with pytest.raises(UnreadableInstruction, match="--model"):
         read_instruction(sentence)
@@ -408,10 +408,10 @@ def test_designs_are_metric_when_pixels_are_not_square(tmp_path):
     """0.30 x 0.18 m spanned by a 400 x 400 image: x pixels 0.75 mm, y pixels 0.45 mm."""
     import cv2
 
-    from keymps.planning import make_plan
+    from keymps.config.task import Task
+    from keymps.planning.planner import make_plan
     from keymps.run import Run
-    from keymps.stages import Detection, SceneImage
-    from keymps.task import Task
+    from keymps.types import Detection, SceneImage
 
     image = np.full((400, 400, 3), 205, np.uint8)
     # a 120 mm disk on the board is an ellipse in this image
@@ -540,8 +540,8 @@ def test_layers_on_a_square_cake_follow_its_edge():
     ],
 )
 def test_primitive_choice_reads_the_shipped_descriptions(names, context, expected):
-    from keymps.default_plugins.offline_backend import choose_primitive
-    from keymps.primitives import default_search_dirs, load_primitives
+    from keymps.default_plugins.offline import choose_primitive
+    from keymps.primitives.dictionary import default_search_dirs, load_primitives
 
     repo = __import__("pathlib").Path(__file__).resolve().parent.parent
     loaded = load_primitives(names, default_search_dirs(repo / "tasks"))
@@ -554,7 +554,7 @@ def test_primitive_choice_reads_the_shipped_descriptions(names, context, expecte
 def test_a_primitive_the_sentence_names_is_taken_first():
     """A user's own primitive, asked for by name, beats the object rules; two names asked for
     at once decide nothing, and the usual rules apply."""
-    from keymps.default_plugins.offline_backend import choose_primitive
+    from keymps.default_plugins.offline import choose_primitive
 
     cutting = {
         "straight": "Straight cut down through the object. For soft objects (cake, banana).",

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from keymps.overlay import draw_plan
-from keymps.stages import Detection, Plan
+from keymps.pipeline.overlay import draw_plan
+from keymps.types import Detection, Plan
 
 GRAY = 90
 

@@ -71,10 +71,10 @@ def test_installed_package_finds_its_bundled_files(installed_keymps: Path, tmp_p
 import json
 from pathlib import Path
 import keymps
-from keymps.eval_suites import load_suite
-from keymps.eval_vlm import PROMPTS_DIR
-from keymps.primitives import default_search_dirs, find_primitive_files
-from keymps.plan_prompt import find_prompt
+from keymps.eval.suites import load_suite
+from keymps.eval.vlm import PROMPTS_DIR
+from keymps.primitives.dictionary import default_search_dirs, find_primitive_files
+from keymps.planning.prompt import find_prompt
 here = Path.cwd()
 print(json.dumps({
     "package": keymps.__file__,

@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from keymps import patterns
-from keymps.patterns import Outline
+from keymps.designs import patterns
+from keymps.designs.patterns import Outline
 
 
 def disk(radius=50.0, centre=(100.0, 80.0)) -> Outline:

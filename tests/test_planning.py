@@ -10,11 +10,11 @@ from synthetic_crops import CUTTING, ICING, make_scene, make_task, plan_for
 from vlm_server import Reply, VlmServer
 
 from keymps.errors import KeympsError
-from keymps.hookspecs import hookimpl
-from keymps.plan_answer import answer_schema, extract_json, parse_and_validate
-from keymps.plan_prompt import PLACEHOLDERS, find_prompt, prompt_family, render_template
-from keymps.plan_session import redact
-from keymps.planning import choose_backend
+from keymps.planning.answer import answer_schema, extract_json, parse_and_validate
+from keymps.planning.planner import choose_backend
+from keymps.planning.prompt import PLACEHOLDERS, find_prompt, prompt_family, render_template
+from keymps.planning.session import redact
+from keymps.plugin.hookspecs import hookimpl
 from keymps.run import RunOptions
 
 GOOD = {"keyword": "sawing", "pairs": [[[10, 20], [150, 20]]], "rationale": "one cut"}
@@ -246,7 +246,7 @@ class _TeachingBackend:
         self.requests = []
 
     def complete(self, request):
-        from keymps.planning import BackendAnswer
+        from keymps.planning.planner import BackendAnswer
 
         self.requests.append(request)
         if not request.previous_errors:
@@ -330,7 +330,7 @@ def test_offline_planner_answers_in_two_calls_too(scene, tmp_path):
 def test_detector_mask_of_the_whole_image_is_cut_to_the_crop(scene, tmp_path):
     from dataclasses import replace
 
-    from keymps.planning import crop_mask
+    from keymps.planning.planner import crop_mask
 
     full = np.zeros(scene.scene.image.shape[:2], bool)
     x0, y0 = scene.detection.crop_origin_px
@@ -341,7 +341,7 @@ def test_detector_mask_of_the_whole_image_is_cut_to_the_crop(scene, tmp_path):
 
 
 def test_local_servers_are_recognised():
-    from keymps.default_plugins.litellm_backend import is_local
+    from keymps.default_plugins.litellm.backend import is_local
 
     assert is_local("http://127.0.0.1:8000/v1", "openai")
     assert is_local("http://localhost:11434", "ollama")

@@ -12,8 +12,8 @@ from pathlib import Path
 import pytest
 
 from keymps.errors import KeympsError
-from keymps.hookspecs import hookimpl
-from keymps.plugins import DEFAULT_PLUGINS, build_manager, components, plugin_infos
+from keymps.plugin.hookspecs import hookimpl
+from keymps.plugin.manager import DEFAULT_PLUGINS, build_manager, components, plugin_infos
 
 BUILT_IN_COMPONENTS = {
     "detector": {"threshold"},
@@ -94,7 +94,7 @@ def installed_plugin_packages(tmp_path_factory: pytest.TempPathFactory) -> Path:
             "keymps-hello",
             "keymps_hello",
             """
-            from keymps.hookspecs import hookimpl
+            from keymps.plugin.hookspecs import hookimpl
 
             class HelloExecutor:
                 def __init__(self, options):
@@ -190,7 +190,7 @@ def test_trace_plugins_prints_each_hook_call() -> None:
     assert result.returncode == 0, result.stderr
     assert result.stderr == ""  # no plugin loaded, the listing calls no hook
     manager_env = {"KEYMPS_TRACE_PLUGINS": "1", "KEYMPS_LOAD_PLUGINS": "threshold_detector"}
-    code = "from keymps.plugins import components; print(sorted(components('detector')))"
+    code = "from keymps.plugin.manager import components; print(sorted(components('detector')))"
     traced = subprocess.run(
         [sys.executable, "-c", code],
         capture_output=True,

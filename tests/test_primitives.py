@@ -1,4 +1,4 @@
-"""keymps.primitives: the bundled dictionary, the file format, learning, bad input."""
+"""keymps.primitives.dictionary: the bundled dictionary, the file format, learning, bad input."""
 
 from __future__ import annotations
 
@@ -9,10 +9,15 @@ import numpy as np
 import pytest
 import yaml
 
-from keymps.demos import Preprocessing, fit_rmse, load_demo_csv, prepare_demo, write_demo_csv
-from keymps.dmp import DMP
 from keymps.errors import KeympsError
-from keymps.primitives import (
+from keymps.primitives.demos import (
+    Preprocessing,
+    fit_rmse,
+    load_demo_csv,
+    prepare_demo,
+    write_demo_csv,
+)
+from keymps.primitives.dictionary import (
     BUNDLED_DIR,
     default_search_dirs,
     learn_primitive,
@@ -20,6 +25,7 @@ from keymps.primitives import (
     load_primitives,
     save_primitive,
 )
+from keymps.primitives.dmp import DMP
 
 NAMES = ["straight", "sawing", "downward", "forward", "line"]
 

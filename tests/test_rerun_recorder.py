@@ -10,11 +10,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from keymps.default_plugins import rerun_recorder
+from keymps.config.task import parse_task
+from keymps.default_plugins.rerun import recorder as rerun_recorder
+from keymps.default_plugins.rerun.motion import subsample_indices
 from keymps.errors import StageError
-from keymps.rerun_motion import subsample_indices
 from keymps.run import Run, RunOptions
-from keymps.stages import (
+from keymps.types import (
     Detection,
     ExecutionReport,
     JointPath,
@@ -27,7 +28,6 @@ from keymps.stages import (
     ValidationReport,
     VlmCall,
 )
-from keymps.task import parse_task
 
 CANARY = "sk-canary-7f3a9c1e5b2d4f60a8e1"
 VISIBLE_MARKER = "visible-marker-4411"
@@ -193,8 +193,8 @@ def _joint_path(tool_path: ToolPath) -> JointPath:
 
 
 def _trajectory(task) -> Trajectory:
-    """Made-up joint motion; the tool positions from keymps.robot's FK (the IK's own model)."""
-    from keymps.robot import RobotModel
+    """Made-up joint motion; the tool positions from keymps.robot.model's FK (the IK's own model)."""
+    from keymps.robot.model import RobotModel
 
     t = np.arange(SAMPLES) / RATE_HZ
     phase = t / t[-1]
@@ -233,7 +233,7 @@ class Results:
 
 
 def make_run(tmp_path: Path, task_yaml: str = TASK_YAML, **options: object) -> tuple[Run, Results]:
-    from keymps.geometry import ground
+    from keymps.perception.frames import ground
 
     image, image_path = _scene(tmp_path)
     task = parse_task(task_yaml, path=tmp_path / "task.yaml")
@@ -472,7 +472,7 @@ def recorded_tool_tips(entities: dict[str, Entity], rows: list[int]) -> np.ndarr
 
 
 def test_the_recorded_robot_holds_the_tool_tip_on_the_planned_path(recorded):
-    """The drawn tool tip is where keymps.robot's FK puts it, at every recorded robot sample."""
+    """The drawn tool tip is where keymps.robot.model's FK puts it, at every recorded robot sample."""
     _, results, entities = recorded
     picked = subsample_indices(results.trajectory.t, rerun_recorder.ROBOT_RATE_HZ)
     rows = list(range(len(picked)))
@@ -485,7 +485,7 @@ def test_the_recorded_robot_holds_the_tool_tip_on_the_planned_path(recorded):
 
 def test_a_ur3e_is_drawn_with_its_own_joint_offsets(tmp_path):
     """The UR3e's wrist is up to 2 cm longer than the URDF's UR3: the drawn tool tip still
-    lands on keymps.robot's UR3e FK."""
+    lands on keymps.robot.model's UR3e FK."""
     task_yaml = TASK_YAML.replace("robot: {base:", "robot: {model: ur3e, base:")
     run, results = make_run(tmp_path, task_yaml)
     assert run.task.robot.model == "ur3e"
@@ -684,7 +684,7 @@ TASKS = Path(__file__).resolve().parents[1] / "tasks"
 def test_a_shipped_task_run_by_the_engine_is_recorded_whole(task_file, tmp_path):
     """The real pipeline: every stage's entities, one row per sample, one strip per pair, and
     the drawn tool tip on the timed trajectory's tool path."""
-    from keymps.engine import run_task
+    from keymps.pipeline.engine import run_task
 
     run = run_task(TASKS / task_file, out=tmp_path / "run", backend="offline", rerun="save")
     entities = read_recording(run.folder / "run.rrd")
@@ -704,8 +704,8 @@ def test_a_shipped_task_run_by_the_engine_is_recorded_whole(task_file, tmp_path)
 
 
 def test_leaving_the_plugin_out_records_nothing(tmp_path, monkeypatch):
-    from keymps import plugins
-    from keymps.engine import run_task
+    from keymps.pipeline.engine import run_task
+    from keymps.plugin import manager as plugins
 
     others = [name for name in plugins.DEFAULT_PLUGINS if name != "rerun_recorder"]
     monkeypatch.setenv("KEYMPS_LOAD_PLUGINS", ",".join(others))
@@ -790,8 +790,8 @@ CALIBRATED_TASK_YAML = TASK_YAML.replace(
 )
 def test_the_board_texture_puts_the_image_where_the_grounding_does(task_yaml, tmp_path):
     """The green marker's centre in the 3D board texture is at the board point that
-    keymps.geometry gives for its centre pixel (50, 30), with or without camera calibration."""
-    from keymps.geometry import ImageFrame
+    keymps.perception.frames gives for its centre pixel (50, 30), with or without camera calibration."""
+    from keymps.perception.frames import ImageFrame
 
     run, results = make_run(tmp_path, task_yaml)
     results.stages = results.stages[:1]

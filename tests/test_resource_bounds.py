@@ -1,6 +1,6 @@
 """Resource bounds: requests that would need unbounded memory or time are refused early.
 
-The bounds (keymps/limits.py, docs/safety.md): scene.max_image_pixels (from the file header,
+The bounds (keymps/config/limits.py, docs/safety.md): scene.max_image_pixels (from the file header,
 before decoding; see also test_fuzz_images.py), planner.max_pairs and the answer length it
 implies, motion.max_path_length and motion.max_duration_s (estimated right after composing,
 before inverse kinematics, and measured after timing).
@@ -24,9 +24,9 @@ from fuzz_support import (
 )
 
 import keymps
+from keymps.config.limits import check_duration, check_tool_path, max_answer_chars, path_length_m
 from keymps.errors import KeympsError, TaskFileError
-from keymps.limits import check_duration, check_tool_path, max_answer_chars, path_length_m
-from keymps.stages import Piece, ToolPath
+from keymps.types import Piece, ToolPath
 
 
 def _grid_of_dots(request: Any, count: int) -> str:
@@ -161,7 +161,7 @@ def test_cli_paths_that_are_not_what_they_claim(
     """Each was a hang (reading /dev/zero forever) or a raw FileExistsError traceback."""
     from click.testing import CliRunner
 
-    from keymps.cli import cli
+    from keymps.cli.app import cli
 
     task = task_copy(tmp_path / "task")
     taken = tmp_path / "a-file"

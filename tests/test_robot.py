@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 from robot_toolpaths import radial_cuts, ring_of_dots
 
+from keymps.config.task import Task
 from keymps.errors import KeympsError
-from keymps.robot import (
+from keymps.robot.model import (
     ARMS,
     BUILTIN_TOOLS,
     RobotModel,
@@ -19,8 +20,7 @@ from keymps.robot import (
     tool_from_task,
     tool_rotation,
 )
-from keymps.stages import Piece, ToolPath
-from keymps.task import Task
+from keymps.types import Piece, ToolPath
 
 
 def make_task(**robot: Any) -> Task:

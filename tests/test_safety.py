@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 from robot_toolpaths import assemble, polyline, ring_of_dots
 
-from keymps.robot import RobotModel, solve_path
-from keymps.safety import SafetyError, require_validated, validate
-from keymps.stages import ToolPath, Trajectory, ValidatedTrajectory, ValidationReport
-from keymps.task import Task
-from keymps.timing import time_trajectory
+from keymps.config.task import Task
+from keymps.motion.timing import time_trajectory
+from keymps.robot.model import RobotModel, solve_path
+from keymps.robot.safety import SafetyError, require_validated, validate
+from keymps.types import ToolPath, Trajectory, ValidatedTrajectory, ValidationReport
 
 
 def make_task(**robot: Any) -> Task:
@@ -123,7 +123,7 @@ def test_a_trajectory_not_at_rest_or_off_the_controller_clock_is_rejected() -> N
 def test_executors_refuse_forged_or_modified_validated_trajectories() -> None:
     model, trajectory, path, task = planned()
     forged = ValidatedTrajectory(trajectory, ValidationReport(True, (), {}))
-    with pytest.raises(SafetyError, match="did not come from keymps.safety.validate"):
+    with pytest.raises(SafetyError, match="did not come from keymps.robot.safety.validate"):
         require_validated(forged, "sim")
     with pytest.raises(SafetyError, match="did not come from"):
         require_validated(trajectory, "sim")
@@ -136,7 +136,7 @@ def test_executors_refuse_forged_or_modified_validated_trajectories() -> None:
 
 
 def test_distance_to_polyline_is_exact_on_large_inputs() -> None:
-    from keymps.safety_geometry import distance_to_polyline
+    from keymps.robot.safety_geometry import distance_to_polyline
 
     rng = np.random.default_rng(3)
     s = np.linspace(0, 4 * math.pi, 2500)

@@ -3,7 +3,7 @@
 Every answer the planner rules accept goes through ground, compose, solve, time and check in a
 real run (Pinocchio, Ruckig, the independent validator); a recording executor stands in for the
 robot. Whenever a run reaches the executor, the trajectory it was given:
-- came from keymps.safety.validate unchanged, and passes validate again;
+- came from keymps.robot.safety.validate unchanged, and passes validate again;
 - keeps the tool tip (forward kinematics of the joint samples) inside the workspace the image
   spans, and never more than 0.5 mm below the board;
 - keeps every joint inside its position limits and under its velocity limit.
@@ -36,9 +36,9 @@ from hypothesis import strategies as st
 
 import keymps
 from keymps.errors import KeympsError
-from keymps.geometry import object_outline_m
+from keymps.perception.frames import object_outline_m
+from keymps.robot.safety import BOARD_TOLERANCE_M, require_validated, validate
 from keymps.run import Run, RunOptions
-from keymps.safety import BOARD_TOLERANCE_M, require_validated, validate
 
 
 @st.composite
@@ -97,7 +97,7 @@ def _run_one(task: Any, answer: Any, out: Path, counter: Any, suite: str) -> Non
 
 def check_invariants(run: Any, executed: Any) -> None:
     """What the robot was given is validated, in the workspace, above the board, in limits."""
-    from keymps.robot import RobotModel
+    from keymps.robot.model import RobotModel
 
     task = run.task
     trajectory = require_validated(executed, "recording")
@@ -278,9 +278,9 @@ def _control(arm_q: list[float]) -> Any:
 @pytest.fixture(scope="module")
 def icing_run(tasks: dict[str, Any], tmp_path_factory: Any) -> Any:
     """A real validated icing trajectory (the offline planner, the sim stages, no executor)."""
-    from keymps import plugins as plugin_module
-    from keymps.hookspecs import hookimpl
-    from keymps.plugins import build_manager
+    from keymps.plugin import manager as plugin_module
+    from keymps.plugin.hookspecs import hookimpl
+    from keymps.plugin.manager import build_manager
 
     manager = build_manager()
 
@@ -322,7 +322,7 @@ def test_ur_rtde_moves_nothing_without_confirm_through_the_engine(
     icing_run: Any, keymps_plugins: Any, tmp_path: Path
 ) -> None:
     """--confirm travels from the command line to the executor; without it nothing moves."""
-    from keymps.hookspecs import hookimpl
+    from keymps.plugin.hookspecs import hookimpl
 
     run, validated = icing_run
     arm_q = list(validated.trajectory.q[0])

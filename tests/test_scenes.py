@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from keymps.cli_scene import scene as scene_cli
+from keymps.cli.scene import scene as scene_cli
+from keymps.config.task import Task
 from keymps.errors import KeympsError
-from keymps.geometry import ImageFrame, polygon_area
-from keymps.scenes import KINDS, SceneSpec, render_scene
-from keymps.task import Task
+from keymps.perception.frames import ImageFrame, polygon_area
+from keymps.scenes.render import KINDS, SceneSpec, render_scene
 
 TASKS = Path(__file__).resolve().parents[1] / "tasks"
 
@@ -168,7 +168,7 @@ def test_shipped_scenes_are_reproduced_by_their_documented_command(
 
 
 def test_the_render_cache_returns_the_same_scene_as_a_private_copy() -> None:
-    from keymps.scenes import render_scene_cached
+    from keymps.scenes.render import render_scene_cached
 
     spec = SceneSpec.from_kinds(["eggplant"], seed=31)
     fresh = render_scene(spec)

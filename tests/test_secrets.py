@@ -22,7 +22,7 @@ from click.testing import CliRunner
 from fuzz_support import task_copy
 from vlm_server import Reply, VlmServer
 
-from keymps.cli import cli
+from keymps.cli.app import cli
 
 OPENAI_CANARY = "sk-canary-" + secrets.token_hex(12)
 OTHER_CANARY = "canary-other-" + secrets.token_hex(12)

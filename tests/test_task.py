@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
+from keymps.config.task import load_task, parse_task
 from keymps.errors import TaskFileError
-from keymps.task import load_task, parse_task
 
 REPO = Path(__file__).resolve().parents[1]
 

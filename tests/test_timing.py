@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 from robot_toolpaths import HOME, assemble, polyline, radial_cuts, ring_of_dots
 
-from keymps.robot import RobotModel, solve_path
-from keymps.stages import Piece, ToolPath, Trajectory
-from keymps.task import Task
-from keymps.timing import time_trajectory
+from keymps.config.task import Task
+from keymps.motion.timing import time_trajectory
+from keymps.robot.model import RobotModel, solve_path
+from keymps.types import Piece, ToolPath, Trajectory
 
 
 def make_task(**robot: Any) -> Task:

@@ -21,8 +21,8 @@ import pytest
 from click.testing import CliRunner
 from vlm_server import Recorded, Reply, VlmServer
 
-from keymps.cli import cli
-from keymps.eval_runner import read_results
+from keymps.cli.app import cli
+from keymps.eval.runner import read_results
 
 SIX = '{"keyword": "straight", "pairs": [[[10, 10], [90, 90]]], "rationale": "r"}'
 
@@ -34,8 +34,8 @@ def _isolated(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
 
 
 def _request(model: str = "openai/test-vlm") -> Any:
-    from keymps.plan_answer import answer_schema
-    from keymps.planning import PlanRequest
+    from keymps.planning.answer import answer_schema
+    from keymps.planning.planner import PlanRequest
 
     return PlanRequest(
         instruction="cut it",
@@ -52,7 +52,7 @@ def _request(model: str = "openai/test-vlm") -> Any:
 
 
 def _options(server: VlmServer, **extra: Any) -> Any:
-    from keymps.default_plugins.litellm_backend import LitellmOptions
+    from keymps.default_plugins.litellm.backend import LitellmOptions
 
     return LitellmOptions(model="openai/test-vlm", api_base=server.openai_base, **extra)
 
@@ -75,7 +75,7 @@ def _in_flight(tracker: dict[str, int], delay_s: float) -> Any:
 
 def test_the_broker_keeps_exactly_concurrency_calls_in_flight() -> None:
     """Twenty calls submitted at once, concurrency 4: the server sees 4 at a time, never 5."""
-    from keymps.vlm_broker import VlmBroker
+    from keymps.eval.broker import VlmBroker
 
     tracker = {"now": 0, "peak": 0}
     with VlmServer(responder=_in_flight(tracker, 0.3)) as server:
@@ -95,7 +95,7 @@ def test_the_thread_serving_workers_stops_even_if_a_dead_worker_kept_the_queue_l
     write lock: stopping the serving thread must not need a put on that queue."""
     import multiprocessing
 
-    from keymps.vlm_broker import VlmBroker
+    from keymps.eval.broker import VlmBroker
 
     requests, replies = multiprocessing.Queue(), [multiprocessing.Queue()]
     requests._wlock.acquire()  # what the ended worker left behind (private, on purpose)
@@ -113,7 +113,7 @@ def test_identical_requests_out_at_once_share_one_call() -> None:
     server answers once and the second run gets that answer as shared (no cost of its own)."""
     from dataclasses import replace
 
-    from keymps.vlm_broker import VlmBroker
+    from keymps.eval.broker import VlmBroker
 
     tracker = {"now": 0, "peak": 0}
     with VlmServer(responder=_in_flight(tracker, 0.3)) as server:
@@ -132,7 +132,7 @@ def test_identical_requests_out_at_once_share_one_call() -> None:
 def test_rate_limits_back_off_exponentially_with_jitter() -> None:
     """Three 429s without Retry-After: waits of 1, 2 and 4 x the backoff, each stretched by up
     to 50 % at random, then the answer; every wait is noted for the run's vlm/ records."""
-    from keymps.default_plugins.litellm_backend import LitellmBackend
+    from keymps.default_plugins.litellm.backend import LitellmBackend
 
     with VlmServer() as server:
         server.script(*[Reply.error(429)] * 3, Reply.text_answer(SIX))
@@ -147,7 +147,7 @@ def test_rate_limits_back_off_exponentially_with_jitter() -> None:
 
 
 def test_retry_after_is_honoured_in_seconds_and_as_a_date() -> None:
-    from keymps.default_plugins.litellm_backend import LitellmBackend
+    from keymps.default_plugins.litellm.backend import LitellmBackend
 
     with VlmServer() as server:
         backend = LitellmBackend(_options(server, backoff_s=0.01))
@@ -239,8 +239,8 @@ def test_a_plugin_backend_keeps_its_calls_concurrent_and_within_concurrency(
     are in flight, their calls overlap, and no run ahead makes a call beyond the bound."""
     import math
 
-    from keymps.hookspecs import hookimpl
-    from keymps.planning import BackendAnswer
+    from keymps.planning.planner import BackendAnswer
+    from keymps.plugin.hookspecs import hookimpl
 
     tracker = {"now": 0, "peak": 0}
     lock = threading.Lock()

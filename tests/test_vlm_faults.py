@@ -24,7 +24,7 @@ from vlm_server import Reply, VlmServer
 
 import keymps
 from keymps.errors import KeympsError
-from keymps.hookspecs import hookimpl
+from keymps.plugin.hookspecs import hookimpl
 
 DOT = {"keyword": "line", "pairs": [[[130, 130], [130, 130]]], "rationale": "one dot"}
 TIMEOUT_S = 0.6
@@ -37,7 +37,7 @@ class QuickRetries:
 
     @hookimpl
     def register_vlm_backends(self, register: Any) -> None:
-        from keymps.default_plugins.litellm_backend import LitellmBackend, LitellmOptions
+        from keymps.default_plugins.litellm.backend import LitellmBackend, LitellmOptions
 
         register(
             "litellm-quick",
@@ -49,7 +49,7 @@ class QuickRetries:
 
 @pytest.fixture(scope="module")
 def server() -> Any:
-    from keymps.default_plugins.litellm_backend import import_litellm
+    from keymps.default_plugins.litellm.backend import import_litellm
 
     import_litellm()  # seconds, once: not part of any fault's time bound
     with VlmServer(responder=lambda request: json.dumps(DOT)) as running:

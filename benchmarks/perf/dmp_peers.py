@@ -54,7 +54,7 @@ def _require_peers() -> tuple[Any, Any]:
 
 
 def demonstration() -> tuple[np.ndarray, np.ndarray]:
-    from keymps.demos import load_demo_csv
+    from keymps.primitives.demos import load_demo_csv
 
     t, y = load_demo_csv(ROOT / "primitives" / "sawing.csv")
     grid = np.linspace(t[0], t[-1], SAMPLES)
@@ -107,7 +107,7 @@ class Keymps:
     name = "keymps"
 
     def __init__(self, t: np.ndarray, y: np.ndarray):
-        from keymps import dmp as module
+        from keymps.primitives import dmp as module
 
         self.module, self.t, self.y = module, t, y
         self.dmp = module.DMP.fit(t, y, n_basis=BASIS)

@@ -190,8 +190,8 @@ def run(
     sample: list[float] | None = None,
     cpu: CpuMeter | None = None,
 ) -> tuple[float, list[dict[str, Any]]]:
-    from keymps.eval_runner import EvalOptions, run_suite
-    from keymps.eval_suites import load_suite
+    from keymps.eval.runner import EvalOptions, run_suite
+    from keymps.eval.suites import load_suite
 
     suite = load_suite("cake_six")
     options = EvalOptions(

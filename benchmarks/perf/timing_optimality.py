@@ -61,7 +61,7 @@ def measure(
     task_path: Path, tool_jerk: float | None = None, joint_jerk: float | None = None
 ) -> dict[str, Any]:
     from keymps import load_task, run_task
-    from keymps.timing import split_strokes
+    from keymps.motion.timing import split_strokes
 
     task = load_task(task_path)
     changes = {"max_tool_jerk": tool_jerk, "max_joint_jerk": joint_jerk}
@@ -72,7 +72,7 @@ def measure(
         run = run_task(task, out=folder, rerun="off", backend="offline", executor="sim")
     tool_path, joint_path = run.results["compose"], run.results["solve"]
     trajectory, validated = run.results["time"], run.results["check"]
-    from keymps.robot import RobotModel
+    from keymps.robot.model import RobotModel
 
     model = RobotModel.from_task(task)
     strokes = split_strokes(model, tool_path, joint_path)

@@ -5,11 +5,10 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field
 
-from keymps.errors import KeympsError
-from keymps.hookspecs import Register, hookimpl
-from keymps.stages import ExecutionReport, ValidatedTrajectory
+from keymps.plugin import Register, hookimpl, parse_options
+from keymps.types import ExecutionReport, ValidatedTrajectory
 
 if TYPE_CHECKING:
     from keymps.run import Run
@@ -35,8 +34,8 @@ class FileExecutor:
         self.options = options
 
     def execute(self, validated: ValidatedTrajectory, run: Run) -> ExecutionReport:
-        from keymps.safety import require_validated
-        from keymps.trajectory_io import write_joint_trajectory_json, write_trajectory_csv
+        from keymps.motion.trajectory_io import write_joint_trajectory_json, write_trajectory_csv
+        from keymps.robot.safety import require_validated
 
         trajectory = require_validated(validated, self.name)
         files = []
@@ -61,13 +60,7 @@ class FileExecutor:
 
 
 def make_file_executor(options: dict[str, Any]) -> FileExecutor:
-    try:
-        return FileExecutor(FileOptions.model_validate(options))
-    except ValidationError as error:
-        first = error.errors(include_url=False)[0]
-        where = ".".join(str(p) for p in first["loc"]) or "options"
-        message = "unknown option" if first["type"] == "extra_forbidden" else first["msg"]
-        raise KeympsError(f"executor file: {where}: {message}") from None
+    return FileExecutor(parse_options(FileOptions, options, "executor file"))
 
 
 @hookimpl

@@ -5,99 +5,16 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field
 
-from keymps.errors import KeympsError, StageError
-from keymps.hookspecs import Register, hookimpl
-from keymps.stages import SceneImage
-
-
-class ImageSourceError(StageError):
-    def __init__(self, message: str):
-        super().__init__("image", message)
+from keymps.errors import KeympsError
+from keymps.perception.image_io import ImageSourceError, read_image, to_bgr8
+from keymps.plugin import Register, hookimpl, parse_options
+from keymps.types import SceneImage
 
 
 def _parse(model: type[BaseModel], options: dict[str, Any], source: str) -> Any:
-    try:
-        return model.model_validate(options)
-    except ValidationError as error:
-        problems = []
-        for item in error.errors(include_url=False):
-            key = ".".join(str(p) for p in item["loc"]) or "(options)"
-            message = "unknown option" if item["type"] == "extra_forbidden" else item["msg"]
-            problems.append(f"{key!r}: {message.removeprefix('Value error, ')}")
-        known = ", ".join(model.model_fields)
-        raise KeympsError(
-            f"{source} image source: scene.source_options {'; '.join(problems)} (options: {known})"
-        ) from None
-
-
-def to_bgr8(image: np.ndarray) -> np.ndarray:
-    """Any decoded image (gray, BGR, BGRA; 8 or 16 bit; float in [0, 1]) -> BGR uint8.
-
-    An alpha channel is dropped (its colour channels are kept as they are).
-    """
-    import cv2
-
-    if image.dtype == np.uint16:
-        image = (image.astype(np.uint32) * 255 + 32767) // 65535
-    elif np.issubdtype(image.dtype, np.floating):
-        image = np.clip(image, 0.0, 1.0) * 255.0 + 0.5
-    image = np.asarray(image).astype(np.uint8)
-    if image.ndim == 2:
-        return cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
-    channels = image.shape[2]
-    if channels == 1:
-        return cv2.cvtColor(image[:, :, 0], cv2.COLOR_GRAY2BGR)
-    if channels == 4:
-        return np.ascontiguousarray(image[:, :, :3])
-    return np.ascontiguousarray(image)
-
-
-def read_image(path: Path, max_pixels: int | None = None) -> np.ndarray:
-    """Read an image file as BGR uint8 with one clear error per way it can fail.
-
-    With `max_pixels`, a larger image is refused from its header, before it is decoded.
-    """
-    import cv2
-
-    from keymps.limits import check_image_pixels, image_size_from_header
-
-    if not path.exists():
-        raise ImageSourceError(f"scene image not found: {path}")
-    if path.is_dir():
-        raise ImageSourceError(f"scene image is a folder, not an image: {path}")
-    if not path.is_file():  # a device or a pipe (/dev/zero) would be read forever
-        raise ImageSourceError(f"scene image is not a regular file: {path}")
-    size_bytes = path.stat().st_size
-    if max_pixels is not None and size_bytes > 8 * max_pixels + 2**20:
-        raise ImageSourceError(
-            f"scene image {path} is {size_bytes / 2**20:.0f} MB, more than any image within "
-            f"scene.max_image_pixels = {max_pixels} could be"
-        )
-    try:
-        data = path.read_bytes()
-    except OSError as error:
-        raise ImageSourceError(f"cannot read scene image {path}: {error.strerror}") from None
-    if not data:
-        raise ImageSourceError(f"scene image is empty (0 bytes): {path}")
-    header_size = image_size_from_header(data[:65536])
-    if max_pixels is not None and header_size is not None:
-        try:
-            check_image_pixels(header_size, max_pixels, f"scene image {path}")
-        except KeympsError as error:
-            raise ImageSourceError(str(error)) from None
-    try:
-        decoded = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
-    except cv2.error:  # OpenCV asserts on some corrupt headers (e.g. a BMP 1 x 1048577)
-        decoded = None
-    if decoded is None or decoded.size == 0:
-        raise ImageSourceError(
-            f"cannot decode scene image {path}: not an image OpenCV can read "
-            "(PNG, JPEG, TIFF, BMP, WebP ...) or the file is corrupt"
-        )
-    return to_bgr8(decoded)
+    return parse_options(model, options, f"{source} image source: scene.source_options")
 
 
 class FileOptions(BaseModel):
@@ -135,14 +52,14 @@ class SyntheticOptions(BaseModel):
 
 
 class SyntheticSource:
-    """A scene rendered by keymps.scenes on the task's workspace (its size is the board's)."""
+    """A scene rendered by keymps.scenes.render on the task's workspace (its size is the board's)."""
 
     def __init__(self, options: SyntheticOptions):
         self.options = options
 
     def load(self, run: Any) -> SceneImage:
-        from keymps.limits import check_image_pixels
-        from keymps.scenes import SceneSpec, render_scene_cached
+        from keymps.config.limits import check_image_pixels
+        from keymps.scenes.render import SceneSpec, render_scene_cached
 
         task = run.task
         options = self.options
@@ -226,7 +143,7 @@ def make_file_source(options: dict[str, Any]) -> FileSource:
 
 def make_synthetic_source(options: dict[str, Any]) -> SyntheticSource:
     parsed = _parse(SyntheticOptions, options, "synthetic")
-    from keymps.scenes import check_kinds
+    from keymps.scenes.render import check_kinds
 
     kinds = [parsed.object] if isinstance(parsed.object, str) else list(parsed.object)
     check_kinds(kinds, where="scene.source_options.object")

@@ -11,13 +11,13 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from pydantic import BaseModel, ConfigDict, ValidationError
+from pydantic import BaseModel, ConfigDict
 
 from keymps.errors import KeympsError
-from keymps.hookspecs import hookimpl
+from keymps.plugin import hookimpl, parse_options
 
 if TYPE_CHECKING:
-    from keymps.planning import BackendAnswer, PlanRequest
+    from keymps.planning.planner import BackendAnswer, PlanRequest
 
 
 class ReplayOptions(BaseModel):
@@ -30,14 +30,14 @@ class ReplayBackend:
     cacheable = False
 
     def __init__(self, cassette: Path):
-        from keymps.vlm_cache import read_cassette
+        from keymps.planning.cache import read_cassette
 
         self.cassette = cassette
         self.entries = read_cassette(cassette)
 
     def complete(self, request: PlanRequest) -> BackendAnswer:
-        from keymps.planning import BackendAnswer
-        from keymps.vlm_cache import request_digest
+        from keymps.planning.cache import request_digest
+        from keymps.planning.planner import BackendAnswer
 
         started = time.perf_counter()
         digest = request_digest(request.messages, request.schema)
@@ -60,10 +60,7 @@ class ReplayBackend:
 
 
 def _factory(options: dict[str, Any]) -> ReplayBackend:
-    try:
-        parsed = ReplayOptions.model_validate(options)
-    except ValidationError as error:
-        raise KeympsError(f"replay backend: {error.errors(include_url=False)[0]['msg']}") from None
+    parsed = parse_options(ReplayOptions, options, "replay backend")
     if not parsed.cassette:
         raise KeympsError(
             "the replay backend needs a cassette: set planner.cassette or pass --cassette FILE.jsonl"

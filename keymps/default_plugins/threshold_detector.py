@@ -10,11 +10,12 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from keymps.errors import KeympsError, StageError
-from keymps.hookspecs import Register, hookimpl
-from keymps.stages import Detection, SceneImage
+from keymps.errors import StageError
+from keymps.plugin import Register, hookimpl
+from keymps.plugin import parse_options as plugin_options
+from keymps.types import Detection, SceneImage
 
 
 class DetectionError(StageError):
@@ -77,17 +78,7 @@ class ThresholdOptions(BaseModel):
 
 def parse_options(options: dict[str, Any]) -> ThresholdOptions:
     """Validate the task file's detector options; one clear line per bad option."""
-    try:
-        return ThresholdOptions.model_validate(options)
-    except ValidationError as error:
-        problems = []
-        for item in error.errors(include_url=False):
-            key = ".".join(str(p) for p in item["loc"]) or "(options)"
-            message = "unknown option" if item["type"] == "extra_forbidden" else item["msg"]
-            message = message.removeprefix("Value error, ")
-            problems.append(f"option {key!r}: {message}")
-        known = ", ".join(ThresholdOptions.model_fields)
-        raise KeympsError(f"threshold detector: {'; '.join(problems)} (options: {known})") from None
+    return plugin_options(ThresholdOptions, options, "threshold detector")
 
 
 @dataclass(frozen=True)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from keymps.hookspecs import Register, hookimpl
+from keymps.plugin import Register, hookimpl
 
 __version__ = "0.1.0"
 

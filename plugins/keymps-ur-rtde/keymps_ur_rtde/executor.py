@@ -17,10 +17,11 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field
 
 from keymps.errors import KeympsError
-from keymps.stages import ExecutionReport
+from keymps.plugin import parse_options
+from keymps.types import ExecutionReport
 
 NAME = "ur-rtde"
 
@@ -61,7 +62,7 @@ class UrRtdeOptions(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    host: str = Field(min_length=1)
+    host: str = Field(min_length=1, description="the arm's IP address")
     """The arm's IP address or host name (RTDE port 30004, script ports 30001-30003)."""
     lookahead_time: float = Field(0.1, ge=0.03, le=0.2)
     """servoJ smoothing, seconds (ur_rtde's range)."""
@@ -110,7 +111,7 @@ class UrRtdeExecutor:
         self.connect_control = connect_control
 
     def execute(self, validated: Any, run: Any) -> ExecutionReport:
-        from keymps.safety import require_validated
+        from keymps.robot.safety import require_validated
 
         trajectory = require_validated(validated, self.name)
         rate = float(trajectory.rate_hz)
@@ -301,12 +302,4 @@ def _quietly(action: Callable[[], Any]) -> None:
 
 
 def make_executor(options: dict[str, Any]) -> UrRtdeExecutor:
-    try:
-        return UrRtdeExecutor(UrRtdeOptions.model_validate(options))
-    except ValidationError as error:
-        first = error.errors(include_url=False)[0]
-        where = ".".join(str(p) for p in first["loc"]) or "options"
-        message = "unknown option" if first["type"] == "extra_forbidden" else first["msg"]
-        if first["type"] == "missing":
-            message = "required (the arm's IP address)"
-        raise KeympsError(f"executor ur-rtde: {where}: {message}") from None
+    return UrRtdeExecutor(parse_options(UrRtdeOptions, options, "executor ur-rtde"))

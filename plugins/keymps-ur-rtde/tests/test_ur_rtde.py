@@ -23,14 +23,14 @@ import numpy as np
 import pytest
 import rtde_control
 
+from keymps.config.task import Task
 from keymps.errors import KeympsError
-from keymps.plugins import components, create_component
-from keymps.robot import RobotModel, solve_path
+from keymps.motion.timing import time_trajectory
+from keymps.plugin.manager import components, create_component
+from keymps.robot.model import RobotModel, solve_path
+from keymps.robot.safety import SafetyError, validate
 from keymps.run import Run, RunOptions
-from keymps.safety import SafetyError, validate
-from keymps.stages import Piece, ToolPath, ValidatedTrajectory
-from keymps.task import Task
-from keymps.timing import time_trajectory
+from keymps.types import Piece, ToolPath, ValidatedTrajectory
 
 HOST = f"127.0.0.{random.randint(20, 250)}"
 

@@ -1,0 +1,130 @@
+"""The `keymps` command: run, validate, plugins (and the primitives, scene, eval groups)."""
+
+from __future__ import annotations
+
+import importlib
+import importlib.util
+import sys
+import warnings
+from pathlib import Path
+from typing import Any
+
+import click
+
+from keymps._version import __version__
+from keymps.cli.errors import user_errors
+
+_LAZY_GROUPS: dict[str, tuple[str, str]] = {
+    "primitives": ("keymps.cli.primitives", "primitives"),
+    "scene": ("keymps.cli.scene", "scene"),
+    "eval": ("keymps.cli.eval", "eval_command"),
+}
+"""Sub-commands that live in their own modules, imported only when listed or used."""
+
+
+class _KeympsGroup(click.Group):
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        available = [n for n, (m, _) in _LAZY_GROUPS.items() if importlib.util.find_spec(m)]
+        return sorted([*super().list_commands(ctx), *available])
+
+    def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
+        if cmd_name in _LAZY_GROUPS:
+            module_name, attribute = _LAZY_GROUPS[cmd_name]
+            if importlib.util.find_spec(module_name) is None:
+                return None
+            command: click.Command = getattr(importlib.import_module(module_name), attribute)
+            return command
+        return super().get_command(ctx, cmd_name)
+
+
+@click.group(cls=_KeympsGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="keymps")
+def cli() -> None:
+    """KeyMPs: one top-down image and one sentence to a safe, timed robot trajectory."""
+
+
+@cli.command()
+@click.argument("task_file", metavar="TASK", type=click.Path(path_type=Path))
+@click.option("-i", "--instruction", help="Use this sentence instead of the task's.")
+@click.option("--image", type=click.Path(path_type=Path), help="Use this scene image.")
+@click.option("--backend", help="Planner backend: auto, offline, litellm, replay, or a plugin's.")
+@click.option("--model", help="VLM model for litellm, e.g. openai/gpt-4o.")
+@click.option("--api-base", help="OpenAI-compatible server URL (Ollama, vLLM ...).")
+@click.option("--cassette", type=click.Path(path_type=Path), help="Cassette for --backend replay.")
+@click.option("--record", type=click.Path(path_type=Path), help="Record VLM answers to a cassette.")
+@click.option("--no-cache", is_flag=True, help="Always call the VLM, never answer from cache.")
+@click.option("--executor", help="Executor: sim, file, or a plugin's (e.g. ur-rtde).")
+@click.option("--confirm", is_flag=True, help="Allow a real-robot executor to move the arm.")
+@click.option("--out", type=click.Path(path_type=Path), help="Run folder (default runs/NAME-TIME).")
+@click.option(
+    "--rerun",
+    "rerun_mode",
+    type=click.Choice(["save", "spawn", "connect", "off"]),
+    default="save",
+    show_default=True,
+    help="Rerun recording: save run.rrd, spawn a viewer, connect to one, or off.",
+)
+@click.option("--rerun-url", help="Viewer URL for --rerun connect.")
+@click.option("-q", "--quiet", is_flag=True, help="Print only the run folder.")
+@user_errors
+def run(task_file: Path, rerun_mode: str, rerun_url: str | None, quiet: bool, **given: Any) -> None:
+    """Run TASK (a task file) end to end: detect, plan, ground, compose, solve, time, check, execute."""
+    from keymps.cli.output import RunPrinter
+    from keymps.pipeline.engine import run_task
+
+    if rerun_mode == "connect" and not rerun_url:
+        raise click.UsageError("--rerun connect needs --rerun-url")
+    printer = RunPrinter(quiet=quiet)
+    finished = run_task(
+        task_file,
+        on_stage=printer.stage_done,
+        rerun=rerun_mode,
+        rerun_url=rerun_url,
+        quiet=quiet,
+        **given,
+    )
+    printer.summary(finished)
+
+
+@cli.command()
+@click.argument(
+    "task_files", metavar="TASK...", nargs=-1, required=True, type=click.Path(path_type=Path)
+)
+@user_errors
+def validate(task_files: tuple[Path, ...]) -> None:
+    """Check task files without running them: one line per problem, file:line:col first."""
+    from keymps.pipeline.validation import validate_task_file
+
+    failed = False
+    for path in task_files:
+        problems = validate_task_file(path)
+        for line in problems:
+            click.echo(line, err=True)
+        if problems:
+            failed = True
+        else:
+            click.echo(f"ok: {path}")
+    if failed:
+        sys.exit(1)
+
+
+@cli.command()
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
+def plugins(as_json: bool) -> None:
+    """List every plugin: name, what it provides, distribution and version."""
+    from keymps.cli.output import print_plugins
+
+    print_plugins(as_json)
+
+
+def _one_line_warning(message: Warning | str, category: type[Warning], *_: Any, **__: Any) -> str:
+    return f"warning: {message}\n"
+
+
+def main() -> None:
+    warnings.formatwarning = _one_line_warning
+    cli(prog_name="keymps")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,141 @@
+"""`keymps eval SUITE`: run a benchmark suite (paper Tables I, IV, V and Appendix F) and score it."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import click
+
+from keymps.cli.errors import user_errors
+
+if TYPE_CHECKING:
+    from keymps.eval.runner import EvalOptions
+    from keymps.eval.suites import Suite
+
+METHOD_NAMES = ("keymps", "vlm-keypoint", "keymps-text", "vlm-keyword", "vlm-dmp", "vlm-mdmp")
+
+
+@click.command(
+    name="eval",
+    context_settings={"help_option_names": ["-h", "--help"]},
+    epilog="Suites shipped: cutting_sim, icing, cake_six, real_cutting (benchmarks/suites/). "
+    "Without --model the offline planner runs (methods keymps and vlm-keypoint only).",
+)
+@click.argument("suite_file", metavar="SUITE")
+@click.option(
+    "--method", "methods", multiple=True, type=click.Choice(METHOD_NAMES),
+    help="Method to run (repeatable; default keymps).",
+)  # fmt: skip
+@click.option("--repeats", type=click.IntRange(1, 1000), help="Runs per case (suite default).")
+@click.option(
+    "--concurrency", type=click.IntRange(1, 64), default=1, show_default=True,
+    help="VLM calls made at once (a few more runs prepare theirs meanwhile).",
+)  # fmt: skip
+@click.option(
+    "--processes", type=click.IntRange(1, 64),
+    help="Worker processes sharing the runs (default: one per core when there are "
+    "enough runs; 1: all in this process).",
+)  # fmt: skip
+@click.option("--backend", help="Planner backend: offline, litellm, replay or a plugin's.")
+@click.option("--model", help="VLM model for litellm, e.g. openai/gpt-4o.")
+@click.option("--api-base", help="OpenAI-compatible server URL (Ollama, vLLM ...).")
+@click.option("--case", "cases", multiple=True, help="Only this case id (repeatable).")
+@click.option("--no-cache", is_flag=True, help="Always call the VLM, never answer from cache.")
+@click.option(
+    "--image-format", type=click.Choice(["jpg", "png"]), default="jpg", show_default=True,
+    help="Each run's plan and outcome images (png: lossless, ten times the size).",
+)  # fmt: skip
+@click.option(
+    "--out", type=click.Path(file_okay=False, path_type=Path),
+    help="Results folder (default eval/SUITE[-METHODS]); rerunning into it resumes.",
+)  # fmt: skip
+@click.option("--quiet", is_flag=True, help="No progress bar.")
+@user_errors
+def eval_command(
+    suite_file: str,
+    methods: tuple[str, ...],
+    repeats: int | None,
+    concurrency: int,
+    processes: int | None,
+    backend: str | None,
+    model: str | None,
+    api_base: str | None,
+    cases: tuple[str, ...],
+    out: Path | None,
+    no_cache: bool,
+    image_format: str,
+    quiet: bool,
+) -> None:
+    """Run every case x method x repeat of SUITE (a file or a shipped suite's name), write
+    results.jsonl, summary.md, summary.csv, d_boxplot.png and gallery.html, print the table."""
+    import os
+
+    # Runs are the unit of parallelism; set before NumPy loads OpenBLAS, whose helper threads
+    # would otherwise spin on the other core after every matrix product.
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    from keymps.eval.report import markdown_table, write_summary
+    from keymps.eval.runner import EvalOptions
+    from keymps.eval.suites import load_suite
+
+    suite = load_suite(suite_file)
+    chosen = methods or ("keymps",)
+    folder = out or Path("eval") / "-".join([suite.name, *([m for m in chosen] if methods else [])])
+    options = EvalOptions(
+        out=folder,
+        methods=tuple(dict.fromkeys(chosen)),
+        repeats=repeats,
+        concurrency=concurrency,
+        processes=processes,
+        backend=backend,
+        model=model,
+        api_base=api_base,
+        cases=cases,
+        no_cache=no_cache,
+        image_format=image_format,
+    )
+    try:
+        records = _run(suite, options, quiet)
+    except KeyboardInterrupt:
+        from keymps.eval.runner import RESULTS_FILE, read_results
+
+        kept = len(read_results(folder / RESULTS_FILE))
+        click.echo(
+            f"interrupted: {kept} finished runs are in {folder / RESULTS_FILE}; run the same "
+            "command again to resume",
+            err=True,
+        )
+        sys.exit(130)
+    rows = write_summary(records, suite, folder)
+    click.echo(markdown_table(rows, suite))
+    failed = sum(1 for r in records if not r.get("ok"))
+    click.echo(
+        f"{len(records)} runs ({failed} failed); results in {folder}/ "
+        "(results.jsonl, summary.md, summary.csv, gallery.html)"
+    )
+
+
+def _run(suite: Suite, options: EvalOptions, quiet: bool) -> list[dict[str, Any]]:
+    """Every run of the suite, with a progress bar unless quiet."""
+    from keymps.eval.runner import plan_jobs, run_suite
+
+    total = len(plan_jobs(suite, options))
+    if quiet:
+        return run_suite(suite, options)
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn
+
+    with Progress(
+        "[progress.description]{task.description}",
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        transient=True,
+    ) as progress:
+        bar = progress.add_task(f"{suite.name}", total=total)
+
+        def advance(job: object, record: dict[str, object]) -> None:
+            status = "ok" if record.get("ok") else "failed"
+            progress.update(bar, advance=1, description=f"{suite.name}: {job.label} {status}")  # type: ignore[attr-defined]
+
+        return run_suite(suite, options, on_result=advance)

@@ -1,0 +1,97 @@
+"""What `keymps run` and `keymps plugins` print (rich on stderr for progress)."""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+import click
+
+from keymps.run import Run
+
+_STAGE_TITLES = {
+    "image": "load image",
+    "detect": "detect object",
+    "plan": "plan (keyword + keypoint pairs)",
+    "ground": "ground pairs in 3D",
+    "compose": "compose tool path",
+    "solve": "inverse kinematics",
+    "time": "time trajectory",
+    "check": "safety check",
+    "execute": "execute",
+}
+
+
+def _stage_detail(stage: str, result: Any) -> str:
+    if stage == "image":
+        width, height = result.size_px
+        return f"{width}x{height} px"
+    if stage == "detect":
+        return "bbox " + ",".join(str(v) for v in result.bbox_px)
+    if stage == "plan":
+        return f"{result.backend}: {result.keyword}, {result.num_pairs} pair(s)"
+    if stage == "ground":
+        return f"{len(result.segments)} segment(s)"
+    if stage == "compose":
+        work = sum(1 for p in result.pieces if p.kind == "work")
+        return f"{len(result.pieces)} pieces ({work} work)"
+    if stage == "solve":
+        return f"max IK error {result.max_position_error_m * 1000:.3f} mm"
+    if stage == "time":
+        return f"{result.duration_s:.1f} s, {result.samples} samples at {result.rate_hz:g} Hz"
+    if stage == "check":
+        return "pass"
+    if stage == "execute":
+        return f"{result.executor}: {result.message}" if result.message else result.executor
+    return ""
+
+
+class RunPrinter:
+    def __init__(self, quiet: bool = False):
+        from rich.console import Console
+
+        self.quiet = quiet
+        self.console = Console(stderr=True, highlight=False)
+
+    def stage_done(self, stage: str, seconds: float, result: Any) -> None:
+        if self.quiet:
+            return
+        title = _STAGE_TITLES.get(stage, stage)
+        detail = _stage_detail(stage, result)
+        self.console.print(f"[green]✓[/] {title:<32} {seconds:7.3f} s  [dim]{detail}[/]")
+
+    def summary(self, run: Run) -> None:
+        folder = run.folder
+        if self.quiet:
+            click.echo(str(folder))
+            return
+        plan = run.results.get("plan")
+        trajectory = run.results.get("time")
+        lines = [
+            f"backend     {run.notes.get('backend')} ({run.notes.get('backend_reason')})",
+            f"keyword     {plan.keyword if plan else '-'}",
+            f"segments    {plan.num_pairs if plan else 0}",
+            f"duration    {trajectory.duration_s:.1f} s" if trajectory else "duration    -",
+            f"run folder  {folder}",
+        ]
+        if (folder / "run.rrd").exists():
+            lines.append(f"open with   rerun {folder / 'run.rrd'}")
+        for warning in run.warnings:
+            lines.append(f"warning     {warning}")
+        click.echo("\n".join(lines))
+
+
+def print_plugins(as_json: bool) -> None:
+    from keymps.plugin.manager import plugin_infos
+
+    infos = plugin_infos()
+    if as_json:
+        click.echo(json.dumps([info.__dict__ for info in infos], indent=2, default=list))
+        return
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table("plugin", "provides", "distribution", "version")
+    for info in infos:
+        table.add_row(info.name, ", ".join(info.provides), info.distribution, info.version)
+    Console().print(table)

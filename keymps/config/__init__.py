@@ -1,0 +1,1 @@
+"""Task files: the pydantic models, YAML with positions, command-line overrides, resource bounds."""

@@ -1,0 +1,179 @@
+"""Resource bounds: inputs that would need unbounded memory or time are refused with one line.
+
+Each bound is configurable (see docs/safety.md):
+
+- image size in pixels, read from the file's header before anything is decoded
+  (`scene.max_image_pixels`);
+- planner answer length in characters, from `planner.max_pairs` (`max_answer_chars`);
+- tool path length and estimated duration, right after the path is composed, before the costly
+  inverse kinematics (`motion.max_path_length`, `motion.max_duration_s`);
+- trajectory duration after timing (`motion.max_duration_s`).
+"""
+
+from __future__ import annotations
+
+import struct
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from keymps.errors import KeympsError
+
+if TYPE_CHECKING:
+    from keymps.config.task import Task
+    from keymps.types import ToolPath, Trajectory
+
+ANSWER_BASE_CHARS = 20_000
+"""Room for prose, a code fence and a rationale around the JSON."""
+ANSWER_CHARS_PER_PAIR = 200
+"""A pretty-printed pair with long decimals is about 100 characters."""
+
+
+def max_answer_chars(max_pairs: int) -> int:
+    """The longest planner answer read at all, for answers of up to `max_pairs` pairs."""
+    return ANSWER_BASE_CHARS + ANSWER_CHARS_PER_PAIR * max_pairs
+
+
+def image_size_from_header(data: bytes) -> tuple[int, int] | None:
+    """(width, height) from a PNG, JPEG, GIF, BMP, WebP or TIFF header; None if unrecognised."""
+    try:
+        if data[:8] == b"\x89PNG\r\n\x1a\n" and data[12:16] == b"IHDR":
+            width, height = struct.unpack(">II", data[16:24])
+            return int(width), int(height)
+        if data[:2] == b"\xff\xd8":
+            return _jpeg_size(data)
+        if data[:6] in (b"GIF87a", b"GIF89a"):
+            width, height = struct.unpack("<HH", data[6:10])
+            return int(width), int(height)
+        if data[:2] == b"BM":
+            width, height = struct.unpack("<ii", data[18:26])
+            return abs(int(width)), abs(int(height))
+        if data[:4] == b"RIFF" and data[8:12] == b"WEBP":
+            return _webp_size(data)
+        if data[:4] in (b"II*\x00", b"MM\x00*"):
+            return _tiff_size(data)
+    except struct.error:
+        return None  # a header cut short: let the decoder report the corrupt file
+    return None
+
+
+def _jpeg_size(data: bytes) -> tuple[int, int] | None:
+    index = 2
+    while index + 9 < len(data):
+        if data[index] != 0xFF:
+            return None
+        marker = data[index + 1]
+        if marker == 0xFF:  # fill byte
+            index += 1
+            continue
+        if marker in (0xD8, 0x01) or 0xD0 <= marker <= 0xD7:  # no length field
+            index += 2
+            continue
+        length = struct.unpack(">H", data[index + 2 : index + 4])[0]
+        if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):  # start of frame
+            height, width = struct.unpack(">HH", data[index + 5 : index + 9])
+            return int(width), int(height)
+        index += 2 + length
+    return None
+
+
+def _webp_size(data: bytes) -> tuple[int, int] | None:
+    chunk = data[12:16]
+    if chunk == b"VP8X":
+        width = 1 + int.from_bytes(data[24:27], "little")
+        height = 1 + int.from_bytes(data[27:30], "little")
+        return width, height
+    if chunk == b"VP8L":
+        bits = int.from_bytes(data[21:25], "little")
+        return 1 + (bits & 0x3FFF), 1 + ((bits >> 14) & 0x3FFF)
+    if chunk == b"VP8 ":
+        width, height = struct.unpack("<HH", data[26:30])
+        return int(width) & 0x3FFF, int(height) & 0x3FFF
+    return None
+
+
+def _tiff_size(data: bytes) -> tuple[int, int] | None:
+    order = "<" if data[:2] == b"II" else ">"
+    offset = struct.unpack(order + "I", data[4:8])[0]
+    count = struct.unpack(order + "H", data[offset : offset + 2])[0]
+    size: dict[int, int] = {}
+    for entry in range(min(count, 512)):
+        at = offset + 2 + 12 * entry
+        tag, kind = struct.unpack(order + "HH", data[at : at + 4])
+        if tag in (256, 257):  # ImageWidth, ImageLength: SHORT or LONG
+            code = "H" if kind == 3 else "I"
+            size[tag] = struct.unpack(order + code, data[at + 8 : at + 8 + struct.calcsize(code)])[
+                0
+            ]
+    if 256 in size and 257 in size:
+        return size[256], size[257]
+    return None
+
+
+def check_image_pixels(size_px: tuple[int, int], max_pixels: int, what: str) -> None:
+    """Refuse an image larger than `max_pixels` (before it is decoded or rendered)."""
+    width, height = size_px
+    if width * height > max_pixels:
+        raise KeympsError(
+            f"{what} is {width} x {height} pixels ({width * height / 1e6:.1f} MP), more than "
+            f"scene.max_image_pixels = {max_pixels} ({max_pixels / 1e6:.1f} MP); use a smaller "
+            "image or raise the limit"
+        )
+
+
+def path_length_m(tool_path: ToolPath) -> float:
+    """Total length of the tool path's pieces, metres."""
+    return float(sum(piece.length_m for piece in tool_path.pieces if len(piece.points) > 1))
+
+
+BELOW_BOARD_M = 0.001
+"""A planned point this far below the board can never pass the safety check (0.5 mm board
+tolerance plus 0.5 mm path tolerance): say so before inverse kinematics, naming the pair."""
+
+
+def check_tool_path(tool_path: ToolPath, task: Task) -> ToolPath:
+    """Refuse a path below the board or too long to solve and time, before any IK runs."""
+    for piece in tool_path.pieces:
+        lowest = float(np.min(np.asarray(piece.points, dtype=float)[:, 2], initial=np.inf))
+        if lowest < -BELOW_BOARD_M:
+            where = (
+                f"primitive {tool_path.keyword!r}"
+                if piece.kind == "work"
+                else "the travel move to its start"
+            )
+            raise KeympsError(
+                f"the tool path goes {-lowest * 1000:.1f} mm below the board at pair "
+                f"{piece.pair_index + 1} ({where}); raise height.margin or keep that pair's "
+                "keypoints off the board"
+            )
+    motion = task.motion
+    length = path_length_m(tool_path)
+    if not np.isfinite(length) or length > motion.max_path_length:
+        raise KeympsError(
+            f"the tool path is {length:.1f} m long ({len(tool_path.pieces)} pieces), more than "
+            f"motion.max_path_length = {motion.max_path_length:g} m; ask for fewer or shorter "
+            "strokes, or raise the limit"
+        )
+    estimate = sum(
+        piece.length_m / max(float(piece.speed), 1e-9)
+        for piece in tool_path.pieces
+        if len(piece.points) > 1
+    )
+    if estimate > motion.max_duration_s:
+        raise KeympsError(
+            f"the tool path would take at least {estimate:.0f} s at the set speeds, more than "
+            f"motion.max_duration_s = {motion.max_duration_s:g} s; ask for fewer strokes, raise "
+            "motion.work_speed, or raise the limit"
+        )
+    return tool_path
+
+
+def check_duration(trajectory: Trajectory, task: Task) -> Trajectory:
+    """Refuse a timed trajectory longer than motion.max_duration_s."""
+    limit = task.motion.max_duration_s
+    if trajectory.duration_s > limit:
+        raise KeympsError(
+            f"the trajectory lasts {trajectory.duration_s:.0f} s, more than "
+            f"motion.max_duration_s = {limit:g} s; ask for fewer strokes or raise the limit"
+        )
+    return trajectory

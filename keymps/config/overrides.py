@@ -1,0 +1,54 @@
+"""Command-line overrides of a task (--instruction, --image, --backend ...), re-validated."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from pydantic import ValidationError
+
+from keymps.config.task import Task
+from keymps.errors import KeympsError
+
+_OVERRIDE_FIELDS: dict[str, tuple[str, ...]] = {
+    "instruction": ("instruction",),
+    "image": ("scene", "image"),
+    "backend": ("planner", "backend"),
+    "model": ("planner", "model"),
+    "api_base": ("planner", "api_base"),
+    "cassette": ("planner", "cassette"),
+    "executor": ("executor", "name"),
+}
+
+
+def apply_overrides(task: Task, overrides: dict[str, Any]) -> Task:
+    """A copy of `task` with the given overrides applied and validated (None means unchanged)."""
+    unknown = sorted(set(overrides) - set(_OVERRIDE_FIELDS))
+    if unknown:
+        raise KeympsError(f"unknown run option(s): {', '.join(unknown)}")
+    given = {k: v for k, v in overrides.items() if v is not None}
+    if not given:
+        return task
+    data = task.model_dump(mode="python")
+    for key, value in given.items():
+        *parents, leaf = _OVERRIDE_FIELDS[key]
+        target = data
+        for parent in parents:
+            target = target[parent]
+        if key in ("image", "cassette"):
+            value = Path(value).resolve()
+            if key == "image":
+                if not value.is_file():
+                    raise KeympsError(f"--image: file not found: {value}")
+                data["scene"]["source"] = "file"
+        target[leaf] = value
+    data["path"] = task.path
+    try:
+        updated = Task.model_validate(data)
+    except ValidationError as error:
+        first = error.errors(include_url=False)[0]
+        field = ".".join(str(p) for p in first["loc"])
+        raise KeympsError(f"override {field}: {first['msg']}") from None
+    updated._source = task._source
+    updated._yaml = task._yaml
+    return updated

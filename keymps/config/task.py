@@ -1,0 +1,301 @@
+"""Task files: pydantic models and YAML loading with file:line:col errors."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    PrivateAttr,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
+
+from keymps.config.yaml_positions import PositionedYaml, YamlSyntaxError, load_yaml_with_positions
+from keymps.errors import TaskFileError
+
+PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
+Point2 = tuple[FiniteFloat, FiniteFloat]
+
+
+class StrictModel(BaseModel):
+    """Unknown keys are errors; every value is finite."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class PluginSection(BaseModel):
+    """A section naming a plugin; every other key is an option for that plugin."""
+
+    model_config = ConfigDict(extra="allow", frozen=True)
+    name: str
+
+    @property
+    def options(self) -> dict[str, Any]:
+        return dict(self.model_extra or {})
+
+
+MAX_BOARD_M = 3.0
+"""No tabletop arm works on a board larger than this, or from further away: a bigger number in
+a task file is millimetres, caught where it is written."""
+BoardSide = Annotated[float, Field(gt=0, le=MAX_BOARD_M, allow_inf_nan=False)]
+"""A side of the imaged board, metres."""
+BaseOffset = Annotated[float, Field(ge=-MAX_BOARD_M, le=MAX_BOARD_M, allow_inf_nan=False)]
+"""A coordinate of the robot base on the board, metres."""
+
+
+class Workspace(StrictModel):
+    size: tuple[BoardSide, BoardSide] = (0.30, 0.18)
+    """s_env: (width, height) of the area the image spans, metres."""
+    shift: tuple[FiniteFloat, FiniteFloat] = (0.0, 0.0)
+    """g_shift: offset of the board frame's origin, metres."""
+
+
+class Camera(StrictModel):
+    board_corners_px: tuple[Point2, Point2, Point2, Point2] | None = None
+    """Pixels of the workspace corners: bottom-left, bottom-right, top-right, top-left."""
+
+
+class Scene(StrictModel):
+    image: Path | None = None
+    source: str = "file"
+    """Image source plugin: file, synthetic, opencv, or one from a plugin package."""
+    source_options: dict[str, Any] = Field(default_factory=dict)
+    workspace: Workspace = Workspace()
+    object_height: Annotated[float, Field(ge=0, le=1.0, allow_inf_nan=False)] = 0.05
+    camera: Camera = Camera()
+    max_image_pixels: Annotated[int, Field(ge=1)] = 64_000_000
+    """Larger images are refused from their header, before decoding (keymps.config.limits)."""
+
+    @model_validator(mode="after")
+    def _image_for_file_source(self) -> Scene:
+        if self.source == "file" and self.image is None:
+            raise ValueError("scene.image is required when scene.source is 'file'")
+        return self
+
+
+class Planner(StrictModel):
+    backend: str = "auto"
+    """auto | offline | litellm | replay, or a backend from a plugin package."""
+    model: str | None = None
+    prompt: Path | None = None
+    api_base: str | None = None
+    api_key_env: str | None = None
+    """Name of the environment variable holding the key (never the key itself)."""
+    temperature: Annotated[float, Field(ge=0, le=2)] = 0.0
+    timeout_s: PositiveFloat = 60.0
+    max_pairs: Annotated[int, Field(ge=1, le=10_000)] = 64
+    attempts: Annotated[int, Field(ge=1, le=10)] = 2
+    combined: bool = True
+    """One VLM call for keyword and pairs (the paper's choice) or two calls."""
+    cache: bool = True
+    cassette: Path | None = None
+
+
+class Height(StrictModel):
+    mode: Literal["both", "start", "end"] = "both"
+    margin: Annotated[float, Field(ge=-0.05, le=0.1, allow_inf_nan=False)] = 0.005
+    """Added to the object's top surface wherever the height is integrated, metres."""
+
+
+class Motion(StrictModel):
+    clearance: Annotated[float, Field(ge=0.005, le=0.3, allow_inf_nan=False)] = 0.03
+    """Travel moves rise this far above the object's top, metres."""
+    work_speed: Annotated[float, Field(gt=0, le=0.5, allow_inf_nan=False)] = 0.03
+    travel_speed: Annotated[float, Field(gt=0, le=1.0, allow_inf_nan=False)] = 0.15
+    max_path_length: Annotated[float, Field(gt=0, allow_inf_nan=False)] = 50.0
+    """Longer tool paths are refused before inverse kinematics, metres (keymps.config.limits)."""
+    max_duration_s: Annotated[float, Field(gt=0, allow_inf_nan=False)] = 1800.0
+    """Longer motions are refused (estimated before IK, measured after timing), seconds."""
+
+
+class ToolSpec(StrictModel):
+    """A tool: a built-in name (knife, piping_bag) alone, or a name with its own TCP."""
+
+    name: str
+    tcp: tuple[FiniteFloat, FiniteFloat, FiniteFloat] | None = None
+    """Tool tip in the flange frame, metres; None takes the built-in tool's."""
+    yaw: Literal["follow", "fixed"] | None = None
+    """'follow': the blade turns with the cut direction (knife); None takes the built-in's."""
+    blade_length: Annotated[float, Field(gt=0, le=0.4, allow_inf_nan=False)] | None = None
+    """A knife's straight edge, from the tip back along the cut, metres; None takes the
+    built-in's (knife 0.16, piping_bag none; a custom tool has none)."""
+
+
+class Robot(StrictModel):
+    model: Literal["ur3", "ur3e"] = "ur3"
+    base: tuple[BaseOffset, BaseOffset, BaseOffset, FiniteFloat] = (0.15, -0.20, 0.0, 90.0)
+    """x, y, z in metres and yaw in degrees of the robot base in the board frame."""
+    tool: ToolSpec = ToolSpec(name="knife")
+    rate_hz: Annotated[float, Field(ge=10, le=1000)] | None = None
+    """Controller rate: 125 Hz for CB3, 500 Hz for e-Series when omitted."""
+    max_joint_acceleration: Annotated[float, Field(gt=0, le=50)] = 3.0
+    """rad/s^2, every joint (the maker publishes none; a conservative default)."""
+    max_joint_jerk: Annotated[float, Field(gt=0, le=5000)] = 100.0
+    max_tool_acceleration: Annotated[float, Field(gt=0, le=10)] = 0.5
+    max_tool_jerk: Annotated[float, Field(gt=0, le=1000)] = 20.0
+
+    @field_validator("tool", mode="before")
+    @classmethod
+    def _tool_by_name(cls, value: Any) -> Any:
+        return {"name": value} if isinstance(value, str) else value
+
+
+class Task(StrictModel):
+    name: str = Field(min_length=1, max_length=200)
+    instruction: str = Field(min_length=1, max_length=4000)
+    scene: Scene
+    detector: PluginSection = PluginSection(name="threshold")
+    planner: Planner = Planner()
+    primitives: list[str] = Field(min_length=1)
+    height: Height = Height()
+    motion: Motion = Motion()
+    robot: Robot = Robot()
+    executor: PluginSection = PluginSection(name="sim")
+    path: Path | None = Field(default=None, exclude=True)
+    """The task file this was loaded from (None when built in code)."""
+    _source: str = PrivateAttr(default="<task>")
+    _yaml: PositionedYaml | None = PrivateAttr(default=None)
+
+    @field_validator("instruction")
+    @classmethod
+    def _printable(cls, value: str) -> str:
+        if not value.strip():
+            raise ValueError("instruction is empty")
+        if any(ord(c) < 32 and c not in "\n\t" for c in value):
+            raise ValueError("instruction contains control characters")
+        return value
+
+    @property
+    def folder(self) -> Path:
+        return self.path.parent if self.path else Path.cwd()
+
+    def resolve(self, relative: Path) -> Path:
+        """A path from the task file, relative to the task file's folder."""
+        return relative if relative.is_absolute() else (self.folder / relative)
+
+    def where(self, *field_path: str | int) -> str:
+        """'file:line:col' of a field, for errors found after loading (e.g. a plugin name)."""
+        if self._yaml is None:
+            return self._source
+        line, column = self._yaml.locate(tuple(field_path))
+        return f"{self._source}:{line}:{column}"
+
+
+def _field_name(loc: tuple[Any, ...]) -> str:
+    parts: list[str] = []
+    for part in loc:
+        if isinstance(part, int):
+            parts.append(f"[{part}]")
+        else:
+            text = str(part)
+            shown = text if text.isprintable() and text and " " not in text else repr(text)
+            parts.append(("." if parts else "") + shown)
+    return "".join(parts) or "(task)"
+
+
+def _one_line(text: str) -> str:
+    return " ".join(text.split())
+
+
+def _pydantic_loc_to_yaml_path(loc: tuple[Any, ...]) -> tuple[Any, ...]:
+    # pydantic adds union-member and validator names ("str", "ToolSpec", "function-after[...]")
+    # that do not exist in the YAML.
+    return tuple(p for p in loc if isinstance(p, int) or not (p[:1].isupper() or "[" in p))
+
+
+def _format_problems(source: str, parsed: PositionedYaml, error: ValidationError) -> list[str]:
+    lines = []
+    for item in error.errors(include_url=False):
+        path = _pydantic_loc_to_yaml_path(tuple(item["loc"]))
+        line, column = parsed.locate(path, at_key=item["type"] == "extra_forbidden")
+        message = item["msg"]
+        if item["type"] == "extra_forbidden":
+            message = "unknown key"
+        elif item["type"] == "missing":
+            message = "field required"
+        elif message.startswith("Value error, "):
+            message = message.removeprefix("Value error, ")
+        lines.append(f"{source}:{line}:{column}: {_field_name(path)}: {_one_line(message)}")
+    return lines
+
+
+def _display_path(path: Path) -> str:
+    try:
+        return str(path.resolve().relative_to(Path.cwd().resolve()))
+    except ValueError:
+        return str(path)
+
+
+def parse_task(text: str, source: str = "<task>", path: Path | None = None) -> Task:
+    """Validate task YAML text; raise TaskFileError with one located line per problem."""
+    try:
+        parsed = load_yaml_with_positions(text)
+    except YamlSyntaxError as error:
+        line, column = error.location
+        raise TaskFileError(
+            [f"{source}:{line}:{column}: invalid YAML: {_one_line(str(error))}"]
+        ) from None
+    if not isinstance(parsed.data, dict):
+        raise TaskFileError([f"{source}:1:1: (task): expected a mapping of task fields"])
+    data = {k: v for k, v in parsed.data.items() if k != "path"}
+    try:
+        task = Task.model_validate({**data, "path": path})
+    except ValidationError as error:
+        raise TaskFileError(_format_problems(source, parsed, error)) from None
+    problems = _check_referenced_files(task, source, parsed)
+    if problems:
+        raise TaskFileError(problems)
+    task._source = source
+    task._yaml = parsed
+    return task
+
+
+def _check_referenced_files(task: Task, source: str, parsed: PositionedYaml) -> list[str]:
+    checks: list[tuple[tuple[str, ...], Path | None]] = [
+        (("scene", "image"), task.scene.image if task.scene.source == "file" else None),
+        (("planner", "prompt"), task.planner.prompt),
+    ]
+    problems = []
+    for key_path, relative in checks:
+        if relative is None:
+            continue
+        resolved = task.resolve(relative)
+        if not resolved.is_file():
+            line, column = parsed.locate(key_path)
+            problems.append(
+                f"{source}:{line}:{column}: {'.'.join(key_path)}: file not found: {resolved}"
+            )
+    return problems
+
+
+MAX_TASK_FILE_BYTES = 1_000_000
+"""Task files are a few hundred bytes; /dev/zero or a mistaken 4 GB file is not read."""
+
+
+def load_task(path: str | Path) -> Task:
+    """Read and validate a task file. Errors name the file, line, column and field."""
+    path = Path(path)
+    source = _display_path(path)
+    if path.exists() and not path.is_dir() and not path.is_file():
+        raise TaskFileError([f"{source}: not a regular file (a device or a pipe)"])
+    if path.is_file() and path.stat().st_size > MAX_TASK_FILE_BYTES:
+        raise TaskFileError(
+            [f"{source}: {path.stat().st_size} bytes; a task file is at most 1 MB of YAML"]
+        )
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise TaskFileError([f"{source}: task file not found"]) from None
+    except IsADirectoryError:
+        raise TaskFileError([f"{source}: is a folder, not a task file"]) from None
+    except UnicodeDecodeError as error:
+        raise TaskFileError([f"{source}: not a UTF-8 text file ({error.reason})"]) from None
+    except OSError as error:
+        raise TaskFileError([f"{source}: cannot read: {error.strerror}"]) from None
+    return parse_task(text, source=source, path=path.resolve())

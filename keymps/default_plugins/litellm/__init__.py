@@ -1,0 +1,1 @@
+"""The `litellm` planner backend and its retry policy."""

@@ -1,0 +1,264 @@
+"""The `litellm` planner backend: any VLM litellm reaches (OpenAI, Anthropic, Gemini, Ollama, vLLM).
+
+litellm is imported only when a request is made (it takes seconds), after
+LITELLM_LOCAL_MODEL_COST_MAP=True so that the import never reaches for the network.
+"""
+
+from __future__ import annotations
+
+import functools
+import ipaddress
+import os
+import time
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+from urllib.parse import urlparse
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from keymps.default_plugins.litellm.retry import Retrying
+from keymps.errors import KeympsError
+from keymps.plugin import hookimpl, parse_options
+
+if TYPE_CHECKING:
+    from keymps.planning.planner import BackendAnswer, PlanRequest
+
+MAX_RETRIES = 3
+"""Further tries after a rate limit (429) or a server error (5xx)."""
+BACKOFF_S = 1.0
+"""First wait between tries; doubled each time (plus jitter) unless the server sends Retry-After."""
+
+_REGISTERED: set[str] = set()
+"""Local models registered with litellm at zero price in this process."""
+_LOCAL_PROVIDERS = {"ollama", "ollama_chat", "hosted_vllm", "lm_studio", "llamafile"}
+
+
+class LitellmOptions(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    model: str | None = None
+    api_base: str | None = None
+    api_key_env: str | None = None
+    temperature: float = Field(default=0.0, ge=0, le=2)
+    timeout_s: float = Field(default=60.0, gt=0)
+    cassette: str | None = None
+    retries: int = Field(default=MAX_RETRIES, ge=0, le=10)
+    backoff_s: float = Field(default=BACKOFF_S, ge=0, le=60)
+
+
+def import_litellm() -> Any:
+    """litellm, imported quietly and without network access at import time."""
+    os.environ.setdefault("LITELLM_LOCAL_MODEL_COST_MAP", "True")
+    import litellm
+
+    litellm.suppress_debug_info = True
+    litellm.telemetry = False
+    return litellm
+
+
+def is_local(api_base: str | None, provider: str) -> bool:
+    """True for models served on this machine (their calls cost nothing)."""
+    if provider in _LOCAL_PROVIDERS and not api_base:
+        return True
+    if not api_base:
+        return False
+    host = urlparse(api_base).hostname or ""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+class LitellmBackend:
+    name = "litellm"
+    cacheable = True
+
+    def __init__(self, options: LitellmOptions):
+        self.options = options
+
+    def _api_key(self) -> str | None:
+        env = self.options.api_key_env
+        if env:
+            value = os.environ.get(env)
+            if not value:
+                raise KeympsError(f"planner.api_key_env names ${env}, which is not set")
+            return value
+        return None
+
+    def _register_local_model(self, litellm: Any, model: str) -> None:
+        # litellm does not price local models; registering them at zero gives a cost of 0.0
+        if model in _REGISTERED:  # once per process: every call of an eval builds a backend
+            return
+        import logging
+
+        provider = model.split("/", 1)[0] if "/" in model else "openai"
+        logger = logging.getLogger("LiteLLM")
+        level = logger.level
+        logger.setLevel(logging.ERROR)  # it warns that a custom model has no cache pricing
+        try:
+            litellm.register_model(
+                {
+                    model: {
+                        "input_cost_per_token": 0.0,
+                        "output_cost_per_token": 0.0,
+                        "litellm_provider": provider,
+                        "mode": "chat",
+                        "supports_vision": True,
+                        "supports_response_schema": True,
+                    }
+                }
+            )
+        except Exception:  # pricing is a nicety; never fail a call over it
+            return
+        finally:
+            logger.setLevel(level)
+        _REGISTERED.add(model)
+
+    def complete(self, request: PlanRequest) -> BackendAnswer:
+        from keymps.eval import broker as vlm_broker
+
+        broker = vlm_broker.active()
+        if broker is not None:  # `keymps eval`: its event loop makes the call (acomplete)
+            return broker.complete(self.options, request)
+        call = self._prepare(request)
+        started = time.perf_counter()
+        retrying = self._retrying(call)
+        for attempt in range(self.options.retries + 1):
+            try:
+                response = call.litellm.completion(**call.arguments)
+                break
+            except Exception as error:
+                pause = retrying.pause_after(error, attempt)
+                if pause is None:
+                    raise
+                time.sleep(pause)
+        return self._answer(call, response, time.perf_counter() - started, retrying.notes)
+
+    async def acomplete(self, request: PlanRequest) -> BackendAnswer:
+        """complete() through litellm's async API: waits and retries without blocking a thread."""
+        import asyncio
+
+        call = self._prepare(request)
+        started = time.perf_counter()
+        retrying = self._retrying(call)
+        for attempt in range(self.options.retries + 1):
+            try:
+                response = await call.litellm.acompletion(**call.arguments)
+                break
+            except Exception as error:
+                pause = retrying.pause_after(error, attempt)
+                if pause is None:
+                    raise
+                await asyncio.sleep(pause)
+        return self._answer(call, response, time.perf_counter() - started, retrying.notes)
+
+    def _prepare(self, request: PlanRequest) -> _Call:
+        from keymps.planning.backend_choice import model_provider
+
+        model = request.model or self.options.model
+        if not model:
+            raise KeympsError(
+                "the litellm backend needs a model: set planner.model or pass --model "
+                "(e.g. openai/gpt-4o, anthropic/claude-sonnet-4-5, gemini/gemini-2.0-flash, "
+                "ollama/llava)"
+            )
+        litellm = import_litellm()
+        provider = model_provider(model)
+        local = is_local(self.options.api_base, provider)
+        if local:
+            self._register_local_model(litellm, model)
+        arguments: dict[str, Any] = {
+            "model": model,
+            "messages": request.messages,
+            "temperature": self.options.temperature,
+            "timeout": self.options.timeout_s,
+            "num_retries": 0,
+            "max_retries": 0,
+            "drop_params": True,
+        }
+        if self.options.api_base:
+            arguments["api_base"] = self.options.api_base
+        key = self._api_key()
+        if key is None and self.options.api_base and provider in ("openai", "hosted_vllm"):
+            key = os.environ.get("OPENAI_API_KEY") if provider == "openai" else None
+            key = key or "no-key-needed"  # OpenAI-compatible local servers want some key
+        if key is not None:
+            arguments["api_key"] = key
+        if _supports_schema(litellm, model, provider):
+            arguments["response_format"] = {"type": "json_schema", "json_schema": request.schema}
+        return _Call(litellm, model, local, arguments)
+
+    def _retrying(self, call: _Call) -> Retrying:
+        return Retrying(
+            call.litellm,
+            call.arguments,
+            retries=self.options.retries,
+            backoff_s=self.options.backoff_s,
+            timeout_s=self.options.timeout_s,
+            where=self.options.api_base or call.model,
+        )
+
+    @staticmethod
+    def _answer(call: _Call, response: Any, latency: float, notes: list[str]) -> BackendAnswer:
+        from keymps.planning.planner import BackendAnswer
+
+        usage = getattr(response, "usage", None)
+        # litellm prices every response it returns; ask again only when it could not
+        cost: Any = (getattr(response, "_hidden_params", None) or {}).get("response_cost")
+        if cost is None:
+            try:
+                cost = call.litellm.completion_cost(completion_response=response, model=call.model)
+            except Exception:
+                cost = None
+        if cost is None and call.local:
+            cost = 0.0
+        return BackendAnswer(
+            text=_answer_text(response),
+            prompt_tokens=getattr(usage, "prompt_tokens", None),
+            completion_tokens=getattr(usage, "completion_tokens", None),
+            latency_s=latency,
+            cost_usd=float(cost) if cost is not None else None,
+            model=call.model,
+            retries=tuple(notes),
+        )
+
+
+@dataclass(frozen=True)
+class _Call:
+    """One prepared call: litellm, the model, whether it runs locally, the arguments."""
+
+    litellm: Any
+    model: str
+    local: bool
+    arguments: dict[str, Any]
+
+
+@functools.lru_cache(maxsize=64)
+def _supports_schema(litellm: Any, model: str, provider: str) -> bool:
+    try:
+        params = litellm.get_supported_openai_params(
+            model=model.split("/", 1)[-1], custom_llm_provider=provider
+        )
+    except Exception:
+        return False
+    return bool(params) and "response_format" in params
+
+
+def _answer_text(response: Any) -> str:
+    try:
+        content = response.choices[0].message.content
+    except (AttributeError, IndexError, TypeError):
+        return ""
+    if isinstance(content, list):  # some providers answer in parts
+        return "".join(str(part.get("text", "")) for part in content if isinstance(part, dict))
+    return content or ""
+
+
+def _factory(options: dict[str, Any]) -> LitellmBackend:
+    return LitellmBackend(parse_options(LitellmOptions, options, "litellm backend"))
+
+
+@hookimpl
+def register_vlm_backends(register: Any) -> None:
+    register("litellm", _factory)

@@ -1,0 +1,185 @@
+"""The `offline` planner backend: exact designs from the sentence and the crop, no network.
+
+It reads the instruction with keymps.designs.grammar, measures the object in the crop with
+keymps.designs.crop_shape, lays out the design with keymps.designs.patterns (in millimetres, then crop pixels)
+and picks the primitive from the primitives' descriptions. It answers the same JSON as a VLM.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import time
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from keymps.errors import KeympsError
+from keymps.plugin import hookimpl
+
+if TYPE_CHECKING:
+    from keymps.planning.planner import BackendAnswer, PlanRequest
+
+HARD_OBJECTS = re.compile(
+    r"\b(hard|crusty|crust|bread|baguette|sourdough|pumpkin|squash|potato(?:es)?|carrots?|"
+    r"frozen|cabbage|melon|pineapple|chocolate|nuts?|coconut)\b",
+    re.IGNORECASE,
+)
+"""Objects that call for a sawing primitive (the paper: hard or crusty objects)."""
+HARD_PRIMITIVE = re.compile(r"\bsaw|\bfor (?:\w+ )?(?:hard|firm\w*|crusty|tough)\b", re.I)
+"""A primitive for hard objects: a sawing name or description, or "For hard/firmer objects"."""
+SOFT_PRIMITIVE = re.compile(r"\bfor (?:\w+ )?soft\b|^(?:straight|downward)$", re.I)
+ICING_PRIMITIVE = re.compile(
+    r"\b(?:icing|pip(?:e|ing)|frost\w*|rosettes?|decorat\w*|nozzle)\b", re.I
+)
+ICING_NAMES = {"line", "icing", "dot", "dots", "pipe", "piping", "rosette"}
+
+
+def _singular(word: str) -> str:
+    if word.endswith("oes"):
+        return word[:-2]
+    if word.endswith("s") and not word.endswith("ss"):
+        return word[:-1]
+    return word
+
+
+def _words(text: str) -> set[str]:
+    return {_singular(w) for w in re.findall(r"[a-z]{3,}", text.lower())}
+
+
+def _named_objects(description: str) -> set[str]:
+    """The example objects a description lists in parentheses: "(crusty bread, baguette)"."""
+    return set().union(*(_words(group) for group in re.findall(r"\(([^)]*)\)", description)))
+
+
+def choose_primitive(family: str, primitives: Mapping[str, str], context: str) -> tuple[str, str]:
+    """(name, why) of the primitive for this design, from names and descriptions.
+
+    A primitive of the design's family named in the sentence ("with a rocking cut") is taken
+    first. Otherwise icing designs take the icing primitive, and cuts the one primitive whose
+    description names the object (from the sentence or the task name), else a hard-object
+    primitive for a hard or crusty object, else a soft-object one.
+    """
+    names = list(primitives)
+    if len(names) == 1:
+        return names[0], "the only primitive"
+    icing = [n for n in names if n.lower() in ICING_NAMES or ICING_PRIMITIVE.search(primitives[n])]
+    cutting = [n for n in names if n not in icing] or names
+    mentioned = _words(context)
+    family_names = icing if family == "icing" else cutting
+    asked = [n for n in family_names if (words := _words(n)) and words <= mentioned]
+    if len(asked) == 1:
+        return asked[0], "the sentence names it"
+    if family == "icing":
+        if icing:
+            return icing[0], "its description is for icing"
+        return names[0], "the first primitive (none is described for icing)"
+    named = [n for n in cutting if mentioned & _named_objects(primitives[n])]
+    if len(named) == 1:
+        word = sorted(mentioned & _named_objects(primitives[named[0]]))[0]
+        return named[0], f"its description names {word!r}"
+    hard = HARD_OBJECTS.search(context)
+    if hard:
+        found = [n for n in cutting if HARD_PRIMITIVE.search(f"{n} {primitives[n]}")]
+        if found:
+            return found[0], f"{hard.group(0)!r} is hard or crusty"
+    soft = [
+        n
+        for n in cutting
+        if (SOFT_PRIMITIVE.search(n) or SOFT_PRIMITIVE.search(primitives[n]))
+        and not HARD_PRIMITIVE.search(f"{n} {primitives[n]}")
+    ]
+    if soft:
+        return soft[0], "a soft object: a cut without sawing"
+    return cutting[0], "the first cutting primitive"
+
+
+def clip_to_box(pairs_px: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    """Shorten each segment along its own direction so both ends stay inside [low, high]."""
+    shifted = clip_to_image(pairs_px - low, *(high - low))
+    return shifted + low
+
+
+def clip_to_image(pairs_px: np.ndarray, width: float, height: float) -> np.ndarray:
+    """Shorten each segment along its own direction so both ends stay in [0, width] x [0, height]."""
+    clipped = []
+    limit = np.array([float(width), float(height)])
+    for start, end in pairs_px:
+        a, b = start.copy(), end.copy()
+        for point, other in ((a, b), (b, a)):
+            direction = other - point
+            if np.all(point >= 0) and np.all(point <= limit):
+                continue
+            t_needed = 0.0
+            for axis in range(2):
+                if point[axis] < 0 and direction[axis] > 0:
+                    t_needed = max(t_needed, -point[axis] / direction[axis])
+                elif point[axis] > limit[axis] and direction[axis] < 0:
+                    t_needed = max(t_needed, (limit[axis] - point[axis]) / direction[axis])
+            point += min(t_needed, 1.0) * direction
+        clipped.append([np.clip(a, 0, limit), np.clip(b, 0, limit)])
+    return np.array(clipped, dtype=float).reshape(-1, 2, 2)
+
+
+class OfflineBackend:
+    """Deterministic planner: the same sentence and crop always give the same design."""
+
+    name = "offline"
+    cacheable = False
+
+    def complete(self, request: PlanRequest) -> BackendAnswer:
+        from keymps.designs.crop_shape import measure
+        from keymps.designs.grammar import read_instruction
+        from keymps.designs.layout import design
+        from keymps.planning.planner import BackendAnswer
+
+        started = time.perf_counter()
+        intent = read_instruction(request.instruction)
+        mm_per_px = tuple(1000.0 * m for m in request.metres_per_px)
+        shape = measure(request.crop, request.crop_mask, (mm_per_px[0], mm_per_px[1]))
+        context = f"{request.instruction} {request.task_name.replace('-', ' ').replace('_', ' ')}"
+        keyword, why = choose_primitive(intent.family, request.primitives, context)
+        answer: dict[str, Any] = {}
+        if request.step in ("combined", "keyword"):
+            answer["keyword"] = keyword
+        rationale = f"primitive {keyword}: {why}"
+        if request.step in ("combined", "pairs"):
+            try:
+                pairs_mm, layout = design(intent, shape, request.max_pairs)
+            except ValueError as error:  # a design that cannot exist on this object
+                raise KeympsError(
+                    f"the offline planner cannot lay out {intent.describe()} on the "
+                    f"{shape.describe()}: {error}"
+                ) from None
+            width, height = request.crop_size_px
+            pairs_px = clip_to_image(shape.to_pixels(pairs_mm), width - 1, height - 1)
+            if intent.family == "cut":
+                # cuts reach the object's edges, not beyond its bounding box (the paper's lines)
+                outline_px = shape.to_pixels(shape.outline.polygon)
+                pairs_px = clip_to_box(pairs_px, outline_px.min(axis=0), outline_px.max(axis=0))
+            if len(pairs_px) > request.max_pairs:
+                raise KeympsError(
+                    f"the offline design needs {len(pairs_px)} keypoint pairs, more than "
+                    f"planner.max_pairs = {request.max_pairs}"
+                )
+            if len(pairs_px) == 0:
+                raise KeympsError(f"the offline planner found no place for {intent.describe()}")
+            answer["pairs"] = np.round(pairs_px, 3).tolist()
+            rationale = f"{layout}; {rationale}"
+        answer["rationale"] = f"offline planner ({intent.describe()}): {rationale}"
+        return BackendAnswer(
+            text=json.dumps(answer),
+            latency_s=time.perf_counter() - started,
+            cost_usd=0.0,
+            model=None,
+        )
+
+
+def _factory(options: dict[str, Any]) -> OfflineBackend:
+    return OfflineBackend()
+
+
+@hookimpl
+def register_vlm_backends(register: Any) -> None:
+    register("offline", _factory)

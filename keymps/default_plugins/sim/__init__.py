@@ -1,0 +1,1 @@
+"""The `sim` executor: a kinematic replay of the validated trajectory and its outcome image."""

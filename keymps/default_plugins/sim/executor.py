@@ -1,0 +1,343 @@
+"""The `sim` executor: a kinematic replay of the validated trajectory, and outcome.png.
+
+The joints follow the commanded samples exactly, interpolated linearly between samples as a UR
+controller's servoJ does; forward kinematics gives where the tool went. It reports how far the
+tool strayed from the planned tool path (tracking error), any contact below the board, and
+draws what the tool did on the scene image: cuts where the tool went below the object's top
+surface, icing strokes and dots where it worked on or above it. Dynamics are not simulated.
+
+A knife cuts with its whole edge, not only its tip: the edge is a horizontal segment at the tip's
+height, `blade_length` long, from the tip back along the tool x axis against the direction the
+work piece travels. A cut is the union of the edge's positions while it was below the object's
+top, inside the object's footprint. A tool without a blade (a piping bag) marks with its tip.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from keymps.default_plugins.sim.cut_sweep import (
+    Footprint,
+    blade_backwards,
+    covered_length,
+    edge_segments,
+)
+from keymps.plugin import Register, hookimpl, parse_options
+from keymps.types import ExecutionReport, SceneImage, ToolPath, ValidatedTrajectory
+
+if TYPE_CHECKING:
+    from keymps.config.task import Task
+    from keymps.run import Run
+    from keymps.types import Trajectory
+
+BOARD_CONTACT_M = 0.0005
+TRACKING_LIMIT_M = 0.0005
+DOT_EXTENT_M = 0.004
+"""An icing stroke whose extent is below this is drawn as a dot."""
+
+CUT_COLOUR = (20, 20, 20)  # BGR: a dark cut with a light edge shows on any food
+CUT_EDGE = (235, 235, 235)
+ICING_COLOUR = (250, 250, 250)
+ICING_EDGE = (120, 120, 120)
+TRAVEL_COLOUR = (200, 160, 60)
+CONTACT_COLOUR = (0, 0, 255)
+
+
+class SimOptions(BaseModel):
+    """The executor section of a task file for `sim` (every key but `name`)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    replay_rate_hz: float = Field(1000.0, ge=10, le=10_000)
+    """Forward kinematics is evaluated this often (joints interpolated between samples)."""
+    image: bool = True
+    """Render outcome.png into the run folder."""
+    show_travel: bool = True
+    """Draw travel moves as thin lines in outcome.png."""
+    icing_width_m: float = Field(0.004, gt=0, le=0.05)
+    cut_width_m: float = Field(0.0015, gt=0, le=0.05)
+
+
+@dataclass(frozen=True)
+class Replay:
+    """What the tool did: tool positions at the replay rate, their piece and kind."""
+
+    t: np.ndarray
+    tool_xyz: np.ndarray
+    planned_xyz: np.ndarray
+    piece_index: np.ndarray
+    kind: np.ndarray
+    tool_x: np.ndarray | None = None
+    """(n, 2) the tool x axis (a blade's direction) on the board, unit length; None: unknown."""
+
+
+def replay(model: Any, trajectory: Trajectory, rate_hz: float) -> Replay:
+    """Joints interpolated linearly between samples at `rate_hz`, through forward kinematics."""
+    substeps = max(1, math.ceil(rate_hz / trajectory.rate_hz))
+    n = trajectory.samples
+    fractions = np.arange(substeps) / substeps
+    base = np.repeat(np.arange(n - 1), substeps)
+    frac = np.tile(fractions, n - 1)
+    base = np.append(base, n - 1)
+    frac = np.append(frac, 0.0)
+    nxt = np.minimum(base + 1, n - 1)
+    q = trajectory.q[base] + frac[:, None] * (trajectory.q[nxt] - trajectory.q[base])
+    planned = trajectory.tool_xyz[base] + frac[:, None] * (
+        trajectory.tool_xyz[nxt] - trajectory.tool_xyz[base]
+    )
+    t = trajectory.t[base] + frac / trajectory.rate_hz
+    positions, rotations = model.tool_poses(q)
+    return Replay(
+        t,
+        positions,
+        planned,
+        np.asarray(trajectory.piece_index)[base],
+        np.asarray(trajectory.kind)[base],
+        _unit(rotations[:, :2, 0]),
+    )
+
+
+def _unit(vectors: np.ndarray) -> np.ndarray:
+    norms = np.linalg.norm(vectors, axis=1, keepdims=True)
+    return np.divide(vectors, norms, out=np.zeros_like(vectors), where=norms > 1e-9)
+
+
+def tracking_errors(result: Replay, tool_path: ToolPath | None) -> np.ndarray:
+    """Distance of each replayed tool position to its piece of the tool path (or the plan)."""
+    from keymps.robot.safety_geometry import distance_to_polyline
+
+    if tool_path is None:
+        return np.linalg.norm(result.tool_xyz - result.planned_xyz, axis=1)
+    errors = np.zeros(len(result.t))
+    for index, piece in enumerate(tool_path.pieces):
+        mine = np.flatnonzero(result.piece_index == index)
+        if len(mine):
+            errors[mine] = distance_to_polyline(result.tool_xyz[mine], np.asarray(piece.points))
+    return errors
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """[start, end) index ranges where mask is True."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(np.int8), [0]])))
+    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
+
+
+@dataclass(frozen=True)
+class Marks:
+    """What the tool left behind, in board metres."""
+
+    cuts: list[np.ndarray]
+    """Per cut, the tip's path (n, 2) while below the object's top."""
+    strokes: list[np.ndarray]
+    dots: list[np.ndarray]
+    travel: list[np.ndarray]
+    contacts: np.ndarray
+    sweeps: list[np.ndarray] = field(default_factory=list)
+    """Per cut, (k, 2, 2) board segments the cutting edge covered: the blade at each of its
+    positions below the top (tip first), or the tip's path step by step for a tool without one."""
+
+
+def marks(result: Replay, object_top: float, blade_length: float = 0.0) -> Marks:
+    """Cuts where a work piece went below the object's top, icing where work stayed on it."""
+    work = result.kind == "work"
+    below_top = result.tool_xyz[:, 2] < object_top - 1e-4
+    cutting_pieces = np.unique(result.piece_index[work & below_top])
+    cutting = work & np.isin(result.piece_index, cutting_pieces)
+    cut_runs = [(a, b) for a, b in _runs(cutting & below_top) if b - a >= 2]
+    cuts = [result.tool_xyz[a:b, :2] for a, b in cut_runs]
+    sweeps = [_sweep(result, a, b, blade_length) for a, b in cut_runs]
+    strokes, dots = [], []
+    for a, b in _runs(work & ~cutting):
+        for piece in np.unique(result.piece_index[a:b]):
+            xy = result.tool_xyz[a:b][result.piece_index[a:b] == piece, :2]
+            if np.ptp(xy, axis=0).max() < DOT_EXTENT_M:
+                dots.append(xy.mean(axis=0))
+            else:
+                strokes.append(xy)
+    travel = [result.tool_xyz[a:b, :2] for a, b in _runs(~work) if b - a >= 2]
+    contacts = result.tool_xyz[result.tool_xyz[:, 2] < -BOARD_CONTACT_M, :2]
+    return Marks(cuts, strokes, dots, travel, contacts, sweeps)
+
+
+def _sweep(result: Replay, start: int, end: int, blade_length: float) -> np.ndarray:
+    """(k, 2, 2) segments covered by the cutting edge over samples [start, end)."""
+    backwards = None
+    if result.tool_x is not None:
+        backwards = result.tool_x[start:end].copy()
+        pieces = result.piece_index[start:end]
+        for piece in np.unique(pieces):
+            whole = np.flatnonzero(result.piece_index == piece)
+            travel = result.tool_xyz[whole[-1], :2] - result.tool_xyz[whole[0], :2]
+            mine = pieces == piece
+            backwards[mine] = blade_backwards(backwards[mine], travel)
+    return edge_segments(result.tool_xyz[start:end], backwards, blade_length)
+
+
+def render_outcome(
+    task: Task,
+    scene: np.ndarray | None,
+    found: Marks,
+    options: SimOptions,
+    footprint: np.ndarray | None = None,
+) -> Any:
+    """The scene image with what the tool did drawn where it did it (BGR uint8); cuts only
+    inside the `footprint` polygon (board metres) when it is given."""
+    import cv2
+
+    from keymps.perception.frames import ImageFrame
+
+    if scene is None:  # no scene image: a plain board at 2 px per mm
+        width, height = task.scene.workspace.size
+        scene = np.full((round(height * 2000), round(width * 2000), 3), 235, np.uint8)
+    image = np.ascontiguousarray(scene.copy())
+    size = (int(image.shape[1]), int(image.shape[0]))
+    frame = ImageFrame.from_task(task, size)
+    per_metre = 1.0 / frame.metres_per_pixel()
+    shift = 4  # sub-pixel drawing: coordinates in 1/16 pixel
+
+    def pixels(xy: np.ndarray) -> np.ndarray:
+        return np.round(frame.to_pixels(np.asarray(xy).reshape(-1, 2)) * (1 << shift)).astype(
+            np.int32
+        )
+
+    def width_px(metres: float) -> int:
+        return max(1, round(metres * per_metre))
+
+    if options.show_travel:
+        for line in found.travel:
+            cv2.polylines(image, [pixels(line)], False, TRAVEL_COLOUR, 1, cv2.LINE_AA, shift)
+    icing = width_px(options.icing_width_m)
+    for line in found.strokes:
+        cv2.polylines(image, [pixels(line)], False, ICING_EDGE, icing + 2, cv2.LINE_AA, shift)
+        cv2.polylines(image, [pixels(line)], False, ICING_COLOUR, icing, cv2.LINE_AA, shift)
+    for dot in found.dots:
+        centre = tuple(int(v) for v in pixels(dot)[0])
+        radius = icing << shift
+        cv2.circle(image, centre, radius + (1 << shift), ICING_EDGE, -1, cv2.LINE_AA, shift)
+        cv2.circle(image, centre, radius, ICING_COLOUR, -1, cv2.LINE_AA, shift)
+    if found.sweeps:
+        _paint_cuts(image, found.sweeps, footprint, pixels, width_px(options.cut_width_m), shift)
+    for point in found.contacts:
+        centre = tuple(int(v) for v in pixels(point)[0])
+        cv2.circle(image, centre, 6 << shift, CONTACT_COLOUR, 2, cv2.LINE_AA, shift)
+    return image
+
+
+def _paint_cuts(
+    image: np.ndarray,
+    sweeps: list[np.ndarray],
+    footprint: np.ndarray | None,
+    pixels: Any,
+    width: int,
+    shift: int,
+) -> None:
+    """Darken the union of the swept segments, clipped to the footprint, in place."""
+    import cv2
+
+    covered = np.zeros(image.shape[:2], np.uint8)
+    for sweep in sweeps:
+        segments = pixels(sweep.reshape(-1, 2)).reshape(-1, 2, 2)
+        cv2.polylines(covered, list(segments), False, 255, width, cv2.LINE_AA, shift)
+    alpha = covered.astype(np.float32) / 255.0
+    if footprint is not None:
+        inside = np.zeros(image.shape[:2], np.uint8)
+        cv2.fillPoly(inside, [pixels(footprint)], 255, cv2.LINE_AA, shift)
+        alpha *= inside.astype(np.float32) / 255.0
+    alpha = alpha[:, :, None]
+    image[:] = np.round(image * (1.0 - alpha) + np.array(CUT_COLOUR) * alpha).astype(np.uint8)
+
+
+class SimExecutor:
+    """Kinematic replay with forward kinematics; writes outcome.png."""
+
+    name = "sim"
+
+    def __init__(self, options: SimOptions):
+        self.options = options
+
+    def execute(self, validated: ValidatedTrajectory, run: Run) -> ExecutionReport:
+        from keymps.robot.model import RobotModel
+        from keymps.robot.safety import require_validated
+
+        trajectory = require_validated(validated, self.name)
+        task = run.task
+        model = RobotModel.from_task(task)
+        tool_path = run.results.get("compose")
+        result = replay(model, trajectory, self.options.replay_rate_hz)
+        errors = tracking_errors(result, tool_path if isinstance(tool_path, ToolPath) else None)
+        outline = _footprint(run)
+        # Without the object's footprint a blade's reach cannot be clipped: cut with the tip.
+        blade_length = model.tool.blade_length if outline is not None else 0.0
+        found = marks(result, float(task.scene.object_height), blade_length)
+        clip = Footprint(outline) if outline is not None else None
+        lengths = [covered_length(sweep, clip) for sweep in found.sweeps]
+        period = float(np.diff(result.t).mean()) if len(result.t) > 1 else 0.0
+        figures = {
+            "duration_s": trajectory.duration_s,
+            "max_tracking_error_mm": float(errors.max() * 1000),
+            "rms_tracking_error_mm": float(np.sqrt(np.mean(errors**2)) * 1000),
+            "min_tool_z_mm": float(result.tool_xyz[:, 2].min() * 1000),
+            "below_board_s": float(len(found.contacts) * period),
+            "cuts": float(len(found.cuts)),
+            "blade_length_mm": float(blade_length * 1000),
+            "cut_length_mm": round(sum(lengths) * 1000, 1),
+            **{f"cut_{k + 1}_length_mm": round(v * 1000, 1) for k, v in enumerate(lengths)},
+            "icing_strokes": float(len(found.strokes)),
+            "icing_length_mm": _length_mm(found.strokes),
+            "icing_dots": float(len(found.dots)),
+        }
+        files: list[str] = []
+        if self.options.image:
+            scene = run.results.get("image")
+            picture = scene.image if isinstance(scene, SceneImage) else None
+            path = run.write_image(
+                "outcome", render_outcome(task, picture, found, self.options, outline)
+            )
+            files.append(str(path))
+        problems = []
+        if len(found.contacts):
+            problems.append(
+                f"the tool touched below the board for {figures['below_board_s']:.3f} s "
+                f"(lowest {figures['min_tool_z_mm']:.1f} mm)"
+            )
+        if figures["max_tracking_error_mm"] > TRACKING_LIMIT_M * 1000:
+            problems.append(
+                f"tracking error {figures['max_tracking_error_mm']:.2f} mm exceeds "
+                f"{TRACKING_LIMIT_M * 1000:.1f} mm"
+            )
+        summary = (
+            f"simulated {trajectory.duration_s:.1f} s: {len(found.cuts)} cuts, "
+            f"{len(found.strokes)} icing strokes, {len(found.dots)} dots; max tracking error "
+            f"{figures['max_tracking_error_mm']:.3f} mm"
+        )
+        message = "; ".join(problems) if problems else summary
+        return ExecutionReport(self.name, not problems, message, tuple(files), figures)
+
+
+def _footprint(run: Run) -> np.ndarray | None:
+    """The detected object's footprint in board metres, or None without a detection."""
+    from keymps.perception.frames import object_outline_m
+    from keymps.types import Detection
+
+    detection, scene = run.results.get("detect"), run.results.get("image")
+    if not isinstance(detection, Detection) or not isinstance(scene, SceneImage):
+        return None
+    return object_outline_m(detection, run.task, scene.size_px)
+
+
+def _length_mm(lines: list[np.ndarray]) -> float:
+    return float(sum(np.linalg.norm(np.diff(line, axis=0), axis=1).sum() for line in lines) * 1000)
+
+
+def make_sim_executor(options: dict[str, Any]) -> SimExecutor:
+    return SimExecutor(parse_options(SimOptions, options, "executor sim"))
+
+
+@hookimpl
+def register_executors(register: Register) -> None:
+    register("sim", make_sim_executor)

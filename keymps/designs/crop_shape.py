@@ -1,0 +1,126 @@
+"""Measure the object in the crop: its footprint in millimetres, and whether it is round, square
+or elongated (what the offline planner needs to lay out a design)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from keymps.designs.outline import Outline, ShapeKind, polygon_area, polygon_centroid
+
+ELONGATED_ASPECT = 1.35
+"""Length / width at or above which an object is elongated (a loaf, an eggplant)."""
+SQUARE_FILL = 0.89
+"""Area / bounding-rectangle area above which a compact object is square (a disk fills 0.785)."""
+BACKGROUND_THRESHOLD = 30
+"""Colour difference from the crop's border colour that marks the object (0-255)."""
+
+
+@dataclass(frozen=True)
+class CropShape:
+    """The object's footprint in a millimetre frame aligned with the crop (x right, y down)."""
+
+    outline: Outline
+    mm_per_px: tuple[float, float]
+    source: str
+    """'mask' (the detector's), 'segmented' (found in the crop) or 'crop' (the whole crop)."""
+
+    def to_pixels(self, points_mm: np.ndarray) -> np.ndarray:
+        return np.asarray(points_mm, float) / np.array(self.mm_per_px)
+
+    def to_mm(self, points_px: np.ndarray) -> np.ndarray:
+        return np.asarray(points_px, float) * np.array(self.mm_per_px)
+
+    def describe(self) -> str:
+        o = self.outline
+        if o.kind == "round":
+            return f"round object, about {2 * o.radius / 10:.1f} cm across"
+        return f"{o.kind} object, about {o.length / 10:.1f} x {o.width / 10:.1f} cm"
+
+
+def segment_crop(crop: np.ndarray) -> np.ndarray | None:
+    """A boolean mask of the object: pixels that differ from the crop's border colour."""
+    import cv2
+
+    image = crop if crop.ndim == 3 else cv2.cvtColor(crop, cv2.COLOR_GRAY2BGR)
+    blurred = cv2.GaussianBlur(image, (5, 5), 0).astype(np.int16)
+    border = np.concatenate(
+        [blurred[0], blurred[-1], blurred[:, 0], blurred[:, -1]], axis=0
+    ).reshape(-1, blurred.shape[2])
+    background = np.median(border, axis=0)
+    difference = np.abs(blurred - background).max(axis=2)
+    mask = difference > BACKGROUND_THRESHOLD
+    if mask.sum() < 0.01 * mask.size:
+        return None
+    return np.asarray(mask)
+
+
+def _largest_contour(mask: np.ndarray) -> np.ndarray | None:
+    import cv2
+
+    contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    if not contours:
+        return None
+    largest = max(contours, key=cv2.contourArea)
+    if cv2.contourArea(largest) < 9:
+        return None
+    return np.asarray(largest.reshape(-1, 2), dtype=float)
+
+
+def classify(polygon_mm: np.ndarray) -> tuple[ShapeKind, float]:
+    """(kind, long-axis angle) of a footprint polygon in metric units."""
+    import cv2
+
+    (_, _), (w, h), angle_deg = cv2.minAreaRect(polygon_mm.astype(np.float32))
+    long_side, short_side = max(w, h), max(min(w, h), 1e-9)
+    angle = math.radians(angle_deg) if w >= h else math.radians(angle_deg + 90)
+    angle = math.atan2(math.sin(angle), math.cos(angle))
+    # fold to (-pi/2, pi/2]: a cut axis has no sign
+    if angle <= -math.pi / 2:
+        angle += math.pi
+    elif angle > math.pi / 2:
+        angle -= math.pi
+    aspect = long_side / short_side
+    fill = polygon_area(polygon_mm) / max(w * h, 1e-9)
+    if aspect >= ELONGATED_ASPECT:
+        kind: ShapeKind = "elongated"
+    elif fill >= SQUARE_FILL:
+        kind = "square"
+    else:
+        kind = "round"
+    if kind != "elongated" and abs(abs(angle) - math.pi / 2) < math.radians(10):
+        angle = 0.0  # compact objects: keep the image axes when the sides nearly align with them
+    if kind != "elongated" and abs(angle) < math.radians(10):
+        angle = 0.0
+    return kind, angle
+
+
+def measure(crop: np.ndarray, mask: np.ndarray | None, mm_per_px: tuple[float, float]) -> CropShape:
+    """The object's footprint from the detector's mask, else from the crop's own pixels."""
+    source = "mask"
+    if mask is None or mask.shape[:2] != crop.shape[:2] or not mask.any():
+        mask = segment_crop(crop)
+        source = "segmented"
+    contour = _largest_contour(mask) if mask is not None else None
+    height, width = crop.shape[:2]
+    if contour is None:
+        contour = np.array(
+            [[0, 0], [width - 1, 0], [width - 1, height - 1], [0, height - 1]], float
+        )
+        source = "crop"
+    # pixel centres of boundary pixels lie half a pixel inside the true edge
+    polygon_mm = _grow_half_pixel(contour) * np.array(mm_per_px)
+    kind, angle = classify(polygon_mm)
+    outline = Outline(
+        kind=kind, polygon=polygon_mm, centre=polygon_centroid(polygon_mm), axis_angle=angle
+    )
+    return CropShape(outline=outline, mm_per_px=mm_per_px, source=source)
+
+
+def _grow_half_pixel(contour: np.ndarray) -> np.ndarray:
+    centre = contour.mean(axis=0)
+    offsets = contour - centre
+    distance = np.maximum(np.linalg.norm(offsets, axis=1), 1e-9)
+    return centre + offsets * ((distance + 0.5) / distance)[:, None]

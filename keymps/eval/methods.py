@@ -1,0 +1,267 @@
+"""The methods `keymps eval` compares (the paper's Experiments 1-2 and Appendix F).
+
+- keymps: the full pipeline (detector, VLM keyword + 2D keypoint pairs, primitive, robot checks).
+- vlm-keypoint: the same with every primitive's DMP weights set to zero (straight pieces).
+- keymps-text: no image; the VLM reads the object's name and shape in text and answers pairs
+  in the coordinates of the (unseen) crop; the rest is KeyMPs.
+- vlm-keyword: the VLM picks the primitive and writes 3D keypoints in board metres directly.
+- vlm-dmp / vlm-mdmp: the VLM writes one / several DMPs' parameters (start, goal, weights).
+
+keymps and vlm-keypoint run through keymps.run_task (any backend, offline included). The others
+need a VLM; they detect the object like KeyMPs, ask with their own prompt (prompts/methods/),
+and are scored on the motion they generate (no robot checks, as in the paper).
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from keymps.errors import KeympsError
+
+
+@dataclass(frozen=True)
+class MethodOutput:
+    """What one method generated for one case."""
+
+    work_pieces: tuple[np.ndarray, ...]
+    """The generated work motion (cuts, strokes) as 3D points, board metres; no travel."""
+    lines_m: np.ndarray
+    """(K, 2, 2) where each generated piece starts and ends, seen from above (board metres)."""
+    keyword: str | None
+    calls: tuple[dict[str, Any], ...] = ()
+    """Per VLM call: latency_s, cost_usd, prompt_tokens, completion_tokens."""
+    images: dict[str, str] = field(default_factory=dict)
+    """plan / outcome -> PNG path, when written."""
+    scene: dict[str, Any] | None = None
+    """The synthetic scene's sidecar as rendered for this run (saves rendering it again)."""
+
+
+@dataclass(frozen=True)
+class MethodContext:
+    """Everything a method needs to run one case once."""
+
+    task_path: Path
+    """The case's task file (written by the runner)."""
+    folder: Path
+    """This run's folder."""
+    backend: str
+    model: str | None
+    api_base: str | None
+    plan_only: bool = False
+    """Stop after grounding: the design is all that is scored (Appendix F's equal parts)."""
+    no_cache: bool = False
+    """Always ask the VLM, never answer from the planner's cache."""
+    image_format: str = "jpg"
+    """plan and outcome images: jpg or png (keymps.run.RunOptions.image_format)."""
+
+
+MethodRunner = Callable[[MethodContext], MethodOutput]
+
+
+class MethodNeedsVlm(KeympsError):
+    """A method that only a VLM can run was asked to run offline."""
+
+
+# --------------------------------------------------------------------------- pipeline methods
+
+
+def _run_pipeline(context: MethodContext) -> MethodOutput:
+    if context.plan_only:
+        return _run_plan_only(context)
+    from keymps.pipeline.engine import run_task
+
+    results: dict[str, Any] = {}
+
+    def keep(stage: str, seconds: float, result: Any) -> None:
+        results[stage] = result
+
+    overrides: dict[str, Any] = {"backend": context.backend}
+    if context.model:
+        overrides["model"] = context.model
+    if context.api_base:
+        overrides["api_base"] = context.api_base
+    try:
+        run = run_task(
+            context.task_path,
+            on_stage=keep,
+            out=context.folder,
+            rerun="off",
+            quiet=True,
+            no_cache=context.no_cache,
+            image_format=context.image_format,
+            **overrides,
+        )
+    except KeympsError as error:
+        raise PartialRunError(str(error), results) from None
+    return replace(_pipeline_output(results, context), scene=run.notes.get("synthetic_scene"))
+
+
+def _run_plan_only(context: MethodContext) -> MethodOutput:
+    """The pipeline's first stages (image, detect, plan, ground), nothing executed."""
+    from keymps.perception.frames import ground
+    from keymps.pipeline.overlay import draw_plan
+    from keymps.config.overrides import apply_overrides
+    from keymps.planning.planner import choose_backend, make_plan
+    from keymps.plugin.manager import create_component
+    from keymps.primitives.dictionary import default_search_dirs
+    from keymps.run import Run, RunOptions
+    from keymps.config.task import load_task
+
+    overrides = {"backend": context.backend, "model": context.model, "api_base": context.api_base}
+    overrides = {k: v for k, v in overrides.items() if v}
+    task = apply_overrides(load_task(context.task_path), overrides)
+    backend, _ = choose_backend(task, context.backend, context.model, context.api_base)
+    options = RunOptions(no_cache=context.no_cache, image_format=context.image_format)
+    run = Run(task=task, folder=context.folder, options=options)
+    context.folder.mkdir(parents=True, exist_ok=True)
+    results: dict[str, Any] = {}
+    try:
+        source = create_component("image_source", task.scene.source, task.scene.source_options)
+        scene = results["image"] = source.load(run)
+        detector = create_component("detector", task.detector.name, task.detector.options)
+        detection = results["detect"] = detector.detect(scene)
+        descriptions = primitive_descriptions(task.primitives, default_search_dirs(task.folder))
+        plan = results["plan"] = make_plan(task, detection, scene, descriptions, run, backend)
+        run.write_image("plan", draw_plan(scene.image, detection, plan))
+        results["ground"] = ground(plan, detection, task, scene.size_px)
+    except KeympsError as error:
+        raise PartialRunError(str(error), results) from None
+    return replace(_pipeline_output(results, context), scene=run.notes.get("synthetic_scene"))
+
+
+def primitive_descriptions(names: list[str], search_dirs: list[Path]) -> dict[str, str]:
+    """name -> description, read once per file version (parsing a primitive's YAML is slow)."""
+    from keymps.primitives.dictionary import find_primitive_files
+
+    files = find_primitive_files(search_dirs)
+    key = tuple((n, str(files.get(n)), _mtime(files.get(n))) for n in names)
+    return dict(_descriptions(key, tuple(search_dirs)))
+
+
+def _mtime(path: Path | None) -> float:
+    return path.stat().st_mtime if path is not None else 0.0
+
+
+@functools.lru_cache(maxsize=32)
+def _descriptions(
+    key: tuple[Any, ...], search_dirs: tuple[Path, ...]
+) -> tuple[tuple[str, str], ...]:
+    from keymps.primitives.dictionary import load_primitives
+
+    loaded = load_primitives([name for name, _, _ in key], list(search_dirs))
+    return tuple((name, p.description) for name, p in loaded.items())
+
+
+class PartialRunError(KeympsError):
+    """A pipeline run that stopped at a stage; the results of the stages before it are kept."""
+
+    def __init__(self, message: str, results: dict[str, Any]):
+        super().__init__(message)
+        self.results = results
+
+
+def _pipeline_output(results: dict[str, Any], context: MethodContext) -> MethodOutput:
+    from keymps.run import image_file
+
+    plan = results.get("plan")
+    grounding = results.get("ground")
+    tool_path = results.get("compose")
+    pieces = tuple(p.points for p in tool_path.pieces if p.kind == "work") if tool_path else ()
+    lines = grounding.segments_m[:, :, :2] if grounding is not None else np.zeros((0, 2, 2))
+    calls = tuple(_call_summary(c) for c in plan.calls) if plan is not None else ()
+    paths = {
+        name: image_file(context.folder, name, context.image_format) for name in ("plan", "outcome")
+    }
+    images = {name: str(path) for name, path in paths.items() if path.is_file()}
+    return MethodOutput(
+        work_pieces=pieces,
+        lines_m=np.asarray(lines, dtype=float),
+        keyword=plan.keyword if plan is not None else None,
+        calls=calls,
+        images=images,
+    )
+
+
+def partial_output(error: PartialRunError, context: MethodContext) -> MethodOutput:
+    """What a stopped pipeline run had produced (e.g. a plan refused later by the safety check)."""
+    return _pipeline_output(error.results, context)
+
+
+def _call_summary(call: Any) -> dict[str, Any]:
+    return {
+        "latency_s": float(getattr(call, "latency_s", 0.0) or 0.0),
+        "cost_usd": getattr(call, "cost_usd", None),
+        "prompt_tokens": getattr(call, "prompt_tokens", None),
+        "completion_tokens": getattr(call, "completion_tokens", None),
+        "cached": bool(getattr(call, "cached", False)),
+    }
+
+
+def zero_weight_primitives(names: list[str], search_dirs: list[Path], folder: Path) -> None:
+    """Write copies of the primitives with every DMP weight zero (VLM-Keypoint's dictionary)."""
+    from keymps.primitives.dictionary import load_primitives, save_primitive
+
+    folder.mkdir(parents=True, exist_ok=True)
+    for name, primitive in load_primitives(names, search_dirs).items():
+        flat = replace(primitive.dmp, weights=np.zeros_like(primitive.dmp.weights))
+        save_primitive(
+            replace(primitive, dmp=flat, demo=None, fit_rmse=0.0), folder / f"{name}.yaml"
+        )
+
+
+def _direct(name: str) -> MethodRunner:
+    """A method of keymps.eval.direct, imported when it runs."""
+
+    def run(context: MethodContext) -> MethodOutput:
+        from keymps.eval import direct as eval_direct
+
+        runner: MethodRunner = getattr(eval_direct, name)
+        return runner(context)
+
+    return run
+
+
+@dataclass(frozen=True)
+class Method:
+    name: str
+    summary: str
+    needs_vlm: bool
+    run: MethodRunner
+    zero_weights: bool = False
+
+
+METHODS: dict[str, Method] = {
+    m.name: m
+    for m in [
+        Method("keymps", "KeyMPs: VLM keyword + 2D keypoint pairs + primitives", False, _run_pipeline),
+        Method(
+            "vlm-keypoint", "KeyMPs with all DMP weights zero (straight pieces)", False,
+            _run_pipeline, zero_weights=True,
+        ),
+        Method("keymps-text", "KeyMPs without the image (object and shape in text)", True, _direct("keymps_text")),
+        Method("vlm-keyword", "primitive chosen, 3D keypoints written by the VLM", True, _direct("vlm_keyword")),
+        Method("vlm-dmp", "one DMP's parameters written by the VLM", True, _direct("vlm_dmp")),
+        Method("vlm-mdmp", "several DMPs' parameters written by the VLM", True, _direct("vlm_mdmp")),
+    ]
+}  # fmt: skip
+
+
+def get_method(name: str) -> Method:
+    if name not in METHODS:
+        raise KeympsError(f"unknown method {name!r} (methods: {', '.join(METHODS)})")
+    return METHODS[name]
+
+
+def check_runnable(method: Method, backend: str) -> None:
+    """A one-line error when a VLM-only method is asked to run on the offline planner."""
+    if method.needs_vlm and backend == "offline":
+        raise MethodNeedsVlm(
+            f"method {method.name} needs a VLM ({method.summary}); the offline planner cannot "
+            "answer its prompt: pass --model (e.g. openai/gpt-4o) or --api-base URL --model NAME"
+        )

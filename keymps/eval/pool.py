@@ -1,0 +1,216 @@
+"""Runs eval jobs in worker processes, several jobs in flight in each.
+
+A run's own work (rendering the scene, detection, the prompt, parsing the answer, grounding,
+scoring, writing its files) is about 40 ms of Python CPU, and in one process the GIL runs it one
+run at a time. Worker processes each have their own GIL. A run's VLM call does not happen in the
+worker: it goes to the parent's event loop (keymps.eval.broker), which makes it with litellm's
+async API, at most `concurrency` at once; the worker's thread waits for the answer.
+
+With the litellm backend each process keeps RUNS_AHEAD more runs in flight than its share of
+the VLM calls: while its calls are out, it prepares the next runs, so that a VLM slot that frees
+up never waits for keymps' own work. Within a process one run computes at a time
+(keymps.eval.turn) and gives its turn up while it waits for the VLM. (A plugin backend makes its
+calls itself, in the run's thread: its runs in flight are the calls allowed at once, and they
+share the core as threads do.) A worker takes a job only when one of its threads is free.
+
+Workers are forked from a fork server that has imported keymps, OpenCV, NumPy and Pinocchio
+once (keymps.eval.preload): starting one costs milliseconds, not the second of those imports,
+and no worker inherits the parent's threads or open connections. Each worker runs with the
+parent's environment as it is when the suite starts (KEYMPS_CACHE_DIR ...) and ignores Ctrl-C:
+the parent stops, then ends them. Records come back to the parent, which alone writes
+results.jsonl.
+
+As in any multiprocessing program, a script that runs a suite with processes > 1 needs the
+`if __name__ == "__main__":` guard: the workers import the script's main module.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import queue
+import threading
+from collections.abc import Callable, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
+from typing import TYPE_CHECKING, Any
+
+from keymps.errors import KeympsError
+
+if TYPE_CHECKING:
+    from keymps.eval.runner import EvalOptions, Job
+    from keymps.eval.suites import Suite
+    from keymps.eval.turn import CpuTurn
+    from keymps.eval.broker import VlmBroker
+
+RUNS_AHEAD = 2
+"""Runs each process prepares beyond its share of the VLM calls in flight."""
+MIN_JOBS_PER_PROCESS = 8
+"""Below this many jobs per worker, starting workers costs more than it saves."""
+POLL_S = 0.5
+
+
+def default_processes(concurrency: int, jobs: int) -> int:
+    """Worker processes for `jobs` runs at `concurrency`: one per core; 1 means in-process."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    processes = min(cores or 1, concurrency)
+    while processes > 1 and jobs < MIN_JOBS_PER_PROCESS * processes:
+        processes -= 1
+    return max(1, processes)
+
+
+def runs_in_flight(concurrency: int, processes: int, backend: str) -> int:
+    """Runs started at once: the VLM calls allowed at once, and RUNS_AHEAD per process when the
+    calls go through the broker (which alone keeps them to `concurrency`)."""
+    from keymps.eval.broker import BROKERED_BACKEND
+
+    ahead = RUNS_AHEAD * max(1, processes) if backend == BROKERED_BACKEND else 0
+    return max(1, concurrency) + ahead
+
+
+def threads_per_process(runs: int, processes: int) -> list[int]:
+    """Split `runs` in flight over the workers (the first ones take the remainder)."""
+    base, extra = divmod(runs, processes)
+    return [base + (1 if i < extra else 0) for i in range(processes) if base or i < extra]
+
+
+def _worker(
+    suite: Suite,
+    options: EvalOptions,
+    backend: str,
+    threads: int,
+    environment: dict[str, str],
+    jobs: Any,
+    results: Any,
+    vlm: tuple[int, Any, Any],
+) -> None:
+    """A worker process: take a job whenever a thread is free, send each record back; its VLM
+    calls go to the parent's broker (keymps.eval.broker)."""
+    import signal
+
+    # Ctrl-C reaches the whole process group: the parent alone stops, then ends its workers
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    os.environ.clear()
+    os.environ.update(environment)
+    from keymps.eval.runner import run_job
+    from keymps.eval.turn import CpuTurn
+    from keymps.eval.broker import BROKERED_BACKEND, BrokerClient, activated
+
+    turn = CpuTurn(active=backend == BROKERED_BACKEND)
+    with activated(BrokerClient(*vlm, turn=turn)):
+        _take_jobs(suite, options, backend, threads, jobs, results, run_job, turn)
+
+
+def _take_jobs(
+    suite: Suite,
+    options: EvalOptions,
+    backend: str,
+    threads: int,
+    jobs: Any,
+    results: Any,
+    run_job: Any,
+    turn: CpuTurn,
+) -> None:
+
+    free = threading.Semaphore(threads)
+
+    def send(job: Job, future: Future[dict[str, Any]]) -> None:
+        try:
+            record = future.result()
+        except BaseException as error:  # run_job records failures; this is a last resort
+            from keymps.eval.runner import job_record
+
+            record = {
+                **job_record(suite, job, options, backend),
+                "ok": False,
+                "error": f"internal error {type(error).__name__}: {error}",
+            }
+        results.put((job, record))
+        free.release()
+
+    with ThreadPoolExecutor(max_workers=threads) as pool:
+        while True:
+            free.acquire()
+            job = jobs.get()
+            if job is None:
+                break
+            future = pool.submit(turn.run, run_job, suite, job, options, backend)
+            future.add_done_callback(functools.partial(send, job))
+
+
+def run_in_processes(
+    suite: Suite,
+    jobs: Sequence[Job],
+    options: EvalOptions,
+    backend: str,
+    processes: int,
+    on_record: Callable[[Job, dict[str, Any]], None],
+    broker: VlmBroker,
+) -> None:
+    """Run `jobs` in `processes` workers; call on_record in this process as each one ends."""
+    import multiprocessing
+
+    context = multiprocessing.get_context("forkserver")
+    context.set_forkserver_preload(["keymps.eval.preload"])
+    job_queue = context.Queue()
+    result_queue = context.Queue()
+    for job in jobs:
+        job_queue.put(job)
+    runs = runs_in_flight(options.concurrency, processes, backend)
+    shares = threads_per_process(runs, processes)
+    for _ in shares:
+        job_queue.put(None)
+    environment = dict(os.environ)
+    vlm_requests = context.Queue()
+    vlm_replies = [context.Queue() for _ in shares]
+    workers = [
+        context.Process(
+            target=_worker,
+            args=(
+                suite, options, backend, threads, environment, job_queue, result_queue,
+                (index, vlm_requests, vlm_replies[index]),
+            ),
+            name=f"keymps-eval-{index}",
+            daemon=True,
+        )
+        for index, threads in enumerate(shares)
+    ]  # fmt: skip
+    received = 0
+    stop_serving = threading.Event()
+    serving = broker.serve(vlm_requests, vlm_replies, stop_serving)
+    try:
+        for worker in workers:
+            worker.start()
+        while received < len(jobs):
+            try:
+                job, record = result_queue.get(timeout=POLL_S)
+            except queue.Empty:
+                _check_alive(workers)
+                continue
+            on_record(job, record)
+            received += 1
+    finally:
+        for worker in workers:
+            if worker.pid is None:  # never started
+                continue
+            worker.join(timeout=5 if received == len(jobs) else 0)
+            if worker.is_alive():
+                worker.terminate()
+                worker.join(timeout=5)
+        broker.close()
+        stop_serving.set()
+        serving.join(timeout=5)
+        for channel in (job_queue, result_queue, vlm_requests, *vlm_replies):
+            # The workers are gone: what this process still has to send (jobs never taken,
+            # replies to ended runs) is dropped instead of waited for, which could be forever
+            # (a full pipe nobody reads, or a lock held by a worker ended mid-write).
+            channel.cancel_join_thread()
+            channel.close()
+
+
+def _check_alive(workers: Sequence[Any]) -> None:
+    for worker in workers:
+        if worker.exitcode not in (None, 0):
+            raise KeympsError(
+                f"eval worker process {worker.name} died (exit code {worker.exitcode}); every "
+                "finished run is in results.jsonl: run the same command again to resume"
+            )

@@ -1,0 +1,388 @@
+"""Runs a suite: every case x method x repeat, concurrently, resumably, one JSON line per result.
+
+Each job renders its case's scene, runs the method, scores what it generated (D against the
+ground truth, or the equal-parts check) and appends one record to results.jsonl, flushed and
+synced at once: an interrupted evaluation loses no finished result, and a rerun into the same
+folder skips every job already recorded (same case, method, repeat, backend and model).
+A job that fails is recorded as a failure with its one-line error; it never stops the suite.
+
+Jobs run in threads of this process or of worker processes (keymps.eval.pool); their VLM calls
+are made by one asyncio event loop in this process (keymps.eval.broker), at most `concurrency`
+at once, so the waits overlap each other and the other runs' CPU work. With litellm, a few more
+runs than that are in flight, preparing their calls while the others wait
+(eval_pool.runs_in_flight).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import threading
+import time
+import traceback
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor, as_completed
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from keymps.errors import KeympsError
+from keymps.eval.suites import Suite
+
+if TYPE_CHECKING:
+    from keymps.eval.turn import CpuTurn
+    from keymps.eval.broker import VlmBroker
+
+RESULTS_FILE = "results.jsonl"
+
+
+@dataclass(frozen=True)
+class EvalOptions:
+    out: Path
+    methods: tuple[str, ...] = ("keymps",)
+    repeats: int | None = None
+    """Runs per case and method (the suite's `repeats` when None)."""
+    concurrency: int = 1
+    """VLM calls made at once."""
+    backend: str | None = None
+    """None: offline, or litellm when a model or an API base is given."""
+    model: str | None = None
+    api_base: str | None = None
+    cases: tuple[str, ...] = ()
+    """Only these case ids (all when empty)."""
+    n: int = 100
+    """Ground-truth points of the metric D."""
+    no_cache: bool = False
+    """Always ask the VLM (never answer a run from the planner's answer cache)."""
+    image_format: str = "jpg"
+    """Each run's plan and outcome images: jpg (30 KB, 0.5 ms to write) or png (300 KB, 7 ms)."""
+    processes: int | None = 1
+    """Worker processes sharing the runs in flight (1: every run in this process; None: one per
+    core when there are enough runs, as `keymps eval` does). See keymps.eval.pool."""
+
+
+@dataclass(frozen=True)
+class Job:
+    case_id: str
+    method: str
+    repeat: int
+    seed: int
+
+    @property
+    def label(self) -> str:
+        return f"case {self.case_id} / {self.method} / repeat {self.repeat}"
+
+
+def resolve_backend(options: EvalOptions) -> str:
+    if options.backend:
+        return options.backend
+    return "litellm" if (options.model or options.api_base) else "offline"
+
+
+def plan_jobs(suite: Suite, options: EvalOptions) -> list[Job]:
+    from keymps.eval.methods import get_method
+
+    for method in options.methods:
+        get_method(method)
+    cases = [suite.case(c) for c in options.cases] if options.cases else suite.cases
+    repeats = options.repeats or suite.repeats
+    # the methods of one scene next to each other: they share its rendering (scene cache)
+    return [
+        Job(case.id, method, r, case.scene.seed + r)
+        for case in cases
+        for r in range(repeats)
+        for method in options.methods
+    ]
+
+
+def _job_key(record: dict[str, Any]) -> tuple[Any, ...]:
+    return (
+        record.get("case"),
+        record.get("method"),
+        record.get("repeat"),
+        record.get("backend"),
+        record.get("model"),
+    )
+
+
+def read_results(path: Path) -> list[dict[str, Any]]:
+    """Records of results.jsonl; a line cut short by an interruption is skipped."""
+    if not path.is_file():
+        return []
+    records = []
+    for line in path.read_text(encoding="utf-8").splitlines():
+        try:
+            record = json.loads(line)
+        except json.JSONDecodeError:
+            continue
+        if isinstance(record, dict):
+            records.append(record)
+    return records
+
+
+class _ResultsFile:
+    """Appends one record per line, flushed and synced, from any thread."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        self.lock = threading.Lock()
+        if path.is_file() and path.stat().st_size:
+            with path.open("rb") as handle:
+                handle.seek(-1, os.SEEK_END)
+                ends_cleanly = handle.read(1) == b"\n"
+            if not ends_cleanly:  # a line cut short by an interruption: start a fresh line
+                with path.open("a", encoding="utf-8") as handle:
+                    handle.write("\n")
+
+    def append(self, record: dict[str, Any]) -> None:
+        line = json.dumps(record, allow_nan=False)
+        with self.lock, self.path.open("a", encoding="utf-8") as handle:
+            handle.write(line + "\n")
+            handle.flush()
+            os.fsync(handle.fileno())
+
+
+def write_task_file(suite: Suite, job: Job, out: Path) -> Path:
+    """The case's task for this seed as a task file (reusable with `keymps run`)."""
+    import yaml
+
+    from keymps.eval.tasks import case_task_data
+
+    case = suite.case(job.case_id)
+    data = case_task_data(suite, case, job.seed)
+    data["name"] = f"{data['name']}-r{job.repeat}"
+    path = out / "tasks" / job.method / f"{job.case_id}-r{job.repeat}.yaml"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    header = f"# {suite.name} case {case.id}, method {job.method}, repeat {job.repeat}\n"
+    dumper = getattr(yaml, "CSafeDumper", yaml.SafeDumper)  # libyaml's: the same text, faster
+    text = yaml.dump(data, Dumper=dumper, sort_keys=False)
+    path.write_text(header + text, encoding="utf-8")
+    return path
+
+
+def prepare(suite: Suite, options: EvalOptions) -> None:
+    """Folder set-up shared by the jobs: VLM-Keypoint's zero-weight primitives."""
+    from keymps.eval.methods import get_method, zero_weight_primitives
+    from keymps.primitives.dictionary import default_search_dirs
+
+    for name in options.methods:
+        if get_method(name).zero_weights:
+            names = sorted(
+                {p for c in suite.cases for p in (c.primitives or suite.primitives)}
+                | {c.ground_truth.primitive for c in suite.cases if c.ground_truth}
+            )
+            zero_weight_primitives(
+                names,
+                default_search_dirs(suite.folder),
+                options.out / "tasks" / name / "primitives",
+            )
+
+
+def _vlm_totals(calls: tuple[dict[str, Any], ...]) -> dict[str, Any]:
+    def total(key: str) -> float | None:
+        values = [c[key] for c in calls if c.get(key) is not None]
+        return float(sum(values)) if values else None
+
+    return {
+        "vlm_calls": len(calls),
+        "cached": sum(1 for c in calls if c.get("cached")),
+        "cost_usd": total("cost_usd"),
+        "prompt_tokens": total("prompt_tokens"),
+        "completion_tokens": total("completion_tokens"),
+        "vlm_latency_s": round(total("latency_s") or 0.0, 3),
+    }
+
+
+def job_record(suite: Suite, job: Job, options: EvalOptions, backend: str) -> dict[str, Any]:
+    """The fields that name a run in results.jsonl, first in every record, failed or not."""
+    return {
+        "suite": suite.name,
+        "case": job.case_id,
+        "method": job.method,
+        "repeat": job.repeat,
+        "seed": job.seed,
+        "backend": backend,
+        "model": options.model,
+    }
+
+
+def run_job(suite: Suite, job: Job, options: EvalOptions, backend: str) -> dict[str, Any]:
+    """Run and score one job; failures become a record with ok = False and the error."""
+    from keymps.eval.methods import MethodContext, PartialRunError, get_method, partial_output
+
+    started = time.perf_counter()
+    folder = options.out / "runs" / job.method / job.case_id / f"r{job.repeat}"
+    record = {
+        **job_record(suite, job, options, backend),
+        "folder": str(folder.relative_to(options.out)),
+    }
+    case = suite.case(job.case_id)
+    output = None
+    try:
+        task_path = write_task_file(suite, job, options.out)
+        context = MethodContext(
+            task_path,
+            folder,
+            backend,
+            options.model,
+            options.api_base,
+            plan_only=suite.kind == "equal_parts",
+            no_cache=options.no_cache,
+            image_format=options.image_format,
+        )
+        try:
+            output = get_method(job.method).run(context)
+            error: str | None = None
+        except PartialRunError as stopped:
+            output, error = partial_output(stopped, context), str(stopped)
+        record.update(_score(suite, case, job, output, options.n))
+        if error is not None:
+            record["ok"], record["error"] = False, " ".join(error.split())
+            record["success"] = False if record.get("success") is not None else None
+    except KeympsError as failure:
+        record.update(ok=False, error=" ".join(str(failure).split()))
+    except Exception as failure:  # a bug must not stop the suite; keep where it happened
+        where = traceback.extract_tb(failure.__traceback__)[-1]
+        record.update(
+            ok=False,
+            error=f"internal error {type(failure).__name__}: {failure} "
+            f"({Path(where.filename).name}:{where.lineno})",
+        )
+    if output is not None:
+        _write_design(folder, output)
+        record.update(_vlm_totals(output.calls))
+        record["images"] = {
+            k: str(Path(v).relative_to(options.out)) for k, v in output.images.items()
+        }
+    record["seconds"] = round(time.perf_counter() - started, 3)
+    return record
+
+
+def _write_design(folder: Path, output: Any) -> None:
+    """design.json: what the method generated, seen from above (the equal-parts check's input)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    design = {
+        "keyword": output.keyword,
+        "lines_m": np.round(np.asarray(output.lines_m, dtype=float), 6).tolist(),
+        "work_pieces": len(output.work_pieces),
+    }
+    (folder / "design.json").write_text(json.dumps(design), encoding="utf-8")
+
+
+def _score(suite: Suite, case: Any, job: Job, output: Any, n: int) -> dict[str, Any]:
+    from keymps.eval.truth import case_truth
+    from keymps.eval.metric import metric_d, metric_d_optimal
+
+    truth = case_truth(suite, case, job.seed, sidecar=output.scene)
+    scored: dict[str, Any] = {
+        "ok": True,
+        "error": None,
+        "keyword": output.keyword,
+        "pieces": len(output.work_pieces),
+    }
+    if case.ground_truth is not None:
+        scored["truth_keyword"] = case.ground_truth.primitive
+        scored["truth_pieces"] = len(truth.pieces)
+        if output.work_pieces:
+            scored["d_mm"] = round(1000 * metric_d(truth.pieces, output.work_pieces, n), 3)
+            scored["d_optimal_mm"] = round(
+                1000 * metric_d_optimal(truth.pieces, output.work_pieces, n), 3
+            )
+    if suite.kind == "equal_parts" and suite.parts is not None:
+        from keymps.eval.parts import check_equal_parts
+
+        scene_object = truth.scene["objects"][0]
+        hole = scene_object.get("hole_m")
+        check = check_equal_parts(
+            np.asarray(scene_object["outline_m"]),
+            output.lines_m,
+            suite.parts,
+            suite.tolerance,
+            np.asarray(hole) if hole else None,
+        )
+        scored["success"] = check.ok
+        scored["parts"] = len(check.areas_m2)
+        scored["parts_detail"] = check.describe()
+        deviation = check.worst_deviation
+        scored["worst_deviation"] = round(deviation, 4) if np.isfinite(deviation) else None
+    return scored
+
+
+ProgressCallback = Callable[[Job, dict[str, Any]], None]
+
+
+def run_suite(
+    suite: Suite, options: EvalOptions, on_result: ProgressCallback | None = None
+) -> list[dict[str, Any]]:
+    """Run every job not yet in out/results.jsonl; return all records for these jobs."""
+    from keymps.eval.methods import check_runnable, get_method
+    from keymps.eval.pool import default_processes, run_in_processes
+    from keymps.eval.turn import CpuTurn
+    from keymps.eval.broker import BROKERED_BACKEND, VlmBroker, activated
+
+    backend = resolve_backend(options)
+    for name in options.methods:
+        check_runnable(get_method(name), backend)
+    jobs = plan_jobs(suite, options)
+    options.out.mkdir(parents=True, exist_ok=True)
+    results = _ResultsFile(options.out / RESULTS_FILE)
+    done = {_job_key(r): r for r in read_results(results.path) if r.get("suite") == suite.name}
+
+    def key(job: Job) -> tuple[Any, ...]:
+        return (job.case_id, job.method, job.repeat, backend, options.model)
+
+    todo = [job for job in jobs if key(job) not in done]
+    prepare(suite, options)
+    records = {key(job): done[key(job)] for job in jobs if key(job) in done}
+    if on_result:
+        for job in jobs:
+            if key(job) in done:
+                on_result(job, done[key(job)])
+
+    def finished(job: Job, record: dict[str, Any]) -> None:
+        results.append(record)
+        records[key(job)] = record
+        if on_result:
+            on_result(job, record)
+
+    processes = options.processes or default_processes(options.concurrency, len(todo))
+    processes = min(processes, options.concurrency)
+    # given up by the broker while a run of this process waits for the VLM
+    turn = CpuTurn(active=backend == BROKERED_BACKEND)
+    warm_up = backend == BROKERED_BACKEND and bool(todo)
+    broker = VlmBroker(options.concurrency, warm_up=warm_up, turn=turn)
+    try:
+        if processes > 1:
+            run_in_processes(suite, todo, options, backend, processes, finished, broker)
+        else:
+            with activated(broker):
+                _run_in_threads(suite, todo, options, backend, finished, broker, turn)
+    finally:
+        broker.close()
+    return [records[key(job)] for job in jobs]
+
+
+def _run_in_threads(
+    suite: Suite,
+    jobs: list[Job],
+    options: EvalOptions,
+    backend: str,
+    finished: ProgressCallback,
+    broker: VlmBroker,
+    turn: CpuTurn,
+) -> None:
+    """Run `jobs` in threads of this process, taking turns to compute."""
+    from keymps.eval.pool import runs_in_flight
+
+    pool = ThreadPoolExecutor(max_workers=runs_in_flight(options.concurrency, 1, backend))
+    try:
+        futures = {
+            pool.submit(turn.run, run_job, suite, job, options, backend): job for job in jobs
+        }
+        for future in as_completed(futures):
+            finished(futures[future], future.result())
+    finally:
+        broker.close()  # on an interruption, the runs waiting for the VLM stop at once
+        pool.shutdown(wait=True, cancel_futures=True)

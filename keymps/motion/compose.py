@@ -1,0 +1,169 @@
+"""Sequencing (Eq. 6): travel moves and re-targeted primitives composed into one tool path."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from keymps.errors import KeympsError
+from keymps.primitives.dictionary import Primitive
+from keymps.types import Piece, Segment, ToolPath
+
+WORK_SPACING_M = 0.001
+"""Work pieces are sampled at least this finely (the re-targeted rollout's points)."""
+TRAVEL_SPACING_M = 0.01
+"""Travel legs are straight lines; a point every centimetre is plenty for IK and checks."""
+TURN_STEP_RAD = math.radians(5.0)
+"""A turn in place is sampled at least this finely."""
+NO_HEADING_M = 0.001
+"""Segments with less horizontal travel than this (dots, plunges) keep the previous yaw."""
+
+
+class MotionError(KeympsError):
+    """The segments or motion settings cannot be composed into a tool path."""
+
+
+def compose_tool_path(
+    segments: Sequence[Segment],
+    primitive: Primitive,
+    *,
+    object_top: float,
+    clearance: float,
+    work_speed: float,
+    travel_speed: float,
+    yaw_mode: str,
+    home: np.ndarray,
+    home_yaw: float = 0.0,
+) -> ToolPath:
+    """From `home`, per segment a travel piece (rise to object_top + clearance, move over,
+    descend to the start) then a work piece (the primitive re-targeted to start/goal), and a
+    last travel piece back to `home`. Every piece starts and ends at rest.
+
+    yaw_mode 'follow' (a blade): the work piece's yaw is the segment's horizontal direction,
+    taken modulo 180 degrees to turn the wrist least (and kept within +-180 degrees); 'fixed'
+    (a piping bag): yaw stays `home_yaw`. Yaw changes only while moving over, above the object.
+    """
+    home_arr = _finite_point(home, "home")
+    _check_settings(object_top, clearance, work_speed, travel_speed, yaw_mode)
+    if not segments:
+        raise MotionError("compose: the plan has no keypoint pairs to execute")
+    travel_z = object_top + clearance
+    pieces: list[Piece] = []
+    yaws = _work_yaws(segments, yaw_mode, home_yaw)
+    work_paths = [
+        primitive.rollout(
+            _finite_point(seg.start, f"segment {k + 1} start"),
+            _finite_point(seg.goal, f"segment {k + 1} goal"),
+            speed=work_speed,
+            spacing=WORK_SPACING_M,
+            # A plunge has no direction of its own: a blade's demo keeps the blade's yaw.
+            heading=yaws[k] if yaw_mode == "follow" else None,
+        ).y
+        for k, seg in enumerate(segments)
+    ]
+    position, yaw = home_arr, yaws[0] if yaw_mode == "follow" else home_yaw
+    for index, (points, work_yaw) in enumerate(zip(work_paths, yaws, strict=True)):
+        travel_points, travel_yaw = _travel(position, points[0], travel_z, yaw, work_yaw)
+        pieces.append(Piece("travel", index, travel_points, travel_yaw, float(travel_speed)))
+        pieces.append(
+            Piece("work", index, points, np.full(len(points), work_yaw), float(work_speed))
+        )
+        position, yaw = points[-1], work_yaw
+    travel_points, travel_yaw = _travel(position, home_arr, travel_z, yaw, yaw)
+    pieces.append(
+        Piece("travel", len(segments) - 1, travel_points, travel_yaw, float(travel_speed))
+    )
+    return ToolPath(pieces=tuple(pieces), keyword=primitive.name)
+
+
+def _work_yaws(segments: Sequence[Segment], yaw_mode: str, home_yaw: float) -> list[float]:
+    """Per segment, the tool yaw during its work piece."""
+    if yaw_mode == "fixed":
+        return [home_yaw] * len(segments)
+    headings = []
+    for segment in segments:
+        delta = np.asarray(segment.goal, float)[:2] - np.asarray(segment.start, float)[:2]
+        headings.append(
+            math.atan2(delta[1], delta[0]) if np.hypot(*delta) >= NO_HEADING_M else None
+        )
+    first = next((h for h in headings if h is not None), home_yaw)
+    previous = _wrap_half_turn(first)
+    yaws = []
+    for heading in headings:
+        if heading is not None:
+            previous = _closest_blade_yaw(heading, previous)
+        yaws.append(previous)
+    return yaws
+
+
+def _wrap_half_turn(angle: float) -> float:
+    """The blade direction equivalent to `angle` (mod 180 degrees) in (-90, 90] degrees."""
+    wrapped = math.remainder(angle, math.pi)
+    return math.pi / 2 if math.isclose(wrapped, -math.pi / 2) else wrapped
+
+
+def _closest_blade_yaw(heading: float, previous: float) -> float:
+    """heading + k*180 degrees nearest to previous, within [-180, 180] degrees."""
+    candidate = previous + math.remainder(heading - previous, math.pi)
+    if candidate > math.pi + 1e-12:
+        candidate -= math.pi
+    elif candidate < -math.pi - 1e-12:
+        candidate += math.pi
+    return candidate
+
+
+def _travel(
+    start: np.ndarray, end: np.ndarray, travel_z: float, start_yaw: float, end_yaw: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Rise to travel_z (if below), move over at or above it, descend to end (if below).
+
+    Every point of the over-move is at or above travel_z, so it cannot cross the object. The
+    yaw turns only up there: along the over-move, or in place when the move is too short."""
+    above_start = np.array([start[0], start[1], max(start[2], travel_z)])
+    above_end = np.array([end[0], end[1], max(end[2], travel_z)])
+    over_is_short = float(np.linalg.norm(above_end - above_start)) < 1e-3
+    turn = (above_start, above_start, start_yaw, end_yaw) if over_is_short else None
+    legs = [
+        (start, above_start, start_yaw, start_yaw),
+        *([turn] if turn is not None else []),
+        (above_start, above_end, end_yaw if over_is_short else start_yaw, end_yaw),
+        (above_end, end, end_yaw, end_yaw),
+    ]
+    points, yaws = [start[None, :]], [np.array([start_yaw])]
+    for a, b, yaw_a, yaw_b in legs:
+        length = float(np.linalg.norm(b - a))
+        rotation = abs(yaw_b - yaw_a)
+        if length < 1e-12 and rotation < 1e-12:
+            continue
+        count = max(1, math.ceil(length / TRAVEL_SPACING_M), math.ceil(rotation / TURN_STEP_RAD))
+        fractions = np.linspace(0.0, 1.0, count + 1)[1:]
+        points.append(a + fractions[:, None] * (b - a))
+        yaws.append(yaw_a + fractions * (yaw_b - yaw_a))
+    if len(points) == 1:  # already there: a zero-length piece of two identical points
+        points.append(end[None, :])
+        yaws.append(np.array([end_yaw]))
+    return np.vstack(points), np.concatenate(yaws)
+
+
+def _finite_point(value: object, name: str) -> np.ndarray:
+    arr = np.asarray(value, dtype=float)
+    if arr.shape != (3,) or not np.isfinite(arr).all():
+        raise MotionError(f"compose: {name} must be a finite [x, y, z] point, got {value!r}")
+    return arr
+
+
+def _check_settings(
+    object_top: float, clearance: float, work_speed: float, travel_speed: float, yaw_mode: str
+) -> None:
+    for name, value in (("object_top", object_top), ("clearance", clearance)):
+        if not math.isfinite(value) or value < 0:
+            raise MotionError(
+                f"compose: {name} must be a non-negative number of metres, got {value}"
+            )
+    for name, value in (("work_speed", work_speed), ("travel_speed", travel_speed)):
+        if not math.isfinite(value) or value <= 0:
+            raise MotionError(f"compose: {name} must be a positive number of m/s, got {value}")
+    if yaw_mode not in ("follow", "fixed"):
+        raise MotionError(f"compose: yaw mode {yaw_mode!r} is not 'follow' or 'fixed'")

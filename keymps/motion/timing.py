@@ -1,0 +1,363 @@
+"""Time a tool path: jerk-limited Ruckig profiles on the arc length of each stroke.
+
+Community Ruckig has no offline intermediate waypoints, so every stroke (a part of a piece
+between sharp corners, starting and ending at rest) gets a 1-DOF state-to-state profile of its
+path parameter s. The tool path is mapped to joints through the IK solution (a cubic spline
+q(s) through IK points at most 2 mm apart), then joint velocity, acceleration and jerk are
+checked on a 1 kHz sampling and a stroke that breaks a limit is slowed down and re-timed.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from keymps.errors import KeympsError
+from keymps.types import JointPath, ToolPath, Trajectory
+
+if TYPE_CHECKING:
+    from keymps.config.task import Task
+    from keymps.robot.model import RobotModel
+
+CORNER_ANGLE_RAD = math.radians(30.0)
+"""A turn sharper than this between path segments stops the tool (a stroke ends there)."""
+MIN_STEP_M = 2e-5
+"""Path points closer than this to the previous one are dropped (dwell jitter)."""
+CORNER_CHORD_M = 0.0005
+"""Path directions at a point are measured over chords at least this long."""
+YAW_RADIUS_M = 0.05
+"""Turning the tool by 1 rad counts like moving it 5 cm along the path parameter."""
+MAX_KNOT_SPACING = 0.002
+"""IK points are added wherever the tool path's points are further apart than this."""
+CHECK_RATE_HZ = 1000.0
+LIMIT_MARGIN = 0.98
+"""Slowed-down strokes aim this far inside the violated limit."""
+MAX_RETIMES = 12
+
+
+@dataclass(frozen=True)
+class Limits:
+    """Limits of the path parameter s for one stroke."""
+
+    velocity: float
+    acceleration: float
+    jerk: float
+
+    def scaled(self, factor: float) -> Limits:
+        """The same profile shape, `factor` times slower."""
+        return Limits(self.velocity / factor, self.acceleration / factor**2, self.jerk / factor**3)
+
+
+@dataclass
+class Stroke:
+    """A rest-to-rest part of one piece: the polyline, its arc parameter, q(s)."""
+
+    piece_index: int
+    kind: str
+    s: np.ndarray
+    points: np.ndarray
+    q_of_s: Any
+    """scipy CubicSpline: (m,) s -> (m, 6) joints, with derivatives."""
+    speed: float
+
+    @property
+    def length(self) -> float:
+        return float(self.s[-1])
+
+
+@dataclass
+class TimedStroke:
+    stroke: Stroke
+    profile: Any
+    """ruckig.Trajectory of s."""
+    duration: float
+    limits: Limits
+    slowdown: float
+    """Duration relative to the profile with the tool limits alone (1.0: no joint limit hit)."""
+
+
+def _parameter_steps(points: np.ndarray, yaw: np.ndarray) -> np.ndarray:
+    """(n-1, 4) steps in (x, y, z, YAW_RADIUS * yaw): the path parameter's geometry."""
+    return np.column_stack([np.diff(points, axis=0), YAW_RADIUS_M * np.diff(yaw)])
+
+
+def _corner_indexes(points: np.ndarray, yaw: np.ndarray) -> list[int]:
+    """Point indexes where the path turns sharper than CORNER_ANGLE_RAD.
+
+    Directions are chords of at least CORNER_CHORD_M on each side of a point, so that the
+    sub-millimetre jitter of a rollout turning round (the bottom of a dot) makes one corner,
+    not many; of a run of neighbouring corner points the middle one is kept.
+    """
+    geometry = np.column_stack([points, YAW_RADIUS_M * yaw])
+    steps = np.linalg.norm(np.diff(geometry, axis=0), axis=1)
+    arc = np.concatenate([[0.0], np.cumsum(steps)])
+    n = len(points)
+    if n < 3 or arc[-1] <= 0:
+        return []
+    before = np.searchsorted(arc, arc - CORNER_CHORD_M, side="right") - 1
+    after = np.searchsorted(arc, arc + CORNER_CHORD_M, side="left")
+    before, after = np.clip(before, 0, n - 1), np.clip(after, 0, n - 1)
+    incoming = geometry - geometry[before]
+    outgoing = geometry[after] - geometry
+    norms = np.linalg.norm(incoming, axis=1) * np.linalg.norm(outgoing, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cosine = np.where(norms > 1e-18, (incoming * outgoing).sum(axis=1) / norms, 1.0)
+    sharp = cosine < math.cos(CORNER_ANGLE_RAD)
+    sharp[[0, -1]] = False
+    corners = []
+    index = 0
+    while index < n:
+        if not sharp[index]:
+            index += 1
+            continue
+        end = index
+        while end + 1 < n and sharp[end + 1] and arc[end + 1] - arc[index] <= 2 * CORNER_CHORD_M:
+            end += 1
+        middle = (arc[index] + arc[end]) / 2  # a reversal's cluster is centred on its tip
+        corners.append(index + int(np.argmin(np.abs(arc[index : end + 1] - middle))))
+        index = end + 1
+    return corners
+
+
+def _densify(
+    model: RobotModel, points: np.ndarray, yaw: np.ndarray, q: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Insert IK-solved points where consecutive points are more than MAX_KNOT_SPACING apart."""
+    out_p, out_y, out_q = [points[:1]], [yaw[:1]], [q[:1]]
+    for i in range(1, len(points)):
+        gap = math.hypot(
+            float(np.linalg.norm(points[i] - points[i - 1])),
+            YAW_RADIUS_M * float(yaw[i] - yaw[i - 1]),
+        )
+        extra = math.ceil(gap / MAX_KNOT_SPACING) - 1
+        if extra > 0:
+            fractions = np.linspace(0, 1, extra + 2)[1:-1]
+            inner_p = points[i - 1] + fractions[:, None] * (points[i] - points[i - 1])
+            inner_y = yaw[i - 1] + fractions * (yaw[i] - yaw[i - 1])
+            inner_q, _, _ = model.solve_points(inner_p, inner_y, q[i - 1], where="timing")
+            out_p.append(inner_p)
+            out_y.append(inner_y)
+            out_q.append(inner_q)
+        out_p.append(points[i : i + 1])
+        out_y.append(yaw[i : i + 1])
+        out_q.append(q[i : i + 1])
+    return np.concatenate(out_p), np.concatenate(out_y), np.concatenate(out_q)
+
+
+def _significant_points(points: np.ndarray, yaw: np.ndarray) -> np.ndarray:
+    """Indexes of the points that move at least MIN_STEP_M from the last one kept.
+
+    A rollout that dwells (the bottom of an icing dot) jitters by micrometres; every such
+    wiggle would be a direction reversal of the path, a cusp the joints cannot follow at speed.
+    Dropping those points moves the path by less than MIN_STEP_M.
+    """
+    geometry = np.column_stack([points, YAW_RADIUS_M * yaw])
+    kept = [0]
+    for i in range(1, len(points)):
+        if np.linalg.norm(geometry[i] - geometry[kept[-1]]) >= MIN_STEP_M:
+            kept.append(i)
+    if len(kept) == 1:
+        return np.array(kept)  # a pure dwell: nothing for the timing to move along
+    kept[-1] = len(points) - 1
+    return np.array(kept)
+
+
+def split_strokes(model: RobotModel, tool_path: ToolPath, joint_path: JointPath) -> list[Stroke]:
+    """Every piece cut at its sharp corners; parts that do not move are dropped."""
+    from scipy.interpolate import CubicSpline
+
+    if len(joint_path.pieces) != len(tool_path.pieces):
+        raise KeympsError(
+            f"timing: the joint path has {len(joint_path.pieces)} pieces but the tool path "
+            f"has {len(tool_path.pieces)}"
+        )
+    strokes = []
+    for index, (piece, q_all) in enumerate(zip(tool_path.pieces, joint_path.pieces, strict=True)):
+        if len(q_all) != len(piece.points):
+            raise KeympsError(
+                f"timing: piece {index} has {len(piece.points)} points but {len(q_all)} joint "
+                "vectors"
+            )
+        kept = _significant_points(piece.points, piece.yaw)
+        if len(kept) < 2:
+            continue
+        points, yaw, q = piece.points[kept], piece.yaw[kept], q_all[kept]
+        cuts = [0, *_corner_indexes(points, yaw), len(points) - 1]
+        for start, end in zip(cuts[:-1], cuts[1:], strict=True):
+            part = slice(start, end + 1)
+            dense_p, dense_yaw, dense_q = _densify(model, points[part], yaw[part], q[part])
+            s_dense = np.concatenate(
+                [[0.0], np.cumsum(np.linalg.norm(_parameter_steps(dense_p, dense_yaw), axis=1))]
+            )
+            s_plan = np.concatenate(
+                [
+                    [0.0],
+                    np.cumsum(np.linalg.norm(_parameter_steps(points[part], yaw[part]), axis=1)),
+                ]
+            )
+            strokes.append(
+                Stroke(
+                    index,
+                    piece.kind,
+                    s_plan,
+                    points[part],
+                    CubicSpline(s_dense, dense_q, axis=0),
+                    float(piece.speed),
+                )
+            )
+    if not strokes:
+        raise KeympsError("timing: the tool path does not move")
+    return strokes
+
+
+def _profile(length: float, limits: Limits, period: float) -> tuple[Any, float]:
+    """Rest-to-rest Ruckig profile of s over `length`, its duration a multiple of `period`."""
+    from ruckig import InputParameter, Result, Ruckig
+    from ruckig import Trajectory as RuckigTrajectory
+
+    request = InputParameter(1)
+    request.current_position = [0.0]
+    request.target_position = [length]
+    request.max_velocity = [limits.velocity]
+    request.max_acceleration = [limits.acceleration]
+    request.max_jerk = [limits.jerk]
+    generator = Ruckig(1)
+    profile = RuckigTrajectory(1)
+    result = generator.calculate(request, profile)
+    if result not in (Result.Working, Result.Finished):
+        raise KeympsError(f"timing: Ruckig could not time a stroke of {length:.4f} m ({result})")
+    rounded = math.ceil(profile.duration / period - 1e-9) * period
+    if rounded - profile.duration > 1e-12:
+        request.minimum_duration = rounded
+        result = generator.calculate(request, profile)
+        if result not in (Result.Working, Result.Finished):
+            raise KeympsError(f"timing: Ruckig could not stretch a stroke to {rounded:.3f} s")
+    return profile, rounded
+
+
+def _sample_profile(profile: Any, times: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    values = np.array([[v[0] for v in profile.at_time(float(t))] for t in times])
+    return values[:, 0], values[:, 1], values[:, 2]
+
+
+def _joint_motion(
+    stroke: Stroke, s: np.ndarray, sd: np.ndarray, sdd: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """q, q dot, q double dot from q(s) and the timing of s (chain rule)."""
+    s = np.clip(s, 0.0, stroke.length)
+    q = stroke.q_of_s(s)
+    dq = stroke.q_of_s(s, 1)
+    ddq = stroke.q_of_s(s, 2)
+    return q, dq * sd[:, None], ddq * (sd**2)[:, None] + dq * sdd[:, None]
+
+
+def _limit_ratios(
+    model: RobotModel, qd: np.ndarray, qdd: np.ndarray, period: float
+) -> tuple[float, float, float]:
+    """The largest |qd|/limit, |qdd|/limit, |jerk|/limit (jerk by differences of qdd)."""
+    velocity = float((np.abs(qd) / model.velocity_limits).max())
+    acceleration = float((np.abs(qdd) / model.acceleration_limits).max())
+    jerk = np.diff(qdd, axis=0) / period if len(qdd) > 1 else np.zeros((1, 6))
+    return velocity, acceleration, float((np.abs(jerk) / model.jerk_limits).max())
+
+
+def time_stroke(
+    model: RobotModel, stroke: Stroke, tool_limits: Limits, period: float
+) -> TimedStroke:
+    """The fastest profile (tool limits first) whose joints stay inside every joint limit."""
+    limits = Limits(min(stroke.speed, tool_limits.velocity), *_tail(tool_limits))
+    check_period = min(period, 1.0 / CHECK_RATE_HZ)
+    first_duration = None
+    for attempt in range(MAX_RETIMES):
+        profile, duration = _profile(stroke.length, limits, period)
+        first_duration = first_duration or duration
+        times = np.arange(0.0, duration + 0.5 * check_period, check_period)
+        times[-1] = min(times[-1], duration)
+        s, sd, sdd = _sample_profile(profile, times)
+        _, qd, qdd = _joint_motion(stroke, s, sd, sdd)
+        rv, ra, rj = _limit_ratios(model, qd, qdd, check_period)
+        if max(rv, ra, rj) <= 1.0:
+            return TimedStroke(stroke, profile, duration, limits, duration / first_duration)
+        if attempt < MAX_RETIMES // 2:
+            # lower only what is violated: keeps the profile fast where it can be
+            limits = Limits(
+                limits.velocity / max(rv / LIMIT_MARGIN, 1.0),
+                limits.acceleration / max(ra / LIMIT_MARGIN, 1.0),
+                limits.jerk / max(rj / LIMIT_MARGIN, 1.0),
+            )
+        else:
+            limits = limits.scaled(max(rv, math.sqrt(ra), rj ** (1 / 3)) / LIMIT_MARGIN)
+    raise KeympsError(
+        f"timing: piece {stroke.piece_index} ({stroke.kind}) cannot be timed inside the joint "
+        "limits; the path passes too close to a singularity: move the base (task robot.base)"
+    )
+
+
+def _tail(limits: Limits) -> tuple[float, float]:
+    return limits.acceleration, limits.jerk
+
+
+def time_trajectory(
+    model: RobotModel, tool_path: ToolPath, joint_path: JointPath, task: Task
+) -> Trajectory:
+    """Jerk-limited, joint-limit-respecting trajectory sampled at the controller rate."""
+    timed = time_strokes(model, tool_path, joint_path, task)
+    rate = float(task.robot.rate_hz or model.rate_hz)
+    return sample_trajectory(model, tool_path, timed, rate)
+
+
+def time_strokes(
+    model: RobotModel, tool_path: ToolPath, joint_path: JointPath, task: Task
+) -> list[TimedStroke]:
+    """Each stroke timed on its own (they start and end at rest)."""
+    rate = float(task.robot.rate_hz or model.rate_hz)
+    tool_limits = Limits(math.inf, task.robot.max_tool_acceleration, task.robot.max_tool_jerk)
+    strokes = split_strokes(model, tool_path, joint_path)
+    return [time_stroke(model, stroke, tool_limits, 1.0 / rate) for stroke in strokes]
+
+
+def sample_trajectory(
+    model: RobotModel, tool_path: ToolPath, timed: list[TimedStroke], rate: float
+) -> Trajectory:
+    """Concatenate the strokes on one clock; every sample is on the controller's grid."""
+    period = 1.0 / rate
+    parts_t, parts_q, parts_qd, parts_qdd, parts_xyz, parts_piece = [], [], [], [], [], []
+    offset = 0
+    for number, item in enumerate(timed):
+        steps = round(item.duration / period)
+        last = number == len(timed) - 1
+        local = np.arange(steps + (1 if last else 0)) * period
+        s, sd, sdd = _sample_profile(item.profile, local)
+        q, qd, qdd = _joint_motion(item.stroke, s, sd, sdd)
+        parts_t.append((offset + np.arange(len(local))) * period)
+        parts_q.append(q)
+        parts_qd.append(qd)
+        parts_qdd.append(qdd)
+        parts_xyz.append(_planned_points(item.stroke, s))
+        parts_piece.append(np.full(len(local), item.stroke.piece_index))
+        offset += steps
+    piece_index = np.concatenate(parts_piece).astype(int)
+    kinds = np.array([tool_path.pieces[i].kind for i in range(len(tool_path.pieces))], dtype="<U6")
+    trajectory = Trajectory(
+        t=np.concatenate(parts_t),
+        q=np.concatenate(parts_q),
+        qd=np.concatenate(parts_qd),
+        qdd=np.concatenate(parts_qdd),
+        tool_xyz=np.concatenate(parts_xyz),
+        piece_index=piece_index,
+        kind=kinds[piece_index],
+        joint_names=model.joint_names,
+        rate_hz=rate,
+    )
+    trajectory.qd[[0, -1]] = 0.0  # at rest; removes 1e-17 residues of the profile
+    trajectory.qdd[[0, -1]] = 0.0
+    return trajectory
+
+
+def _planned_points(stroke: Stroke, s: np.ndarray) -> np.ndarray:
+    """The tool path's polyline at arc parameter s (what the tool should be doing)."""
+    s = np.clip(s, 0.0, stroke.length)
+    return np.column_stack([np.interp(s, stroke.s, stroke.points[:, k]) for k in range(3)])

@@ -1,0 +1,97 @@
+"""Trajectory files: the run folder's CSV and a JSON in the shape of a ROS JointTrajectory."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from keymps.errors import KeympsError
+from keymps.types import Trajectory
+
+CSV_HEADER = "t,q1,q2,q3,q4,q5,q6,x,y,z,piece,kind"
+
+
+def write_trajectory_csv(trajectory: Trajectory, path: str | Path) -> Path:
+    """One row per controller sample: seconds, radians, tool tip metres (board), piece, kind."""
+    path = Path(path)
+    rows = [CSV_HEADER]
+    for i in range(trajectory.samples):
+        q = ",".join(f"{v:.9f}" for v in trajectory.q[i])
+        xyz = ",".join(f"{v:.6f}" for v in trajectory.tool_xyz[i])
+        rows.append(
+            f"{trajectory.t[i]:.6f},{q},{xyz},{int(trajectory.piece_index[i])},{trajectory.kind[i]}"
+        )
+    _write_text(path, "\n".join(rows) + "\n")
+    return path
+
+
+def read_trajectory_csv(path: str | Path) -> dict[str, np.ndarray]:
+    """The columns of a trajectory CSV: t (n,), q (n, 6), xyz (n, 3), piece (n,), kind (n,)."""
+    path = Path(path)
+    try:
+        lines = path.read_text(encoding="utf-8").splitlines()
+    except OSError as error:
+        raise KeympsError(f"{path}: cannot read: {error.strerror}") from None
+    if not lines or lines[0].strip() != CSV_HEADER:
+        raise KeympsError(f"{path}:1: expected the header {CSV_HEADER}")
+    numbers, kinds = [], []
+    for number, line in enumerate(lines[1:], start=2):
+        fields = line.split(",")
+        try:
+            if len(fields) != 12:
+                raise ValueError(f"{len(fields)} fields instead of 12")
+            numbers.append([float(v) for v in fields[:11]])
+        except ValueError as error:
+            raise KeympsError(f"{path}:{number}: {error}") from None
+        kinds.append(fields[11].strip())
+    table = np.array(numbers, dtype=float).reshape(-1, 11)
+    return {
+        "t": table[:, 0],
+        "q": table[:, 1:7],
+        "xyz": table[:, 7:10],
+        "piece": table[:, 10].astype(int),
+        "kind": np.array(kinds),
+    }
+
+
+def joint_trajectory_message(trajectory: Trajectory) -> dict[str, object]:
+    """trajectory_msgs/JointTrajectory as plain data (header left for the consumer to stamp)."""
+    points = []
+    for i in range(trajectory.samples):
+        t = float(trajectory.t[i])
+        seconds = math.floor(t)
+        nanoseconds = round((t - seconds) * 1e9)
+        if nanoseconds >= 1_000_000_000:
+            seconds, nanoseconds = seconds + 1, nanoseconds - 1_000_000_000
+        points.append(
+            {
+                "positions": [float(v) for v in trajectory.q[i]],
+                "velocities": [float(v) for v in trajectory.qd[i]],
+                "accelerations": [float(v) for v in trajectory.qdd[i]],
+                "effort": [],
+                "time_from_start": {"sec": int(seconds), "nanosec": int(nanoseconds)},
+            }
+        )
+    return {
+        "header": {"stamp": {"sec": 0, "nanosec": 0}, "frame_id": ""},
+        "joint_names": list(trajectory.joint_names),
+        "points": points,
+    }
+
+
+def write_joint_trajectory_json(trajectory: Trajectory, path: str | Path) -> Path:
+    """The trajectory as a ROS 2 JointTrajectory message in JSON."""
+    path = Path(path)
+    _write_text(path, json.dumps(joint_trajectory_message(trajectory), separators=(",", ":")))
+    return path
+
+
+def _write_text(path: Path, text: str) -> None:
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text, encoding="utf-8")
+    except OSError as error:
+        raise KeympsError(f"{path}: cannot write: {error.strerror}") from None

@@ -1,0 +1,242 @@
+"""Runs a task stage by stage: each timed, each announced, the first error stops everything."""
+
+from __future__ import annotations
+
+import os
+import re
+import time
+import warnings
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from keymps.config.overrides import apply_overrides
+from keymps.config.task import Task, load_task
+from keymps.errors import KeympsError, StageError
+from keymps.plugin.manager import create_component, get_manager
+from keymps.run import IMAGE_FORMATS, Run, RunOptions
+from keymps.types import SceneImage
+
+StageCallback = Callable[[str, float, Any], None]
+"""on_stage(stage, seconds, result): called after each stage (the CLI shows progress with it)."""
+
+
+class Components:
+    """Everything a run needs, built before the first stage so configuration errors cost nothing."""
+
+    def __init__(self, task: Task, backend: str):
+        from keymps.primitives.dictionary import default_search_dirs, load_primitives
+        from keymps.robot.model import RobotModel
+
+        self.image_source = _create(
+            task, "image_source", task.scene.source, task.scene.source_options, ("scene", "source")
+        )
+        self.detector = _create(
+            task, "detector", task.detector.name, task.detector.options, ("detector",)
+        )
+        self.executor = _create(
+            task, "executor", task.executor.name, task.executor.options, ("executor",)
+        )
+        try:
+            self.primitives = load_primitives(task.primitives, default_search_dirs(task.folder))
+        except KeympsError as error:
+            raise KeympsError(f"{task.where('primitives')}: primitives: {error}") from None
+        try:
+            self.robot = RobotModel.from_task(task)
+        except KeympsError as error:
+            raise _located(task, error) from None
+        self.backend = backend
+
+
+_FIELD_PREFIX = re.compile(r"^([a-z_]+(?:\.[a-z_]+)+): ")
+"""An error that starts with a task field ("robot.tool: ...") can point into the task file."""
+
+
+def _located(task: Task, error: KeympsError) -> KeympsError:
+    """The error with the file:line:col of the task field it names, when it names one."""
+    named = _FIELD_PREFIX.match(str(error))
+    if named is None:
+        return error
+    return KeympsError(f"{task.where(*named.group(1).split('.'))}: {error}")
+
+
+def _create(
+    task: Task, kind: str, name: str, options: dict[str, Any], field_path: tuple[str, ...]
+) -> Any:
+    try:
+        return create_component(kind, name, options)
+    except KeympsError as error:
+        raise KeympsError(f"{task.where(*field_path)}: {'.'.join(field_path)}: {error}") from None
+
+
+def _new_run_folder(task: Task, out: Path | None) -> Path:
+    if out is not None:
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+        except OSError as error:  # a file of that name, a read-only place ...
+            raise KeympsError(
+                f"--out {out}: cannot create the run folder: {error.strerror}"
+            ) from None
+        return out
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    base = Path("runs") / f"{task.name}-{stamp}"
+    folder, n = base, 1
+    while folder.exists():
+        n += 1
+        folder = base.with_name(f"{base.name}-{n}")
+    try:
+        folder.mkdir(parents=True)
+    except OSError as error:
+        raise KeympsError(
+            f"cannot create the run folder {folder}: {error.strerror} (choose one with --out)"
+        ) from None
+    return folder
+
+
+class _Pipeline:
+    """The stage sequence of one run (Alg. 1 of the paper, plus solve/time/check/execute)."""
+
+    def __init__(self, run: Run, parts: Components, on_stage: StageCallback | None):
+        self.run = run
+        self.parts = parts
+        self.on_stage = on_stage
+        self.manager = get_manager()
+
+    def stage(self, name: str, work: Callable[[], Any]) -> Any:
+        started = time.perf_counter()
+        try:
+            result = work()
+        except KeympsError as error:
+            raise StageError(name, str(error)) from None
+        except Exception as error:
+            # A bug in keymps or in a plugin: still one line (and nothing after this stage
+            # runs); KEYMPS_DEBUG=1 shows the traceback for whoever fixes it.
+            if os.environ.get("KEYMPS_DEBUG"):
+                raise
+            detail = " ".join(str(error).split()) or "no message"
+            raise StageError(
+                name,
+                f"unexpected {type(error).__name__}: {detail} "
+                "(a bug in keymps or a plugin; KEYMPS_DEBUG=1 shows the traceback)",
+            ) from error
+        seconds = time.perf_counter() - started
+        self.run.results[name] = result
+        self.run.timings_s[name] = seconds
+        if self.on_stage:
+            self.on_stage(name, seconds, result)
+        self.announce(name, result)
+        return result
+
+    def announce(self, name: str, result: Any) -> None:
+        """Tell the observers; a broken observer is reported, never fatal to the run."""
+        try:
+            self.manager.hook.keymps_stage_done(stage=name, result=result, run=self.run)
+        except Exception as error:
+            message = f"an observer of stage {name!r} failed: {type(error).__name__}: {error}"
+            self.run.warnings.append(message)
+            warnings.warn(message, RuntimeWarning, stacklevel=2)
+
+    def execute_all(self) -> None:
+        from keymps.config.limits import check_duration, check_tool_path
+        from keymps.motion.compose import compose_tool_path
+        from keymps.motion.timing import time_trajectory
+        from keymps.motion.trajectory_io import write_trajectory_csv
+        from keymps.perception import frames as geometry
+        from keymps.pipeline.overlay import draw_plan
+        from keymps.planning import planner as planning
+        from keymps.robot.model import solve_path
+        from keymps.robot.safety import validate
+
+        run, parts, task = self.run, self.parts, self.run.task
+        scene: SceneImage = self.stage("image", lambda: parts.image_source.load(run))
+        size = scene.size_px
+        pixel_shape = geometry.pixel_shape_warning(task, size)
+        if pixel_shape:
+            run.warnings.append(pixel_shape)
+        detection = self.stage("detect", lambda: parts.detector.detect(scene))
+        run.warnings.extend(detection.warnings)
+        descriptions = {name: p.description for name, p in parts.primitives.items()}
+        plan = self.stage(
+            "plan",
+            lambda: planning.make_plan(task, detection, scene, descriptions, run, parts.backend),
+        )
+        run.write_image("plan", draw_plan(scene.image, detection, plan))
+        grounding = self.stage("ground", lambda: geometry.ground(plan, detection, task, size))
+        tool = parts.robot.tool
+        tool_path = self.stage(
+            "compose",
+            lambda: check_tool_path(
+                compose_tool_path(
+                    grounding.segments,
+                    parts.primitives[plan.keyword],
+                    object_top=task.scene.object_height,
+                    clearance=task.motion.clearance,
+                    work_speed=task.motion.work_speed,
+                    travel_speed=task.motion.travel_speed,
+                    yaw_mode=tool.yaw,
+                    home=parts.robot.home_tool_position(),
+                ),
+                task,
+            ),
+        )
+        joint_path = self.stage("solve", lambda: solve_path(parts.robot, tool_path))
+        trajectory = self.stage(
+            "time",
+            lambda: check_duration(time_trajectory(parts.robot, tool_path, joint_path, task), task),
+        )
+        outline = geometry.object_outline_m(detection, task, size)
+        validated = self.stage(
+            "check", lambda: validate(parts.robot, trajectory, tool_path, outline, task)
+        )
+        write_trajectory_csv(validated.trajectory, run.path("trajectory.csv"))
+        report = self.stage("execute", lambda: parts.executor.execute(validated, run))
+        if not report.ok:
+            raise StageError("execute", report.message or f"executor {report.executor} failed")
+
+
+def run_task(
+    task: Task | str | Path,
+    *,
+    on_stage: StageCallback | None = None,
+    options: RunOptions | None = None,
+    **overrides: Any,
+) -> Run:
+    """Run a task end to end; return the finished Run (its folder holds run.json and the rest).
+
+    Keyword overrides: instruction, image, backend, model, api_base, executor, out, rerun,
+    rerun_url, no_cache, record, confirm, quiet, image_format. Raises KeympsError on the first
+    problem; nothing after the failing stage runs, above all no executor.
+    """
+    from keymps.pipeline.run_folder import write_run_json
+    from keymps.planning.planner import choose_backend
+
+    if not isinstance(task, Task):
+        task = load_task(task)
+    options = options or RunOptions()
+    for key in ("rerun", "rerun_url", "no_cache", "record", "confirm", "quiet", "image_format"):
+        if key in overrides:
+            setattr(options, key, overrides.pop(key))
+    if options.image_format not in IMAGE_FORMATS:
+        raise KeympsError(
+            f"image_format {options.image_format!r} is not one of: {', '.join(IMAGE_FORMATS)}"
+        )
+    out = overrides.pop("out", None)
+    task = apply_overrides(task, overrides)
+    backend, reason = choose_backend(
+        task, overrides.get("backend"), overrides.get("model"), overrides.get("api_base")
+    )
+    parts = Components(task, backend)
+    run = Run(task=task, folder=_new_run_folder(task, Path(out) if out else None), options=options)
+    run.notes["backend"] = backend
+    run.notes["backend_reason"] = reason
+    pipeline = _Pipeline(run, parts, on_stage)
+    error: BaseException | None = None
+    try:
+        pipeline.execute_all()
+    except BaseException as caught:
+        error = caught
+        raise
+    finally:
+        pipeline.announce("finished", error)
+        write_run_json(run, error)
+    return run

@@ -1,0 +1,1 @@
+"""The plan stage: backend choice, prompts, answers, the planning session (repair, cache, cassettes)."""

@@ -1,0 +1,107 @@
+"""Which planner backend a run uses: `auto` means a VLM when one is configured, else offline."""
+
+from __future__ import annotations
+
+import os
+from typing import TYPE_CHECKING
+
+from keymps.errors import KeympsError
+
+if TYPE_CHECKING:
+    from keymps.config.task import Task
+
+PROVIDER_KEYS: dict[str, tuple[str, ...]] = {
+    "openai": ("OPENAI_API_KEY",),
+    "anthropic": ("ANTHROPIC_API_KEY",),
+    "gemini": ("GEMINI_API_KEY", "GOOGLE_API_KEY"),
+    "vertex_ai": ("GOOGLE_APPLICATION_CREDENTIALS",),
+    "azure": ("AZURE_API_KEY",),
+    "mistral": ("MISTRAL_API_KEY",),
+    "groq": ("GROQ_API_KEY",),
+    "openrouter": ("OPENROUTER_API_KEY",),
+    "together_ai": ("TOGETHERAI_API_KEY", "TOGETHER_API_KEY"),
+    "xai": ("XAI_API_KEY",),
+    "deepseek": ("DEEPSEEK_API_KEY",),
+    "bedrock": ("AWS_ACCESS_KEY_ID",),
+    "ollama": ("OLLAMA_API_BASE",),
+    "ollama_chat": ("OLLAMA_API_BASE",),
+    "hosted_vllm": ("HOSTED_VLLM_API_BASE",),
+}
+"""litellm provider prefix -> environment variables that configure it (any one suffices)."""
+
+
+def model_provider(model: str) -> str:
+    """The litellm provider of a model string ('openai/gpt-4o' -> 'openai', 'claude-...')."""
+    if "/" in model:
+        return model.split("/", 1)[0]
+    if model.startswith("claude"):
+        return "anthropic"
+    if model.startswith("gemini"):
+        return "gemini"
+    return "openai"
+
+
+def credential_source(task: Task, model: str) -> str | None:
+    """Which environment variable configures `model`, or None when none is set."""
+    names = ((task.planner.api_key_env,) if task.planner.api_key_env else ()) + PROVIDER_KEYS.get(
+        model_provider(model), ()
+    )
+    return next((name for name in names if os.environ.get(name)), None)
+
+
+def choose_backend(
+    task: Task,
+    backend_override: str | None,
+    model_override: str | None,
+    api_base_override: str | None,
+) -> tuple[str, str]:
+    """(backend name, one sentence saying why): `auto` means a VLM when one is configured."""
+    requested = backend_override or task.planner.backend
+    model = model_override or task.planner.model
+    api_base = api_base_override or task.planner.api_base
+    if requested != "auto":
+        _check_backend(task, requested, model)
+        origin = "--backend" if backend_override else "the task's planner.backend"
+        return requested, f"{origin} asks for the {requested} planner"
+    if not model:
+        return "offline", "no VLM model is configured (planner.model or --model): offline planner"
+    if api_base:
+        return "litellm", f"model {model} is served at {api_base}"
+    source = credential_source(task, model)
+    if source:
+        return "litellm", f"model {model} with credentials from ${source}"
+    wanted = ((task.planner.api_key_env,) if task.planner.api_key_env else ()) + PROVIDER_KEYS.get(
+        model_provider(model), ()
+    )
+    need = " or ".join(f"${n}" for n in wanted) or "an api_base"
+    if model_override:
+        # a model asked for on the command line is meant: never fall back silently
+        if model_provider(model) in ("ollama", "ollama_chat"):
+            return "litellm", f"model {model} from Ollama at its default address"
+        raise KeympsError(
+            f"--model {model}: no credentials ({need} unset, no --api-base); set the key's "
+            "environment variable, or drop --model to plan offline"
+        )
+    return (
+        "offline",
+        f"model {model} has no credentials ({need} unset, no api_base): offline planner",
+    )
+
+
+def _check_backend(task: Task, backend: str, model: str | None) -> None:
+    """Fail before any stage runs when the requested backend cannot work."""
+    from keymps.plugin.manager import components
+
+    available = components("vlm_backend")
+    if backend not in available:
+        choices = ", ".join(["auto", *sorted(available)])
+        raise KeympsError(f"unknown planner backend {backend!r} (available: {choices})")
+    if backend == "litellm" and not model:
+        raise KeympsError(
+            "the litellm backend needs a model: set planner.model or pass --model "
+            "(e.g. openai/gpt-4o; see docs/vlm.md)"
+        )
+    if backend == "replay" and task.planner.cassette is None:
+        raise KeympsError(
+            "the replay backend needs a cassette: set planner.cassette or pass --cassette FILE.jsonl"
+        )

@@ -1,0 +1,239 @@
+"""Planning (Sec. IV-B/C): the primitive keyword and K keypoint pairs, from any backend.
+
+make_plan renders the prompt, asks the backend (one combined call, or keyword then pairs),
+validates each answer, sends invalid ones back with the problems for repair, records every
+attempt under run.folder/vlm, and answers from the cache or records to a cassette on request.
+
+Backend protocol (what a `register_vlm_backends` factory returns; see docs/vlm.md):
+
+    class MyBackend:
+        name = "mine"
+        cacheable = True          # answers may be cached on disk (paid or slow backends)
+        def complete(self, request: PlanRequest) -> BackendAnswer: ...
+
+The factory receives the planner options: model, api_base, api_key_env, temperature,
+timeout_s, cassette (None when unset).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Protocol
+
+import numpy as np
+
+from keymps.errors import KeympsError
+from keymps.planning.answer import Step, parse_and_validate
+from keymps.planning.backend_choice import choose_backend, credential_source, model_provider
+from keymps.types import Detection, Plan, SceneImage
+
+if TYPE_CHECKING:
+    from keymps.config.task import Task
+    from keymps.run import Run
+
+
+@dataclass(frozen=True)
+class PlanRequest:
+    """Everything a backend may use to answer one planning call."""
+
+    instruction: str
+    crop: np.ndarray
+    """The image sent (BGR, uint8): the object's crop."""
+    crop_mask: np.ndarray | None
+    """The object's pixels in the crop (bool), when the detector gives them."""
+    metres_per_px: tuple[float, float]
+    """Metres per crop pixel along x and y."""
+    primitives: Mapping[str, str]
+    """Primitive name -> description (the keyword must be one of the names)."""
+    object_height: float
+    max_pairs: int
+    messages: list[dict[str, Any]]
+    """The rendered chat: system prompt, the sentence with the crop as a PNG data URL, repairs."""
+    schema: dict[str, Any]
+    """The answer's JSON schema ({"name", "strict", "schema"}, OpenAI response_format style)."""
+    step: Step = "combined"
+    keyword: str | None = None
+    """For step 'pairs': the primitive chosen by the 'keyword' call."""
+    previous_errors: tuple[str, ...] = ()
+    """Problems with the previous attempt's answer (empty on the first attempt)."""
+    attempt: int = 1
+    model: str | None = None
+    temperature: float = 0.0
+    timeout_s: float = 60.0
+    task_name: str = ""
+    share_key: str | None = None
+    """Set when answers may be shared (the answer cache is on): identical requests out at the
+    same time then share one answer (keymps.eval.broker)."""
+
+    @property
+    def crop_size_px(self) -> tuple[int, int]:
+        return int(self.crop.shape[1]), int(self.crop.shape[0])
+
+
+@dataclass(frozen=True)
+class BackendAnswer:
+    """A backend's raw answer and what it cost."""
+
+    text: str
+    prompt_tokens: int | None = None
+    completion_tokens: int | None = None
+    latency_s: float = 0.0
+    cost_usd: float | None = None
+    """None where the price is unknown (e.g. a local model without a registered price)."""
+    model: str | None = None
+    retries: tuple[str, ...] = ()
+    """Failed tries before this answer (rate limits, server errors ...), one line each."""
+    shared: bool = False
+    """The answer to an identical request of another run, out at the same time: no call of its
+    own (recorded as cached)."""
+
+
+class PlannerBackend(Protocol):
+    name: str
+    cacheable: bool
+
+    def complete(self, request: PlanRequest) -> BackendAnswer: ...
+
+
+def backend_options(task: Task) -> dict[str, Any]:
+    """What a backend factory receives: the planner settings a backend may need."""
+    planner = task.planner
+    return {
+        "model": planner.model,
+        "api_base": planner.api_base,
+        "api_key_env": planner.api_key_env,
+        "temperature": planner.temperature,
+        "timeout_s": planner.timeout_s,
+        "cassette": str(task.resolve(planner.cassette)) if planner.cassette else None,
+    }
+
+
+def crop_metres_per_px(task: Task, detection: Detection, scene: SceneImage) -> tuple[float, float]:
+    """Metres per pixel at the crop's centre, along x and y (Appendix B or the camera's homography)."""
+    width, height = scene.size_px
+    try:
+        from keymps.perception.frames import ImageFrame
+    except ModuleNotFoundError as error:
+        if error.name != "keymps.perception.frames":
+            raise
+        ws = task.scene.workspace.size
+        return ws[0] / width, ws[1] / height
+    frame = ImageFrame.from_task(task, (width, height))
+    cx = detection.crop_origin_px[0] + detection.crop_size_px[0] / 2
+    cy = detection.crop_origin_px[1] + detection.crop_size_px[1] / 2
+    board = frame.to_board(np.array([[cx, cy], [cx + 1, cy], [cx, cy + 1]], dtype=float))
+    return (
+        float(np.linalg.norm(board[1] - board[0])),
+        float(np.linalg.norm(board[2] - board[0])),
+    )
+
+
+def crop_mask(detection: Detection, scene: SceneImage) -> np.ndarray | None:
+    """The detector's mask cut to the crop (it may cover the crop or the whole image)."""
+    mask = detection.mask
+    if mask is None:
+        return None
+    w, h = detection.crop_size_px
+    if mask.shape[:2] == (h, w):
+        return np.asarray(mask).astype(bool)
+    if mask.shape[:2] == scene.image.shape[:2]:
+        x0, y0 = detection.crop_origin_px
+        return np.asarray(mask[y0 : y0 + h, x0 : x0 + w]).astype(bool)
+    return None
+
+
+def make_plan(
+    task: Task,
+    detection: Detection,
+    scene: SceneImage,
+    primitives: Mapping[str, str],
+    run: Run,
+    backend: str,
+) -> Plan:
+    """Ask `backend` for the keyword and keypoint pairs; validated, repaired, recorded."""
+    from keymps.planning.prompt import find_prompt, png_bytes, png_data_url, prompt_family
+    from keymps.planning.session import PlanSession
+    from keymps.plugin.manager import create_component
+
+    if not primitives:
+        raise KeympsError("primitives: the task lists no primitives to choose from")
+    planner = task.planner
+    backend_object = create_component("vlm_backend", backend, backend_options(task))
+    prompt_path = find_prompt(
+        task.resolve(planner.prompt) if planner.prompt else None,
+        task.folder,
+        prompt_family(primitives),
+    )
+    crop_png = png_bytes(detection.crop)  # encoded once: sent, and kept as vlm/crop.png
+    image_url = png_data_url(detection.crop, crop_png)
+    base = PlanRequest(
+        instruction=task.instruction,
+        crop=detection.crop,
+        crop_mask=crop_mask(detection, scene),
+        metres_per_px=crop_metres_per_px(task, detection, scene),
+        primitives=dict(primitives),
+        object_height=task.scene.object_height,
+        max_pairs=planner.max_pairs,
+        messages=[],
+        schema={},
+        model=planner.model if backend != "offline" else None,
+        temperature=planner.temperature,
+        timeout_s=planner.timeout_s,
+        task_name=task.name,
+    )
+    session = PlanSession(
+        task=task,
+        run=run,
+        backend_name=backend,
+        backend=backend_object,
+        base=base,
+        system_template=_read_prompt(prompt_path),
+        template_source=str(prompt_path),
+        image_url=image_url,
+    )
+    session.vlm_folder.mkdir(parents=True, exist_ok=True)
+    (session.vlm_folder / "crop.png").write_bytes(crop_png)
+    if planner.combined:
+        combined = session.ask("combined")
+        keyword, pairs, rationale = combined.keyword, combined.pairs, combined.rationale
+    else:
+        chosen = session.ask("keyword")
+        placed = session.ask("pairs", keyword=chosen.keyword)
+        keyword, pairs = chosen.keyword, placed.pairs
+        rationale = " ".join(r for r in (chosen.rationale, placed.rationale) if r)
+    pairs_crop = np.asarray(pairs, dtype=float).reshape(-1, 2, 2)
+    pairs_px = pairs_crop + np.asarray(detection.crop_origin_px, dtype=float)
+    run.notes["prompt"] = str(prompt_path)
+    return Plan(
+        keyword=keyword,
+        pairs_crop_px=pairs_crop,
+        pairs_px=pairs_px,
+        backend=backend,
+        model=base.model,
+        rationale=rationale,
+        calls=tuple(session.calls),
+    )
+
+
+def _read_prompt(path: Path) -> str:
+    try:
+        return path.read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        raise KeympsError(f"prompt template {path} is not a UTF-8 text file") from None
+    except OSError as error:
+        raise KeympsError(f"cannot read the prompt template {path}: {error.strerror}") from None
+
+
+__all__ = [
+    "BackendAnswer",
+    "PlanRequest",
+    "PlannerBackend",
+    "backend_options",
+    "choose_backend",
+    "credential_source",
+    "make_plan",
+    "model_provider",
+    "parse_and_validate",
+]

@@ -1,0 +1,182 @@
+"""Prompt templates: find them, fill their {{placeholders}}, build the chat messages.
+
+A template is a Markdown file (prompts/cutting.md, prompts/icing.md) that becomes the system
+message. Placeholders are `{{name}}`; an unknown name is an error naming the file and line.
+"""
+
+from __future__ import annotations
+
+import base64
+import os
+import re
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from keymps.bundled import bundled_dir
+from keymps.errors import KeympsError
+from keymps.planning.answer import Step
+
+PLACEHOLDERS: dict[str, str] = {
+    "instruction": "the user's sentence",
+    "primitives": "a bulleted list '- name: description' of the task's primitives",
+    "primitive_names": "the primitive names, comma separated",
+    "crop_width": "width of the image sent, pixels",
+    "crop_height": "height of the image sent, pixels",
+    "mm_per_pixel": "millimetres per pixel of the image sent (x; y if they differ)",
+    "object_height_cm": "the object's height, centimetres",
+    "max_pairs": "the largest number of keypoint pairs accepted",
+    "output_format": "the JSON the model must answer with, for this call",
+    "step": "what this call must decide (combined, keyword, or pairs)",
+}
+"""Every placeholder a template may use, and what it becomes."""
+
+_PLACEHOLDER = re.compile(r"\{\{\s*([a-zA-Z_][a-zA-Z0-9_]*)\s*\}\}")
+
+_OUTPUT_FORMATS: dict[str, str] = {
+    "combined": (
+        "Answer with one JSON object and nothing else:\n"
+        '{"keyword": "<one primitive name>", "pairs": [[[x0, y0], [x1, y1]], ...], '
+        '"rationale": "<one or two sentences>"}'
+    ),
+    "keyword": (
+        "This call chooses the primitive only. Answer with one JSON object and nothing else:\n"
+        '{"keyword": "<one primitive name>", "rationale": "<one or two sentences>"}'
+    ),
+    "pairs": (
+        "The primitive is already chosen; this call places the keypoint pairs only. Answer with "
+        "one JSON object and nothing else:\n"
+        '{"pairs": [[[x0, y0], [x1, y1]], ...], "rationale": "<one or two sentences>"}'
+    ),
+}
+
+_STEPS = {
+    "combined": "choose the primitive and generate the keypoint pairs",
+    "keyword": "choose the primitive",
+    "pairs": "generate the keypoint pairs",
+}
+
+ICING_WORDS = re.compile(r"icing|pip(e|ing)|frost|decorat|rosette|cream", re.IGNORECASE)
+
+
+def prompt_family(primitives: Mapping[str, str]) -> str:
+    """'icing' when the primitives are for icing, else 'cutting'."""
+    text = " ".join(f"{name} {description}" for name, description in primitives.items())
+    return "icing" if ICING_WORDS.search(text) else "cutting"
+
+
+def prompt_search_dirs(task_folder: Path) -> list[Path]:
+    dirs = [task_folder / "prompts", task_folder.parent / "prompts"]
+    dirs += [Path(p) for p in os.environ.get("KEYMPS_PROMPTS_PATH", "").split(os.pathsep) if p]
+    dirs += [Path.cwd() / "prompts", bundled_dir("prompts")]
+    return dirs
+
+
+def find_prompt(explicit: Path | None, task_folder: Path, family: str) -> Path:
+    """The task's prompt file, or prompts/<family>.md from the search path."""
+    if explicit is not None:
+        if not explicit.is_file():
+            raise KeympsError(f"planner.prompt: file not found: {explicit}")
+        return explicit
+    searched = prompt_search_dirs(task_folder)
+    for folder in searched:
+        candidate = folder / f"{family}.md"
+        if candidate.is_file():
+            return candidate
+    raise KeympsError(
+        f"no prompt template {family}.md found (looked in: {', '.join(map(str, searched))}); "
+        "set planner.prompt in the task file"
+    )
+
+
+def render_template(template: str, values: Mapping[str, str], source: str = "<prompt>") -> str:
+    """Fill `{{name}}` placeholders; an unknown name is a KeympsError with file:line."""
+    for number, line in enumerate(template.splitlines(), start=1):
+        for match in _PLACEHOLDER.finditer(line):
+            if match.group(1) not in PLACEHOLDERS:
+                known = ", ".join(PLACEHOLDERS)
+                raise KeympsError(
+                    f"{source}:{number}: unknown placeholder {{{{{match.group(1)}}}}} "
+                    f"(known: {known})"
+                )
+    return _PLACEHOLDER.sub(lambda m: values[m.group(1)], template)
+
+
+def template_values(
+    *,
+    instruction: str,
+    primitives: Mapping[str, str],
+    crop_size_px: tuple[int, int],
+    metres_per_px: tuple[float, float],
+    object_height: float,
+    max_pairs: int,
+    step: Step,
+) -> dict[str, str]:
+    mx, my = (m * 1000 for m in metres_per_px)
+    scale = f"{mx:.3g}" if abs(mx - my) <= 0.01 * mx else f"{mx:.3g} (x), {my:.3g} (y)"
+    return {
+        "instruction": instruction,
+        "primitives": "\n".join(f"- {name}: {text}" for name, text in primitives.items()),
+        "primitive_names": ", ".join(primitives),
+        "crop_width": str(crop_size_px[0]),
+        "crop_height": str(crop_size_px[1]),
+        "mm_per_pixel": scale,
+        "object_height_cm": f"{object_height * 100:.3g}",
+        "max_pairs": str(max_pairs),
+        "output_format": _OUTPUT_FORMATS[step],
+        "step": _STEPS[step],
+    }
+
+
+def png_bytes(image: Any) -> bytes:
+    """The image encoded as PNG."""
+    import cv2
+
+    ok, encoded = cv2.imencode(".png", image)
+    if not ok:
+        raise KeympsError("cannot encode the crop as PNG")
+    return bytes(encoded.tobytes())
+
+
+def png_data_url(image: Any, png: bytes | None = None) -> str:
+    """The image as a base64 PNG data URL (what the VLM receives); `png`: already encoded."""
+    encoded = png if png is not None else png_bytes(image)
+    return "data:image/png;base64," + base64.b64encode(encoded).decode("ascii")
+
+
+def build_messages(
+    system_text: str,
+    instruction: str,
+    image_url: str,
+    crop_size_px: tuple[int, int],
+    keyword: str | None,
+    history: Sequence[tuple[str, Sequence[str]]],
+) -> list[dict[str, Any]]:
+    """System prompt, the user's sentence with the crop, then each invalid answer and its errors."""
+    text = (
+        f"Instruction: {instruction}\n"
+        f"The image is the object's crop, {crop_size_px[0]} x {crop_size_px[1]} pixels."
+    )
+    if keyword is not None:
+        text += f"\nThe chosen primitive is: {keyword}"
+    messages: list[dict[str, Any]] = [
+        {"role": "system", "content": system_text},
+        {
+            "role": "user",
+            "content": [
+                {"type": "text", "text": text},
+                {"type": "image_url", "image_url": {"url": image_url}},
+            ],
+        },
+    ]
+    for answer, errors in history:
+        messages.append({"role": "assistant", "content": answer})
+        messages.append(
+            {
+                "role": "user",
+                "content": "Your answer was invalid:\n"
+                + "\n".join(f"- {e}" for e in errors)
+                + "\nAnswer again with the corrected JSON object only.",
+            }
+        )
+    return messages

@@ -1,0 +1,265 @@
+"""One planning session: ask the backend, validate, repair, record every attempt, use the cache."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import re
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from keymps.errors import KeympsError
+from keymps.planning.answer import Step, answer_schema
+from keymps.planning.backend_choice import PROVIDER_KEYS, model_provider
+from keymps.planning.planner import BackendAnswer, PlanRequest
+from keymps.types import VlmCall
+
+if TYPE_CHECKING:
+    from keymps.config.task import Task
+    from keymps.run import Run
+
+
+_SECRET_KEY = re.compile(
+    r"^(api[_-]?key|x-api-key|authorization|secret|password|access[_-]?token|\w*_secret)$",
+    re.IGNORECASE,
+)
+
+
+def _secrets(task: Task) -> list[str]:
+    names = set(PROVIDER_KEYS.get(model_provider(task.planner.model or ""), ()))
+    if task.planner.api_key_env:
+        names.add(task.planner.api_key_env)
+    names |= {n for n in os.environ if n.endswith(("_API_KEY", "_TOKEN", "_SECRET"))}
+    return [v for n in names if len(v := os.environ.get(n, "")) >= 8]
+
+
+def redact(value: Any, secrets: list[str]) -> Any:
+    """Drop credential-like keys and blank out any secret value anywhere in `value`."""
+    if isinstance(value, dict):
+        return {
+            k: "[redacted]" if _SECRET_KEY.match(str(k)) else redact(v, secrets)
+            for k, v in value.items()
+        }
+    if isinstance(value, list | tuple):
+        return [redact(v, secrets) for v in value]
+    if isinstance(value, str):
+        for secret in secrets:
+            value = value.replace(secret, "[redacted]")
+        return value
+    return value
+
+
+def image_reference(image_url: str, image_file: str) -> str:
+    """What the records hold instead of the image: its digest and the file it is kept in."""
+    return f"sha256:{hashlib.sha256(image_url.encode()).hexdigest()} (file: {image_file})"
+
+
+def _without_image(value: Any, image_url: str, reference: str) -> Any:
+    """`value` with every string equal to the image's data URL replaced by `reference`."""
+    if isinstance(value, dict):
+        return {k: _without_image(v, image_url, reference) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_without_image(v, image_url, reference) for v in value]
+    return reference if isinstance(value, str) and value == image_url else value
+
+
+@dataclass
+class PlanSession:
+    task: Task
+    run: Run
+    backend_name: str
+    backend: Any
+    base: PlanRequest
+    system_template: str
+    template_source: str
+    image_url: str
+    calls: list[VlmCall] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        planner = self.task.planner
+        self.use_cache = bool(
+            getattr(self.backend, "cacheable", False)
+            and planner.cache
+            and not self.run.options.no_cache
+        )
+        self.secrets = _secrets(self.task)
+        self.vlm_folder = self.run.folder / "vlm"
+        self.image_reference = image_reference(self.image_url, "crop.png")
+
+    def request_for(
+        self, step: Step, keyword: str | None, history: list[tuple[str, list[str]]]
+    ) -> PlanRequest:
+        from keymps.planning.prompt import build_messages, render_template, template_values
+
+        values = template_values(
+            instruction=self.base.instruction,
+            primitives=self.base.primitives,
+            crop_size_px=self.base.crop_size_px,
+            metres_per_px=self.base.metres_per_px,
+            object_height=self.base.object_height,
+            max_pairs=self.base.max_pairs,
+            step=step,
+        )
+        system_text = render_template(self.system_template, values, self.template_source)
+        messages = build_messages(
+            system_text,
+            self.base.instruction,
+            self.image_url,
+            self.base.crop_size_px,
+            keyword,
+            history,
+        )
+        schema = answer_schema(step, list(self.base.primitives), self.base.max_pairs)
+        return replace(
+            self.base,
+            messages=messages,
+            schema=schema,
+            step=step,
+            keyword=keyword,
+            previous_errors=tuple(history[-1][1]) if history else (),
+            attempt=len(history) + 1,
+            share_key=self._cache_key(messages, schema) if self.use_cache else None,
+        )
+
+    def ask(self, step: Step, keyword: str | None = None) -> Any:
+        from keymps.planning.answer import parse_and_validate
+
+        history: list[tuple[str, list[str]]] = []
+        attempts = self.task.planner.attempts
+        for _ in range(attempts):
+            request = self.request_for(step, keyword, history)
+            answer, cached = self._complete(request)
+            parsed, problems = parse_and_validate(
+                answer.text,
+                step,
+                list(self.base.primitives),
+                self.base.crop_size_px,
+                self.base.max_pairs,
+            )
+            self._record(request, answer, problems, cached)
+            if parsed is not None:
+                if request.share_key is not None and not cached:
+                    self._cache_put(request.share_key, answer)
+                return parsed
+            history.append((answer.text, problems))
+        last = "; ".join(history[-1][1][:4])
+        raise KeympsError(
+            f"the {self.backend_name} planner gave no valid {step} answer in {attempts} "
+            f"attempt(s): {last} (every attempt is in {self.vlm_folder})"
+        )
+
+    def _cache_key(self, messages: list[dict[str, Any]], schema: dict[str, Any]) -> str:
+        """The answer cache's key, also the request's share key (keymps.eval.broker)."""
+        from keymps.planning.cache import request_digest
+
+        # the server is part of the key: two servers may serve different weights under one name
+        where = f"{self.base.model or self.backend_name}@{self.task.planner.api_base or ''}"
+        return request_digest(messages, schema, where)
+
+    def _cache_put(self, key: str, answer: Any) -> None:
+        from keymps.planning.cache import AnswerCache
+
+        AnswerCache().put(
+            key,
+            {
+                "text": answer.text,
+                "prompt_tokens": answer.prompt_tokens,
+                "completion_tokens": answer.completion_tokens,
+                "cost_usd": answer.cost_usd,
+                "model": answer.model,
+            },
+        )
+
+    def _complete(self, request: PlanRequest) -> tuple[BackendAnswer, bool]:
+        if request.share_key is not None:
+            from keymps.planning.cache import AnswerCache
+
+            hit = AnswerCache().get(request.share_key)
+            if hit is not None:
+                return (
+                    BackendAnswer(
+                        text=hit["text"],
+                        prompt_tokens=hit.get("prompt_tokens"),
+                        completion_tokens=hit.get("completion_tokens"),
+                        latency_s=0.0,
+                        cost_usd=0.0,
+                        model=hit.get("model"),
+                    ),
+                    True,
+                )
+        started = time.perf_counter()
+        try:
+            answer = self.backend.complete(request)
+        except KeympsError as error:
+            failed = BackendAnswer(text="", latency_s=time.perf_counter() - started)
+            self._record(request, failed, [str(error)], False)
+            raise
+        if not isinstance(answer, BackendAnswer):
+            raise KeympsError(
+                f"planner backend {self.backend_name!r} returned {type(answer).__name__}, "
+                "not a BackendAnswer"
+            )
+        return answer, answer.shared
+
+    def _record(
+        self, request: PlanRequest, answer: BackendAnswer, problems: list[str], cached: bool
+    ) -> None:
+        from keymps.planning.cache import append_to_cassette, request_digest
+
+        index = len(self.calls) + 1
+        request_record = {
+            "backend": self.backend_name,
+            "model": request.model,
+            "step": request.step,
+            "attempt": request.attempt,
+            "temperature": request.temperature,
+            "messages": _without_image(request.messages, self.image_url, self.image_reference),
+            "response_format": {"type": "json_schema", "json_schema": request.schema},
+        }
+        request_record = redact(request_record, self.secrets)
+        answer_text = redact(answer.text, self.secrets)
+        error = "; ".join(problems) if problems else None
+        call = VlmCall(
+            attempt=request.attempt,
+            request=request_record,
+            answer_text=answer_text,
+            error=redact(error, self.secrets) if error else None,
+            latency_s=answer.latency_s,
+            prompt_tokens=answer.prompt_tokens,
+            completion_tokens=answer.completion_tokens,
+            cost_usd=answer.cost_usd,
+            cached=cached,
+        )
+        self.calls.append(call)
+        self.vlm_folder.mkdir(parents=True, exist_ok=True)
+        record = {
+            "request": request_record,
+            "answer": answer_text,
+            "errors": [redact(p, self.secrets) for p in problems],
+            "valid": not problems,
+            "cached": cached,
+            "latency_s": answer.latency_s,
+            "prompt_tokens": answer.prompt_tokens,
+            "completion_tokens": answer.completion_tokens,
+            "cost_usd": answer.cost_usd,
+            "retries": [redact(line, self.secrets) for line in answer.retries],
+        }
+        path = self.vlm_folder / f"{index:02d}-{request.step}-attempt{request.attempt}.json"
+        path.write_text(json.dumps(record, indent=2), encoding="utf-8")
+        if self.run.options.record is not None and answer.text:
+            append_to_cassette(
+                Path(self.run.options.record),
+                {
+                    "digest": request_digest(request.messages, request.schema),
+                    "step": request.step,
+                    "attempt": request.attempt,
+                    "backend": self.backend_name,
+                    "model": answer.model or request.model,
+                    "answer": answer_text,
+                    "prompt_tokens": answer.prompt_tokens,
+                    "completion_tokens": answer.completion_tokens,
+                },
+            )

@@ -1,0 +1,205 @@
+"""The plugin manager: built-in plugins and entry-point plugins, loaded the same way."""
+
+from __future__ import annotations
+
+import importlib
+import os
+import sys
+import warnings
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from importlib import metadata
+from typing import Any
+
+import pluggy
+
+from keymps.errors import KeympsError
+from keymps.plugin import hookspecs
+
+ENTRY_POINT_GROUP = "keymps"
+
+DEFAULT_PLUGINS: dict[str, str] = {
+    "threshold_detector": "keymps.default_plugins.threshold_detector",
+    "offline_backend": "keymps.default_plugins.offline",
+    "litellm_backend": "keymps.default_plugins.litellm.backend",
+    "replay_backend": "keymps.default_plugins.replay_backend",
+    "image_sources": "keymps.default_plugins.image_sources",
+    "sim_executor": "keymps.default_plugins.sim.executor",
+    "file_executor": "keymps.default_plugins.file_executor",
+    "rerun_recorder": "keymps.default_plugins.rerun.recorder",
+}
+"""Built-in plugin name -> module. KEYMPS_LOAD_PLUGINS can name these too."""
+
+COMPONENT_HOOKS: dict[str, str] = {
+    "detector": "register_detectors",
+    "vlm_backend": "register_vlm_backends",
+    "executor": "register_executors",
+    "image_source": "register_image_sources",
+}
+
+
+class PluginLoadWarning(UserWarning):
+    """A plugin failed to load; the rest of keymps keeps working."""
+
+
+@dataclass(frozen=True)
+class PluginInfo:
+    name: str
+    provides: tuple[str, ...]
+    """e.g. ("detector threshold", "observer")."""
+    distribution: str
+    version: str
+    hooks: tuple[str, ...]
+
+
+def _selected(name: str, dist: str | None) -> bool:
+    allowed = os.environ.get("KEYMPS_LOAD_PLUGINS")
+    if allowed is None:
+        return True
+    wanted = {item.strip() for item in allowed.split(",") if item.strip()}
+    return name in wanted or (dist is not None and dist in wanted)
+
+
+def _trace_hook_calls(manager: pluggy.PluginManager) -> None:
+    def before(hook_name: str, hook_impls: Sequence[Any], kwargs: Mapping[str, Any]) -> None:
+        shown = {k: v for k, v in kwargs.items() if k != "register"}
+        print(
+            f"keymps: hook {hook_name}({', '.join(shown)}) -> {len(hook_impls)} plugin(s)",
+            file=sys.stderr,
+        )
+
+    def after(
+        outcome: Any, hook_name: str, hook_impls: Sequence[Any], kwargs: Mapping[str, Any]
+    ) -> None:
+        return None
+
+    manager.add_hookcall_monitoring(before, after)
+
+
+def _warn_broken(name: str, error: BaseException) -> None:
+    message = (
+        f"keymps: plugin {name!r} failed to load and was skipped: {type(error).__name__}: {error}"
+    )
+    warnings.warn(message, PluginLoadWarning, stacklevel=3)
+
+
+class KeympsPluginManager(pluggy.PluginManager):
+    """A pluggy manager that also remembers which distribution each plugin came from."""
+
+    def __init__(self) -> None:
+        super().__init__("keymps")
+        self.distributions: dict[str, tuple[str, str]] = {}
+        """Plugin name -> (distribution name, version) for entry-point plugins."""
+
+
+def build_manager() -> KeympsPluginManager:
+    """A fresh manager with the built-ins and every installed entry-point plugin."""
+    manager = KeympsPluginManager()
+    manager.add_hookspecs(hookspecs)
+    for name, module_name in DEFAULT_PLUGINS.items():
+        if not _selected(name, None):
+            continue
+        try:
+            manager.register(importlib.import_module(module_name), name=name)
+        except Exception as error:  # a broken plugin must not break unrelated commands
+            _warn_broken(name, error)
+    for entry_point in metadata.entry_points(group=ENTRY_POINT_GROUP):
+        dist = entry_point.dist.name if entry_point.dist else None
+        if not _selected(entry_point.name, dist) or manager.has_plugin(entry_point.name):
+            continue
+        try:
+            manager.register(entry_point.load(), name=entry_point.name)
+        except Exception as error:
+            _warn_broken(entry_point.name, error)
+            continue
+        if entry_point.dist is not None:
+            manager.distributions[entry_point.name] = (
+                entry_point.dist.name,
+                entry_point.dist.version,
+            )
+    if os.environ.get("KEYMPS_TRACE_PLUGINS"):
+        _trace_hook_calls(manager)
+    return manager
+
+
+_manager: pluggy.PluginManager | None = None
+
+
+def get_manager() -> pluggy.PluginManager:
+    """The process-wide manager, built on first use."""
+    global _manager
+    if _manager is None:
+        _manager = build_manager()
+    return _manager
+
+
+def reset_manager() -> None:
+    """Forget the process-wide manager (tests, or after installing a plugin)."""
+    global _manager
+    _manager = None
+
+
+def components(
+    kind: str, manager: pluggy.PluginManager | None = None
+) -> dict[str, Callable[..., Any]]:
+    """Every registered factory of one kind ('detector', 'vlm_backend', ...), by name."""
+    manager = manager or get_manager()
+    found: dict[str, Callable[..., Any]] = {}
+
+    def register(name: str, factory: Callable[..., Any]) -> None:
+        found[name] = factory
+
+    getattr(manager.hook, COMPONENT_HOOKS[kind])(register=register)
+    return found
+
+
+def create_component(
+    kind: str,
+    name: str,
+    options: dict[str, Any] | None = None,
+    manager: pluggy.PluginManager | None = None,
+) -> Any:
+    """Build the named component from its factory, or raise a KeympsError listing the choices."""
+    factories = components(kind, manager)
+    if name not in factories:
+        choices = ", ".join(sorted(factories)) or "none installed"
+        raise KeympsError(f"unknown {kind.replace('_', ' ')} {name!r} (available: {choices})")
+    return factories[name](dict(options or {}))
+
+
+def _registered_names(hook: Callable[..., None]) -> list[str]:
+    names: list[str] = []
+    hook(register=lambda name, factory: names.append(name))
+    return names
+
+
+def _provides(plugin: object) -> tuple[str, ...]:
+    provided: list[str] = []
+    for kind, hook_name in COMPONENT_HOOKS.items():
+        hook = getattr(plugin, hook_name, None)
+        if hook is None:
+            continue
+        names = _registered_names(hook)
+        provided.extend(f"{kind.replace('_', ' ')} {name}" for name in names)
+    if hasattr(plugin, "keymps_stage_done"):
+        provided.append("stage observer")
+    return tuple(provided)
+
+
+def plugin_infos(manager: pluggy.PluginManager | None = None) -> list[PluginInfo]:
+    """What `keymps plugins` shows: every plugin with what it provides and where it comes from."""
+    from keymps._version import __version__
+
+    manager = manager or get_manager()
+    known = getattr(manager, "distributions", {})
+    infos = []
+    for name, plugin in manager.list_name_plugin():
+        if plugin is None:
+            continue
+        hooks = tuple(sorted(h.name for h in manager.get_hookcallers(plugin) or []))
+        if name in DEFAULT_PLUGINS:
+            dist, version = "keymps", __version__
+        else:
+            dist, version = known.get(name, ("(registered in code)", ""))
+        infos.append(PluginInfo(name, _provides(plugin), dist, version, hooks))
+    return infos

@@ -1,0 +1,37 @@
+"""A plugin's options, validated by its pydantic model and reported as one line."""
+
+from __future__ import annotations
+
+from typing import Any, TypeVar
+
+from pydantic import BaseModel, ValidationError
+
+from keymps.errors import KeympsError
+
+Options = TypeVar("Options", bound=BaseModel)
+
+
+def parse_options(model: type[Options], options: dict[str, Any] | None, component: str) -> Options:
+    """Validate `options` with `model`; on failure raise one KeympsError line naming every problem.
+
+    `component` names the plugin in the message, e.g. "threshold detector" or "executor ur-rtde":
+    "threshold detector: option 'blur': must be odd; option 'x': unknown option (options: ...)".
+    """
+    try:
+        return model.model_validate(options or {})
+    except ValidationError as error:
+        problems = []
+        for item in error.errors(include_url=False):
+            key = ".".join(str(part) for part in item["loc"]) or "(options)"
+            problems.append(f"option {key!r}: {_describe(model, key, item)}")
+        known = ", ".join(model.model_fields) or "none"
+        raise KeympsError(f"{component}: {'; '.join(problems)} (options: {known})") from None
+
+
+def _describe(model: type[BaseModel], key: str, item: Any) -> str:
+    if item["type"] == "extra_forbidden":
+        return "unknown option"
+    if item["type"] == "missing":
+        field = model.model_fields.get(key)
+        return f"required ({field.description})" if field and field.description else "required"
+    return str(item["msg"]).removeprefix("Value error, ")

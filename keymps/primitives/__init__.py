@@ -1,0 +1,1 @@
+"""Motion primitives: DMP maths, re-targeting maps, the dictionary, learning from demonstrations."""

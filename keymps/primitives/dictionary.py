@@ -1,0 +1,369 @@
+"""The primitive dictionary: one YAML file per primitive (a fitted DMP) next to its demo CSV."""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from keymps.bundled import bundled_dir
+from keymps.errors import KeympsError
+from keymps.primitives.demos import (
+    Preprocessing,
+    fit_rmse,
+    load_demo_csv,
+    prepare_demo,
+    write_demo_csv,
+)
+from keymps.primitives.dmp import DMP, RETARGET_MODES, DmpError, Rollout
+from keymps.primitives.retarget import blade_applies
+
+Family = Literal["cutting", "icing"]
+FAMILIES: tuple[str, ...] = ("cutting", "icing")
+FORMAT = "keymps-primitive/1"
+NAME_PATTERN = re.compile(r"^[a-z][a-z0-9_-]{0,63}$")
+DEFAULT_MODES = {"cutting": "blade", "icing": "axial"}
+"""Re-targeting mode of a learned primitive when none is given, by family."""
+MAX_FIT_RMSE = 0.0005
+"""Bundled primitives fit their demonstrations at least this well (metres); `learn` warns above."""
+
+
+class PrimitiveError(KeympsError):
+    """A primitive file or demonstration is invalid, or a primitive does not exist."""
+
+
+@dataclass(frozen=True)
+class Primitive:
+    """A named, described, fitted motion primitive the planner can choose."""
+
+    name: str
+    description: str
+    """What the planner (VLM) reads when choosing: what the motion is and when to use it."""
+    family: Family
+    mode: str
+    """Default re-targeting mode: similarity | axial | translate (see keymps.primitives.dmp)."""
+    nominal_speed: float
+    """Average tool speed along the path the primitive was designed for, m/s."""
+    dmp: DMP
+    demo: Path | None = None
+    """The demonstration CSV (t, x, y, z) the weights were fitted from."""
+    fit_rmse: float = 0.0
+    """Root-mean-square distance between the fitted rollout and the demonstration, metres."""
+    preprocessing: Preprocessing = field(default_factory=Preprocessing)
+    source: str | None = None
+    """Where the demonstration came from before preprocessing (free text, e.g. a log file)."""
+    path: Path | None = field(default=None, compare=False)
+    """The YAML file this primitive was loaded from."""
+
+    def rollout(
+        self,
+        start: Sequence[float] | np.ndarray,
+        goal: Sequence[float] | np.ndarray,
+        *,
+        speed: float | None = None,
+        spacing: float = 0.001,
+        mode: str | None = None,
+        heading: float | None = None,
+    ) -> Rollout:
+        """The primitive re-targeted to start/goal, run at `speed` m/s on average (default: the
+        nominal speed), sampled finely enough that points are at most about `spacing` apart.
+        `heading` (radians about z) orients the demo when the segment is vertical."""
+        start_arr, goal_arr = np.asarray(start, float), np.asarray(goal, float)
+        mode = mode or self.mode
+        tau = self.dmp.tau_for_speed(start_arr, goal_arr, speed or self.nominal_speed, mode)
+        # Point spacing scales with 1/(num - 1): size num from a reference rollout, then round it
+        # up to a bin so that segments of similar length share one cached canonical rollout.
+        reference = self.dmp.rollout(
+            start_arr, goal_arr, num=_REFERENCE_NUM, mode=mode, heading=heading
+        ).y
+        widest = float(np.linalg.norm(np.diff(reference, axis=0), axis=1).max())
+        num = _sample_bin((_REFERENCE_NUM - 1) * widest / spacing + 1)
+        rollout = self.dmp.rollout(
+            start_arr, goal_arr, tau=tau, num=num, mode=mode, heading=heading
+        )
+        widest = float(np.linalg.norm(np.diff(rollout.y, axis=0), axis=1).max())
+        while widest > spacing and num < _MAX_SAMPLES:
+            num = _sample_bin(num * widest / spacing + 1)
+            rollout = self.dmp.rollout(
+                start_arr, goal_arr, tau=tau, num=num, mode=mode, heading=heading
+            )
+            widest = float(np.linalg.norm(np.diff(rollout.y, axis=0), axis=1).max())
+        return rollout
+
+
+_REFERENCE_NUM = 1000
+_MAX_SAMPLES = 200_000
+
+
+def _sample_bin(needed: float) -> int:
+    """The smallest of 50 * 1.125**k (rounded) that is at least `needed`, at most 200 000."""
+    k = max(0, math.ceil(math.log(max(needed, 1.0) / 50.0) / math.log(1.125) - 1e-9))
+    return int(min(math.ceil(50 * 1.125**k - 1e-9), _MAX_SAMPLES))
+
+
+def default_mode(family: str, demo_delta: np.ndarray) -> str:
+    """The family's re-targeting mode; a cutting demo too flat for `blade` gets `axial`."""
+    mode = DEFAULT_MODES.get(family, "similarity")
+    return "axial" if mode == "blade" and not blade_applies(demo_delta) else mode
+
+
+def learn_primitive(
+    name: str,
+    demo: Path,
+    *,
+    description: str,
+    family: str = "cutting",
+    mode: str | None = None,
+    nominal_speed: float = 0.03,
+    n_basis: int = 50,
+    preprocessing: Preprocessing | None = None,
+    out_dir: Path | None = None,
+) -> Primitive:
+    """Fit a primitive to a demonstration CSV. With out_dir, the prepared demonstration is
+    written there as NAME.csv (unless it is already that file) and the primitive as NAME.yaml."""
+    _check_name(name, "name")
+    demo = Path(demo)
+    settings = preprocessing or Preprocessing()
+    t_raw, y_raw = load_demo_csv(demo)
+    t, y = prepare_demo(t_raw, y_raw, settings, str(demo))
+    dmp = DMP.fit(t, y, n_basis=n_basis)
+    primitive = Primitive(
+        name=name,
+        description=description.strip(),
+        family=_check_choice(family, FAMILIES, "family", str(demo)),  # type: ignore[arg-type]
+        mode=_check_choice(
+            mode or default_mode(family, dmp.demo_delta), RETARGET_MODES, "mode", str(demo)
+        ),
+        nominal_speed=_positive(nominal_speed, "nominal_speed", str(demo)),
+        dmp=dmp,
+        demo=demo,
+        fit_rmse=fit_rmse(dmp, t, y),
+        preprocessing=settings,
+        source=None,
+    )
+    if out_dir is None:
+        return primitive
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    demo_out = out_dir / f"{name}.csv"
+    if demo_out.resolve() != demo.resolve():
+        write_demo_csv(demo_out, t, y)
+        applied = ", ".join(f"{k}={v}" for k, v in settings.to_dict().items())
+        source = f"{demo} ({applied})"
+        # The saved demo is already prepared: refitting it needs no further preprocessing.
+        primitive = replace(primitive, preprocessing=Preprocessing(trim_mm=0.0), source=source)
+    primitive = replace(primitive, demo=demo_out)
+    save_primitive(primitive, out_dir / f"{name}.yaml")
+    return replace(primitive, path=out_dir / f"{name}.yaml")
+
+
+# --------------------------------------------------------------------------- primitive files
+
+
+def primitive_to_dict(primitive: Primitive, relative_to: Path | None = None) -> dict[str, Any]:
+    demo: str | None = None
+    if primitive.demo is not None:
+        demo = str(primitive.demo)
+        if relative_to is not None:
+            try:
+                demo = os.path.relpath(primitive.demo.resolve(), relative_to.resolve())
+            except ValueError:
+                demo = str(primitive.demo.resolve())
+    return {
+        "format": FORMAT,
+        "name": primitive.name,
+        "description": primitive.description,
+        "family": primitive.family,
+        "mode": primitive.mode,
+        "nominal_speed": primitive.nominal_speed,
+        "demo": demo,
+        "source": primitive.source,
+        "fit_rmse_m": primitive.fit_rmse,
+        "preprocessing": primitive.preprocessing.to_dict(),
+        "dmp": primitive.dmp.to_dict(),
+    }
+
+
+def save_primitive(primitive: Primitive, path: Path) -> None:
+    """Write the primitive as YAML (floats written to round-trip exactly)."""
+    import yaml
+
+    class _Dumper(yaml.SafeDumper):
+        pass
+
+    def _flow_rows(dumper: yaml.SafeDumper, data: list[Any]) -> yaml.Node:
+        flow = bool(data) and all(isinstance(v, float) for v in data)
+        return dumper.represent_sequence("tag:yaml.org,2002:seq", data, flow_style=flow)
+
+    _Dumper.add_representer(list, _flow_rows)
+    path = Path(path)
+    text = yaml.dump(
+        primitive_to_dict(primitive, relative_to=path.parent),
+        Dumper=_Dumper,
+        sort_keys=False,
+        width=100,
+        allow_unicode=True,
+    )
+    path.write_text(text, encoding="utf-8")
+
+
+def load_primitive(path: Path) -> Primitive:
+    """Read and validate a primitive YAML file; every problem names the file and the field."""
+    import yaml
+
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise PrimitiveError(f"{path}: primitive file not found") from None
+    except (OSError, UnicodeDecodeError) as error:
+        raise PrimitiveError(f"{path}: cannot read primitive ({error})") from None
+    except yaml.YAMLError as error:
+        mark = getattr(error, "problem_mark", None)
+        where = f"{path}:{mark.line + 1}:{mark.column + 1}" if mark else str(path)
+        raise PrimitiveError(
+            f"{where}: invalid YAML ({getattr(error, 'problem', error)})"
+        ) from None
+    where = str(path)
+    if not isinstance(data, dict):
+        raise PrimitiveError(f"{where}: expected a mapping of primitive fields")
+    known = {
+        "format", "name", "description", "family", "mode", "nominal_speed", "demo", "source",
+        "fit_rmse_m", "preprocessing", "dmp",
+    }  # fmt: skip
+    unknown = sorted(set(data) - known)
+    if unknown:
+        raise PrimitiveError(f"{where}: unknown field {unknown[0]!r}")
+    if data.get("format", FORMAT) != FORMAT:
+        raise PrimitiveError(f"{where}: format {data.get('format')!r} is not {FORMAT!r}")
+    for key in ("name", "description", "family", "dmp"):
+        if key not in data:
+            raise PrimitiveError(f"{where}: field {key!r} is missing")
+    name = _check_name(data["name"], f"{where}: name")
+    description = data["description"]
+    if not isinstance(description, str) or not description.strip():
+        raise PrimitiveError(f"{where}: description must be a non-empty text")
+    family = _check_choice(data["family"], FAMILIES, "family", where)
+    mode = _check_choice(data.get("mode", "similarity"), RETARGET_MODES, "mode", where)
+    speed = _positive(data.get("nominal_speed", 0.03), "nominal_speed", where)
+    rmse = data.get("fit_rmse_m", 0.0)
+    if not isinstance(rmse, (int, float)) or not math.isfinite(rmse) or rmse < 0:
+        raise PrimitiveError(f"{where}: fit_rmse_m must be a non-negative number")
+    try:
+        dmp = DMP.from_dict(data["dmp"], where)
+    except DmpError as error:
+        raise PrimitiveError(str(error)) from None
+    demo = data.get("demo")
+    if demo is not None and not isinstance(demo, str):
+        raise PrimitiveError(f"{where}: demo must be a file name")
+    source = data.get("source")
+    return Primitive(
+        name=name,
+        description=description.strip(),
+        family=family,  # type: ignore[arg-type]
+        mode=mode,
+        nominal_speed=speed,
+        dmp=dmp,
+        demo=(path.parent / demo) if demo else None,
+        fit_rmse=float(rmse),
+        preprocessing=_preprocessing(data.get("preprocessing") or {}, where),
+        source=str(source) if source is not None else None,
+        path=path,
+    )
+
+
+def _preprocessing(data: Any, where: str) -> Preprocessing:
+    if not isinstance(data, dict) or set(data) - {"rate_hz", "smooth_s", "trim_mm"}:
+        raise PrimitiveError(f"{where}: preprocessing takes rate_hz, smooth_s and trim_mm")
+    try:
+        rate = data.get("rate_hz")
+        return Preprocessing(
+            rate_hz=None if rate is None else float(rate),
+            smooth_s=float(data.get("smooth_s", 0.0)),
+            trim_mm=float(data.get("trim_mm", 0.5)),
+        )
+    except (TypeError, ValueError):
+        raise PrimitiveError(f"{where}: preprocessing values must be numbers") from None
+
+
+def _check_name(name: Any, where: str) -> str:
+    if not isinstance(name, str) or not NAME_PATTERN.match(name):
+        raise PrimitiveError(
+            f"{where}: primitive name {name!r} must be lower-case letters, digits, - or _ "
+            "(starting with a letter)"
+        )
+    return name
+
+
+def _check_choice(value: Any, choices: Sequence[str], key: str, where: str) -> str:
+    if value not in choices:
+        raise PrimitiveError(f"{where}: {key} {value!r} is not one of {', '.join(choices)}")
+    return str(value)
+
+
+def _positive(value: Any, key: str, where: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise PrimitiveError(f"{where}: {key} must be a number")
+    if not math.isfinite(value) or value <= 0:
+        raise PrimitiveError(f"{where}: {key} must be positive, got {value}")
+    return float(value)
+
+
+# --------------------------------------------------------------------------- the dictionary
+
+BUNDLED_DIR = bundled_dir("primitives")
+"""The dictionary shipped with keymps (found last)."""
+
+
+def default_search_dirs(task_folder: Path) -> list[Path]:
+    """Where primitives are looked for, first match wins: the task folder's ../primitives and
+    primitives/, each folder in KEYMPS_PRIMITIVES_PATH, ./primitives, the bundled dictionary."""
+    task_folder = Path(task_folder)
+    dirs = [task_folder / ".." / "primitives", task_folder / "primitives"]
+    env = os.environ.get("KEYMPS_PRIMITIVES_PATH", "")
+    dirs += [Path(part) for part in env.split(os.pathsep) if part.strip()]
+    dirs += [Path.cwd() / "primitives", BUNDLED_DIR]
+    unique: list[Path] = []
+    for folder in dirs:
+        resolved = folder.resolve()
+        if resolved not in unique:
+            unique.append(resolved)
+    return unique
+
+
+def find_primitive_files(search_dirs: Sequence[Path]) -> dict[str, Path]:
+    """Primitive name -> YAML file, the first search dir holding a name winning."""
+    found: dict[str, Path] = {}
+    for folder in search_dirs:
+        folder = Path(folder)
+        if not folder.is_dir():
+            continue
+        for file in sorted(folder.glob("*.yaml")):
+            found.setdefault(file.stem, file)
+    return found
+
+
+def load_primitives(names: Sequence[str], search_dirs: Sequence[Path]) -> dict[str, Primitive]:
+    """Load the named primitives from the first search dir that has each (NAME.yaml)."""
+    available = find_primitive_files(search_dirs)
+    result: dict[str, Primitive] = {}
+    for name in names:
+        if name not in available:
+            listing = ", ".join(sorted(available)) or "none"
+            searched = ", ".join(str(d) for d in search_dirs)
+            raise PrimitiveError(
+                f"unknown primitive {name!r}; available: {listing} (searched {searched})"
+            )
+        primitive = load_primitive(available[name])
+        if primitive.name != name:
+            raise PrimitiveError(
+                f"{available[name]}: name {primitive.name!r} does not match the file name {name!r}"
+            )
+        result[name] = primitive
+    return result

@@ -1,0 +1,1 @@
+"""The arm: UR model in Pinocchio (FK, IK), tool descriptions, the independent safety validator."""

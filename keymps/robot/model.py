@@ -1,0 +1,378 @@
+"""The UR3 (or UR3e) in Pinocchio: base placed in the board frame, tool TCP, FK and IK.
+
+Conventions:
+- task.robot.base = (x, y, z, yaw_deg) is the pose of the URDF root link `base_link` (ROS
+  convention: z up through joint 1, x towards where the arm points at shoulder_pan = 0) in the
+  board frame. The controller's own base frame (teach pendant, RTDE poses) is base_link turned
+  by 180 degrees about z.
+- The tool points straight down (tool z = -board z); its yaw is the angle of the tool x axis
+  about board z. Rotation of the tool frame: Rz(yaw) @ diag(1, -1, -1).
+- Joint angles are the controller's (same zero and sign as the UR pendant and ur_rtde).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from keymps.errors import KeympsError
+from keymps.robot.description import (
+    ARMS,
+    BUILTIN_TOOLS,
+    JOINT_NAMES,
+    POSITION_TOLERANCE_M,
+    REACH_MARGIN_M,
+    ROTATION_TOLERANCE_RAD,
+    ArmGeometry,
+    Tool,
+    build_pinocchio_model,
+    rz,
+    se3,
+    tool_from_task,
+    tool_rotation,
+    ur_urdf_path,
+)
+from keymps.types import JointPath, Piece, ToolPath
+
+__all__ = [
+    "ARMS",
+    "BUILTIN_TOOLS",
+    "JOINT_NAMES",
+    "ArmGeometry",
+    "IkResult",
+    "RobotModel",
+    "Tool",
+    "solve_path",
+    "tool_from_task",
+    "tool_rotation",
+    "ur_urdf_path",
+]
+
+if TYPE_CHECKING:
+    from keymps.config.task import Task
+
+
+@dataclass(frozen=True)
+class IkResult:
+    q: np.ndarray
+    position_error_m: float
+    rotation_error_rad: float
+    iterations: int
+
+    @property
+    def converged(self) -> bool:
+        return (
+            self.position_error_m <= POSITION_TOLERANCE_M
+            and self.rotation_error_rad <= ROTATION_TOLERANCE_RAD
+        )
+
+
+class RobotModel:
+    """A UR arm placed on the board with a tool: FK, IK and limits."""
+
+    def __init__(
+        self,
+        kind: str = "ur3",
+        base: tuple[float, float, float, float] = (0.15, -0.20, 0.0, 90.0),
+        tool: Tool = BUILTIN_TOOLS["knife"],
+        *,
+        max_joint_acceleration: float = 3.0,
+        max_joint_jerk: float = 30.0,
+        board_size: tuple[float, float] = (0.30, 0.18),
+        object_height: float = 0.05,
+        clearance: float = 0.03,
+    ):
+        if kind not in ARMS:
+            raise KeympsError(f"robot.model: unknown arm {kind!r} (available: {', '.join(ARMS)})")
+        self.kind = kind
+        self.arm = ARMS[kind]
+        self.base = tuple(float(v) for v in base)
+        self.tool = tool
+        self.board_size = board_size
+        self.object_height = float(object_height)
+        self.clearance = float(clearance)
+        x, y, z, yaw_deg = self.base
+        self.base_in_board = se3(rz(math.radians(yaw_deg)), np.array([x, y, z]))
+        self.model, self.tcp_frame = build_pinocchio_model(self.arm, self.base_in_board, tool)
+        self.flange_frame = self.model.getFrameId("flange")
+        self.data = self.model.createData()
+        self.joint_names = JOINT_NAMES
+        self.lower = np.array(self.model.lowerPositionLimit, dtype=float)
+        self.upper = np.array(self.model.upperPositionLimit, dtype=float)
+        self.velocity_limits = np.array(self.arm.joint_speed_limits, dtype=float)
+        self.acceleration_limits = np.full(6, float(max_joint_acceleration))
+        self.jerk_limits = np.full(6, float(max_joint_jerk))
+        self.urdf_path = ur_urdf_path()
+
+    @classmethod
+    def from_task(cls, task: Task) -> RobotModel:
+        robot = task.robot
+        return cls(
+            robot.model,
+            robot.base,
+            tool_from_task(task),
+            max_joint_acceleration=robot.max_joint_acceleration,
+            max_joint_jerk=robot.max_joint_jerk,
+            board_size=task.scene.workspace.size,
+            object_height=task.scene.object_height,
+            clearance=task.motion.clearance,
+        )
+
+    @property
+    def rate_hz(self) -> float:
+        """The controller's default rate: 125 Hz (CB3) or 500 Hz (e-Series)."""
+        return self.arm.rate_hz
+
+    # -- forward kinematics --------------------------------------------------------------------
+
+    def fk(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Tool tip position (3,) and rotation (3, 3) in the board frame."""
+        import pinocchio as pin
+
+        pin.framesForwardKinematics(self.model, self.data, np.asarray(q, dtype=float))
+        pose = self.data.oMf[self.tcp_frame]
+        return np.array(pose.translation), np.array(pose.rotation)
+
+    def tool_positions(self, qs: np.ndarray) -> np.ndarray:
+        """(n, 3) tool tip positions for (n, 6) joint vectors."""
+        import pinocchio as pin
+
+        out = np.empty((len(qs), 3))
+        model, data, frame = self.model, self.data, self.tcp_frame
+        for i, q in enumerate(np.asarray(qs, dtype=float)):
+            pin.forwardKinematics(model, data, q)
+            out[i] = pin.updateFramePlacement(model, data, frame).translation
+        return out
+
+    def tool_poses(self, qs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(n, 3) tool tip positions and (n, 3, 3) rotations for (n, 6) joint vectors."""
+        import pinocchio as pin
+
+        positions = np.empty((len(qs), 3))
+        rotations = np.empty((len(qs), 3, 3))
+        for i, q in enumerate(np.asarray(qs, dtype=float)):
+            pin.forwardKinematics(self.model, self.data, q)
+            pose = pin.updateFramePlacement(self.model, self.data, self.tcp_frame)
+            positions[i] = pose.translation
+            rotations[i] = pose.rotation
+        return positions, rotations
+
+    def joint_origins(self, q: np.ndarray) -> np.ndarray:
+        """(7, 3): the origins of the six joints and of the flange, board frame."""
+        import pinocchio as pin
+
+        pin.framesForwardKinematics(self.model, self.data, np.asarray(q, dtype=float))
+        points = [np.array(self.data.oMi[j].translation) for j in range(1, 7)]
+        points.append(np.array(self.data.oMf[self.flange_frame].translation))
+        return np.array(points)
+
+    # -- inverse kinematics --------------------------------------------------------------------
+
+    def ik(
+        self,
+        position: np.ndarray,
+        yaw: float,
+        seed: np.ndarray,
+        *,
+        max_iterations: int = 100,
+        damping: float = 1e-3,
+    ) -> IkResult:
+        """Damped least squares on the SE(3) error from `seed`; converges far below 0.1 mm."""
+        import pinocchio as pin
+
+        model, data, frame = self.model, self.data, self.tcp_frame
+        target_p = np.asarray(position, dtype=float)
+        target_r = tool_rotation(yaw)
+        q = np.array(seed, dtype=float)
+        damping2 = damping * damping
+        error = np.zeros(6)
+        pos_err = rot_err = math.inf
+        for iteration in range(max_iterations + 1):
+            pin.forwardKinematics(model, data, q)
+            pose = pin.updateFramePlacement(model, data, frame)
+            error[:3] = target_p - pose.translation
+            rot_local = pin.log3(pose.rotation.T @ target_r)
+            error[3:] = pose.rotation @ rot_local
+            pos_err = float(np.linalg.norm(error[:3]))
+            rot_err = float(np.linalg.norm(rot_local))
+            # Converge far below the 0.1 mm / 0.1 degree contract: the joint path is later
+            # differentiated twice, and solver noise would show up as acceleration.
+            if pos_err < 1e-9 and rot_err < 1e-8:
+                break
+            if iteration == max_iterations:
+                break
+            jacobian = pin.computeFrameJacobian(
+                model, data, q, frame, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+            )
+            step = jacobian.T @ np.linalg.solve(jacobian @ jacobian.T + damping2 * np.eye(6), error)
+            largest = float(np.abs(step).max())
+            if largest > 0.3:  # big steps can jump to another arm configuration
+                step *= 0.3 / largest
+            q = q + step
+        return IkResult(q, pos_err, rot_err, iteration)
+
+    def tool_down_seed(self, position: np.ndarray, yaw: float) -> np.ndarray:
+        """Closed-form elbow-up, wrist-outward joints for a tool pointing down (the IK seed)."""
+        arm = self.arm
+        flange = np.asarray(position, dtype=float) + np.array([0.0, 0.0, self.tool.tcp[2]])
+        local = self._in_base_link(flange)
+        radius = math.hypot(local[0], local[1])
+        outward = math.sqrt(max(radius**2 - arm.d4**2, 1e-12))
+        q1 = _wrap(math.atan2(local[1], local[0]) - math.atan2(arm.d4, outward))
+        reach_r = outward - arm.d5
+        reach_z = local[2] + arm.d6 - arm.d1
+        dist2 = reach_r**2 + reach_z**2
+        cos_elbow = (dist2 - arm.upper_arm**2 - arm.forearm**2) / (2 * arm.upper_arm * arm.forearm)
+        q3 = math.acos(min(1.0, max(-1.0, cos_elbow)))
+        alpha1 = math.atan2(reach_r, reach_z) - math.atan2(
+            arm.forearm * math.sin(q3), arm.upper_arm + arm.forearm * math.cos(q3)
+        )
+        q2 = alpha1 - math.pi / 2
+        q4 = -(alpha1 + q3)
+        q = np.array([q1, q2, q3, q4, -math.pi / 2, 0.0])
+        _, rotation = self.fk(q)
+        yaw_at_zero = math.atan2(rotation[1, 0], rotation[0, 0])
+        q[5] = _wrap(yaw_at_zero - yaw)
+        if abs(_wrap(self._yaw_of(q) - yaw)) > 1e-6:
+            q[5] = _wrap(yaw - yaw_at_zero)
+        return q
+
+    def _yaw_of(self, q: np.ndarray) -> float:
+        _, rotation = self.fk(q)
+        return math.atan2(rotation[1, 0], rotation[0, 0])
+
+    def _in_base_link(self, point: np.ndarray) -> np.ndarray:
+        """A board point in the URDF root frame (base_link, z up through joint 1)."""
+        return np.array(self.base_in_board.actInv(np.asarray(point, dtype=float)))
+
+    def reach_shortfall(self, points: np.ndarray) -> np.ndarray:
+        """(n,) metres by which each tool-down tip position is out of reach (<= 0: reachable)."""
+        arm = self.arm
+        flange = np.asarray(points, dtype=float) + np.array([0.0, 0.0, self.tool.tcp[2]])
+        base = self.base_in_board
+        local = (flange - base.translation) @ base.rotation
+        radius = np.hypot(local[:, 0], local[:, 1])
+        # Too close to the base axis: the arm cannot fold around its own shoulder offset.
+        too_close = (arm.d4 + REACH_MARGIN_M) - radius
+        outward = np.sqrt(np.maximum(radius**2 - arm.d4**2, 0.0))
+        wrist = np.hypot(outward - arm.d5, local[:, 2] + arm.d6 - arm.d1)
+        too_far = wrist - (arm.upper_arm + arm.forearm - REACH_MARGIN_M)
+        folded = (abs(arm.upper_arm - arm.forearm) + REACH_MARGIN_M) - wrist
+        return np.maximum.reduce([too_close, too_far, folded])
+
+    def home_tool_position(self) -> np.ndarray:
+        """Above the middle of the board, clear of the object (or as high as reachable)."""
+        width, height = self.board_size
+        z = self.object_height + self.clearance + 0.05
+        point = np.array([width / 2, height / 2, z])
+        while z > self.object_height + self.clearance and self.reach_shortfall(point[None])[0] > 0:
+            z -= 0.005
+            point[2] = z
+        return point
+
+    def configuration_problem(self, q: np.ndarray) -> str | None:
+        """Why `q` is not the elbow-up, wrist-outward configuration (None when it is)."""
+        if q[2] <= 0.05:
+            return "elbow down or stretched"
+        if math.sin(q[4]) > -0.2:
+            return "wrist flipped or singular"
+        if np.any(q < self.lower) or np.any(q > self.upper):
+            return "outside the joint limits"
+        return None
+
+    def check_reachable(self, tool_path: ToolPath) -> None:
+        """Raise a KeympsError naming the piece furthest out of reach, and by how much."""
+        shortfalls = [self.reach_shortfall(piece.points) for piece in tool_path.pieces]
+        out = [i for i, s in enumerate(shortfalls) if s.max() > 0]
+        if not out:
+            return
+        index = max(out, key=lambda i: float(shortfalls[i].max()))
+        piece = tool_path.pieces[index]
+        point = piece.points[int(np.argmax(shortfalls[index]))]
+        amount = float(shortfalls[index].max())
+        role = "work on pair" if piece.kind == "work" else "travel to pair"
+        x, y, z, yaw = self.base
+        distance = math.hypot(point[0] - x, point[1] - y)
+        direction = "closer to" if distance > 0.25 else "further from"
+        raise KeympsError(
+            f"robot: {len(out)} of {len(shortfalls)} path pieces are out of the "
+            f"{self.kind.upper()}'s reach; piece {index} ({role} {piece.pair_index}) by "
+            f"{amount * 100:.1f} cm at board point ({point[0]:.3f}, {point[1]:.3f}, "
+            f"{point[2]:.3f}) m, {distance * 100:.0f} cm from the base; move the base {direction} "
+            f"the work (task robot.base, now [{x:g}, {y:g}, {z:g}, {yaw:g}])"
+        )
+
+    def solve_points(
+        self, points: np.ndarray, yaws: np.ndarray, seed: np.ndarray, *, where: str = "path"
+    ) -> tuple[np.ndarray, float, float]:
+        """Warm-started IK along consecutive points: (n, 6) joints, max position/rotation error."""
+        qs = np.empty((len(points), 6))
+        previous = np.array(seed, dtype=float)
+        velocity = np.zeros(6)
+        worst_p = worst_r = 0.0
+        for i, (point, yaw) in enumerate(zip(points, yaws, strict=True)):
+            result = self.ik(point, float(yaw), previous + velocity)
+            if not result.converged:
+                result = self.ik(point, float(yaw), previous, max_iterations=300)
+            if not result.converged:
+                raise KeympsError(
+                    f"robot: inverse kinematics failed at {where} point {i} "
+                    f"({point[0]:.3f}, {point[1]:.3f}, {point[2]:.3f}) m: "
+                    f"{result.position_error_m * 1000:.2f} mm off; move the base (task robot.base)"
+                )
+            problem = self.configuration_problem(result.q)
+            if problem is not None:
+                raise KeympsError(
+                    f"robot: at {where} point {i} ({point[0]:.3f}, {point[1]:.3f}, "
+                    f"{point[2]:.3f}) m the arm would leave its configuration ({problem}); "
+                    "move the base (task robot.base)"
+                )
+            velocity = result.q - previous if i else np.zeros(6)
+            previous = result.q
+            qs[i] = result.q
+            worst_p = max(worst_p, result.position_error_m)
+            worst_r = max(worst_r, result.rotation_error_rad)
+        return qs, worst_p, worst_r
+
+
+def _wrap(angle: float) -> float:
+    return (angle + math.pi) % (2 * math.pi) - math.pi
+
+
+def _check_piece(index: int, piece: Piece) -> None:
+    points, yaw = np.asarray(piece.points), np.asarray(piece.yaw)
+    problem = None
+    if points.ndim != 2 or points.shape[1] != 3 or len(points) == 0:
+        problem = f"points must be an (n, 3) array, got shape {points.shape}"
+    elif yaw.shape != (len(points),):
+        problem = f"yaw must have one value per point ({len(points)}), got shape {yaw.shape}"
+    elif not (np.isfinite(points).all() and np.isfinite(yaw).all()):
+        problem = "points or yaw contain NaN or infinity"
+    elif not (math.isfinite(piece.speed) and piece.speed > 0):
+        problem = f"speed must be positive, got {piece.speed}"
+    if problem:
+        raise KeympsError(f"robot: tool path piece {index} ({piece.kind}): {problem}")
+
+
+def solve_path(model: RobotModel, tool_path: ToolPath) -> JointPath:
+    """IK of every point of every piece, one arm configuration for the whole path."""
+    if not tool_path.pieces:
+        raise KeympsError("robot: the tool path has no pieces")
+    for index, piece in enumerate(tool_path.pieces):
+        _check_piece(index, piece)
+    model.check_reachable(tool_path)
+    first = tool_path.pieces[0]
+    seed = model.tool_down_seed(first.points[0], float(first.yaw[0]))
+    solutions = []
+    worst_p = worst_r = 0.0
+    for index, piece in enumerate(tool_path.pieces):
+        qs, err_p, err_r = model.solve_points(
+            piece.points, piece.yaw, seed, where=f"piece {index} ({piece.kind})"
+        )
+        solutions.append(qs)
+        seed = qs[-1]
+        worst_p, worst_r = max(worst_p, err_p), max(worst_r, err_r)
+    return JointPath(tuple(solutions), model.joint_names, worst_p, worst_r)

@@ -1,0 +1,355 @@
+"""The independent safety check every trajectory passes before any executor runs it.
+
+It trusts nothing the planner computed: it recomputes forward kinematics from the joint
+samples, derives velocities, accelerations and jerks from the positions alone, and compares
+with the tool path, the board, the object's footprint and the arm's limits. Only `validate`
+issues ValidatedTrajectory objects; executors call `require_validated`, which refuses anything
+else (a hand-built or modified one included).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import weakref
+from dataclasses import replace
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from keymps.errors import KeympsError
+from keymps.robot.safety_geometry import distance_to_polyline, outside_distance
+from keymps.types import ToolPath, Trajectory, ValidatedTrajectory, ValidationReport
+
+if TYPE_CHECKING:
+    from keymps.config.task import Task
+    from keymps.robot.model import RobotModel
+
+PATH_TOLERANCE_M = 0.0005
+BOARD_TOLERANCE_M = 0.0005
+FOOTPRINT_MARGIN_M = 0.02
+"""Work may leave the outline by this much: a sawing stroke overshoots a cut's ends by ~15 mm."""
+TILT_TOLERANCE_RAD = math.radians(0.5)
+WORKSPACE_TOLERANCE_M = 0.001
+"""The tool tip stays over the workspace (the board area the image shows) within this."""
+ARM_CLEARANCE_M = 0.01
+"""Elbow, wrists and flange stay this far above the board surface."""
+LIMIT_TOLERANCE = {"velocity": 1e-3, "acceleration": 0.01, "jerk": 0.05}
+"""Relative slack on limits measured by finite differences (rounding, not physics)."""
+MAX_LISTED = 12
+
+
+class SafetyError(KeympsError):
+    """The trajectory is unsafe (or not validated); `problems` lists every finding."""
+
+    def __init__(self, problems: list[str]):
+        self.problems = problems
+        shown = problems[:MAX_LISTED]
+        more = f"; and {len(problems) - MAX_LISTED} more" if len(problems) > MAX_LISTED else ""
+        super().__init__("safety: " + "; ".join(shown) + more)
+
+
+_issued: dict[int, tuple[weakref.ref[ValidatedTrajectory], str]] = {}
+
+
+def _digest(trajectory: Trajectory) -> str:
+    digest = hashlib.sha256()
+    for array in (trajectory.t, trajectory.q, trajectory.qd, trajectory.qdd, trajectory.tool_xyz):
+        digest.update(np.ascontiguousarray(array, dtype=float).tobytes())
+    digest.update(np.ascontiguousarray(trajectory.piece_index, dtype=np.int64).tobytes())
+    digest.update("|".join(map(str, trajectory.kind)).encode())
+    digest.update(repr((trajectory.joint_names, float(trajectory.rate_hz))).encode())
+    return digest.hexdigest()
+
+
+def _issue(trajectory: Trajectory, report: ValidationReport) -> ValidatedTrajectory:
+    copies: dict[str, Any] = {}
+    for name in ("t", "q", "qd", "qdd", "tool_xyz", "piece_index", "kind"):
+        copies[name] = np.array(getattr(trajectory, name), copy=True)
+        copies[name].flags.writeable = False  # a validated trajectory cannot be edited in place
+    frozen = replace(trajectory, **copies)
+    validated = ValidatedTrajectory(frozen, report)
+    key = id(validated)
+    _issued[key] = (weakref.ref(validated, lambda _: _issued.pop(key, None)), _digest(frozen))
+    return validated
+
+
+def require_validated(candidate: object, executor: str) -> Trajectory:
+    """The trajectory inside a ValidatedTrajectory issued by `validate`, unchanged since."""
+    entry = _issued.get(id(candidate))
+    if (
+        not isinstance(candidate, ValidatedTrajectory)
+        or entry is None
+        or entry[0]() is not candidate
+    ):
+        raise SafetyError(
+            [
+                f"executor {executor!r} refuses a trajectory that did not come from "
+                "keymps.robot.safety.validate()"
+            ]
+        )
+    if _digest(candidate.trajectory) != entry[1] or not candidate.report.ok:
+        raise SafetyError(
+            [f"executor {executor!r} refuses a validated trajectory that was modified afterwards"]
+        )
+    return candidate.trajectory
+
+
+def validate(
+    model: RobotModel,
+    trajectory: Trajectory,
+    tool_path: ToolPath,
+    outline_m: np.ndarray,
+    task: Task,
+) -> ValidatedTrajectory:
+    """Check everything that can hurt the arm, the board or the food; raise SafetyError if not."""
+    problems: list[str] = []
+    figures: dict[str, float] = {}
+    if not _check_structure(model, trajectory, tool_path, problems):
+        raise SafetyError(problems)
+    figures["duration_s"] = trajectory.duration_s
+    figures["samples"] = float(trajectory.samples)
+    _check_joints(model, trajectory, problems, figures)
+    positions, rotations = model.tool_poses(trajectory.q)
+    _check_path(trajectory, tool_path, positions, problems, figures)
+    _check_board(model, trajectory, positions, rotations, problems, figures)
+    _check_footprint(trajectory, tool_path, positions, outline_m, problems, figures)
+    _check_workspace(trajectory, tool_path, positions, task, problems, figures)
+    if problems:
+        raise SafetyError(problems)
+    return _issue(trajectory, ValidationReport(True, (), figures))
+
+
+def _at(trajectory: Trajectory, index: int) -> str:
+    return f"t={float(trajectory.t[min(index, len(trajectory.t) - 1)]):.3f} s"
+
+
+def _check_structure(
+    model: RobotModel, trajectory: Trajectory, tool_path: ToolPath, problems: list[str]
+) -> bool:
+    n = len(trajectory.t)
+    shapes = {
+        "q": (n, 6),
+        "qd": (n, 6),
+        "qdd": (n, 6),
+        "tool_xyz": (n, 3),
+        "piece_index": (n,),
+        "kind": (n,),
+    }
+    if n < 2:
+        problems.append(f"the trajectory has {n} samples; at least 2 are needed")
+    for name, shape in shapes.items():
+        actual = np.shape(getattr(trajectory, name))
+        if actual != shape:
+            problems.append(f"trajectory.{name} has shape {actual}, expected {shape}")
+    if problems:
+        return False
+    for name in ("t", "q", "qd", "qdd", "tool_xyz"):
+        if not np.isfinite(np.asarray(getattr(trajectory, name), dtype=float)).all():
+            problems.append(f"trajectory.{name} contains NaN or infinity")
+    if tuple(trajectory.joint_names) != tuple(model.joint_names):
+        problems.append(f"joint names {list(trajectory.joint_names)} are not the arm's")
+    if not trajectory.rate_hz > 0:
+        problems.append(f"rate_hz is {trajectory.rate_hz}")
+    if problems:
+        return False
+    period = 1.0 / trajectory.rate_hz
+    steps = np.diff(trajectory.t)
+    if np.abs(steps - period).max() > 1e-6:
+        worst = int(np.argmax(np.abs(steps - period)))
+        problems.append(
+            f"samples are not {period * 1000:.3f} ms apart (controller rate "
+            f"{trajectory.rate_hz:g} Hz): {steps[worst] * 1000:.3f} ms at {_at(trajectory, worst)}"
+        )
+    pieces = len(tool_path.pieces)
+    index = np.asarray(trajectory.piece_index)
+    if index.min() < 0 or index.max() >= pieces:
+        problems.append(f"piece_index outside the tool path's {pieces} pieces")
+    else:
+        expected = np.array([tool_path.pieces[i].kind for i in index])
+        if not np.array_equal(expected, np.asarray(trajectory.kind).astype(str)):
+            problems.append("kind does not match the kinds of the tool path's pieces")
+    return not problems
+
+
+def _check_joints(
+    model: RobotModel, trajectory: Trajectory, problems: list[str], figures: dict[str, float]
+) -> None:
+    q = np.asarray(trajectory.q, dtype=float)
+    names = model.joint_names
+    period = 1.0 / trajectory.rate_hz
+
+    below, above = q < model.lower, q > model.upper
+    for joint in range(6):
+        outside = np.flatnonzero(below[:, joint] | above[:, joint])
+        if len(outside):
+            i = int(outside[0])
+            problems.append(
+                f"{names[joint]} at {q[i, joint]:.3f} rad is outside its limits "
+                f"[{model.lower[joint]:.2f}, {model.upper[joint]:.2f}] at {_at(trajectory, i)}"
+            )
+
+    velocity = np.diff(q, axis=0) / period
+    acceleration = np.diff(velocity, axis=0) / period
+    jerk = np.diff(acceleration, axis=0) / period
+    step_limit = model.velocity_limits * period * 1.5
+    jumps = np.abs(np.diff(q, axis=0)) > step_limit
+    if jumps.any():
+        i, joint = (int(v) for v in np.argwhere(jumps)[0])
+        problems.append(
+            f"{names[joint]} jumps by {abs(q[i + 1, joint] - q[i, joint]):.3f} rad between two "
+            f"samples at {_at(trajectory, i)} (at most {step_limit[joint]:.3f} rad possible)"
+        )
+    checks = (
+        ("velocity", "", velocity, model.velocity_limits, "rad/s"),
+        ("velocity", " (as reported)", trajectory.qd, model.velocity_limits, "rad/s"),
+        ("acceleration", "", acceleration, model.acceleration_limits, "rad/s^2"),
+        ("acceleration", " (as reported)", trajectory.qdd, model.acceleration_limits, "rad/s^2"),
+        ("jerk", "", jerk, model.jerk_limits, "rad/s^3"),
+    )
+    for quantity, source, values, limits, unit in checks:
+        values = np.asarray(values, dtype=float)
+        if not len(values):
+            continue
+        ratio = np.abs(values) / limits
+        key = f"max_joint_{quantity}_ratio"
+        figures[key] = max(figures.get(key, 0.0), float(ratio.max()))
+        i, joint = (int(v) for v in np.unravel_index(int(np.argmax(ratio)), ratio.shape))
+        if ratio[i, joint] > 1.0 + LIMIT_TOLERANCE[quantity]:
+            problems.append(
+                f"{names[joint]} {quantity}{source} {abs(values[i, joint]):.2f} {unit} exceeds "
+                f"its limit {limits[joint]:.2f} {unit} at {_at(trajectory, i)}"
+            )
+    for label, row in (("start", 0), ("end", -1)):
+        if np.abs(trajectory.qd[row]).max() > 1e-6:
+            problems.append(f"the arm is not at rest at the {label} (joint velocity not zero)")
+
+
+def _check_path(
+    trajectory: Trajectory,
+    tool_path: ToolPath,
+    positions: np.ndarray,
+    problems: list[str],
+    figures: dict[str, float],
+) -> None:
+    off_plan = np.linalg.norm(positions - trajectory.tool_xyz, axis=1)
+    off_path = np.zeros(len(positions))
+    for index, piece in enumerate(tool_path.pieces):
+        mine = np.flatnonzero(trajectory.piece_index == index)
+        if len(mine):
+            off_path[mine] = distance_to_polyline(positions[mine], np.asarray(piece.points))
+    figures["max_deviation_from_tool_path_mm"] = float(off_path.max() * 1000)
+    figures["max_deviation_from_planned_samples_mm"] = float(off_plan.max() * 1000)
+    for label, error in (("tool path", off_path), ("planned tool positions", off_plan)):
+        if error.max() > PATH_TOLERANCE_M:
+            i = int(np.argmax(error))
+            problems.append(
+                f"the tool leaves the {label} by {error[i] * 1000:.2f} mm (at most "
+                f"{PATH_TOLERANCE_M * 1000:.1f} mm) at {_at(trajectory, i)}, piece "
+                f"{int(trajectory.piece_index[i])}"
+            )
+
+
+def _check_board(
+    model: RobotModel,
+    trajectory: Trajectory,
+    positions: np.ndarray,
+    rotations: np.ndarray,
+    problems: list[str],
+    figures: dict[str, float],
+) -> None:
+    z = positions[:, 2]
+    figures["min_tool_z_mm"] = float(z.min() * 1000)
+    if z.min() < -BOARD_TOLERANCE_M:
+        i = int(np.argmin(z))
+        problems.append(
+            f"the tool tip goes {-z[i] * 1000:.1f} mm below the board surface at "
+            f"{_at(trajectory, i)}, board point ({positions[i, 0]:.3f}, {positions[i, 1]:.3f})"
+        )
+    tilt = np.arccos(np.clip(-rotations[:, 2, 2], -1.0, 1.0))
+    figures["max_tool_tilt_deg"] = float(np.degrees(tilt.max()))
+    if tilt.max() > TILT_TOLERANCE_RAD:
+        i = int(np.argmax(tilt))
+        problems.append(
+            f"the tool tilts {math.degrees(tilt[i]):.1f} degrees from straight down at "
+            f"{_at(trajectory, i)}"
+        )
+    lowest = math.inf
+    lowest_at = 0
+    for i in range(0, len(trajectory.q), max(1, round(trajectory.rate_hz / 50))):
+        # elbow, wrists and flange (joint origins 2..6 and the flange)
+        height = float(model.joint_origins(trajectory.q[i])[2:, 2].min())
+        if height < lowest:
+            lowest, lowest_at = height, i
+    figures["min_arm_z_mm"] = lowest * 1000
+    if lowest < ARM_CLEARANCE_M:
+        problems.append(
+            f"the arm comes within {lowest * 1000:.0f} mm of the board surface at "
+            f"{_at(trajectory, lowest_at)}: move the base (task robot.base)"
+        )
+
+
+def _check_footprint(
+    trajectory: Trajectory,
+    tool_path: ToolPath,
+    positions: np.ndarray,
+    outline_m: np.ndarray,
+    problems: list[str],
+    figures: dict[str, float],
+) -> None:
+    outline = np.asarray(outline_m, dtype=float).reshape(-1, 2)
+    if len(outline) < 3:
+        problems.append(f"the object's footprint has {len(outline)} points; work cannot be checked")
+        return
+    work = np.asarray(trajectory.kind) == "work"
+    planned = [np.asarray(p.points)[:, :2] for p in tool_path.pieces if p.kind == "work"]
+    samples = np.concatenate([positions[work, :2], *planned]) if work.any() or planned else None
+    if samples is None or not len(samples):
+        figures["max_work_outside_footprint_mm"] = 0.0
+        return
+    outside = outside_distance(samples, outline)
+    figures["max_work_outside_footprint_mm"] = float(outside.max() * 1000)
+    if outside.max() > FOOTPRINT_MARGIN_M:
+        i = int(np.argmax(outside))
+        problems.append(
+            f"work leaves the object's footprint by {outside[i] * 1000:.0f} mm (at most "
+            f"{FOOTPRINT_MARGIN_M * 1000:.0f} mm) at board point ({samples[i, 0]:.3f}, "
+            f"{samples[i, 1]:.3f})"
+        )
+
+
+def _check_workspace(
+    trajectory: Trajectory,
+    tool_path: ToolPath,
+    positions: np.ndarray,
+    task: Task,
+    problems: list[str],
+    figures: dict[str, float],
+) -> None:
+    """The tool tip never leaves the area the camera saw (scene.workspace, board frame)."""
+    workspace = task.scene.workspace
+    low = np.asarray(workspace.shift, dtype=float)
+    high = low + np.asarray(workspace.size, dtype=float)
+    xy = positions[:, :2]
+    outside = np.maximum(low - xy, xy - high).max(axis=1)
+    figures["max_outside_workspace_mm"] = float(max(outside.max(), 0.0) * 1000)
+    if outside.max() > WORKSPACE_TOLERANCE_M:
+        i = int(np.argmax(outside))
+        problems.append(
+            f"the tool leaves the workspace (scene.workspace, the board area the image shows) by "
+            f"{outside[i] * 1000:.1f} mm at {_at(trajectory, i)}, board point ({xy[i, 0]:.3f}, "
+            f"{xy[i, 1]:.3f}), {_workspace_hint(tool_path, int(trajectory.piece_index[i]))}"
+        )
+
+
+def _workspace_hint(tool_path: ToolPath, index: int) -> str:
+    """Which pair left the workspace. Keypoints are inside the image, so a work piece leaves it
+    only where its primitive reaches past the pair's ends (a sawing stroke at the edge)."""
+    piece = tool_path.pieces[index]
+    pair = piece.pair_index + 1
+    if piece.kind != "work":
+        return f"on the travel move to pair {pair}"
+    return (
+        f"during pair {pair}: primitive {tool_path.keyword!r} reaches past the pair's ends "
+        "(leave more board around the object, or choose a primitive without strokes)"
+    )

@@ -1,0 +1,1 @@
+"""Synthetic top-down scenes with known geometry: a wooden board, food on it, the true outline."""

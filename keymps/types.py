@@ -1,0 +1,213 @@
+"""The data passed between pipeline stages: typed, immutable, numpy inside.
+
+Frames and units, used everywhere in keymps:
+- image pixels: origin at the top-left corner of the full image, x right, y down;
+- crop pixels: the same, with the origin at the top-left corner of the crop sent to the VLM;
+- board frame: metres, origin at the bottom-left corner of the workspace as seen in the image,
+  x to the image's right, y to the image's top, z up out of the board (right-handed).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+
+PieceKind = Literal["work", "travel"]
+
+
+@dataclass(frozen=True)
+class SceneImage:
+    """The environment image (BGR, uint8) and where it came from."""
+
+    image: np.ndarray
+    source: str
+
+    @property
+    def size_px(self) -> tuple[int, int]:
+        """(width, height) in pixels."""
+        return int(self.image.shape[1]), int(self.image.shape[0])
+
+
+@dataclass(frozen=True)
+class Detection:
+    """The object found in the scene image (Appendix A)."""
+
+    bbox_px: tuple[int, int, int, int]
+    """[x0, y0, x1, y1] in full-image pixels; x1 and y1 are exclusive."""
+    crop: np.ndarray
+    """The image sent to the planner (the bbox plus padding, clipped to the image)."""
+    crop_origin_px: tuple[int, int]
+    """Top-left corner of the crop in full-image pixels (the paper's b_offset)."""
+    contour_px: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    mask: np.ndarray | None = None
+    others_px: tuple[tuple[int, int, int, int], ...] = ()
+    """Bounding boxes of other large regions, largest first."""
+    warnings: tuple[str, ...] = ()
+
+    @property
+    def crop_size_px(self) -> tuple[int, int]:
+        """(width, height) of the crop in pixels."""
+        return int(self.crop.shape[1]), int(self.crop.shape[0])
+
+
+@dataclass(frozen=True)
+class VlmCall:
+    """One request/answer exchange with a planner backend (secrets already redacted)."""
+
+    attempt: int
+    request: dict[str, Any]
+    answer_text: str
+    error: str | None = None
+    latency_s: float = 0.0
+    prompt_tokens: int | None = None
+    completion_tokens: int | None = None
+    cost_usd: float | None = None
+    cached: bool = False
+
+
+@dataclass(frozen=True)
+class Plan:
+    """Which primitive, and which K keypoint pairs (Sec. IV-B/C)."""
+
+    keyword: str
+    pairs_crop_px: np.ndarray
+    """(K, 2, 2): K pairs of (start, end) points in crop pixels."""
+    pairs_px: np.ndarray
+    """(K, 2, 2): the same pairs in full-image pixels."""
+    backend: str
+    model: str | None = None
+    rationale: str = ""
+    calls: tuple[VlmCall, ...] = ()
+
+    @property
+    def num_pairs(self) -> int:
+        return int(self.pairs_px.shape[0])
+
+
+@dataclass(frozen=True)
+class Segment:
+    """One grounded keypoint pair: DMP start and goal in the board frame (metres)."""
+
+    start: np.ndarray
+    goal: np.ndarray
+    start_px: tuple[float, float]
+    goal_px: tuple[float, float]
+
+
+@dataclass(frozen=True)
+class Grounding:
+    segments: tuple[Segment, ...]
+    object_height: float
+    workspace_size: tuple[float, float]
+
+    @property
+    def segments_m(self) -> np.ndarray:
+        """(K, 2, 3) array of start/goal points."""
+        return np.array([[s.start, s.goal] for s in self.segments], dtype=float).reshape(-1, 2, 3)
+
+
+@dataclass(frozen=True)
+class Piece:
+    """A continuous part of the tool path that starts and ends at rest."""
+
+    kind: PieceKind
+    pair_index: int
+    """Index of the keypoint pair this piece belongs to (travel moves lead to that pair)."""
+    points: np.ndarray
+    """(n, 3) tool-tip positions in the board frame, metres."""
+    yaw: np.ndarray
+    """(n,) tool yaw about the board's z axis, radians."""
+    speed: float
+    """Requested tool speed along the path, m/s."""
+
+    @property
+    def length_m(self) -> float:
+        return float(np.linalg.norm(np.diff(self.points, axis=0), axis=1).sum())
+
+
+@dataclass(frozen=True)
+class ToolPath:
+    """The composed Cartesian path (Eq. 6): travel moves and re-targeted primitives."""
+
+    pieces: tuple[Piece, ...]
+    keyword: str
+
+    @property
+    def points(self) -> np.ndarray:
+        return np.concatenate([p.points for p in self.pieces], axis=0)
+
+
+@dataclass(frozen=True)
+class JointPath:
+    """Inverse-kinematics solution of a ToolPath: one joint vector per path point."""
+
+    pieces: tuple[np.ndarray, ...]
+    """Per piece, (n, 6) joint angles in radians aligned with the piece's points."""
+    joint_names: tuple[str, ...]
+    max_position_error_m: float
+    max_rotation_error_rad: float
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """A time-parameterized joint trajectory sampled at the controller rate."""
+
+    t: np.ndarray
+    q: np.ndarray
+    qd: np.ndarray
+    qdd: np.ndarray
+    tool_xyz: np.ndarray
+    """(n, 3) planned tool-tip positions in the board frame."""
+    piece_index: np.ndarray
+    """(n,) index into ToolPath.pieces."""
+    kind: np.ndarray
+    """(n,) 'work' or 'travel'."""
+    joint_names: tuple[str, ...]
+    rate_hz: float
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.t[-1] - self.t[0]) if len(self.t) else 0.0
+
+    @property
+    def samples(self) -> int:
+        return int(len(self.t))
+
+
+@dataclass(frozen=True)
+class ValidationReport:
+    ok: bool
+    problems: tuple[str, ...]
+    figures: dict[str, float]
+
+
+@dataclass(frozen=True)
+class ValidatedTrajectory:
+    """A Trajectory that passed keymps.robot.safety; executors accept only this type."""
+
+    trajectory: Trajectory
+    report: ValidationReport
+
+
+@dataclass(frozen=True)
+class ExecutionReport:
+    executor: str
+    ok: bool
+    message: str = ""
+    files: tuple[str, ...] = ()
+    figures: dict[str, float] = field(default_factory=dict)
+
+
+STAGES: tuple[str, ...] = (
+    "detect",
+    "plan",
+    "ground",
+    "compose",
+    "solve",
+    "time",
+    "check",
+    "execute",
+)
+"""Pipeline stage names in execution order; 'image' (loading the scene) comes first."""
