@@ -31,6 +31,21 @@ class SceneImage:
 
 
 @dataclass(frozen=True)
+class DetectedObject:
+    """One object on the board, as a detector found it (several objects: issue 20)."""
+
+    id: int
+    """1-based; numbered left to right, then top to bottom (by bbox centre)."""
+    bbox_px: tuple[int, int, int, int]
+    """[x0, y0, x1, y1] in full-image pixels; x1 and y1 are exclusive."""
+    contour_px: np.ndarray
+    """(N, 2) outline in full-image pixels."""
+    area_px: float
+    mask: np.ndarray | None = None
+    """Boolean mask over the full image, if the detector made one."""
+
+
+@dataclass(frozen=True)
 class Detection:
     """The object found in the scene image (Appendix A)."""
 
@@ -45,6 +60,12 @@ class Detection:
     others_px: tuple[tuple[int, int, int, int], ...] = ()
     """Bounding boxes of other large regions, largest first."""
     warnings: tuple[str, ...] = ()
+    objects: tuple[DetectedObject, ...] = ()
+    """Every object found (the one in bbox_px included), in id order; empty from a detector
+    that reports one object only."""
+    report: dict[str, Any] = field(default_factory=dict)
+    """What the detector decided and why (its background model, threshold, the regions it
+    considered): JSON-ready, written to run.json's detection.report."""
 
     @property
     def crop_size_px(self) -> tuple[int, int]:
