@@ -1,5 +1,7 @@
 """Errors a user can act on: printed as one line, never with a traceback."""
 
+from __future__ import annotations
+
 
 class KeympsError(Exception):
     """A user-facing problem; str(error) is a complete, one-line message."""
@@ -14,8 +16,28 @@ class TaskFileError(KeympsError):
 
 
 class StageError(KeympsError):
-    """A pipeline stage could not produce its result; nothing after it runs."""
+    """A pipeline stage could not produce its result; nothing after it runs.
 
-    def __init__(self, stage: str, message: str):
+    The message names the stage once ("detect: no object found"); `detail` keeps the error the
+    stage raised (a SafetyError's list of problems, say) for run.json.
+    """
+
+    def __init__(self, stage: str, message: str, detail: BaseException | None = None):
         self.stage = stage
-        super().__init__(f"{stage}: {message}")
+        self.message = message.removeprefix(f"{stage}: ")
+        self.detail = detail
+        super().__init__(f"{stage}: {self.message}")
+
+
+class ImageSourceError(StageError):
+    """An image source could not produce the scene image (raise it from `load`)."""
+
+    def __init__(self, message: str):
+        super().__init__("image", message)
+
+
+class DetectionError(StageError):
+    """A detector could not find the object in the scene image (raise it from `detect`)."""
+
+    def __init__(self, message: str):
+        super().__init__("detect", message)

@@ -2,12 +2,29 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from keymps.config.task import Task
 from keymps.errors import KeympsError
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from keymps.robot.model import RobotModel
+    from keymps.types import (
+        Detection,
+        ExecutionReport,
+        Grounding,
+        JointPath,
+        Plan,
+        SceneImage,
+        ToolPath,
+        Trajectory,
+        ValidatedTrajectory,
+    )
 
 IMAGE_FORMATS = ("png", "jpg")
 JPEG_QUALITY = 92
@@ -29,21 +46,53 @@ class RunOptions:
     image_format: str = "png"
     """plan and outcome images: png (lossless) or jpg (a tenth of the size and of the time to
     write: `keymps eval`'s default, for hundreds of runs)."""
+    dispatch: Callable[[Any, Any], Any] | None = None
+    """dispatch(backend, request) -> BackendAnswer: hands each call of a backend that offers
+    `acomplete` to an event loop (`keymps eval`'s broker) instead of calling `complete`."""
+
+
+STAGES = ("image", "detect", "plan", "ground", "compose", "solve", "time", "check", "execute")
+"""The stages of a run, in order (the names of run.json's timings and of keymps_stage_done)."""
+
+
+@dataclass
+class StageResults:
+    """What each stage of a run produced, typed; None until that stage has run."""
+
+    image: SceneImage | None = None
+    detect: Detection | None = None
+    plan: Plan | None = None
+    ground: Grounding | None = None
+    compose: ToolPath | None = None
+    solve: JointPath | None = None
+    time: Trajectory | None = None
+    check: ValidatedTrajectory | None = None
+    execute: ExecutionReport | None = None
+
+    def record(self, stage: str, result: Any) -> None:
+        """Store `result` as the result of `stage` (one of STAGES)."""
+        if stage not in STAGES:
+            raise KeympsError(f"unknown stage {stage!r} (stages: {', '.join(STAGES)})")
+        setattr(self, stage, result)
 
 
 @dataclass
 class Run:
-    """Passed to every `keymps_stage_done` observer and to executors."""
+    """The run's typed context: passed to every `keymps_stage_done` observer and to executors."""
 
     task: Task
     folder: Path
     options: RunOptions = field(default_factory=RunOptions)
-    results: dict[str, Any] = field(default_factory=dict)
-    """Stage name -> that stage's result ('image', 'detect', 'plan', ... 'execute')."""
+    stages: StageResults = field(default_factory=StageResults)
+    robot: RobotModel | None = None
+    """The arm the run plans for (base placed on the board, the task's tool)."""
+    outline_m: np.ndarray | None = None
+    """(N, 2) the object's footprint in board metres, once detected and grounded."""
+    backend: str | None = None
+    backend_reason: str | None = None
+    """Which planner backend the run uses, and why (`auto` explains its choice)."""
     timings_s: dict[str, float] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
-    notes: dict[str, Any] = field(default_factory=dict)
-    """Free-form facts for run.json (backend choice and why, cache hits ...)."""
 
     def path(self, name: str) -> Path:
         """A file in the run folder (its parent folders created)."""

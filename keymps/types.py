@@ -9,12 +9,16 @@ Frames and units, used everywhere in keymps:
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
 
 PieceKind = Literal["work", "travel"]
+Step = Literal["combined", "keyword", "pairs", "direct"]
+"""A planning call: the combined answer, the keyword or pairs alone, or an eval method's own
+prompt (keymps.eval.vlm)."""
 
 
 @dataclass(frozen=True)
@@ -23,6 +27,8 @@ class SceneImage:
 
     image: np.ndarray
     source: str
+    truth: dict[str, Any] | None = None
+    """A synthetic scene's true geometry (its JSON sidecar, keymps.scenes); None for photos."""
 
     @property
     def size_px(self) -> tuple[int, int]:
@@ -86,6 +92,62 @@ class VlmCall:
     completion_tokens: int | None = None
     cost_usd: float | None = None
     cached: bool = False
+
+
+@dataclass(frozen=True)
+class PlanRequest:
+    """Everything a backend may use to answer one planning call."""
+
+    instruction: str
+    crop: np.ndarray
+    """The image sent (BGR, uint8): the object's crop."""
+    crop_mask: np.ndarray | None
+    """The object's pixels in the crop (bool), when the detector gives them."""
+    metres_per_px: tuple[float, float]
+    """Metres per crop pixel along x and y."""
+    primitives: Mapping[str, str]
+    """Primitive name -> description (the keyword must be one of the names)."""
+    object_height: float
+    max_pairs: int
+    messages: list[dict[str, Any]]
+    """The rendered chat: system prompt, the sentence with the crop as a PNG data URL, repairs."""
+    schema: dict[str, Any]
+    """The answer's JSON schema ({"name", "strict", "schema"}, OpenAI response_format style)."""
+    step: Step = "combined"
+    keyword: str | None = None
+    """For step 'pairs': the primitive chosen by the 'keyword' call."""
+    previous_errors: tuple[str, ...] = ()
+    """Problems with the previous attempt's answer (empty on the first attempt)."""
+    attempt: int = 1
+    model: str | None = None
+    temperature: float = 0.0
+    timeout_s: float = 60.0
+    task_name: str = ""
+    share_key: str | None = None
+    """Set when answers may be shared (the answer cache is on): identical requests out at the
+    same time then share one answer (keymps.eval.broker)."""
+
+    @property
+    def crop_size_px(self) -> tuple[int, int]:
+        return int(self.crop.shape[1]), int(self.crop.shape[0])
+
+
+@dataclass(frozen=True)
+class BackendAnswer:
+    """A backend's raw answer and what it cost."""
+
+    text: str
+    prompt_tokens: int | None = None
+    completion_tokens: int | None = None
+    latency_s: float = 0.0
+    cost_usd: float | None = None
+    """None where the price is unknown (e.g. a local model without a registered price)."""
+    model: str | None = None
+    retries: tuple[str, ...] = ()
+    """Failed tries before this answer (rate limits, server errors ...), one line each."""
+    shared: bool = False
+    """The answer to an identical request of another run, out at the same time: no call of its
+    own (recorded as cached)."""
 
 
 @dataclass(frozen=True)

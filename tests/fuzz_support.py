@@ -17,9 +17,8 @@ import numpy as np
 from hypothesis import HealthCheck, settings
 
 from keymps.errors import KeympsError
-from keymps.planning.planner import BackendAnswer, PlanRequest
 from keymps.plugin.hookspecs import hookimpl
-from keymps.types import ExecutionReport
+from keymps.types import BackendAnswer, ExecutionReport, PlanRequest
 
 FAST = settings(deadline=None, suppress_health_check=list(HealthCheck), database=None)
 """The fuzz suites' base settings: no deadline (runs vary), no health checks, no example file."""

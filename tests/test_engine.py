@@ -81,7 +81,7 @@ def test_every_stage_runs_in_order_and_is_announced(tmp_path: Path, observer: En
     assert observer.events[-1][1] is None
     assert set(run.timings_s) == {"image", *STAGES}
     assert len(RecordingExecutor.calls) == 1
-    assert RecordingExecutor.calls[0] is run.results["check"]
+    assert RecordingExecutor.calls[0] is run.stages.check
     record = json.loads((tmp_path / "run/run.json").read_text())
     assert record["ok"] is True and record["execution"]["executor"] == "recording"
 
@@ -143,7 +143,7 @@ def test_a_failing_observer_is_a_warning_not_a_failed_run(tmp_path: Path, keymps
     keymps_plugins.register(Exploding(), name="exploding")
     with pytest.warns(RuntimeWarning, match="observer of stage 'plan' failed"):
         run = keymps.run_task(_task_copy(tmp_path), out=tmp_path / "run", rerun="off")
-    assert "execute" in run.results
+    assert run.stages.execute is not None
     assert any("observer bug" in w for w in run.warnings)
 
 

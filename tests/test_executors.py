@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 from functools import cache
 from pathlib import Path
 from typing import Any
@@ -65,8 +66,8 @@ def planned(kind: str) -> tuple[Task, ToolPath, Any]:
 def validated_run(kind: str, folder: Path) -> tuple[ValidatedTrajectory, Run]:
     task, path, (model, trajectory, radius) = planned(kind)
     run = Run(task=task, folder=folder)
-    run.results["image"] = scene_image(radius)
-    run.results["compose"] = path
+    run.stages.image = scene_image(radius)
+    run.stages.compose = path
     return validate(model, trajectory, path, outline(radius), task), run
 
 
@@ -101,7 +102,7 @@ def test_sim_draws_cuts_where_the_knife_went_through_the_food(tmp_path: Path) ->
         (CENTER[0] + 0.05 * math.cos(math.pi / 4), CENTER[1] + 0.05 * math.sin(math.pi / 4)),
     )
     assert not is_cut(outcome[y, x])
-    assert np.array_equal(outcome[5, 5], run.results["image"].image[5, 5])
+    assert np.array_equal(outcome[5, 5], run.stages.image.image[5, 5])
 
 
 def test_sim_draws_icing_dots_on_the_cake(tmp_path: Path) -> None:
@@ -205,10 +206,10 @@ def cut_coverage(outcome: np.ndarray, run: Run) -> list[float]:
     from keymps.perception.frames import object_outline_m
 
     size = (outcome.shape[1], outcome.shape[0])
-    pizza = object_outline_m(run.results["detect"], run.task, size).astype(np.float32)
+    pizza = object_outline_m(run.stages.detect, run.task, size).astype(np.float32)
     frame = ImageFrame.from_task(run.task, size)
     shares = []
-    for segment in run.results["ground"].segments:
+    for segment in run.stages.ground.segments:
         start, goal = np.asarray(segment.start)[:2], np.asarray(segment.goal)[:2]
         count = int(np.linalg.norm(goal - start) / 0.0005) + 1
         line = start + np.linspace(0.0, 1.0, count)[:, None] * (goal - start)
@@ -220,23 +221,23 @@ def cut_coverage(outcome: np.ndarray, run: Run) -> list[float]:
 
 def test_a_knife_cuts_with_its_whole_blade_across_the_pizza(shipped_cutting: Run) -> None:
     run = shipped_cutting
-    report = run.results["execute"]
+    report = run.stages.execute
     assert report.ok, report.message
     assert report.figures["cuts"] == 4 and report.figures["blade_length_mm"] == 160
     outcome = cv2.imread(str(run.folder / "outcome.png"))
     coverage = cut_coverage(outcome, run)
     assert len(coverage) == 4 and min(coverage) >= 0.95, coverage
     # each cut goes through the whole pizza (300 px across at 0.5 mm per px: 150 mm)
-    x0, _, x1, _ = run.results["detect"].bbox_px
+    x0, _, x1, _ = run.stages.detect.bbox_px
     diameter_mm = (x1 - x0) * 0.5
     for k in range(4):
         assert report.figures[f"cut_{k + 1}_length_mm"] == pytest.approx(diameter_mm, abs=4)
     # the blade cuts only the food: the board around the pizza is untouched
-    scene = run.results["image"].image
+    scene = run.stages.image.image
     x, y = to_pixel(run.task, (0.02, 0.09))  # left of the pizza, on the horizontal cut's line
     assert np.array_equal(outcome[y, x], scene[y, x])
     # between the cuts (halfway between two diameters, mid-radius) the pizza is whole
-    centre = np.mean([np.asarray(s.goal)[:2] for s in run.results["ground"].segments], axis=0)
+    centre = np.mean([np.asarray(s.goal)[:2] for s in run.stages.ground.segments], axis=0)
     between = centre + 0.04 * np.array([math.cos(math.pi / 8), math.sin(math.pi / 8)])
     x, y = to_pixel(run.task, (float(between[0]), float(between[1])))
     assert np.array_equal(outcome[y, x], scene[y, x])
@@ -250,8 +251,8 @@ def test_a_tiny_blade_cuts_only_where_the_tip_went_below_the_top(
     full = shipped_cutting
     robot = full.task.robot.model_copy(update={"tool": ToolSpec(name="knife", blade_length=0.001)})
     run = Run(task=full.task.model_copy(update={"robot": robot}), folder=tmp_path)
-    run.results.update({k: v for k, v in full.results.items() if k != "execute"})
-    report = create_component("executor", "sim", {}).execute(full.results["check"], run)
+    run.stages = replace(full.stages, execute=None)
+    report = create_component("executor", "sim", {}).execute(full.stages.check, run)
     assert report.ok, report.message
     assert report.figures["cuts"] == 4 and report.figures["blade_length_mm"] == 1
     coverage = cut_coverage(cv2.imread(str(tmp_path / "outcome.png")), run)
@@ -261,7 +262,7 @@ def test_a_tiny_blade_cuts_only_where_the_tip_went_below_the_top(
     for k in range(4):
         assert (
             report.figures[f"cut_{k + 1}_length_mm"]
-            < 0.9 * full.results["execute"].figures[f"cut_{k + 1}_length_mm"]
+            < 0.9 * full.stages.execute.figures[f"cut_{k + 1}_length_mm"]
         )
 
 

@@ -223,7 +223,7 @@ def test_named_images_in_full_runs(keymps_plugins: Any, tmp_path: Path, fuzz_cou
         else:
             assert EXPECTED.get(name) is None, f"{name} should have been refused"
             assert len(RecordingExecutor.calls) == 1
-            assert run.results["image"].image.shape[2] == 3
+            assert run.stages.image.image.shape[2] == 3
             fuzz_counter.add("images/named, full runs", name, "executed")
         assert time.perf_counter() - started < 5.0, name
 

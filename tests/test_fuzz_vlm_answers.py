@@ -364,7 +364,7 @@ def test_hostile_answers_in_full_runs_never_reach_the_executor(
         pytest.fail(f"a {type(error).__name__} escaped the run: {error}")
     # an answer the rules accept: executed once, validated
     assert len(RecordingExecutor.calls) == 1
-    assert run.results["check"].report.ok
+    assert run.stages.check.report.ok
 
 
 # cassettes (--backend replay) and the answer cache are files a user can edit or break

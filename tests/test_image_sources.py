@@ -85,7 +85,7 @@ def test_synthetic_source_renders_on_the_task_workspace(tmp_path: Path) -> None:
     scene = source.load(run)
     assert scene.size_px == (240, 160)
     assert scene.source == "synthetic:cucumber:seed=4"
-    truth = run.notes["synthetic_scene"]
+    truth = scene.truth
     assert truth["board_size_m"] == [0.24, 0.16]
     assert truth["objects"][0]["height_m"] == 0.04  # scene.object_height
     again = create_component(

@@ -239,7 +239,7 @@ def test_a_vlm_answer_drives_a_full_run_and_the_key_stays_out_of_every_file(
         rerun="save",
         record=tmp_path / "cassette.jsonl",
     )
-    assert run.notes["backend"] == "litellm"
+    assert run.backend == "litellm"
     if model.startswith("openai"):
         assert all(r.headers["authorization"] == f"Bearer {CANARY}" for r in server.chat_requests)
     else:

@@ -1,4 +1,5 @@
-"""Meta-tests: every hook is tested and documented; every module stays importable and small."""
+"""Meta-tests: every hook is tested and documented; the import rules hold (no cycles, the
+layers of docs/architecture.md, checked by import-linter)."""
 
 from __future__ import annotations
 
@@ -41,10 +42,74 @@ def test_every_hook_is_exercised_by_a_test(hook: str) -> None:
     assert any(re.search(rf"\b{hook}\b", p.read_text()) for p in tests), hook
 
 
-def test_modules_stay_small() -> None:
-    too_long = {
-        str(p.relative_to(REPO)): n
-        for p in (REPO / "keymps").rglob("*.py")
-        if (n := len(p.read_text().splitlines())) > 400
-    }
-    assert not too_long, f"split these modules, each should have one job: {too_long}"
+def _import_graph() -> object:
+    import grimp
+
+    return grimp.build_graph("keymps", exclude_type_checking_imports=True)
+
+
+def test_no_import_cycles_function_level_imports_included() -> None:
+    """grimp sees every import statement, those inside functions too."""
+    graph = _import_graph()
+    modules = sorted(graph.modules)  # type: ignore[attr-defined]
+    imports = {m: graph.find_modules_directly_imported_by(m) for m in modules}  # type: ignore[attr-defined]
+    cycles = _cycles(imports)
+    assert not cycles, "import cycles: " + "; ".join(" -> ".join(c) for c in cycles)
+
+
+def _cycles(edges: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components with more than one module (Tarjan), each as a cycle path."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    found: list[list[str]] = []
+
+    def visit(node: str) -> None:
+        index[node] = low[node] = len(index)
+        stack.append(node)
+        on_stack.add(node)
+        for target in edges.get(node, ()):
+            if target not in index:
+                visit(target)
+                low[node] = min(low[node], low[target])
+            elif target in on_stack:
+                low[node] = min(low[node], index[target])
+        if low[node] == index[node]:
+            component = []
+            while True:
+                member = stack.pop()
+                on_stack.discard(member)
+                component.append(member)
+                if member == node:
+                    break
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    for node in edges:
+        if node not in index:
+            visit(node)
+    return found
+
+
+def test_nothing_imports_the_root_package() -> None:
+    """keymps/__init__.py is the users' API; inside keymps every import names its module."""
+    graph = _import_graph()
+    importers = graph.find_modules_that_directly_import("keymps")  # type: ignore[attr-defined]
+    assert not importers, f"these modules import the root package: {sorted(importers)}"
+
+
+def test_the_import_contracts_hold() -> None:
+    """The layers and independence contracts in pyproject.toml ([tool.importlinter])."""
+    import subprocess
+    import sys
+
+    command = "from importlinter.cli import lint_imports_command; lint_imports_command()"
+    lint = subprocess.run(
+        [sys.executable, "-c", command, "--no-cache"],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+        timeout=120,
+    )
+    assert lint.returncode == 0, lint.stdout[-3000:]

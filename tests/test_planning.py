@@ -246,7 +246,7 @@ class _TeachingBackend:
         self.requests = []
 
     def complete(self, request):
-        from keymps.planning.planner import BackendAnswer
+        from keymps.types import BackendAnswer
 
         self.requests.append(request)
         if not request.previous_errors:

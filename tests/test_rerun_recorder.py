@@ -266,7 +266,7 @@ def make_run(tmp_path: Path, task_yaml: str = TASK_YAML, **options: object) -> t
 def play(run: Run, results: Results, error: BaseException | None = None) -> None:
     """What the engine does: one event per stage, then 'finished'."""
     for stage, result in results.stages:
-        run.results[stage] = result
+        run.stages.record(stage, result)
         rerun_recorder.keymps_stage_done(stage=stage, result=result, run=run)
     rerun_recorder.keymps_stage_done(stage="finished", result=error, run=run)
 
@@ -688,7 +688,7 @@ def test_a_shipped_task_run_by_the_engine_is_recorded_whole(task_file, tmp_path)
 
     run = run_task(TASKS / task_file, out=tmp_path / "run", backend="offline", rerun="save")
     entities = read_recording(run.folder / "run.rrd")
-    trajectory, plan = run.results["time"], run.results["plan"]
+    trajectory, plan = run.stages.time, run.stages.plan
     for name in trajectory.joint_names:
         assert entities[f"/joints/q/{name}"].rows["Scalars"] == trajectory.samples
     assert entities["/tool/speed"].rows["Scalars"] == trajectory.samples

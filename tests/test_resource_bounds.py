@@ -84,14 +84,14 @@ def test_path_length_and_duration_limits_are_configurable(
         _run(quick, tmp_path / "r2", 12)
     assert RecordingExecutor.calls == []
     run = _run(task_copy(tmp_path / "default"), tmp_path / "r3", 3)  # the defaults let it run
-    assert run.results["execute"].ok and len(RecordingExecutor.calls) == 1
+    assert run.stages.execute.ok and len(RecordingExecutor.calls) == 1
 
 
 def test_the_measured_duration_is_checked_after_timing(keymps_plugins: Any, tmp_path: Path) -> None:
     """The estimate ignores acceleration; the timed trajectory is checked against the limit too."""
     install(keymps_plugins)
     run = _run(task_copy(tmp_path / "task"), tmp_path / "run", 2)
-    trajectory, tool_path = run.results["time"], run.results["compose"]
+    trajectory, tool_path = run.stages.time, run.stages.compose
     estimate = sum(p.length_m / p.speed for p in tool_path.pieces if len(p.points) > 1)
     assert trajectory.duration_s > estimate
     limit = (estimate + trajectory.duration_s) / 2

@@ -193,18 +193,18 @@ def test_shipped_tasks_solve_time_and_validate_within_every_bound(
     task = load_task(Path(__file__).resolve().parents[1] / "tasks" / task_file)
     run = run_task(task, out=tmp_path, rerun="off", backend="offline", executor="file")
     model = RobotModel.from_task(task)
-    tool_path, joint_path = run.results["compose"], run.results["solve"]
+    tool_path, joint_path = run.stages.compose, run.stages.solve
     for piece, qs in zip(tool_path.pieces, joint_path.pieces, strict=True):
         positions, rotations = model.tool_poses(qs)
         assert np.linalg.norm(positions - piece.points, axis=1).max() < 1e-4
         yaw = np.arctan2(rotations[:, 1, 0], rotations[:, 0, 0])
         assert np.abs(np.angle(np.exp(1j * (yaw - piece.yaw)))).max() < math.radians(0.1)
         assert all(model.configuration_problem(q) is None for q in qs)
-    trajectory = run.results["time"]
+    trajectory = run.stages.time
     period = 1 / trajectory.rate_hz
     velocity = np.diff(trajectory.q, axis=0) / period
     assert np.all(np.abs(velocity) <= model.velocity_limits * 1.001)
     assert np.all(np.abs(np.diff(velocity, axis=0) / period) <= model.acceleration_limits * 1.01)
-    figures = run.results["check"].report.figures
+    figures = run.stages.check.report.figures
     assert figures["max_deviation_from_tool_path_mm"] < 0.5
     assert (tmp_path / "trajectory.json").is_file()

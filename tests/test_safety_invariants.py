@@ -102,9 +102,9 @@ def check_invariants(run: Any, executed: Any) -> None:
     task = run.task
     trajectory = require_validated(executed, "recording")
     model = RobotModel.from_task(task)
-    size = run.results["image"].size_px
-    outline = object_outline_m(run.results["detect"], task, size)
-    again = validate(model, trajectory, run.results["compose"], outline, task)
+    size = run.stages.image.size_px
+    outline = object_outline_m(run.stages.detect, task, size)
+    again = validate(model, trajectory, run.stages.compose, outline, task)
     assert again.report.ok
     q = np.asarray(trajectory.q)
     assert np.isfinite(q).all()
@@ -116,8 +116,8 @@ def check_invariants(run: Any, executed: Any) -> None:
     assert outside[worst] <= 1e-3, (
         f"the tool left the workspace by {outside[worst] * 1000:.1f} mm at "
         f"{positions[worst].round(4)} ({trajectory.kind[worst]} piece "
-        f"{trajectory.piece_index[worst]}, answer {run.results['plan'].pairs_px.tolist()}, "
-        f"keyword {run.results['plan'].keyword})"
+        f"{trajectory.piece_index[worst]}, answer {run.stages.plan.pairs_px.tolist()}, "
+        f"keyword {run.stages.plan.keyword})"
     )
     assert positions[:, 2].min() >= -BOARD_TOLERANCE_M, "the tool went below the board"
     assert (q >= model.lower - 1e-9).all() and (q <= model.upper + 1e-9).all()
@@ -341,7 +341,7 @@ def test_ur_rtde_moves_nothing_without_confirm_through_the_engine(
         out=tmp_path / "dry",
         rerun="off",
     )
-    report = dry.results["execute"]
+    report = dry.stages.execute
     assert report.ok and report.message.startswith("dry run")
     assert control.mock_calls == [], "without --confirm the control interface is never used"
     moved = keymps.run_task(
@@ -352,7 +352,7 @@ def test_ur_rtde_moves_nothing_without_confirm_through_the_engine(
         rerun="off",
         confirm=True,
     )
-    assert moved.results["execute"].ok
+    assert moved.stages.execute.ok
     assert control.servoJ.call_count == validated.trajectory.samples
     control.servoStop.assert_called_once()
 

@@ -35,7 +35,7 @@ def _isolated(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
 
 def _request(model: str = "openai/test-vlm") -> Any:
     from keymps.planning.answer import answer_schema
-    from keymps.planning.planner import PlanRequest
+    from keymps.types import PlanRequest
 
     return PlanRequest(
         instruction="cut it",
@@ -51,10 +51,11 @@ def _request(model: str = "openai/test-vlm") -> Any:
     )
 
 
-def _options(server: VlmServer, **extra: Any) -> Any:
-    from keymps.default_plugins.litellm.backend import LitellmOptions
+def _backend(server: VlmServer, **extra: Any) -> Any:
+    from keymps.default_plugins.litellm.backend import LitellmBackend, LitellmOptions
 
-    return LitellmOptions(model="openai/test-vlm", api_base=server.openai_base, **extra)
+    options = LitellmOptions(model="openai/test-vlm", api_base=server.openai_base, **extra)
+    return LitellmBackend(options)
 
 
 def _in_flight(tracker: dict[str, int], delay_s: float) -> Any:
@@ -81,7 +82,7 @@ def test_the_broker_keeps_exactly_concurrency_calls_in_flight() -> None:
     with VlmServer(responder=_in_flight(tracker, 0.3)) as server:
         broker = VlmBroker(4)
         started = time.perf_counter()
-        futures = [broker.submit(_options(server), _request()) for _ in range(20)]
+        futures = [broker.submit(_backend(server), _request()) for _ in range(20)]
         answers = [f.result(timeout=60) for f in futures]
         elapsed = time.perf_counter() - started
         broker.close()
@@ -120,7 +121,7 @@ def test_identical_requests_out_at_once_share_one_call() -> None:
         broker = VlmBroker(4)
         same = replace(_request(), share_key="scene-1")
         other = replace(_request(), share_key="scene-2")
-        futures = [broker.submit(_options(server), r) for r in (same, same, other, _request())]
+        futures = [broker.submit(_backend(server), r) for r in (same, same, other, _request())]
         answers = [f.result(timeout=60) for f in futures]
         asked = len(server.chat_requests)
         broker.close()
@@ -132,11 +133,10 @@ def test_identical_requests_out_at_once_share_one_call() -> None:
 def test_rate_limits_back_off_exponentially_with_jitter() -> None:
     """Three 429s without Retry-After: waits of 1, 2 and 4 x the backoff, each stretched by up
     to 50 % at random, then the answer; every wait is noted for the run's vlm/ records."""
-    from keymps.default_plugins.litellm.backend import LitellmBackend
 
     with VlmServer() as server:
         server.script(*[Reply.error(429)] * 3, Reply.text_answer(SIX))
-        backend = LitellmBackend(_options(server, backoff_s=0.1))
+        backend = _backend(server, backoff_s=0.1)
         answer = asyncio.run(backend.acomplete(_request()))
         arrivals = [r.at for r in server.chat_requests]
     assert answer.text == SIX and len(arrivals) == 4
@@ -147,10 +147,9 @@ def test_rate_limits_back_off_exponentially_with_jitter() -> None:
 
 
 def test_retry_after_is_honoured_in_seconds_and_as_a_date() -> None:
-    from keymps.default_plugins.litellm.backend import LitellmBackend
 
     with VlmServer() as server:
-        backend = LitellmBackend(_options(server, backoff_s=0.01))
+        backend = _backend(server, backoff_s=0.01)
         # a first call pays litellm's lazy imports (seconds), which would eat the date's lead
         server.script(Reply.text_answer(SIX))
         asyncio.run(backend.acomplete(_request()))
@@ -239,8 +238,8 @@ def test_a_plugin_backend_keeps_its_calls_concurrent_and_within_concurrency(
     are in flight, their calls overlap, and no run ahead makes a call beyond the bound."""
     import math
 
-    from keymps.planning.planner import BackendAnswer
     from keymps.plugin.hookspecs import hookimpl
+    from keymps.types import BackendAnswer
 
     tracker = {"now": 0, "peak": 0}
     lock = threading.Lock()

@@ -65,10 +65,10 @@ class RunPrinter:
         if self.quiet:
             click.echo(str(folder))
             return
-        plan = run.results.get("plan")
-        trajectory = run.results.get("time")
+        plan = run.stages.plan
+        trajectory = run.stages.time
         lines = [
-            f"backend     {run.notes.get('backend')} ({run.notes.get('backend_reason')})",
+            f"backend     {run.backend} ({run.backend_reason})",
             f"keyword     {plan.keyword if plan else '-'}",
             f"segments    {plan.num_pairs if plan else 0}",
             f"duration    {trajectory.duration_s:.1f} s" if trajectory else "duration    -",

@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING, Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from keymps.plugin import Register, hookimpl, parse_options
+from keymps.plugin import RegisterExecutor, hookimpl, parse_options
 from keymps.types import ExecutionReport, ValidatedTrajectory
 
 if TYPE_CHECKING:
@@ -64,5 +64,5 @@ def make_file_executor(options: dict[str, Any]) -> FileExecutor:
 
 
 @hookimpl
-def register_executors(register: Register) -> None:
+def register_executors(register: RegisterExecutor) -> None:
     register("file", make_file_executor)

@@ -7,9 +7,9 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from keymps.errors import KeympsError
-from keymps.perception.image_io import ImageSourceError, read_image, to_bgr8
-from keymps.plugin import Register, hookimpl, parse_options
+from keymps.errors import ImageSourceError, KeympsError
+from keymps.perception.image_io import read_image, to_bgr8
+from keymps.plugin import RegisterImageSource, hookimpl, parse_options
 from keymps.types import SceneImage
 
 
@@ -80,11 +80,10 @@ class SyntheticSource:
         except KeympsError as error:
             raise ImageSourceError(str(error)) from None
         scene = render_scene_cached(spec)
-        notes = getattr(run, "notes", None)
-        if isinstance(notes, dict):
-            notes["synthetic_scene"] = scene.truth
         return SceneImage(
-            image=scene.image, source=f"synthetic:{'+'.join(kinds)}:seed={options.seed}"
+            image=scene.image,
+            source=f"synthetic:{'+'.join(kinds)}:seed={options.seed}",
+            truth=scene.truth,
         )
 
 
@@ -155,7 +154,7 @@ def make_opencv_source(options: dict[str, Any]) -> OpenCvSource:
 
 
 @hookimpl
-def register_image_sources(register: Register) -> None:
+def register_image_sources(register: RegisterImageSource) -> None:
     register("file", make_file_source)
     register("synthetic", make_synthetic_source)
     register("opencv", make_opencv_source)

@@ -16,10 +16,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from keymps.errors import KeympsError
-from keymps.plugin import hookimpl
+from keymps.plugin import RegisterVlmBackend, hookimpl
 
 if TYPE_CHECKING:
-    from keymps.planning.planner import BackendAnswer, PlanRequest
+    from keymps.types import BackendAnswer, PlanRequest
 
 HARD_OBJECTS = re.compile(
     r"\b(hard|crusty|crust|bread|baguette|sourdough|pumpkin|squash|potato(?:es)?|carrots?|"
@@ -132,7 +132,7 @@ class OfflineBackend:
         from keymps.designs.crop_shape import measure
         from keymps.designs.grammar import read_instruction
         from keymps.designs.layout import design
-        from keymps.planning.planner import BackendAnswer
+        from keymps.types import BackendAnswer
 
         started = time.perf_counter()
         intent = read_instruction(request.instruction)
@@ -181,5 +181,5 @@ def _factory(options: dict[str, Any]) -> OfflineBackend:
 
 
 @hookimpl
-def register_vlm_backends(register: Any) -> None:
+def register_vlm_backends(register: RegisterVlmBackend) -> None:
     register("offline", _factory)

@@ -14,10 +14,10 @@ from typing import TYPE_CHECKING, Any
 from pydantic import BaseModel, ConfigDict
 
 from keymps.errors import KeympsError
-from keymps.plugin import hookimpl, parse_options
+from keymps.plugin import RegisterVlmBackend, hookimpl, parse_options
 
 if TYPE_CHECKING:
-    from keymps.planning.planner import BackendAnswer, PlanRequest
+    from keymps.types import BackendAnswer, PlanRequest
 
 
 class ReplayOptions(BaseModel):
@@ -37,7 +37,7 @@ class ReplayBackend:
 
     def complete(self, request: PlanRequest) -> BackendAnswer:
         from keymps.planning.cache import request_digest
-        from keymps.planning.planner import BackendAnswer
+        from keymps.types import BackendAnswer
 
         started = time.perf_counter()
         digest = request_digest(request.messages, request.schema)
@@ -69,5 +69,5 @@ def _factory(options: dict[str, Any]) -> ReplayBackend:
 
 
 @hookimpl
-def register_vlm_backends(register: Any) -> None:
+def register_vlm_backends(register: RegisterVlmBackend) -> None:
     register("replay", _factory)

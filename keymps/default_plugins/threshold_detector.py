@@ -12,17 +12,10 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from keymps.errors import StageError
-from keymps.plugin import Register, hookimpl
+from keymps.errors import DetectionError
+from keymps.plugin import RegisterDetector, hookimpl
 from keymps.plugin import parse_options as plugin_options
 from keymps.types import Detection, SceneImage
-
-
-class DetectionError(StageError):
-    """The detector could not find the object (or cannot read the image)."""
-
-    def __init__(self, message: str):
-        super().__init__("detect", message)
 
 
 class ThresholdOptions(BaseModel):
@@ -260,5 +253,5 @@ def make_detector(options: dict[str, Any]) -> ThresholdDetector:
 
 
 @hookimpl
-def register_detectors(register: Register) -> None:
+def register_detectors(register: RegisterDetector) -> None:
     register("threshold", make_detector)

@@ -1,9 +1,10 @@
 """`keymps eval`'s VLM calls: one asyncio event loop, litellm's async API, --concurrency at most.
 
-While a broker is active, the litellm backend hands each call to it instead of calling litellm
-itself: `VlmBroker.complete` (from any thread of this process) or a `BrokerClient` (from a
-worker process, through a pair of queues) waits while the loop awaits
-`LitellmBackend.acomplete` under an asyncio.Semaphore(concurrency). A call waiting for the
+Each eval run's planning session hands the calls of a backend that offers `acomplete` to
+`dispatch(backend, request)` (keymps.run.RunOptions.dispatch): `VlmBroker.complete` (from any
+thread of this process) or a `BrokerClient` (from a worker process, through a pair of queues)
+waits while the loop awaits `backend.acomplete(request)` under an asyncio.Semaphore(concurrency).
+The backend knows nothing of the broker. A call waiting for the
 server or backing off on a rate limit (keymps.default_plugins.litellm.retry) costs no thread and no CPU; the runs'
 CPU work goes on meanwhile in their threads and worker processes.
 
@@ -29,15 +30,13 @@ import numpy as np
 from keymps.errors import KeympsError
 
 if TYPE_CHECKING:
-    from keymps.default_plugins.litellm.backend import LitellmOptions
     from keymps.eval.turn import CpuTurn
-    from keymps.planning.planner import BackendAnswer, PlanRequest
+    from keymps.types import BackendAnswer, PlanRequest
 
 BROKERED_BACKEND = "litellm"
 """The planner backend whose calls a broker makes (other backends call out themselves)."""
 _LOOP: asyncio.AbstractEventLoop | None = None
 _LOOP_LOCK = threading.Lock()
-_ACTIVE: Any = None
 STOPPED = "the evaluation was stopped before the VLM answered"
 
 
@@ -50,22 +49,6 @@ def event_loop() -> asyncio.AbstractEventLoop:
             threading.Thread(target=loop.run_forever, name="keymps-vlm-loop", daemon=True).start()
             _LOOP = loop
         return _LOOP
-
-
-def active() -> Any:
-    """The broker (or worker-side client) the litellm backend hands its calls to, if any."""
-    return _ACTIVE
-
-
-@contextlib.contextmanager
-def activated(broker: Any) -> Iterator[Any]:
-    """Route this process's litellm calls through `broker` inside the block."""
-    global _ACTIVE
-    previous, _ACTIVE = _ACTIVE, broker
-    try:
-        yield broker
-    finally:
-        _ACTIVE = previous
 
 
 def _waiting(turn: CpuTurn | None) -> contextlib.AbstractContextManager[None]:
@@ -97,31 +80,30 @@ class VlmBroker:
 
             self.loop.call_soon_threadsafe(import_litellm)
 
-    async def _call(self, options: LitellmOptions, request: PlanRequest) -> BackendAnswer:
+    async def _call(self, backend: Any, request: PlanRequest) -> BackendAnswer:
         """One call, or the answer of the identical call already out (same share key): runs
         that ask the same at the same time (keymps and vlm-keypoint on one scene) pay once."""
         key = request.share_key
         if key is not None and key in self._asking:
             answer = await asyncio.shield(self._asking[key])
             return replace(answer, shared=True, cost_usd=0.0, retries=())
-        call = asyncio.ensure_future(self._ask(options, request))
+        call = asyncio.ensure_future(self._ask(backend, request))
         if key is not None:
             self._asking[key] = call
             call.add_done_callback(lambda _: self._asking.pop(key, None))
         return await call
 
-    async def _ask(self, options: LitellmOptions, request: PlanRequest) -> BackendAnswer:
-        from keymps.default_plugins.litellm.backend import LitellmBackend
-
+    async def _ask(self, backend: Any, request: PlanRequest) -> BackendAnswer:
         async with self._semaphore:
-            return await LitellmBackend(options).acomplete(request)
+            answer: BackendAnswer = await backend.acomplete(request)
+            return answer
 
-    def submit(self, options: LitellmOptions, request: PlanRequest) -> Future[BackendAnswer]:
+    def submit(self, backend: Any, request: PlanRequest) -> Future[BackendAnswer]:
         """Schedule one call; its future ends with the answer or the call's exception."""
         with self._lock:
             if self._closed:
                 raise KeympsError("the evaluation is stopping: VLM call not made")
-            future = asyncio.run_coroutine_threadsafe(self._call(options, request), self.loop)
+            future = asyncio.run_coroutine_threadsafe(self._call(backend, request), self.loop)
             self._pending.add(future)
         future.add_done_callback(self._forget)
         return future
@@ -130,9 +112,9 @@ class VlmBroker:
         with self._lock:
             self._pending.discard(future)
 
-    def complete(self, options: LitellmOptions, request: PlanRequest) -> BackendAnswer:
-        """The answer to one call made on the loop (this thread waits)."""
-        future = self.submit(options, request)
+    def complete(self, backend: Any, request: PlanRequest) -> BackendAnswer:
+        """The answer to one call made on the loop (this thread waits): a run's `dispatch`."""
+        future = self.submit(backend, request)
         try:
             with _waiting(self.turn):
                 return future.result()
@@ -140,7 +122,7 @@ class VlmBroker:
             raise KeympsError(STOPPED) from None
 
     def serve(self, requests: Any, replies: list[Any], stop: threading.Event) -> threading.Thread:
-        """Answer worker processes' calls: (worker, id, options, request) from `requests`,
+        """Answer worker processes' calls: (worker, id, backend, request) from `requests`,
         (id, "ok", answer) or (id, "error" | "failure", message) to replies[worker], until
         `stop` is set. (Not stopped by a sentinel put on `requests`: a worker ended while it
         was writing to that queue would keep its lock, and the put would wait forever.)"""
@@ -165,9 +147,9 @@ class VlmBroker:
                     continue
                 except (EOFError, OSError, ValueError):  # the queue was closed
                     return
-                worker, call_id, options, request = item
+                worker, call_id, backend, request = item
                 try:
-                    future = self.submit(options, request)
+                    future = self.submit(backend, request)
                 except KeympsError as error:
                     with contextlib.suppress(Exception):
                         replies[worker].put((call_id, "error", str(error)))
@@ -215,12 +197,13 @@ class BrokerClient:
             if future is not None:
                 future.set_result((status, value))
 
-    def complete(self, options: LitellmOptions, request: PlanRequest) -> BackendAnswer:
+    def complete(self, backend: Any, request: PlanRequest) -> BackendAnswer:
+        """Send one call to the parent's broker and wait: a worker's runs' `dispatch`."""
         future: Future[tuple[str, Any]] = Future()
         call_id = next(self._ids)
         with self._lock:
             self._waiting[call_id] = future
-        self.requests.put((self.worker, call_id, options, _portable(request)))
+        self.requests.put((self.worker, call_id, backend, _portable(request)))
         with _waiting(self.turn):
             status, value = future.result()
         if status == "ok":

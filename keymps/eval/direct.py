@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from keymps.eval.methods import MethodContext, MethodOutput
+from keymps.eval.context import MethodContext, MethodOutput
 from keymps.eval.vlm import Seen, ask, look
 from keymps.planning.answer import strict_object_schema
 

@@ -23,42 +23,8 @@ from typing import Any
 import numpy as np
 
 from keymps.errors import KeympsError
-
-
-@dataclass(frozen=True)
-class MethodOutput:
-    """What one method generated for one case."""
-
-    work_pieces: tuple[np.ndarray, ...]
-    """The generated work motion (cuts, strokes) as 3D points, board metres; no travel."""
-    lines_m: np.ndarray
-    """(K, 2, 2) where each generated piece starts and ends, seen from above (board metres)."""
-    keyword: str | None
-    calls: tuple[dict[str, Any], ...] = ()
-    """Per VLM call: latency_s, cost_usd, prompt_tokens, completion_tokens."""
-    images: dict[str, str] = field(default_factory=dict)
-    """plan / outcome -> PNG path, when written."""
-    scene: dict[str, Any] | None = None
-    """The synthetic scene's sidecar as rendered for this run (saves rendering it again)."""
-
-
-@dataclass(frozen=True)
-class MethodContext:
-    """Everything a method needs to run one case once."""
-
-    task_path: Path
-    """The case's task file (written by the runner)."""
-    folder: Path
-    """This run's folder."""
-    backend: str
-    model: str | None
-    api_base: str | None
-    plan_only: bool = False
-    """Stop after grounding: the design is all that is scored (Appendix F's equal parts)."""
-    no_cache: bool = False
-    """Always ask the VLM, never answer from the planner's cache."""
-    image_format: str = "jpg"
-    """plan and outcome images: jpg or png (keymps.run.RunOptions.image_format)."""
+from keymps.eval.context import MethodContext, MethodOutput
+from keymps.run import StageResults
 
 
 MethodRunner = Callable[[MethodContext], MethodOutput]
@@ -72,14 +38,13 @@ class MethodNeedsVlm(KeympsError):
 
 
 def _run_pipeline(context: MethodContext) -> MethodOutput:
-    if context.plan_only:
-        return _run_plan_only(context)
+    """A whole keymps run (or, plan-only, its stages through grounding) in the case's folder."""
     from keymps.pipeline.engine import run_task
 
-    results: dict[str, Any] = {}
+    results = StageResults()
 
     def keep(stage: str, seconds: float, result: Any) -> None:
-        results[stage] = result
+        results.record(stage, result)
 
     overrides: dict[str, Any] = {"backend": context.backend}
     if context.model:
@@ -87,7 +52,7 @@ def _run_pipeline(context: MethodContext) -> MethodOutput:
     if context.api_base:
         overrides["api_base"] = context.api_base
     try:
-        run = run_task(
+        run_task(
             context.task_path,
             on_stage=keep,
             out=context.folder,
@@ -95,44 +60,13 @@ def _run_pipeline(context: MethodContext) -> MethodOutput:
             quiet=True,
             no_cache=context.no_cache,
             image_format=context.image_format,
+            dispatch=context.dispatch,
+            through="ground" if context.plan_only else "execute",
             **overrides,
         )
     except KeympsError as error:
         raise PartialRunError(str(error), results) from None
-    return replace(_pipeline_output(results, context), scene=run.notes.get("synthetic_scene"))
-
-
-def _run_plan_only(context: MethodContext) -> MethodOutput:
-    """The pipeline's first stages (image, detect, plan, ground), nothing executed."""
-    from keymps.perception.frames import ground
-    from keymps.pipeline.overlay import draw_plan
-    from keymps.config.overrides import apply_overrides
-    from keymps.planning.planner import choose_backend, make_plan
-    from keymps.plugin.manager import create_component
-    from keymps.primitives.dictionary import default_search_dirs
-    from keymps.run import Run, RunOptions
-    from keymps.config.task import load_task
-
-    overrides = {"backend": context.backend, "model": context.model, "api_base": context.api_base}
-    overrides = {k: v for k, v in overrides.items() if v}
-    task = apply_overrides(load_task(context.task_path), overrides)
-    backend, _ = choose_backend(task, context.backend, context.model, context.api_base)
-    options = RunOptions(no_cache=context.no_cache, image_format=context.image_format)
-    run = Run(task=task, folder=context.folder, options=options)
-    context.folder.mkdir(parents=True, exist_ok=True)
-    results: dict[str, Any] = {}
-    try:
-        source = create_component("image_source", task.scene.source, task.scene.source_options)
-        scene = results["image"] = source.load(run)
-        detector = create_component("detector", task.detector.name, task.detector.options)
-        detection = results["detect"] = detector.detect(scene)
-        descriptions = primitive_descriptions(task.primitives, default_search_dirs(task.folder))
-        plan = results["plan"] = make_plan(task, detection, scene, descriptions, run, backend)
-        run.write_image("plan", draw_plan(scene.image, detection, plan))
-        results["ground"] = ground(plan, detection, task, scene.size_px)
-    except KeympsError as error:
-        raise PartialRunError(str(error), results) from None
-    return replace(_pipeline_output(results, context), scene=run.notes.get("synthetic_scene"))
+    return _pipeline_output(results, context)
 
 
 def primitive_descriptions(names: list[str], search_dirs: list[Path]) -> dict[str, str]:
@@ -161,17 +95,15 @@ def _descriptions(
 class PartialRunError(KeympsError):
     """A pipeline run that stopped at a stage; the results of the stages before it are kept."""
 
-    def __init__(self, message: str, results: dict[str, Any]):
+    def __init__(self, message: str, results: StageResults):
         super().__init__(message)
         self.results = results
 
 
-def _pipeline_output(results: dict[str, Any], context: MethodContext) -> MethodOutput:
+def _pipeline_output(results: StageResults, context: MethodContext) -> MethodOutput:
     from keymps.run import image_file
 
-    plan = results.get("plan")
-    grounding = results.get("ground")
-    tool_path = results.get("compose")
+    plan, grounding, tool_path = results.plan, results.ground, results.compose
     pieces = tuple(p.points for p in tool_path.pieces if p.kind == "work") if tool_path else ()
     lines = grounding.segments_m[:, :, :2] if grounding is not None else np.zeros((0, 2, 2))
     calls = tuple(_call_summary(c) for c in plan.calls) if plan is not None else ()
@@ -185,6 +117,7 @@ def _pipeline_output(results: dict[str, Any], context: MethodContext) -> MethodO
         keyword=plan.keyword if plan is not None else None,
         calls=calls,
         images=images,
+        scene=results.image.truth if results.image is not None else None,
     )
 
 

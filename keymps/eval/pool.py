@@ -26,6 +26,8 @@ As in any multiprocessing program, a script that runs a suite with processes > 1
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import functools
 import os
 import queue
@@ -73,6 +75,15 @@ def threads_per_process(runs: int, processes: int) -> list[int]:
     return [base + (1 if i < extra else 0) for i in range(processes) if base or i < extra]
 
 
+@dataclass(frozen=True)
+class JobRunner:
+    """How a worker runs one job and describes a failed one (keymps.eval.runner's functions,
+    passed in so that this module does not import the runner that imports it)."""
+
+    run: Callable[..., dict[str, Any]]
+    record: Callable[..., dict[str, Any]]
+
+
 def _worker(
     suite: Suite,
     options: EvalOptions,
@@ -82,6 +93,7 @@ def _worker(
     jobs: Any,
     results: Any,
     vlm: tuple[int, Any, Any],
+    job_runner: JobRunner,
 ) -> None:
     """A worker process: take a job whenever a thread is free, send each record back; its VLM
     calls go to the parent's broker (keymps.eval.broker)."""
@@ -91,13 +103,12 @@ def _worker(
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     os.environ.clear()
     os.environ.update(environment)
-    from keymps.eval.runner import run_job
     from keymps.eval.turn import CpuTurn
-    from keymps.eval.broker import BROKERED_BACKEND, BrokerClient, activated
+    from keymps.eval.broker import BROKERED_BACKEND, BrokerClient
 
     turn = CpuTurn(active=backend == BROKERED_BACKEND)
-    with activated(BrokerClient(*vlm, turn=turn)):
-        _take_jobs(suite, options, backend, threads, jobs, results, run_job, turn)
+    client = BrokerClient(*vlm, turn=turn)
+    _take_jobs(suite, options, backend, threads, jobs, results, job_runner, turn, client.complete)
 
 
 def _take_jobs(
@@ -107,8 +118,9 @@ def _take_jobs(
     threads: int,
     jobs: Any,
     results: Any,
-    run_job: Any,
+    job_runner: JobRunner,
     turn: CpuTurn,
+    dispatch: Any,
 ) -> None:
 
     free = threading.Semaphore(threads)
@@ -116,11 +128,9 @@ def _take_jobs(
     def send(job: Job, future: Future[dict[str, Any]]) -> None:
         try:
             record = future.result()
-        except BaseException as error:  # run_job records failures; this is a last resort
-            from keymps.eval.runner import job_record
-
+        except BaseException as error:  # the runner records failures; this is a last resort
             record = {
-                **job_record(suite, job, options, backend),
+                **job_runner.record(suite, job, options, backend),
                 "ok": False,
                 "error": f"internal error {type(error).__name__}: {error}",
             }
@@ -133,7 +143,7 @@ def _take_jobs(
             job = jobs.get()
             if job is None:
                 break
-            future = pool.submit(turn.run, run_job, suite, job, options, backend)
+            future = pool.submit(turn.run, job_runner.run, suite, job, options, backend, dispatch)
             future.add_done_callback(functools.partial(send, job))
 
 
@@ -145,6 +155,7 @@ def run_in_processes(
     processes: int,
     on_record: Callable[[Job, dict[str, Any]], None],
     broker: VlmBroker,
+    job_runner: JobRunner,
 ) -> None:
     """Run `jobs` in `processes` workers; call on_record in this process as each one ends."""
     import multiprocessing
@@ -167,7 +178,7 @@ def run_in_processes(
             target=_worker,
             args=(
                 suite, options, backend, threads, environment, job_queue, result_queue,
-                (index, vlm_requests, vlm_replies[index]),
+                (index, vlm_requests, vlm_replies[index]), job_runner,
             ),
             name=f"keymps-eval-{index}",
             daemon=True,

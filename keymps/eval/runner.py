@@ -208,9 +208,18 @@ def job_record(suite: Suite, job: Job, options: EvalOptions, backend: str) -> di
     }
 
 
-def run_job(suite: Suite, job: Job, options: EvalOptions, backend: str) -> dict[str, Any]:
-    """Run and score one job; failures become a record with ok = False and the error."""
-    from keymps.eval.methods import MethodContext, PartialRunError, get_method, partial_output
+def run_job(
+    suite: Suite,
+    job: Job,
+    options: EvalOptions,
+    backend: str,
+    dispatch: Callable[[Any, Any], Any] | None = None,
+) -> dict[str, Any]:
+    """Run and score one job; failures become a record with ok = False and the error.
+
+    `dispatch(backend, request)` makes its VLM calls (the broker's event loop)."""
+    from keymps.eval.context import MethodContext
+    from keymps.eval.methods import PartialRunError, get_method, partial_output
 
     started = time.perf_counter()
     folder = options.out / "runs" / job.method / job.case_id / f"r{job.repeat}"
@@ -231,6 +240,7 @@ def run_job(suite: Suite, job: Job, options: EvalOptions, backend: str) -> dict[
             plan_only=suite.kind == "equal_parts",
             no_cache=options.no_cache,
             image_format=options.image_format,
+            dispatch=dispatch,
         )
         try:
             output = get_method(job.method).run(context)
@@ -318,9 +328,9 @@ def run_suite(
 ) -> list[dict[str, Any]]:
     """Run every job not yet in out/results.jsonl; return all records for these jobs."""
     from keymps.eval.methods import check_runnable, get_method
-    from keymps.eval.pool import default_processes, run_in_processes
+    from keymps.eval.pool import JobRunner, default_processes, run_in_processes
     from keymps.eval.turn import CpuTurn
-    from keymps.eval.broker import BROKERED_BACKEND, VlmBroker, activated
+    from keymps.eval.broker import BROKERED_BACKEND, VlmBroker
 
     backend = resolve_backend(options)
     for name in options.methods:
@@ -355,10 +365,10 @@ def run_suite(
     broker = VlmBroker(options.concurrency, warm_up=warm_up, turn=turn)
     try:
         if processes > 1:
-            run_in_processes(suite, todo, options, backend, processes, finished, broker)
+            runner = JobRunner(run=run_job, record=job_record)
+            run_in_processes(suite, todo, options, backend, processes, finished, broker, runner)
         else:
-            with activated(broker):
-                _run_in_threads(suite, todo, options, backend, finished, broker, turn)
+            _run_in_threads(suite, todo, options, backend, finished, broker, turn)
     finally:
         broker.close()
     return [records[key(job)] for job in jobs]
@@ -379,7 +389,8 @@ def _run_in_threads(
     pool = ThreadPoolExecutor(max_workers=runs_in_flight(options.concurrency, 1, backend))
     try:
         futures = {
-            pool.submit(turn.run, run_job, suite, job, options, backend): job for job in jobs
+            pool.submit(turn.run, run_job, suite, job, options, backend, broker.complete): job
+            for job in jobs
         }
         for future in as_completed(futures):
             finished(futures[future], future.result())

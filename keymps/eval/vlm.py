@@ -14,7 +14,7 @@ import numpy as np
 
 from keymps.bundled import bundled_dir
 from keymps.errors import KeympsError
-from keymps.eval.methods import MethodContext
+from keymps.eval.context import MethodContext
 
 PROMPTS_DIR = bundled_dir("prompts") / "methods"
 
@@ -82,7 +82,7 @@ def look(context: MethodContext) -> Seen:
         crop_box_m=box,
         metres_per_px=crop_metres_per_px(task, detection, scene),
         primitives=primitives,
-        truth=run.notes.get("synthetic_scene"),
+        truth=scene.truth,
     )
 
 
@@ -138,11 +138,15 @@ def ask(
     schema: dict[str, Any],
     validate: Callable[[Any], tuple[Any, list[str]]],
 ) -> tuple[Any, list[dict[str, Any]]]:
-    """Ask the VLM with the method's prompt, repairing invalid answers; (answer, call records)."""
+    """Ask the VLM with the method's prompt through the planner's own session (repair, cache,
+    cassette, redaction, vlm/ records); return (answer, call summaries)."""
     from keymps.planning.answer import extract_json
+    from keymps.planning.planner import backend_options
+    from keymps.types import PlanRequest
     from keymps.planning.prompt import png_data_url
-    from keymps.planning.planner import BackendAnswer, PlanRequest, backend_options
+    from keymps.planning.session import PlanSession
     from keymps.plugin.manager import create_component
+    from keymps.run import Run, RunOptions
 
     task = seen.task
     if context.model:
@@ -154,90 +158,82 @@ def ask(
             update={"planner": task.planner.model_copy(update={"api_base": context.api_base})}
         )
     backend = create_component("vlm_backend", context.backend, backend_options(task))
-    values = _values(seen, context)
-    system = render_prompt(PROMPTS_DIR / f"{method}.md", values)
+    system = render_prompt(PROMPTS_DIR / f"{method}.md", _values(seen, context))
+    image_url = png_data_url(seen.detection.crop)
     user_text = f"Instruction: {task.instruction}"
     content: Any = user_text
     if with_image:
         content = [
             {"type": "text", "text": user_text},
-            {"type": "image_url", "image_url": {"url": png_data_url(seen.detection.crop)}},
+            {"type": "image_url", "image_url": {"url": image_url}},
         ]
-    messages: list[dict[str, Any]] = [
+    first: list[dict[str, Any]] = [
         {"role": "system", "content": system},
         {"role": "user", "content": content},
     ]
-    calls: list[dict[str, Any]] = []
-    vlm_folder = context.folder / "vlm"
-    vlm_folder.mkdir(parents=True, exist_ok=True)
-    problems: list[str] = []
-    for attempt in range(1, task.planner.attempts + 1):
-        request = PlanRequest(
-            instruction=task.instruction,
-            crop=seen.detection.crop,
-            crop_mask=None,
-            metres_per_px=seen.metres_per_px,
-            primitives={n: p.description for n, p in seen.primitives.items()},
-            object_height=task.scene.object_height,
-            max_pairs=task.planner.max_pairs,
-            messages=list(messages),
-            schema=schema,
-            attempt=attempt,
-            model=task.planner.model,
-            temperature=task.planner.temperature,
-            timeout_s=task.planner.timeout_s,
-            task_name=task.name,
-        )
-        answer: BackendAnswer = backend.complete(request)
-        calls.append(
-            {
-                "latency_s": answer.latency_s,
-                "cost_usd": answer.cost_usd,
-                "prompt_tokens": answer.prompt_tokens,
-                "completion_tokens": answer.completion_tokens,
-                "cached": False,
-            }
-        )
-        try:
-            parsed, problems = validate(extract_json(answer.text))
-        except ValueError as error:
-            parsed, problems = None, [f"the answer is not a JSON object ({error})"]
-        record = {
-            "method": method,
-            "attempt": attempt,
-            "messages": _without_images(messages),
-            "answer": answer.text,
-            "problems": problems,
-        }
-        (vlm_folder / f"{method}-attempt{attempt}.json").write_text(
-            json.dumps(record, indent=2), encoding="utf-8"
-        )
-        if parsed is not None:
-            return parsed, calls
-        messages += [
-            {"role": "assistant", "content": answer.text},
-            {
-                "role": "user",
-                "content": "Your answer was invalid:\n"
-                + "\n".join(f"- {p}" for p in problems)
-                + "\nAnswer again with the corrected JSON object only.",
-            },
-        ]
-    raise KeympsError(
-        f"{method}: no valid answer after {task.planner.attempts} attempts: {'; '.join(problems)}"
+    base = PlanRequest(
+        instruction=task.instruction,
+        crop=seen.detection.crop,
+        crop_mask=None,
+        metres_per_px=seen.metres_per_px,
+        primitives={n: p.description for n, p in seen.primitives.items()},
+        object_height=task.scene.object_height,
+        max_pairs=task.planner.max_pairs,
+        messages=first,
+        schema=schema,
+        step="direct",
+        model=task.planner.model,
+        temperature=task.planner.temperature,
+        timeout_s=task.planner.timeout_s,
+        task_name=task.name,
+    )
+    session = PlanSession(
+        task=task,
+        run=Run(
+            task,
+            context.folder,
+            RunOptions(no_cache=context.no_cache, dispatch=context.dispatch),
+        ),
+        backend_name=context.backend,
+        backend=backend,
+        base=base,
+        system_template=system,
+        template_source=str(PROMPTS_DIR / f"{method}.md"),
+        image_url=image_url,
     )
 
-
-def _without_images(messages: list[dict[str, Any]]) -> list[Any]:
-    cleaned = []
-    for message in messages:
-        content = message["content"]
-        if isinstance(content, list):
-            content = [
-                {"type": "image_url", "image_url": {"url": "<crop.png>"}}
-                if part.get("type") == "image_url"
-                else part
-                for part in content
+    def request_for(history: list[tuple[str, list[str]]]) -> PlanRequest:
+        messages = list(first)
+        for answer_text, problems in history:
+            messages += [
+                {"role": "assistant", "content": answer_text},
+                {"role": "user", "content": _repair(problems)},
             ]
-        cleaned.append({**message, "content": content})
-    return cleaned
+        return session.request_with(messages, schema, attempt=len(history) + 1)
+
+    def parse(text: str) -> tuple[Any, list[str]]:
+        try:
+            return validate(extract_json(text))
+        except ValueError as error:
+            return None, [f"the answer is not a JSON object ({error})"]
+
+    parsed = session.ask_until_valid(f"{method} answer", request_for, parse)
+    calls = [
+        {
+            "latency_s": call.latency_s,
+            "cost_usd": call.cost_usd,
+            "prompt_tokens": call.prompt_tokens,
+            "completion_tokens": call.completion_tokens,
+            "cached": call.cached,
+        }
+        for call in session.calls
+    ]
+    return parsed, calls
+
+
+def _repair(problems: list[str]) -> str:
+    return (
+        "Your answer was invalid:\n"
+        + "\n".join(f"- {p}" for p in problems)
+        + "\nAnswer again with the corrected JSON object only."
+    )

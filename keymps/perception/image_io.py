@@ -6,12 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from keymps.errors import KeympsError, StageError
-
-
-class ImageSourceError(StageError):
-    def __init__(self, message: str):
-        super().__init__("image", message)
+from keymps.errors import ImageSourceError, KeympsError
 
 
 def to_bgr8(image: np.ndarray) -> np.ndarray:

@@ -14,37 +14,45 @@ from keymps.config.overrides import apply_overrides
 from keymps.config.task import Task, load_task
 from keymps.errors import KeympsError, StageError
 from keymps.plugin.manager import create_component, get_manager
-from keymps.run import IMAGE_FORMATS, Run, RunOptions
-from keymps.types import SceneImage
+from keymps.run import IMAGE_FORMATS, STAGES, Run, RunOptions
+from keymps.types import Detection, SceneImage
 
 StageCallback = Callable[[str, float, Any], None]
 """on_stage(stage, seconds, result): called after each stage (the CLI shows progress with it)."""
 
 
 class Components:
-    """Everything a run needs, built before the first stage so configuration errors cost nothing."""
+    """Everything a run needs, built before the first stage so configuration errors cost nothing.
 
-    def __init__(self, task: Task, backend: str):
+    A run that stops after planning (`through="ground"`) builds no executor and no robot.
+    """
+
+    def __init__(self, task: Task, backend: str, through: str = "execute"):
         from keymps.primitives.dictionary import default_search_dirs, load_primitives
         from keymps.robot.model import RobotModel
 
+        executes = STAGES.index(through) > STAGES.index("ground")
         self.image_source = _create(
             task, "image_source", task.scene.source, task.scene.source_options, ("scene", "source")
         )
         self.detector = _create(
             task, "detector", task.detector.name, task.detector.options, ("detector",)
         )
-        self.executor = _create(
-            task, "executor", task.executor.name, task.executor.options, ("executor",)
+        self.executor = (
+            _create(task, "executor", task.executor.name, task.executor.options, ("executor",))
+            if executes
+            else None
         )
         try:
             self.primitives = load_primitives(task.primitives, default_search_dirs(task.folder))
         except KeympsError as error:
             raise KeympsError(f"{task.where('primitives')}: primitives: {error}") from None
-        try:
-            self.robot = RobotModel.from_task(task)
-        except KeympsError as error:
-            raise _located(task, error) from None
+        self.robot: RobotModel | None = None
+        if executes:
+            try:
+                self.robot = RobotModel.from_task(task)
+            except KeympsError as error:
+                raise _located(task, error) from None
         self.backend = backend
 
 
@@ -96,18 +104,23 @@ def _new_run_folder(task: Task, out: Path | None) -> Path:
 class _Pipeline:
     """The stage sequence of one run (Alg. 1 of the paper, plus solve/time/check/execute)."""
 
-    def __init__(self, run: Run, parts: Components, on_stage: StageCallback | None):
+    def __init__(self, run: Run, parts: Components, on_stage: StageCallback | None, through: str):
         self.run = run
         self.parts = parts
         self.on_stage = on_stage
+        self.through = through
         self.manager = get_manager()
 
     def stage(self, name: str, work: Callable[[], Any]) -> Any:
         started = time.perf_counter()
         try:
             result = work()
+        except StageError as error:
+            if error.stage != name:  # a stage's own error passes as it is; another's is wrapped
+                raise StageError(name, str(error), detail=error) from None
+            raise
         except KeympsError as error:
-            raise StageError(name, str(error)) from None
+            raise StageError(name, str(error), detail=error) from None
         except Exception as error:
             # A bug in keymps or in a plugin: still one line (and nothing after this stage
             # runs); KEYMPS_DEBUG=1 shows the traceback for whoever fixes it.
@@ -120,7 +133,7 @@ class _Pipeline:
                 "(a bug in keymps or a plugin; KEYMPS_DEBUG=1 shows the traceback)",
             ) from error
         seconds = time.perf_counter() - started
-        self.run.results[name] = result
+        self.run.stages.record(name, result)
         self.run.timings_s[name] = seconds
         if self.on_stage:
             self.on_stage(name, seconds, result)
@@ -153,7 +166,13 @@ class _Pipeline:
         pixel_shape = geometry.pixel_shape_warning(task, size)
         if pixel_shape:
             run.warnings.append(pixel_shape)
-        detection = self.stage("detect", lambda: parts.detector.detect(scene))
+
+        def detect() -> Detection:
+            found = parts.detector.detect(scene)
+            run.outline_m = geometry.object_outline_m(found, task, size)
+            return found
+
+        detection = self.stage("detect", detect)
         run.warnings.extend(detection.warnings)
         descriptions = {name: p.description for name, p in parts.primitives.items()}
         plan = self.stage(
@@ -162,7 +181,11 @@ class _Pipeline:
         )
         run.write_image("plan", draw_plan(scene.image, detection, plan))
         grounding = self.stage("ground", lambda: geometry.ground(plan, detection, task, size))
-        tool = parts.robot.tool
+        if self.through == "ground":
+            return
+        robot, executor = parts.robot, parts.executor
+        assert robot is not None and executor is not None  # Components built them to execute
+        tool = robot.tool
         tool_path = self.stage(
             "compose",
             lambda: check_tool_path(
@@ -174,22 +197,23 @@ class _Pipeline:
                     work_speed=task.motion.work_speed,
                     travel_speed=task.motion.travel_speed,
                     yaw_mode=tool.yaw,
-                    home=parts.robot.home_tool_position(),
+                    home=robot.home_tool_position(),
                 ),
                 task,
             ),
         )
-        joint_path = self.stage("solve", lambda: solve_path(parts.robot, tool_path))
+        joint_path = self.stage("solve", lambda: solve_path(robot, tool_path))
         trajectory = self.stage(
             "time",
-            lambda: check_duration(time_trajectory(parts.robot, tool_path, joint_path, task), task),
+            lambda: check_duration(time_trajectory(robot, tool_path, joint_path, task), task),
         )
-        outline = geometry.object_outline_m(detection, task, size)
+        outline = run.outline_m
+        assert outline is not None  # set by the detect stage
         validated = self.stage(
-            "check", lambda: validate(parts.robot, trajectory, tool_path, outline, task)
+            "check", lambda: validate(robot, trajectory, tool_path, outline, task)
         )
         write_trajectory_csv(validated.trajectory, run.path("trajectory.csv"))
-        report = self.stage("execute", lambda: parts.executor.execute(validated, run))
+        report = self.stage("execute", lambda: executor.execute(validated, run))
         if not report.ok:
             raise StageError("execute", report.message or f"executor {report.executor} failed")
 
@@ -199,11 +223,13 @@ def run_task(
     *,
     on_stage: StageCallback | None = None,
     options: RunOptions | None = None,
+    through: str = "execute",
     **overrides: Any,
 ) -> Run:
     """Run a task end to end; return the finished Run (its folder holds run.json and the rest).
 
-    Keyword overrides: instruction, image, backend, model, api_base, executor, out, rerun,
+    `through="ground"` stops after grounding the plan (eval's plan-only runs): nothing is timed,
+    checked or executed. Keyword overrides: instruction, image, backend, model, api_base, executor, out, rerun,
     rerun_url, no_cache, record, confirm, quiet, image_format. Raises KeympsError on the first
     problem; nothing after the failing stage runs, above all no executor.
     """
@@ -213,23 +239,33 @@ def run_task(
     if not isinstance(task, Task):
         task = load_task(task)
     options = options or RunOptions()
-    for key in ("rerun", "rerun_url", "no_cache", "record", "confirm", "quiet", "image_format"):
+    for key in (
+        "rerun",
+        "rerun_url",
+        "no_cache",
+        "record",
+        "confirm",
+        "quiet",
+        "image_format",
+        "dispatch",
+    ):
         if key in overrides:
             setattr(options, key, overrides.pop(key))
     if options.image_format not in IMAGE_FORMATS:
         raise KeympsError(
             f"image_format {options.image_format!r} is not one of: {', '.join(IMAGE_FORMATS)}"
         )
+    if through not in ("ground", "execute"):
+        raise KeympsError(f"through={through!r}: a run goes through 'ground' or 'execute'")
     out = overrides.pop("out", None)
     task = apply_overrides(task, overrides)
     backend, reason = choose_backend(
         task, overrides.get("backend"), overrides.get("model"), overrides.get("api_base")
     )
-    parts = Components(task, backend)
+    parts = Components(task, backend, through)
     run = Run(task=task, folder=_new_run_folder(task, Path(out) if out else None), options=options)
-    run.notes["backend"] = backend
-    run.notes["backend_reason"] = reason
-    pipeline = _Pipeline(run, parts, on_stage)
+    run.backend, run.backend_reason, run.robot = backend, reason, parts.robot
+    pipeline = _Pipeline(run, parts, on_stage, through)
     error: BaseException | None = None
     try:
         pipeline.execute_all()

@@ -7,7 +7,10 @@ import math
 from typing import Any
 
 from keymps._version import __version__
+from keymps.errors import StageError
+from keymps.robot.safety import SafetyError
 from keymps.run import Run
+from keymps.types import ValidatedTrajectory
 
 SCHEMA_VERSION = "1.0"
 
@@ -37,16 +40,26 @@ def _vlm_summary(plan: Any) -> dict[str, Any]:
     }
 
 
+def _validation(checked: ValidatedTrajectory | None, error: BaseException | None) -> Any:
+    """The check stage's verdict: its report, or the problems of a failed check."""
+    if checked is not None:
+        report = checked.report
+        return {
+            "verdict": "pass" if report.ok else "fail",
+            "problems": list(report.problems),
+            "figures": {k: _rounded(float(v)) for k, v in report.figures.items()},
+        }
+    if isinstance(error, StageError) and isinstance(error.detail, SafetyError):
+        return {"verdict": "fail", "problems": list(error.detail.problems), "figures": {}}
+    return None
+
+
 def run_record(run: Run, error: BaseException | None) -> dict[str, Any]:
     """Everything run.json holds, as plain JSON data."""
-    results = run.results
+    stages = run.stages
     task = run.task
-    detection = results.get("detect")
-    plan = results.get("plan")
-    grounding = results.get("ground")
-    trajectory = results.get("time")
-    checked = results.get("check")
-    executed = results.get("execute")
+    scene, detection, plan = stages.image, stages.detect, stages.plan
+    grounding, trajectory, executed = stages.ground, stages.time, stages.execute
     return {
         "schema_version": SCHEMA_VERSION,
         "keymps_version": __version__,
@@ -55,12 +68,10 @@ def run_record(run: Run, error: BaseException | None) -> dict[str, Any]:
         "task": task.name,
         "task_file": str(task.path) if task.path else None,
         "instruction": task.instruction,
-        "backend": run.notes.get("backend"),
-        "backend_reason": run.notes.get("backend_reason"),
+        "backend": run.backend,
+        "backend_reason": run.backend_reason,
         "model": plan.model if plan is not None else task.planner.model,
-        "image": {"source": results["image"].source, "size_px": list(results["image"].size_px)}
-        if "image" in results
-        else None,
+        "image": {"source": scene.source, "size_px": list(scene.size_px)} if scene else None,
         "detection": None
         if detection is None
         else {
@@ -84,13 +95,7 @@ def run_record(run: Run, error: BaseException | None) -> dict[str, Any]:
             "rate_hz": trajectory.rate_hz,
             "joint_names": list(trajectory.joint_names),
         },
-        "validation": None
-        if checked is None
-        else {
-            "verdict": "pass" if checked.report.ok else "fail",
-            "problems": list(checked.report.problems),
-            "figures": {k: _rounded(float(v)) for k, v in checked.report.figures.items()},
-        },
+        "validation": _validation(stages.check, error),
         "execution": None
         if executed is None
         else {

@@ -10,13 +10,12 @@ import json
 import math
 import re
 from collections.abc import Sequence
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from keymps.config.limits import max_answer_chars
-
-Step = Literal["combined", "keyword", "pairs"]
+from keymps.types import Step
 
 Coordinate = Annotated[float, Field(strict=True)]
 """A JSON number: true, "12" or null are wrong types, sent back for repair, never coerced."""

@@ -4,97 +4,26 @@ make_plan renders the prompt, asks the backend (one combined call, or keyword th
 validates each answer, sends invalid ones back with the problems for repair, records every
 attempt under run.folder/vlm, and answers from the cache or records to a cassette on request.
 
-Backend protocol (what a `register_vlm_backends` factory returns; see docs/vlm.md):
-
-    class MyBackend:
-        name = "mine"
-        cacheable = True          # answers may be cached on disk (paid or slow backends)
-        def complete(self, request: PlanRequest) -> BackendAnswer: ...
-
-The factory receives the planner options: model, api_base, api_key_env, temperature,
+Backends implement keymps.plugin.VlmBackend (see docs/vlm.md). The factory receives the planner options: model, api_base, api_key_env, temperature,
 timeout_s, cassette (None when unset).
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from keymps.errors import KeympsError
-from keymps.planning.answer import Step, parse_and_validate
+from keymps.planning.answer import parse_and_validate
 from keymps.planning.backend_choice import choose_backend, credential_source, model_provider
-from keymps.types import Detection, Plan, SceneImage
+from keymps.types import BackendAnswer, Detection, Plan, PlanRequest, SceneImage
 
 if TYPE_CHECKING:
     from keymps.config.task import Task
     from keymps.run import Run
-
-
-@dataclass(frozen=True)
-class PlanRequest:
-    """Everything a backend may use to answer one planning call."""
-
-    instruction: str
-    crop: np.ndarray
-    """The image sent (BGR, uint8): the object's crop."""
-    crop_mask: np.ndarray | None
-    """The object's pixels in the crop (bool), when the detector gives them."""
-    metres_per_px: tuple[float, float]
-    """Metres per crop pixel along x and y."""
-    primitives: Mapping[str, str]
-    """Primitive name -> description (the keyword must be one of the names)."""
-    object_height: float
-    max_pairs: int
-    messages: list[dict[str, Any]]
-    """The rendered chat: system prompt, the sentence with the crop as a PNG data URL, repairs."""
-    schema: dict[str, Any]
-    """The answer's JSON schema ({"name", "strict", "schema"}, OpenAI response_format style)."""
-    step: Step = "combined"
-    keyword: str | None = None
-    """For step 'pairs': the primitive chosen by the 'keyword' call."""
-    previous_errors: tuple[str, ...] = ()
-    """Problems with the previous attempt's answer (empty on the first attempt)."""
-    attempt: int = 1
-    model: str | None = None
-    temperature: float = 0.0
-    timeout_s: float = 60.0
-    task_name: str = ""
-    share_key: str | None = None
-    """Set when answers may be shared (the answer cache is on): identical requests out at the
-    same time then share one answer (keymps.eval.broker)."""
-
-    @property
-    def crop_size_px(self) -> tuple[int, int]:
-        return int(self.crop.shape[1]), int(self.crop.shape[0])
-
-
-@dataclass(frozen=True)
-class BackendAnswer:
-    """A backend's raw answer and what it cost."""
-
-    text: str
-    prompt_tokens: int | None = None
-    completion_tokens: int | None = None
-    latency_s: float = 0.0
-    cost_usd: float | None = None
-    """None where the price is unknown (e.g. a local model without a registered price)."""
-    model: str | None = None
-    retries: tuple[str, ...] = ()
-    """Failed tries before this answer (rate limits, server errors ...), one line each."""
-    shared: bool = False
-    """The answer to an identical request of another run, out at the same time: no call of its
-    own (recorded as cached)."""
-
-
-class PlannerBackend(Protocol):
-    name: str
-    cacheable: bool
-
-    def complete(self, request: PlanRequest) -> BackendAnswer: ...
 
 
 def backend_options(task: Task) -> dict[str, Any]:
@@ -205,7 +134,6 @@ def make_plan(
         rationale = " ".join(r for r in (chosen.rationale, placed.rationale) if r)
     pairs_crop = np.asarray(pairs, dtype=float).reshape(-1, 2, 2)
     pairs_px = pairs_crop + np.asarray(detection.crop_origin_px, dtype=float)
-    run.notes["prompt"] = str(prompt_path)
     return Plan(
         keyword=keyword,
         pairs_crop_px=pairs_crop,
@@ -229,7 +157,6 @@ def _read_prompt(path: Path) -> str:
 __all__ = [
     "BackendAnswer",
     "PlanRequest",
-    "PlannerBackend",
     "backend_options",
     "choose_backend",
     "credential_source",

@@ -7,6 +7,7 @@ import json
 import os
 import re
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -14,8 +15,7 @@ from typing import TYPE_CHECKING, Any
 from keymps.errors import KeympsError
 from keymps.planning.answer import Step, answer_schema
 from keymps.planning.backend_choice import PROVIDER_KEYS, model_provider
-from keymps.planning.planner import BackendAnswer, PlanRequest
-from keymps.types import VlmCall
+from keymps.types import BackendAnswer, PlanRequest, VlmCall
 
 if TYPE_CHECKING:
     from keymps.config.task import Task
@@ -124,21 +124,45 @@ class PlanSession:
             share_key=self._cache_key(messages, schema) if self.use_cache else None,
         )
 
+    def request_with(
+        self, messages: list[dict[str, Any]], schema: dict[str, Any], attempt: int
+    ) -> PlanRequest:
+        """The base request with these messages and schema (a direct method's own prompt)."""
+        share_key = self._cache_key(messages, schema) if self.use_cache else None
+        return replace(
+            self.base, messages=messages, schema=schema, attempt=attempt, share_key=share_key
+        )
+
     def ask(self, step: Step, keyword: str | None = None) -> Any:
+        """The validated answer to one planning step (keyword, pairs or combined)."""
         from keymps.planning.answer import parse_and_validate
 
+        return self.ask_until_valid(
+            label=f"{step} answer",
+            request_for=lambda history: self.request_for(step, keyword, history),
+            validate=lambda text: parse_and_validate(
+                text, step, list(self.base.primitives), self.base.crop_size_px, self.base.max_pairs
+            ),
+        )
+
+    def ask_until_valid(
+        self,
+        label: str,
+        request_for: Callable[[list[tuple[str, list[str]]]], PlanRequest],
+        validate: Callable[[str], tuple[Any, list[str]]],
+    ) -> Any:
+        """Ask, validate and repair up to planner.attempts times, every attempt recorded.
+
+        `request_for(history)` builds the next request from the earlier (answer, problems);
+        `validate(text)` returns (parsed or None, problems). Cache, cassette and redaction apply
+        to every caller alike (the planner's steps and eval's direct methods).
+        """
         history: list[tuple[str, list[str]]] = []
         attempts = self.task.planner.attempts
         for _ in range(attempts):
-            request = self.request_for(step, keyword, history)
+            request = request_for(history)
             answer, cached = self._complete(request)
-            parsed, problems = parse_and_validate(
-                answer.text,
-                step,
-                list(self.base.primitives),
-                self.base.crop_size_px,
-                self.base.max_pairs,
-            )
+            parsed, problems = validate(answer.text)
             self._record(request, answer, problems, cached)
             if parsed is not None:
                 if request.share_key is not None and not cached:
@@ -147,7 +171,7 @@ class PlanSession:
             history.append((answer.text, problems))
         last = "; ".join(history[-1][1][:4])
         raise KeympsError(
-            f"the {self.backend_name} planner gave no valid {step} answer in {attempts} "
+            f"the {self.backend_name} planner gave no valid {label} in {attempts} "
             f"attempt(s): {last} (every attempt is in {self.vlm_folder})"
         )
 
@@ -191,8 +215,12 @@ class PlanSession:
                     True,
                 )
         started = time.perf_counter()
+        dispatch = self.run.options.dispatch
         try:
-            answer = self.backend.complete(request)
+            if dispatch is not None and hasattr(self.backend, "acomplete"):
+                answer = dispatch(self.backend, request)
+            else:
+                answer = self.backend.complete(request)
         except KeympsError as error:
             failed = BackendAnswer(text="", latency_s=time.perf_counter() - started)
             self._record(request, failed, [str(error)], False)

@@ -1,25 +1,42 @@
 """The API for plugin authors: import everything a keymps plugin needs from here.
 
 ```python
-from keymps.plugin import hookimpl, Register
+from keymps.plugin import RegisterDetector, hookimpl
 
 @hookimpl
-def register_detectors(register: Register) -> None:
+def register_detectors(register: RegisterDetector) -> None:
     register("my-detector", MyDetector)
 ```
 
 See docs/plugins.md for every hook and docs/architecture.md for where plugins sit.
 """
 
-from keymps.plugin.components import Detector, Executor, ImageSource, VlmBackend
-from keymps.plugin.hookspecs import Register, hookimpl
+from keymps.errors import DetectionError, ImageSourceError, KeympsError, StageError
+from keymps.plugin.components import Detector, Executor, ImageSource, StageObserver, VlmBackend
+from keymps.plugin.hookspecs import (
+    Register,
+    RegisterDetector,
+    RegisterExecutor,
+    RegisterImageSource,
+    RegisterVlmBackend,
+    hookimpl,
+)
 from keymps.plugin.options import parse_options
 
 __all__ = [
+    "DetectionError",
     "Detector",
     "Executor",
     "ImageSource",
+    "ImageSourceError",
+    "KeympsError",
     "Register",
+    "RegisterDetector",
+    "RegisterExecutor",
+    "RegisterImageSource",
+    "RegisterVlmBackend",
+    "StageError",
+    "StageObserver",
     "VlmBackend",
     "hookimpl",
     "parse_options",

@@ -1,38 +1,57 @@
-"""What a plugin's factory must return, for each kind of component (typing.Protocol)."""
+"""What a plugin's factory must return, for each kind of component: exactly what the engine
+calls (mypy checks the built-in plugins and the first-party plugin packages against these)."""
 
 from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any, Protocol
 
 if TYPE_CHECKING:
-    from pathlib import Path
-
-    import numpy as np
-
-    from keymps.types import Detection, ExecutionReport, SceneImage, ValidatedTrajectory
+    from keymps.run import Run
+    from keymps.types import (
+        BackendAnswer,
+        Detection,
+        ExecutionReport,
+        PlanRequest,
+        SceneImage,
+        ValidatedTrajectory,
+    )
 
 
 class ImageSource(Protocol):
-    """Produces the scene image: `register_image_sources(register)`."""
+    """Produces the scene image: `register_image_sources(register)`; raise ImageSourceError."""
 
-    def load(self) -> SceneImage: ...
+    def load(self, run: Run) -> SceneImage: ...
 
 
 class Detector(Protocol):
-    """Finds the object in the scene image: `register_detectors(register)`."""
+    """Finds the object(s) in the scene image: `register_detectors(register)`; raise
+    DetectionError when there is none."""
 
-    def detect(self, image: np.ndarray) -> Detection: ...
+    def detect(self, scene: SceneImage) -> Detection: ...
 
 
 class VlmBackend(Protocol):
-    """Answers a planning request with the planner's JSON answer: `register_vlm_backends`."""
+    """Answers a planning request with the planner's JSON answer: `register_vlm_backends`.
+
+    Optional: `cacheable = True` lets keymps cache answers on disk (paid or slow backends), and
+    `async def acomplete(request)` lets `keymps eval` make many calls at once on one event loop.
+    """
 
     name: str
 
-    def complete(self, request: Any) -> Any: ...
+    def complete(self, request: PlanRequest) -> BackendAnswer: ...
 
 
 class Executor(Protocol):
-    """Runs a validated trajectory: `register_executors(register)`."""
+    """Runs a validated trajectory: `register_executors(register)`. It must call
+    keymps.robot.safety.require_validated(validated, name) before moving anything."""
 
-    def execute(self, trajectory: ValidatedTrajectory, run_folder: Path) -> ExecutionReport: ...
+    name: str
+
+    def execute(self, validated: ValidatedTrajectory, run: Run) -> ExecutionReport: ...
+
+
+class StageObserver(Protocol):
+    """A plugin that watches runs: its `keymps_stage_done` hook sees each stage's result."""
+
+    def keymps_stage_done(self, stage: str, result: Any, run: Run) -> None: ...

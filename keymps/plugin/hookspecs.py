@@ -1,39 +1,56 @@
-"""Hook specifications: what a keymps plugin can provide."""
+"""Hook specifications: what a keymps plugin can provide (every hook is in docs/plugins.md)."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from pluggy import HookimplMarker, HookspecMarker
+
+from keymps.plugin.components import Detector, Executor, ImageSource, VlmBackend
+
+if TYPE_CHECKING:
+    from keymps.run import Run
 
 hookspec = HookspecMarker("keymps")
 hookimpl = HookimplMarker("keymps")
 
-Register = Callable[[str, Callable[..., Any]], None]
-"""register(name, factory): factory(options) returns the component."""
+Component = TypeVar("Component")
+Factory = Callable[[dict[str, Any]], Component]
+"""factory(options) returns the component; options are the task file's section for it."""
+Register = Callable[[str, Factory[Component]], None]
+"""register(name, factory). Parameterized (Register[Detector]) mypy checks the factory's
+component against the Protocol the engine calls."""
+
+RegisterDetector = Register[Detector]
+RegisterVlmBackend = Register[VlmBackend]
+RegisterExecutor = Register[Executor]
+RegisterImageSource = Register[ImageSource]
 
 
 @hookspec
-def register_detectors(register: Register) -> None:
-    """Register object detectors: factory(options) -> object with detect(scene) -> Detection."""
+def register_detectors(register: RegisterDetector) -> None:
+    """Register object detectors: factory(options) -> Detector."""
 
 
 @hookspec
-def register_vlm_backends(register: Register) -> None:
-    """Register planner backends: factory(options) -> object with complete(request)."""
+def register_vlm_backends(register: RegisterVlmBackend) -> None:
+    """Register planner backends: factory(options) -> VlmBackend."""
 
 
 @hookspec
-def register_executors(register: Register) -> None:
-    """Register executors: factory(options) -> object with execute(validated, run) -> report."""
+def register_executors(register: RegisterExecutor) -> None:
+    """Register executors: factory(options) -> Executor."""
 
 
 @hookspec
-def register_image_sources(register: Register) -> None:
-    """Register image sources: factory(options) -> object with load(run) -> SceneImage."""
+def register_image_sources(register: RegisterImageSource) -> None:
+    """Register image sources: factory(options) -> ImageSource."""
 
 
 @hookspec
-def keymps_stage_done(stage: str, result: Any, run: Any) -> None:
-    """Observe a finished stage: its name, its result and the Run it belongs to."""
+def keymps_stage_done(stage: str, result: Any, run: Run) -> None:
+    """Observe a finished stage: its name, its typed result and the Run (its typed context).
+
+    Called once more with stage "finished" and the run's error (None when it succeeded).
+    """

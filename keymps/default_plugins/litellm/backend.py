@@ -18,10 +18,10 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from keymps.default_plugins.litellm.retry import Retrying
 from keymps.errors import KeympsError
-from keymps.plugin import hookimpl, parse_options
+from keymps.plugin import RegisterVlmBackend, hookimpl, parse_options
 
 if TYPE_CHECKING:
-    from keymps.planning.planner import BackendAnswer, PlanRequest
+    from keymps.types import BackendAnswer, PlanRequest
 
 MAX_RETRIES = 3
 """Further tries after a rate limit (429) or a server error (5xx)."""
@@ -116,11 +116,6 @@ class LitellmBackend:
         _REGISTERED.add(model)
 
     def complete(self, request: PlanRequest) -> BackendAnswer:
-        from keymps.eval import broker as vlm_broker
-
-        broker = vlm_broker.active()
-        if broker is not None:  # `keymps eval`: its event loop makes the call (acomplete)
-            return broker.complete(self.options, request)
         call = self._prepare(request)
         started = time.perf_counter()
         retrying = self._retrying(call)
@@ -201,7 +196,7 @@ class LitellmBackend:
 
     @staticmethod
     def _answer(call: _Call, response: Any, latency: float, notes: list[str]) -> BackendAnswer:
-        from keymps.planning.planner import BackendAnswer
+        from keymps.types import BackendAnswer
 
         usage = getattr(response, "usage", None)
         # litellm prices every response it returns; ask again only when it could not
@@ -260,5 +255,5 @@ def _factory(options: dict[str, Any]) -> LitellmBackend:
 
 
 @hookimpl
-def register_vlm_backends(register: Any) -> None:
+def register_vlm_backends(register: RegisterVlmBackend) -> None:
     register("litellm", _factory)

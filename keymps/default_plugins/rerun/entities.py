@@ -55,7 +55,7 @@ def _encoded_image(rr: Any, image: np.ndarray) -> Any:
 
 def _image_frame(run: Run) -> Any | None:
     """keymps.perception.frames.ImageFrame for this run's image, or None when unavailable."""
-    scene = run.results.get("image")
+    scene = run.stages.image
     if scene is None:
         return None
     try:
@@ -189,7 +189,7 @@ def _log_object(rec: Any, detection: Detection, run: Run) -> None:
     import rerun as rr
 
     frame = _image_frame(run)
-    scene = run.results.get("image")
+    scene = run.stages.image
     if frame is None or scene is None:
         return
     x0, y0, x1, y1 = detection.bbox_px
@@ -208,12 +208,9 @@ def _log_object(rec: Any, detection: Detection, run: Run) -> None:
             labels=["object"],
         ),
     )
-    try:
-        from keymps.perception.frames import object_outline_m
-
-        outline = np.asarray(object_outline_m(detection, run.task, scene.size_px), dtype=float)
-    except Exception:  # outline is a nicety; the box above already shows the object
+    if run.outline_m is None:  # outline is a nicety; the box above already shows the object
         return
+    outline = np.asarray(run.outline_m, dtype=float)
     if len(outline) >= 2:
         ring = np.vstack([outline, outline[:1]])
         top = np.column_stack([ring, np.full(len(ring), height)])

@@ -27,7 +27,7 @@ from keymps.default_plugins.sim.cut_sweep import (
     covered_length,
     edge_segments,
 )
-from keymps.plugin import Register, hookimpl, parse_options
+from keymps.plugin import RegisterExecutor, hookimpl, parse_options
 from keymps.types import ExecutionReport, SceneImage, ToolPath, ValidatedTrajectory
 
 if TYPE_CHECKING:
@@ -266,8 +266,8 @@ class SimExecutor:
 
         trajectory = require_validated(validated, self.name)
         task = run.task
-        model = RobotModel.from_task(task)
-        tool_path = run.results.get("compose")
+        model = run.robot if run.robot is not None else RobotModel.from_task(task)
+        tool_path = run.stages.compose
         result = replay(model, trajectory, self.options.replay_rate_hz)
         errors = tracking_errors(result, tool_path if isinstance(tool_path, ToolPath) else None)
         outline = _footprint(run)
@@ -293,7 +293,7 @@ class SimExecutor:
         }
         files: list[str] = []
         if self.options.image:
-            scene = run.results.get("image")
+            scene = run.stages.image
             picture = scene.image if isinstance(scene, SceneImage) else None
             path = run.write_image(
                 "outcome", render_outcome(task, picture, found, self.options, outline)
@@ -324,7 +324,9 @@ def _footprint(run: Run) -> np.ndarray | None:
     from keymps.perception.frames import object_outline_m
     from keymps.types import Detection
 
-    detection, scene = run.results.get("detect"), run.results.get("image")
+    if run.outline_m is not None:
+        return run.outline_m
+    detection, scene = run.stages.detect, run.stages.image
     if not isinstance(detection, Detection) or not isinstance(scene, SceneImage):
         return None
     return object_outline_m(detection, run.task, scene.size_px)
@@ -339,5 +341,5 @@ def make_sim_executor(options: dict[str, Any]) -> SimExecutor:
 
 
 @hookimpl
-def register_executors(register: Register) -> None:
+def register_executors(register: RegisterExecutor) -> None:
     register("sim", make_sim_executor)
