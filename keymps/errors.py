@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+_MAX_LISTED = 12
+"""A SafetyError's message lists this many problems, then counts the rest."""
+
 
 class KeympsError(Exception):
     """A user-facing problem; str(error) is a complete, one-line message."""
@@ -13,6 +16,16 @@ class TaskFileError(KeympsError):
     def __init__(self, problems: list[str]):
         self.problems = problems
         super().__init__("\n".join(problems))
+
+
+class SafetyError(KeympsError):
+    """The trajectory is unsafe (or not validated); `problems` lists every finding."""
+
+    def __init__(self, problems: list[str]):
+        self.problems = problems
+        shown = problems[:_MAX_LISTED]
+        more = f"; and {len(problems) - _MAX_LISTED} more" if len(problems) > _MAX_LISTED else ""
+        super().__init__("safety: " + "; ".join(shown) + more)
 
 
 class StageError(KeympsError):

@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING, Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from keymps.plugin import RegisterExecutor, hookimpl, parse_options
+from keymps.plugin import RegisterExecutor, hookimpl, parse_options, require_validated
 from keymps.types import ExecutionReport, ValidatedTrajectory
 
 if TYPE_CHECKING:
@@ -35,7 +35,6 @@ class FileExecutor:
 
     def execute(self, validated: ValidatedTrajectory, run: Run) -> ExecutionReport:
         from keymps.motion.trajectory_io import write_joint_trajectory_json, write_trajectory_csv
-        from keymps.robot.safety import require_validated
 
         trajectory = require_validated(validated, self.name)
         files = []

@@ -11,7 +11,7 @@ def register_detectors(register: RegisterDetector) -> None:
 See docs/plugins.md for every hook and docs/architecture.md for where plugins sit.
 """
 
-from keymps.errors import DetectionError, ImageSourceError, KeympsError, StageError
+from keymps.errors import DetectionError, ImageSourceError, KeympsError, SafetyError, StageError
 from keymps.plugin.components import Detector, Executor, ImageSource, StageObserver, VlmBackend
 from keymps.plugin.hookspecs import (
     Register,
@@ -22,6 +22,7 @@ from keymps.plugin.hookspecs import (
     hookimpl,
 )
 from keymps.plugin.options import parse_options
+from keymps.plugin.trajectories import require_validated
 
 __all__ = [
     "DetectionError",
@@ -35,9 +36,11 @@ __all__ = [
     "RegisterExecutor",
     "RegisterImageSource",
     "RegisterVlmBackend",
+    "SafetyError",
     "StageError",
     "StageObserver",
     "VlmBackend",
     "hookimpl",
     "parse_options",
+    "require_validated",
 ]

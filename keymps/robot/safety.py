@@ -9,15 +9,13 @@ else (a hand-built or modified one included).
 
 from __future__ import annotations
 
-import hashlib
 import math
-import weakref
-from dataclasses import replace
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from keymps.errors import KeympsError
+from keymps.errors import SafetyError
+from keymps.plugin.trajectories import issue as _issue
 from keymps.robot.safety_geometry import distance_to_polyline, outside_distance
 from keymps.types import ToolPath, Trajectory, ValidatedTrajectory, ValidationReport
 
@@ -36,63 +34,6 @@ ARM_CLEARANCE_M = 0.01
 """Elbow, wrists and flange stay this far above the board surface."""
 LIMIT_TOLERANCE = {"velocity": 1e-3, "acceleration": 0.01, "jerk": 0.05}
 """Relative slack on limits measured by finite differences (rounding, not physics)."""
-MAX_LISTED = 12
-
-
-class SafetyError(KeympsError):
-    """The trajectory is unsafe (or not validated); `problems` lists every finding."""
-
-    def __init__(self, problems: list[str]):
-        self.problems = problems
-        shown = problems[:MAX_LISTED]
-        more = f"; and {len(problems) - MAX_LISTED} more" if len(problems) > MAX_LISTED else ""
-        super().__init__("safety: " + "; ".join(shown) + more)
-
-
-_issued: dict[int, tuple[weakref.ref[ValidatedTrajectory], str]] = {}
-
-
-def _digest(trajectory: Trajectory) -> str:
-    digest = hashlib.sha256()
-    for array in (trajectory.t, trajectory.q, trajectory.qd, trajectory.qdd, trajectory.tool_xyz):
-        digest.update(np.ascontiguousarray(array, dtype=float).tobytes())
-    digest.update(np.ascontiguousarray(trajectory.piece_index, dtype=np.int64).tobytes())
-    digest.update("|".join(map(str, trajectory.kind)).encode())
-    digest.update(repr((trajectory.joint_names, float(trajectory.rate_hz))).encode())
-    return digest.hexdigest()
-
-
-def _issue(trajectory: Trajectory, report: ValidationReport) -> ValidatedTrajectory:
-    copies: dict[str, Any] = {}
-    for name in ("t", "q", "qd", "qdd", "tool_xyz", "piece_index", "kind"):
-        copies[name] = np.array(getattr(trajectory, name), copy=True)
-        copies[name].flags.writeable = False  # a validated trajectory cannot be edited in place
-    frozen = replace(trajectory, **copies)
-    validated = ValidatedTrajectory(frozen, report)
-    key = id(validated)
-    _issued[key] = (weakref.ref(validated, lambda _: _issued.pop(key, None)), _digest(frozen))
-    return validated
-
-
-def require_validated(candidate: object, executor: str) -> Trajectory:
-    """The trajectory inside a ValidatedTrajectory issued by `validate`, unchanged since."""
-    entry = _issued.get(id(candidate))
-    if (
-        not isinstance(candidate, ValidatedTrajectory)
-        or entry is None
-        or entry[0]() is not candidate
-    ):
-        raise SafetyError(
-            [
-                f"executor {executor!r} refuses a trajectory that did not come from "
-                "keymps.robot.safety.validate()"
-            ]
-        )
-    if _digest(candidate.trajectory) != entry[1] or not candidate.report.ok:
-        raise SafetyError(
-            [f"executor {executor!r} refuses a validated trajectory that was modified afterwards"]
-        )
-    return candidate.trajectory
 
 
 def validate(

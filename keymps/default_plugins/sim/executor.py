@@ -27,7 +27,7 @@ from keymps.default_plugins.sim.cut_sweep import (
     covered_length,
     edge_segments,
 )
-from keymps.plugin import RegisterExecutor, hookimpl, parse_options
+from keymps.plugin import RegisterExecutor, hookimpl, parse_options, require_validated
 from keymps.types import ExecutionReport, SceneImage, ToolPath, ValidatedTrajectory
 
 if TYPE_CHECKING:
@@ -262,7 +262,6 @@ class SimExecutor:
 
     def execute(self, validated: ValidatedTrajectory, run: Run) -> ExecutionReport:
         from keymps.robot.model import RobotModel
-        from keymps.robot.safety import require_validated
 
         trajectory = require_validated(validated, self.name)
         task = run.task

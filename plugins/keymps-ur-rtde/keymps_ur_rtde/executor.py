@@ -20,7 +20,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from keymps.errors import KeympsError
-from keymps.plugin import parse_options
+from keymps.plugin import parse_options, require_validated
 from keymps.types import ExecutionReport
 
 NAME = "ur-rtde"
@@ -111,7 +111,6 @@ class UrRtdeExecutor:
         self.connect_control = connect_control
 
     def execute(self, validated: Any, run: Any) -> ExecutionReport:
-        from keymps.robot.safety import require_validated
 
         trajectory = require_validated(validated, self.name)
         rate = float(trajectory.rate_hz)

@@ -1,0 +1,62 @@
+"""Executors accept only trajectories the safety check issued, unchanged since.
+
+keymps.robot.safety.validate is the single issuer; `require_validated` is what every executor
+calls before it moves anything.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import weakref
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from keymps.errors import SafetyError
+from keymps.types import Trajectory, ValidatedTrajectory, ValidationReport
+
+_issued: dict[int, tuple[weakref.ref[ValidatedTrajectory], str]] = {}
+
+
+def _digest(trajectory: Trajectory) -> str:
+    digest = hashlib.sha256()
+    for array in (trajectory.t, trajectory.q, trajectory.qd, trajectory.qdd, trajectory.tool_xyz):
+        digest.update(np.ascontiguousarray(array, dtype=float).tobytes())
+    digest.update(np.ascontiguousarray(trajectory.piece_index, dtype=np.int64).tobytes())
+    digest.update("|".join(map(str, trajectory.kind)).encode())
+    digest.update(repr((trajectory.joint_names, float(trajectory.rate_hz))).encode())
+    return digest.hexdigest()
+
+
+def issue(trajectory: Trajectory, report: ValidationReport) -> ValidatedTrajectory:
+    copies: dict[str, Any] = {}
+    for name in ("t", "q", "qd", "qdd", "tool_xyz", "piece_index", "kind"):
+        copies[name] = np.array(getattr(trajectory, name), copy=True)
+        copies[name].flags.writeable = False  # a validated trajectory cannot be edited in place
+    frozen = replace(trajectory, **copies)
+    validated = ValidatedTrajectory(frozen, report)
+    key = id(validated)
+    _issued[key] = (weakref.ref(validated, lambda _: _issued.pop(key, None)), _digest(frozen))
+    return validated
+
+
+def require_validated(candidate: object, executor: str) -> Trajectory:
+    """The trajectory inside a ValidatedTrajectory issued by `validate`, unchanged since."""
+    entry = _issued.get(id(candidate))
+    if (
+        not isinstance(candidate, ValidatedTrajectory)
+        or entry is None
+        or entry[0]() is not candidate
+    ):
+        raise SafetyError(
+            [
+                f"executor {executor!r} refuses a trajectory that did not come from "
+                "keymps.robot.safety.validate()"
+            ]
+        )
+    if _digest(candidate.trajectory) != entry[1] or not candidate.report.ok:
+        raise SafetyError(
+            [f"executor {executor!r} refuses a validated trajectory that was modified afterwards"]
+        )
+    return candidate.trajectory
