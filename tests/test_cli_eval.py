@@ -296,7 +296,7 @@ def test_a_method_that_fails_is_recorded_not_fatal(tmp_path: Path) -> None:
     records = {r["method"]: r for r in _records(out)}
     assert records["keymps"]["ok"]
     failed = records["vlm-mdmp"]
-    assert not failed["ok"] and "no valid answer after 2 attempts" in failed["error"]
+    assert not failed["ok"] and "no valid vlm-mdmp answer in 2 attempt(s)" in failed["error"]
     assert "\n" not in failed["error"]
     assert "vlm-mdmp: no valid answer" in (out / "summary.md").read_text()
 

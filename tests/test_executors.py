@@ -155,9 +155,9 @@ def test_file_executor_skips_a_null_file_and_rejects_unknown_options(tmp_path: P
     report = create_component("executor", "file", {"csv": None}).execute(validated, run)
     assert report.files == (str(tmp_path / "trajectory.json"),)
     assert not (tmp_path / "trajectory.csv").exists()
-    with pytest.raises(KeympsError, match="executor file: jsn: unknown option"):
+    with pytest.raises(KeympsError, match="executor file: option 'jsn': unknown option"):
         create_component("executor", "file", {"jsn": "x.json"})
-    with pytest.raises(KeympsError, match="executor sim: replay_rate_hz"):
+    with pytest.raises(KeympsError, match="executor sim: option 'replay_rate_hz'"):
         create_component("executor", "sim", {"replay_rate_hz": 0})
 
 

@@ -208,9 +208,9 @@ def _log_object(rec: Any, detection: Detection, run: Run) -> None:
             labels=["object"],
         ),
     )
-    if run.outline_m is None:  # outline is a nicety; the box above already shows the object
+    outline = _outline_m(run, detection, scene)
+    if outline is None:  # outline is a nicety; the box above already shows the object
         return
-    outline = np.asarray(run.outline_m, dtype=float)
     if len(outline) >= 2:
         ring = np.vstack([outline, outline[:1]])
         top = np.column_stack([ring, np.full(len(ring), height)])
@@ -274,3 +274,15 @@ def log_outcome(rec: Any, run: Run) -> None:
     image = cv2.imread(str(outcome), cv2.IMREAD_COLOR)
     if image is not None:
         rec.log("outcome", _encoded_image(rr, image))
+
+
+def _outline_m(run: Run, detection: Detection, scene: SceneImage) -> np.ndarray | None:
+    """The object's footprint in board metres: the engine's, or computed for a hand-made Run."""
+    if run.outline_m is not None:
+        return np.asarray(run.outline_m, dtype=float)
+    from keymps.perception.frames import object_outline_m
+
+    try:
+        return np.asarray(object_outline_m(detection, run.task, scene.size_px), dtype=float)
+    except Exception:
+        return None

@@ -117,9 +117,11 @@ def executor(control: Any = None, **options: Any) -> Any:
 
 def test_the_plugin_registers_through_its_entry_point() -> None:
     assert "ur-rtde" in components("executor")
-    with pytest.raises(KeympsError, match="executor ur-rtde: host: required"):
+    with pytest.raises(
+        KeympsError, match=r"executor ur-rtde: option 'host': required \(the arm's IP address\)"
+    ):
         create_component("executor", "ur-rtde", {})
-    with pytest.raises(KeympsError, match="executor ur-rtde: gain: "):
+    with pytest.raises(KeympsError, match="executor ur-rtde: option 'gain': "):
         create_component("executor", "ur-rtde", {"host": HOST, "gain": 5})
     assert create_component("executor", "ur-rtde", {"host": HOST}).options.host == HOST
 
