@@ -36,7 +36,7 @@ class RecordingExecutor:
         self.options = options
 
     def execute(self, validated: Any, run: Any) -> ExecutionReport:
-        from keymps.robot.safety import require_validated
+        from keymps.plugin import require_validated
 
         require_validated(validated, "recording")  # what every real executor must do
         RecordingExecutor.calls.append(validated)

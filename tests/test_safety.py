@@ -13,8 +13,9 @@ from robot_toolpaths import assemble, polyline, ring_of_dots
 
 from keymps.config.task import Task
 from keymps.motion.timing import time_trajectory
+from keymps.plugin import require_validated
 from keymps.robot.model import RobotModel, solve_path
-from keymps.robot.safety import SafetyError, require_validated, validate
+from keymps.robot.safety import SafetyError, validate
 from keymps.types import ToolPath, Trajectory, ValidatedTrajectory, ValidationReport
 
 

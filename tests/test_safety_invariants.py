@@ -37,7 +37,8 @@ from hypothesis import strategies as st
 import keymps
 from keymps.errors import KeympsError
 from keymps.perception.frames import object_outline_m
-from keymps.robot.safety import BOARD_TOLERANCE_M, require_validated, validate
+from keymps.plugin import require_validated
+from keymps.robot.safety import BOARD_TOLERANCE_M, validate
 from keymps.run import Run, RunOptions
 
 
