@@ -1,0 +1,1 @@
+"""`keymps eval`: the paper's metric D, benchmark suites, ground truth, methods, runner and reports."""
