@@ -333,8 +333,8 @@ def _add_board(
         contype=CONTACT_BOARD,
         conaffinity=CONTACT_TOOL,
         rgba=[0.72, 0.56, 0.38, 1.0],
-        solref=[0.004, 1.0],
-        friction=[0.4, 0.005, 0.0001],
+        solref=[0.01, 1.0],  # a wooden or plastic board gives a little
+        friction=[0.3, 0.005, 0.0001],
     )
     if material:
         geom.material = material
@@ -515,11 +515,12 @@ def tool_geoms(body: Any, tool: Tool) -> list[str]:
             group=ARM_GROUP,
             contype=CONTACT_TOOL,
             conaffinity=CONTACT_BOARD,
-            solref=[0.004, 1.0],
+            solref=[0.01, 1.0],
         )
-        if name == "tool_rod":
-            geom.fromto = [0, 0, 0, *tip.tolist()]
-            geom.size = [0.006, 0, 0]
+        if name == "tool_rod":  # along the flange-to-tip vector
+            quat = np.zeros(4)
+            mujoco.mju_quatZ2Vec(quat, tip / max(float(np.linalg.norm(tip)), 1e-9))
+            geom.quat = quat.tolist()
         names.append(name)
     return names
 

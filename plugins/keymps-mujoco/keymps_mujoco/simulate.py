@@ -138,7 +138,7 @@ def simulate(
             joint = int(np.argmax(torque_max / limits))
             stopped = (
                 f"{JOINT_NAMES[joint]} needs {torque_max[joint]:.1f} N m at "
-                f"t={torque_peak_t[joint]:.3f} s, above the UR3's {limits[joint]:.0f} N m"
+                f"t={torque_peak_t[joint]:.3f} s, above the limit of {limits[joint]:.3g} N m"
             )
             stopped_at = k + 1
             break
