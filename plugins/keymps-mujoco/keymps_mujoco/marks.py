@@ -86,7 +86,7 @@ class Painter:
 
     def texture(self) -> np.ndarray:
         """The base image with the cuts (inside the footprints) and the icing on it."""
-        image = self.base_rgb.astype(np.float32)
+        image: np.ndarray = self.base_rgb.astype(np.float32)
         inside = np.zeros(self.cut_mask.shape, bool)
         for mask in self.footprints:
             inside |= mask
@@ -96,7 +96,10 @@ class Painter:
             import cv2
 
             edge = cv2.dilate(self.icing_mask, np.ones((3, 3), np.uint8)).astype(np.float32) / 255
-            image = image * (1 - edge[..., None]) + np.array(ICING_EDGE_RGB) * edge[..., None]
+            image = (
+                image * (1 - edge[..., None])
+                + np.array(ICING_EDGE_RGB, np.float32) * edge[..., None]
+            )
             icing = self.icing_mask.astype(np.float32)[..., None] / 255.0
             image = image * (1 - icing) + np.array(ICING_RGB, np.float32) * icing
         self.changed = False

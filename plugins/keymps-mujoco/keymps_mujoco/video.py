@@ -41,7 +41,7 @@ class VideoRecorder:
         self.size = (width + width % 2, height + height % 2)  # encoders want even sizes
         path.parent.mkdir(parents=True, exist_ok=True)
         self.writer: Any = cv2.VideoWriter(
-            str(path), cv2.VideoWriter_fourcc(*"mp4v"), self.fps, self.size
+            str(path), cv2.VideoWriter.fourcc(*"mp4v"), self.fps, self.size
         )
         if not self.writer.isOpened():
             raise KeympsError(f"executor mujoco: OpenCV cannot write the video {path}")

@@ -242,7 +242,7 @@ def test_a_cut_run_writes_outcome_and_video_with_the_arm_in_view(tmp_path: Path)
     assert report.figures["cuts"] == 1 and report.figures["cut_1_reached_board"] == 1.0
     assert report.figures["cut_1_depth_mm"] == pytest.approx(20.0, abs=0.5)
     outcome = cv2.imread(str(tmp_path / "outcome.png"))
-    assert outcome.shape == scene.image.shape
+    assert outcome is not None and outcome.shape == scene.image.shape
     # a dark cut line across the cake where there was none
     row = round(360 - 0.09 / 0.18 * 360)
     before = scene.image[row - 2 : row + 3, 260:340].min(axis=0).mean()
