@@ -11,15 +11,18 @@ more torque than the UR3 has, an arm link touches the board, or the tip strays m
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from keymps.plugin import parse_options
-from keymps.types import ExecutionReport
+from keymps.plugin import parse_options, require_validated
+from keymps.types import ExecutionReport, Trajectory, ValidatedTrajectory
 from keymps_mujoco.model import PERSPECTIVE_CAMERA, TOP_CAMERA, TORQUE_LIMITS_NM, Settings
 from keymps_mujoco.scene_inputs import SceneInputs, scene_from_run
+
+if TYPE_CHECKING:
+    from keymps.run import Run
 
 NAME = "mujoco"
 VIDEO_FILE = "execution.mp4"
@@ -73,9 +76,7 @@ class MujocoExecutor:
     def __init__(self, options: MujocoOptions):
         self.options = options
 
-    def execute(self, validated: Any, run: Any) -> ExecutionReport:
-        from keymps.robot.safety import require_validated
-
+    def execute(self, validated: ValidatedTrajectory, run: Run) -> ExecutionReport:
         trajectory = require_validated(validated, self.name)
         inputs = scene_from_run(run, self.options.top_px_per_m)
         return Execution(self.options, inputs, trajectory, run).run()
@@ -84,7 +85,9 @@ class MujocoExecutor:
 class Execution:
     """One simulated execution: the scene, the painter, the video, the figures."""
 
-    def __init__(self, options: MujocoOptions, inputs: SceneInputs, trajectory: Any, run: Any):
+    def __init__(
+        self, options: MujocoOptions, inputs: SceneInputs, trajectory: Trajectory, run: Run
+    ):
         self.options = options
         self.inputs = inputs
         self.trajectory = trajectory

@@ -9,13 +9,16 @@ toppings, icing); with one they are that flat colour.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from keymps.plugin import parse_options
+from keymps.plugin import ImageSourceError, KeympsError, parse_options
 from keymps.types import SceneImage
+
+if TYPE_CHECKING:
+    from keymps.run import Run
 
 NAME = "mujoco"
 RGB = tuple[int, int, int]
@@ -48,11 +51,10 @@ class MujocoSource:
     def __init__(self, options: MujocoSourceOptions):
         self.options = options
 
-    def load(self, run: Any) -> SceneImage:
+    def load(self, run: Run) -> SceneImage:
         import cv2
 
         from keymps.config.limits import check_image_pixels
-        from keymps.perception.image_io import ImageSourceError
         from keymps.scenes.render import SceneSpec, render_scene_cached
         from keymps_mujoco.model import TOP_CAMERA, Prop, Settings, build_scene
         from keymps_mujoco.render import Renderer
@@ -75,7 +77,7 @@ class MujocoSource:
         size_px = spec.image_size_px
         try:
             check_image_pixels(size_px, task.scene.max_image_pixels, "the mujoco scene")
-        except Exception as error:
+        except KeympsError as error:
             raise ImageSourceError(str(error)) from None
         synthetic = render_scene_cached(spec)
         shift = (float(workspace.shift[0]), float(workspace.shift[1]))

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from keymps.errors import KeympsError
+from keymps.plugin import KeympsError
 from keymps_mujoco.model import ARM_GROUP, SimScene
 
 

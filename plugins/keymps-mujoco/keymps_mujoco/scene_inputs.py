@@ -9,11 +9,14 @@ objects' tops, so the top-down camera sees what the task's camera saw.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from keymps_mujoco.model import Prop
+
+if TYPE_CHECKING:
+    from keymps.run import Run
 
 
 @dataclass(frozen=True)
@@ -43,34 +46,26 @@ class SceneInputs:
         return 0.0, False
 
 
-def _stage(run: Any, name: str) -> Any:
-    """A stage's result from a Run (typed `run.stages` when keymps has it, else run.results)."""
-    stages = getattr(run, "stages", None)
-    if stages is not None:
-        return getattr(stages, name, None)
-    return getattr(run, "results", {}).get(name)
-
-
-def scene_from_run(run: Any, px_per_m: float = 2000.0) -> SceneInputs:
+def scene_from_run(run: Run, px_per_m: float = 2000.0) -> SceneInputs:
     """The scene of a run that has reached its execute stage (or of a bare task)."""
     from keymps.robot.model import RobotModel
-    from keymps.types import Detection, SceneImage
 
     task = run.task
-    robot = getattr(run, "robot", None) or RobotModel.from_task(task)
+    robot = run.robot if run.robot is not None else RobotModel.from_task(task)
     workspace = task.scene.workspace
     size = (float(workspace.size[0]), float(workspace.size[1]))
     shift = (float(workspace.shift[0]), float(workspace.shift[1]))
-    scene = _stage(run, "image")
-    detection = _stage(run, "detect")
-    if isinstance(scene, SceneImage):
+    scene, detection = run.stages.image, run.stages.detect
+    if scene is not None:
         texture, top_size = rectified(scene.image, task)
     else:
         top_size = (round(size[0] * px_per_m), round(size[1] * px_per_m))
         texture = None
     outlines: list[np.ndarray] = []
-    if isinstance(detection, Detection) and isinstance(scene, SceneImage):
+    if detection is not None and scene is not None:
         outlines = detected_outlines(detection, task, scene.size_px)
+    elif run.outline_m is not None:  # a footprint without a detection (a run built by hand)
+        outlines = [np.asarray(run.outline_m, dtype=float)]
     props = tuple(
         Prop(
             outline,
@@ -115,7 +110,7 @@ def detected_outlines(
     from keymps.perception.frames import ImageFrame, object_outline_m, polygon_area
 
     frame = ImageFrame.from_task(task, image_size_px)
-    objects = list(detection.objects) or [detection]
+    objects: list[Any] = list(detection.objects) or [detection]
     outlines = []
     for found in objects:
         contour = np.asarray(found.contour_px, dtype=float).reshape(-1, 2)

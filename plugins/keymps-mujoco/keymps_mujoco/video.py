@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from keymps.errors import KeympsError
+from keymps.plugin import KeympsError
 
 
 class VideoRecorder:

@@ -37,14 +37,12 @@ def make_task(tool: str = "knife", height: float = 0.02, **scene: Any) -> Task:
     )
 
 
-def make_run(task: Task, folder: Path, **stages: Any) -> Run:
+def make_run(task: Task, folder: Path, outline: bool = False, **stages: Any) -> Run:
     run = Run(task=task, folder=folder, options=RunOptions(rerun="off"))
     for name, result in stages.items():
-        record = getattr(getattr(run, "stages", None), "record", None)
-        if record is not None:
-            record(name, result)
-        else:
-            run.results[name] = result
+        run.stages.record(name, result)
+    if outline:
+        run.outline_m = OUTLINE
     return run
 
 
@@ -137,17 +135,21 @@ def test_the_knife_on_the_board_reports_a_contact_force_and_when(tmp_path: Path)
     down = line([0.15, 0.09, 0.03], [0.17, 0.09, 0.0])
     up = line([0.17, 0.09, 0.0], [0.17, 0.09, 0.03])
     validated = validated_path(task, [("work", down), ("travel", up)])
-    report = execute(validated, make_run(task, tmp_path))
+    report = execute(validated, make_run(task, tmp_path, outline=True))
     assert report.ok, report.message
     figures = report.figures
     assert figures["max_contact_force_n"] > 0.1
     assert figures["tool_board_contact_s"] > 0
+    assert figures["cuts"] == 1 and figures["cut_1_reached_board"] == 1.0
     # the force comes while the blade is on the board, not during the plunge's first half
     trajectory = validated.trajectory
     on_board = trajectory.t[np.asarray(trajectory.tool_xyz)[:, 2] < 0.0005]
     assert on_board.min() - 0.05 <= figures["max_contact_force_t_s"] <= on_board.max() + 0.05
     above = validated_path(task, [("work", line([0.15, 0.09, 0.03], [0.18, 0.09, 0.01]))])
-    assert execute(above, make_run(task, tmp_path)).figures["max_contact_force_n"] == 0.0
+    figures = execute(above, make_run(task, tmp_path, outline=True)).figures
+    assert figures["max_contact_force_n"] == 0.0
+    assert figures["cut_1_reached_board"] == 0.0
+    assert figures["cut_1_depth_mm"] == pytest.approx(10.0, abs=0.3)
 
 
 def test_a_torque_limit_or_divergence_fails_cleanly(tmp_path: Path) -> None:
