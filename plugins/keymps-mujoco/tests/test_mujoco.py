@@ -256,3 +256,38 @@ def test_a_cut_run_writes_outcome_and_video_with_the_arm_in_view(tmp_path: Path)
     video.set(cv2.CAP_PROP_POS_FRAMES, frames // 2)
     ok, middle = video.read()
     assert ok and middle.shape[0] == 120
+
+
+def test_a_whole_run_in_the_simulator_with_video_frames_in_the_recording(tmp_path: Path) -> None:
+    """Render, detect, plan (offline), execute in MuJoCo; the .rrd read back holds the video."""
+    import json
+
+    from rerun.chunk import RrdReader
+
+    import keymps
+
+    task_file = tmp_path / "task.yaml"
+    task_file.write_text(
+        "name: sim\n"
+        "instruction: Cut it into 2 equal pieces\n"
+        "scene:\n"
+        "  source: mujoco\n"
+        "  source_options: {object: square_cake, seed: 2, length: 0.08, width: 0.08}\n"
+        "  object_height: 0.02\n"
+        "primitives: [straight]\n"
+        "height: {mode: start, margin: 0.005}\n"
+        "robot: {tool: knife}\n"
+        "executor: {name: mujoco, video_fps: 2, video_height_px: 96, shadows: false}\n"
+    )
+    run = keymps.run_task(task_file, out=tmp_path / "run", quiet=True)
+    execution = json.loads((run.folder / "run.json").read_text())["execution"]
+    assert execution["ok"], execution["message"]
+    assert execution["figures"]["cuts"] == 1.0
+    assert execution["figures"]["cut_1_reached_board"] == 1.0
+    assert (run.folder / "outcome.png").is_file()
+    frames = 0
+    for chunk in RrdReader(run.folder / "run.rrd").stream():
+        if chunk.entity_path == "/execution/video":
+            assert "time" in chunk.timeline_names
+            frames += chunk.num_rows
+    assert frames == execution["figures"]["video_frames"] > 0
