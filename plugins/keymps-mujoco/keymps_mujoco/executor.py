@@ -79,7 +79,7 @@ class MujocoExecutor:
     def execute(self, validated: ValidatedTrajectory, run: Run) -> ExecutionReport:
         trajectory = require_validated(validated, self.name)
         inputs = scene_from_run(run, self.options.top_px_per_m)
-        return Execution(self.options, inputs, trajectory, run).run()
+        return Execution(self.options, inputs, trajectory, run).simulate()
 
 
 class Execution:
@@ -91,10 +91,10 @@ class Execution:
         self.options = options
         self.inputs = inputs
         self.trajectory = trajectory
-        self.run_ = run
+        self.context = run
         self.folder = Path(run.folder)
 
-    def run(self) -> ExecutionReport:
+    def simulate(self) -> ExecutionReport:
         from keymps_mujoco.marks import Painter
         from keymps_mujoco.model import build_scene
         from keymps_mujoco.render import Renderer
@@ -184,7 +184,7 @@ class Execution:
                     show_arm=False,
                     extra=lambda mjv: self._decorate(mjv, painter),
                 )
-                files.append(str(self.run_.write_image("outcome", image)))
+                files.append(str(self.context.write_image("outcome", image)))
         finally:
             if video is not None:
                 video.close()

@@ -291,3 +291,42 @@ def test_a_whole_run_in_the_simulator_with_video_frames_in_the_recording(tmp_pat
             assert "time" in chunk.timeline_names
             frames += chunk.num_rows
     assert frames == execution["figures"]["video_frames"] > 0
+
+
+def test_several_detected_objects_become_several_bodies(tmp_path: Path) -> None:
+    """Detection.objects as a multi-object detector fills it (the threshold detector reports
+    one object today): each becomes a body with its own footprint."""
+    from keymps_mujoco.scene_inputs import scene_from_run
+
+    from keymps.scenes.render import SceneSpec, render_scene_cached
+    from keymps.types import DetectedObject, Detection
+
+    task = make_task("knife", height=0.03)
+    options = {"object": ["round_cake", "square_cake"], "seed": 1, "length": 0.08, "width": 0.08}
+    scene = create_component("image_source", "mujoco", options).load(make_run(task, tmp_path))
+    truth = render_scene_cached(
+        SceneSpec.from_kinds(
+            options["object"],
+            seed=1,
+            length=0.08,
+            width=0.08,
+            height=0.03,
+            board_size=(0.30, 0.18),
+        )
+    ).truth["objects"]
+    objects = tuple(
+        DetectedObject(k + 1, tuple(t["bbox_px"]), np.asarray(t["outline_px"]) - 0.5, 1.0)
+        for k, t in enumerate(truth)
+    )
+    detection = Detection(objects[0].bbox_px, scene.image[:8, :8], (0, 0), objects=objects)
+    inputs = scene_from_run(make_run(task, tmp_path, image=scene, detect=detection))
+    assert len(inputs.props) == 2
+    for found, prop, mask in zip(objects, inputs.props, inputs.footprint_masks, strict=True):
+        x0, y0, x1, y1 = found.bbox_px
+        rows, cols = np.nonzero(mask)
+        assert abs(cols.min() - x0) <= 2 and abs(cols.max() + 1 - x1) <= 2
+        assert abs(rows.min() - y0) <= 2 and abs(rows.max() + 1 - y1) <= 2
+        assert prop.height == 0.03
+        centre = np.mean(prop.outline_m, axis=0)  # each object's top is under its own centre
+        assert inputs.surface_under(centre) == (0.03, True)
+    assert inputs.surface_under(np.array([0.001, 0.001])) == (0.0, False)
