@@ -47,7 +47,9 @@ class MujocoOptions(BaseModel):
     """Write execution.mp4."""
     video_fps: float = Field(10.0, ge=1, le=60)
     """Frames per second of simulated time (the video plays in real time)."""
-    video_cameras: tuple[Literal["top", "perspective"], ...] = ("top", "perspective")
+    video_cameras: tuple[Literal["top", "perspective"], ...] = Field(
+        ("top", "perspective"), min_length=1
+    )
     """Side by side, left to right."""
     video_height_px: int = Field(300, ge=64, le=1080)
     shadows: bool = False
@@ -144,9 +146,7 @@ class Execution:
                 lambda mjv: self._decorate(mjv, painter),
                 options.shadows,
             )
-        lowest = np.full(
-            len(kind), np.inf
-        )  # the blade's (or tip's) height per sample while working
+        lowest = np.full(len(kind), np.inf)  # the tip's height at each working sample
 
         def on_step(step: Any) -> None:
             i = step.index
@@ -159,6 +159,7 @@ class Execution:
 
         try:
             if video is not None:
+                scene.set_joints(trajectory.q[0])  # the first frame shows the start
                 video.frame(0.0)
             result = simulate(
                 scene,
