@@ -95,6 +95,12 @@ class Execution:
         self.trajectory = trajectory
         self.context = run
         self.folder = Path(run.folder)
+        self.food_top = max((prop.height for prop in inputs.props), default=0.0)
+        pieces = np.asarray(trajectory.piece_index)
+        self.piece_start = {
+            int(p): np.asarray(trajectory.tool_xyz)[int(np.argmax(pieces == p)), :2]
+            for p in np.unique(pieces)
+        }
 
     def simulate(self) -> ExecutionReport:
         from keymps_mujoco.marks import Painter
@@ -213,15 +219,18 @@ class Execution:
     def _mark(self, step: Any, painter: Any, blade: float, lowest: np.ndarray) -> None:
         """Paint what the tool does at this step, and keep the lowest height it reached."""
         tip = step.tip
-        top, inside = self.inputs.surface_under(tip[:2])
         lowest[step.index] = tip[2]
         if blade > 0:
-            if inside and tip[2] < top - BELOW_TOP_M:
+            # the edge is horizontal at the tip's height: in the food wherever it is inside a
+            # footprint, even where the tip itself has left it
+            if self.inputs.props and tip[2] < self.food_top - BELOW_TOP_M:
                 direction = np.asarray(step.tool_x[:2], dtype=float)
-                norm = float(np.linalg.norm(direction))
-                far = tip[:2] - blade * direction / max(norm, 1e-9)
-                painter.cut(tip[:2], far)
-        elif tip[2] - top <= DEPOSIT_GAP_M:
+                far = tip[:2] - blade * direction / max(float(np.linalg.norm(direction)), 1e-9)
+                piece = int(self.trajectory.piece_index[step.index])
+                painter.cut(tip[:2], far, piece, self.piece_start[piece])
+            return
+        top, _ = self.inputs.surface_under(tip[:2])
+        if tip[2] - top <= DEPOSIT_GAP_M:
             painter.deposit(np.array([tip[0], tip[1], top + 0.5 * painter.icing_radius_m]))
 
     def _decorate(self, mjv: Any, painter: Any) -> None:
@@ -269,7 +278,7 @@ class Execution:
         for index, name in enumerate(JOINT_NAMES):
             figures[f"max_torque_{name}_nm"] = float(result.torque_max_nm[index])
         if self.inputs.robot.tool.blade_length > 0:
-            self._cut_figures(figures, lowest[:n], kind[:n], pieces[:n], result)
+            self._cut_figures(figures, lowest[:n], kind[:n], pieces[:n], result, painter)
         else:
             figures["icing_deposits"] = float(len(painter.spheres))
         if video is not None:
@@ -284,31 +293,27 @@ class Execution:
         kind: np.ndarray,
         pieces: np.ndarray,
         result: Any,
+        painter: Any,
     ) -> None:
         """Per cut (a work piece that went below an object's top): depth and board reach."""
         cuts = 0
         reached = 0
+        top = self.food_top
         for piece in np.unique(pieces[kind == "work"]):
             mine = (pieces == piece) & (kind == "work")
             heights = lowest[mine]
             heights = heights[np.isfinite(heights)]
-            if not len(heights):
+            if not len(heights) or not self.inputs.props:
                 continue
-            tips = result.tip[mine]
-            tops = [self.inputs.surface_under(tip[:2]) for tip in tips]
-            inside = [top for top, is_inside in tops if is_inside]
-            if not inside:
-                continue
-            top = max(inside)
             bottom = float(heights.min())
             if bottom >= top - BELOW_TOP_M:
                 continue
             cuts += 1
-            depth = min(top, top - bottom)
             touched = bool(bottom <= REACHED_BOARD_M)
             reached += touched
-            figures[f"cut_{cuts}_depth_mm"] = round(depth * 1000, 2)
+            figures[f"cut_{cuts}_depth_mm"] = round(min(top, top - bottom) * 1000, 2)
             figures[f"cut_{cuts}_reached_board"] = float(touched)
+            figures[f"cut_{cuts}_length_mm"] = round(painter.cut_length_m(int(piece)) * 1000, 1)
             figures[f"cut_{cuts}_max_force_n"] = round(float(result.contact_force_n[mine].max()), 2)
         figures["cuts"] = float(cuts)
         figures["cuts_reached_board"] = float(reached)

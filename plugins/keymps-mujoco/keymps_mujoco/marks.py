@@ -18,6 +18,8 @@ ICING_RGB = (250, 250, 247)
 ICING_EDGE_RGB = (150, 150, 150)
 DEPOSIT_STEP_M = 0.0015
 """A new icing deposit each time the nozzle has moved this far."""
+LENGTH_BIN_M = 0.0005
+"""Resolution of the measured cut lengths."""
 MAX_SPHERES = 2500
 """Icing spheres drawn in 3D at most (the painted icing has no limit)."""
 
@@ -36,6 +38,8 @@ class Painter:
     cut_mask: np.ndarray = field(init=False)
     icing_mask: np.ndarray = field(init=False)
     spheres: list[tuple[float, float, float]] = field(default_factory=list)
+    cut_bins: dict[int, set[int]] = field(default_factory=dict)
+    """Per cut, the LENGTH_BIN_M bins along its line that the edge covered inside the food."""
     changed: bool = False
     _last_deposit: np.ndarray | None = None
 
@@ -56,14 +60,39 @@ class Painter:
         v = height - (points[:, 1] - self.shift_m[1]) * self.px_per_m
         return np.round(np.column_stack([u, v]) * 16).astype(np.int32)
 
-    def cut(self, tip_xy: np.ndarray, far_xy: np.ndarray) -> None:
-        """The knife's edge from its tip to its far end is in the food: mark the segment."""
+    def cut(self, tip_xy: np.ndarray, far_xy: np.ndarray, cut: int, origin: np.ndarray) -> None:
+        """The knife's edge from its tip to its far end is in the food: mark the segment, and
+        count the length it covers inside a footprint along cut `cut`'s line (from `origin`)."""
         import cv2
 
         a, b = self.pixels(np.array([tip_xy, far_xy]))
         width = max(1, round(self.cut_width_m * self.px_per_m))
         cv2.line(self.cut_mask, tuple(map(int, a)), tuple(map(int, b)), 255, width, cv2.LINE_AA, 4)
         self.changed = True
+        edge = np.asarray(far_xy, dtype=float) - np.asarray(tip_xy, dtype=float)
+        length = float(np.linalg.norm(edge))
+        if length < 1e-9:
+            return
+        steps = np.arange(0.0, length + 1e-12, LENGTH_BIN_M / 2)
+        points = np.asarray(tip_xy, dtype=float) + steps[:, None] * (edge / length)
+        inside = self._inside(points)
+        along = (points[inside] - origin) @ (edge / length)
+        self.cut_bins.setdefault(cut, set()).update(np.floor(along / LENGTH_BIN_M).astype(int))
+
+    def _inside(self, xy: np.ndarray) -> np.ndarray:
+        """Whether each board point lies in an object's footprint."""
+        height, width = self.cut_mask.shape
+        u = ((xy[:, 0] - self.shift_m[0]) * self.px_per_m).astype(int)
+        v = (height - (xy[:, 1] - self.shift_m[1]) * self.px_per_m).astype(int)
+        ok = (u >= 0) & (u < width) & (v >= 0) & (v < height)
+        inside = np.zeros(len(xy), bool)
+        for mask in self.footprints:
+            inside[ok] |= mask[v[ok], u[ok]]
+        return inside
+
+    def cut_length_m(self, cut: int) -> float:
+        """How long a stretch of cut `cut`'s line the edge covered inside the food."""
+        return len(self.cut_bins.get(cut, ())) * LENGTH_BIN_M
 
     def deposit(self, xyz: np.ndarray) -> bool:
         """The nozzle is at xyz just above a surface: icing there (once per DEPOSIT_STEP_M)."""

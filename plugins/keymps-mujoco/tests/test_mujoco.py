@@ -243,6 +243,10 @@ def test_a_cut_run_writes_outcome_and_video_with_the_arm_in_view(tmp_path: Path)
     assert report.ok, report.message
     assert report.figures["cuts"] == 1 and report.figures["cut_1_reached_board"] == 1.0
     assert report.figures["cut_1_depth_mm"] == pytest.approx(20.0, abs=0.5)
+    # the edge trails the tip (yaw along +x, blade along -x): it covers the cake from its left
+    # rim to where the tip stopped at x = 0.18 m
+    left_rim = float(np.nonzero(detection.mask[180])[0].min()) * 0.30 / 600
+    assert report.figures["cut_1_length_mm"] == pytest.approx((0.18 - left_rim) * 1000, abs=2.0)
     outcome = cv2.imread(str(tmp_path / "outcome.png"))
     assert outcome is not None and outcome.shape == scene.image.shape
     # a dark cut line across the cake where there was none
