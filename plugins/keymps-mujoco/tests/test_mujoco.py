@@ -334,3 +334,23 @@ def test_several_detected_objects_become_several_bodies(tmp_path: Path) -> None:
         centre = np.mean(prop.outline_m, axis=0)  # each object's top is under its own centre
         assert inputs.surface_under(centre) == (0.03, True)
     assert inputs.surface_under(np.array([0.001, 0.001])) == (0.0, False)
+
+
+def test_the_nozzle_deposits_icing_where_it_moves_just_above_the_top(tmp_path: Path) -> None:
+    import cv2
+
+    task = make_task("piping_bag", height=0.06)
+    stroke = line([0.12, 0.09, 0.065], [0.18, 0.09, 0.065])  # 5 mm above the top, 6 cm long
+    up = line([0.18, 0.09, 0.065], [0.18, 0.11, 0.09], 11)
+    high = line([0.18, 0.11, 0.09], [0.12, 0.11, 0.09])  # 3 cm above: nothing comes out
+    validated = validated_path(task, [("work", stroke), ("travel", up), ("work", high)])
+    report = execute(validated, make_run(task, tmp_path, outline=True))
+    assert report.ok, report.message
+    deposits = report.figures["icing_deposits"]
+    # one each 1.5 mm of the stroke, rounded up to the 0.24 mm the nozzle moves per sample
+    assert 0.06 / 0.0018 <= deposits <= 0.06 / 0.0015 + 1
+    outcome = cv2.imread(str(tmp_path / "outcome.png"))
+    assert outcome is not None
+    row_stroke, row_high = round((0.18 - 0.09) * 2000), round((0.18 - 0.11) * 2000)
+    assert outcome[row_stroke, 260:340].min() > 200  # white icing along the stroke
+    assert outcome[row_high, 260:340].min() < 200  # none where the nozzle was high
