@@ -263,6 +263,38 @@ def log_grounding(rec: Any, grounding: Grounding) -> None:
     rec.log("world/segments/end", rr.Points3D(segments[:, 1], colors=colors, radii=[0.002]))
 
 
+VIDEO_FRAMES_MAX = 1200
+"""An executor's video is logged frame by frame up to this many frames (then every k-th)."""
+
+
+def log_execution_video(rec: Any, files: tuple[str, ...], run: Run) -> None:
+    """Frames of an executor's video (an .mp4 it wrote, e.g. the mujoco executor's), as an
+    image stream on the `time` timeline at the video's own frame rate."""
+    import cv2
+    import rerun as rr
+
+    for name in files:
+        if not name.endswith(".mp4"):
+            continue
+        video = cv2.VideoCapture(name)
+        try:
+            fps = float(video.get(cv2.CAP_PROP_FPS)) or 10.0
+            count = int(video.get(cv2.CAP_PROP_FRAME_COUNT))
+            every = max(1, -(-count // VIDEO_FRAMES_MAX))
+            index = 0
+            while True:
+                ok, frame = video.read()
+                if not ok:
+                    break
+                if index % every == 0:
+                    rec.set_time("time", duration=index / fps)
+                    rec.log("execution/video", _encoded_image(rr, frame))
+                index += 1
+        finally:
+            video.release()
+            rec.set_time("time", duration=0.0)
+
+
 def log_outcome(rec: Any, run: Run) -> None:
     """The executor's outcome image (the simulated result), when it wrote one."""
     import cv2

@@ -85,6 +85,7 @@ def blueprint(run: Run) -> Any:
                     rrb.TextDocumentView(name="VLM prompt", origin="vlm/prompt"),
                     rrb.TextDocumentView(name="VLM attempts", origin="vlm/attempts"),
                     rrb.Spatial2DView(name="Crop", origin="crop"),
+                    rrb.Spatial2DView(name="Execution video", origin="execution/video"),
                     rrb.TextDocumentView(name="Safety check", origin="check/report"),
                     rrb.TextDocumentView(name="Run", origin="run/summary"),
                 ),
@@ -220,6 +221,7 @@ def _log_stage(stream: Any, stage: str, result: Any, run: Run) -> None:
     elif stage == "execute":
         text.log_execution(stream, result, run)
         entities.log_outcome(stream, run)
+        entities.log_execution_video(stream, result.files, run)
 
 
 def _log_motion(stream: Any, trajectory: Any, run: Run) -> None:

@@ -1,0 +1,356 @@
+"""keymps-mujoco against real MuJoCo (rendered with MUJOCO_GL=egl), Pinocchio and Ruckig.
+
+Trajectories are made by keymps itself (IK, Ruckig timing, the safety validator); the scenes
+the image source renders are found by keymps' default detector.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import keymps_mujoco  # noqa: F401  (sets MUJOCO_GL before mujoco is imported)
+import numpy as np
+import pytest
+
+from keymps.config.task import Task
+from keymps.motion.timing import time_trajectory
+from keymps.plugin.manager import components, create_component
+from keymps.robot.description import BUILTIN_TOOLS, Tool
+from keymps.robot.model import RobotModel, solve_path
+from keymps.robot.safety import SafetyError, validate
+from keymps.run import Run, RunOptions
+from keymps.types import Piece, ToolPath, ValidatedTrajectory
+
+OUTLINE = np.array([[0.09, 0.04], [0.21, 0.04], [0.21, 0.14], [0.09, 0.14]])
+
+
+def make_task(tool: str = "knife", height: float = 0.02, **scene: Any) -> Task:
+    return Task.model_validate(
+        {
+            "name": "t",
+            "instruction": "x",
+            "scene": {"image": "x.png", "object_height": height, **scene},
+            "primitives": ["line"],
+            "robot": {"tool": tool},
+        }
+    )
+
+
+def make_run(task: Task, folder: Path, outline: bool = False, **stages: Any) -> Run:
+    run = Run(task=task, folder=folder, options=RunOptions(rerun="off"))
+    for name, result in stages.items():
+        run.stages.record(name, result)
+    if outline:
+        run.outline_m = OUTLINE
+    return run
+
+
+def validated_path(task: Task, pieces: list[tuple[str, np.ndarray]]) -> ValidatedTrajectory:
+    """A real trajectory through keymps' IK, timing and safety check."""
+    model = RobotModel.from_task(task)
+    path = ToolPath(
+        tuple(
+            Piece(kind, 0, points, np.zeros(len(points)), 0.03)  # type: ignore[arg-type]
+            for kind, points in pieces
+        ),
+        "line",
+    )
+    trajectory = time_trajectory(model, path, solve_path(model, path), task)
+    return validate(model, trajectory, path, OUTLINE, task)
+
+
+def line(a: list[float], b: list[float], n: int = 31) -> np.ndarray:
+    return np.linspace(a, b, n)
+
+
+def execute(validated: ValidatedTrajectory, run: Run, **options: Any) -> Any:
+    executor = create_component("executor", "mujoco", {"video": False, **options})
+    return executor.execute(validated, run)
+
+
+@pytest.mark.parametrize(
+    "tool", [*BUILTIN_TOOLS.values(), Tool("spatula", (0.0, 0.01, 0.2), "fixed", 0.0)]
+)
+def test_the_model_compiles_with_each_tool_and_matches_keymps_kinematics(tool: Tool) -> None:
+    from keymps_mujoco.model import Prop, build_scene
+
+    robot = RobotModel(tool=tool)
+    ring = np.array([[0.1, 0.05], [0.2, 0.05], [0.15, 0.13]])
+    scene = build_scene(robot, (0.3, 0.18), (0.0, 0.0), (Prop(ring, 0.03),))
+    assert scene.model.nu == 6 and len(scene.tool_geoms) >= 1
+    rng = np.random.default_rng(7)
+    for _ in range(20):
+        q = rng.uniform(-np.pi, np.pi, 6)
+        scene.set_joints(q)
+        position, rotation = robot.fk(q)
+        np.testing.assert_allclose(scene.data.site_xpos[scene.tcp_site], position, atol=1e-9)
+        np.testing.assert_allclose(
+            scene.data.site_xmat[scene.tcp_site].reshape(3, 3), rotation, atol=1e-9
+        )
+
+
+def test_meshes_are_converted_once_then_read_from_the_cache(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from keymps_mujoco import meshes
+
+    monkeypatch.setenv("KEYMPS_CACHE_DIR", str(tmp_path))
+    first = meshes.arm_meshes()
+    stored = sorted((tmp_path / "mujoco-meshes").glob("*.npz"))
+    assert len(stored) == len(meshes.LINK_MESHES)
+    again = meshes.arm_meshes()
+    for link, mesh in first.items():
+        triangles = meshes.read_stl(
+            (meshes.mesh_folder() / f"{meshes.LINK_MESHES[link]}.stl").read_bytes()
+        )
+        # welding drops only slivers: the surface keeps its area
+        kept = mesh.vertices[mesh.faces]
+        assert len(kept) <= len(triangles)
+        assert area(kept) == pytest.approx(area(triangles), rel=1e-4)
+        np.testing.assert_array_equal(again[link].faces, mesh.faces)
+        assert np.abs(mesh.vertices).max() < 0.3  # metres (not mm), in the link frame
+
+
+def area(triangles: np.ndarray) -> float:
+    a, b, c = triangles[:, 0], triangles[:, 1], triangles[:, 2]
+    return float(np.linalg.norm(np.cross(b - a, c - a), axis=1).sum() / 2)
+
+
+def test_a_short_trajectory_is_tracked_within_a_millimetre(tmp_path: Path) -> None:
+    task = make_task("piping_bag", height=0.06)
+    validated = validated_path(task, [("work", line([0.12, 0.09, 0.07], [0.18, 0.11, 0.07]))])
+    report = execute(validated, make_run(task, tmp_path))
+    assert report.ok, report.message
+    figures = report.figures
+    assert 0 < figures["max_tracking_error_mm"] < 1.0
+    assert figures["mean_tracking_error_mm"] <= figures["max_tracking_error_mm"]
+    assert figures["max_contact_force_n"] == 0.0
+    assert 0 < figures["max_torque_ratio"] < 1.0
+    assert figures["simulated_s"] == pytest.approx(validated.trajectory.duration_s)
+
+
+def test_the_knife_on_the_board_reports_a_contact_force_and_when(tmp_path: Path) -> None:
+    task = make_task("knife")
+    down = line([0.15, 0.09, 0.03], [0.17, 0.09, 0.0])
+    up = line([0.17, 0.09, 0.0], [0.17, 0.09, 0.03])
+    validated = validated_path(task, [("work", down), ("travel", up)])
+    report = execute(validated, make_run(task, tmp_path, outline=True))
+    assert report.ok, report.message
+    figures = report.figures
+    assert figures["max_contact_force_n"] > 0.1
+    assert figures["tool_board_contact_s"] > 0
+    assert figures["cuts"] == 1 and figures["cut_1_reached_board"] == 1.0
+    # the force comes while the blade is on the board, not during the plunge's first half
+    trajectory = validated.trajectory
+    on_board = trajectory.t[np.asarray(trajectory.tool_xyz)[:, 2] < 0.0005]
+    assert on_board.min() - 0.05 <= figures["max_contact_force_t_s"] <= on_board.max() + 0.05
+    above = validated_path(task, [("work", line([0.15, 0.09, 0.03], [0.18, 0.09, 0.01]))])
+    figures = execute(above, make_run(task, tmp_path, outline=True)).figures
+    assert figures["max_contact_force_n"] == 0.0
+    assert figures["cut_1_reached_board"] == 0.0
+    assert figures["cut_1_depth_mm"] == pytest.approx(10.0, abs=0.3)
+
+
+def test_a_torque_limit_or_divergence_fails_cleanly(tmp_path: Path) -> None:
+    task = make_task("piping_bag", height=0.06)
+    validated = validated_path(task, [("work", line([0.12, 0.09, 0.07], [0.18, 0.09, 0.07]))])
+    weak = execute(validated, make_run(task, tmp_path), torque_limit_fraction=0.05)
+    assert not weak.ok
+    import re
+
+    named = re.search(r"stopped: (\w+_joint) needs [\d.]+ N m at t=[\d.]+ s, above", weak.message)
+    assert named, weak.message
+    from keymps_mujoco.model import TORQUE_LIMITS_NM
+
+    from keymps.robot.description import JOINT_NAMES
+
+    ratios = [
+        weak.figures[f"max_torque_{name}_nm"] / limit
+        for name, limit in zip(JOINT_NAMES, TORQUE_LIMITS_NM, strict=True)
+    ]
+    assert named.group(1) == JOINT_NAMES[int(np.argmax(ratios))]
+    strict = execute(validated, make_run(task, tmp_path), divergence_mm=0.001)
+    assert not strict.ok and "diverged" in strict.message
+
+
+def test_the_executor_refuses_an_unvalidated_trajectory(tmp_path: Path) -> None:
+    task = make_task("piping_bag", height=0.06)
+    validated = validated_path(task, [("work", line([0.12, 0.09, 0.07], [0.18, 0.09, 0.07]))])
+    forged = ValidatedTrajectory(validated.trajectory, validated.report)
+    with pytest.raises(SafetyError, match="did not come from keymps.robot.safety.validate"):
+        execute(forged, make_run(task, tmp_path))
+    with pytest.raises(SafetyError):
+        execute(validated.trajectory, make_run(task, tmp_path))  # type: ignore[arg-type]
+    assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize(
+    ("kind", "seed"), [("round_pizza", 0), ("square_cake", 1), ("baguette", 2), ("potato", 5)]
+)
+def test_the_image_source_renders_a_scene_the_default_detector_finds(
+    kind: str, seed: int, tmp_path: Path
+) -> None:
+    from keymps.scenes.render import SceneSpec, render_scene_cached
+
+    assert "mujoco" in components("image_source")
+    task = make_task(height=0.03)
+    source = create_component("image_source", "mujoco", {"object": kind, "seed": seed})
+    scene = source.load(make_run(task, tmp_path))
+    assert scene.size_px == (600, 360)
+    detector = create_component("detector", task.detector.name, task.detector.options)
+    found = detector.detect(scene)
+    truth = render_scene_cached(
+        SceneSpec.from_kinds([kind], seed=seed, height=0.03, board_size=(0.30, 0.18))
+    ).truth["objects"][0]["bbox_px"]
+    assert np.abs(np.subtract(found.bbox_px, truth)).max() <= 3, (found.bbox_px, truth)
+
+
+def test_a_flat_colour_scene_and_unknown_kinds(tmp_path: Path) -> None:
+    from keymps.errors import KeympsError
+
+    task = make_task(height=0.03)
+    source = create_component(
+        "image_source",
+        "mujoco",
+        {"object": "round_cake", "colour": [40, 90, 200], "board_colour": [230, 230, 230]},
+    )
+    image = source.load(make_run(task, tmp_path)).image
+    centre = image[180, 300].astype(int)  # BGR
+    assert centre[0] > centre[2] + 60  # blue cake
+    assert (image[5, 5] > 170).all()  # light board
+    with pytest.raises(KeympsError, match="object"):
+        create_component("image_source", "mujoco", {"object": "spaceship"})
+
+
+def test_a_cut_run_writes_outcome_and_video_with_the_arm_in_view(tmp_path: Path) -> None:
+    import cv2
+
+    task = make_task("knife", height=0.02)
+    source = create_component("image_source", "mujoco", {"object": "round_cake", "seed": 4})
+    run = make_run(task, tmp_path)
+    scene = source.load(run)
+    detection = create_component("detector", "threshold", {}).detect(scene)
+    validated = validated_path(
+        task,
+        [
+            ("travel", line([0.12, 0.09, 0.05], [0.12, 0.09, 0.03], 11)),
+            ("work", line([0.12, 0.09, 0.03], [0.18, 0.09, 0.0])),
+        ],
+    )
+    run = make_run(task, tmp_path, image=scene, detect=detection)
+    report = execute(validated, run, video=True, video_fps=10, video_height_px=120, shadows=False)
+    assert report.ok, report.message
+    assert report.figures["cuts"] == 1 and report.figures["cut_1_reached_board"] == 1.0
+    assert report.figures["cut_1_depth_mm"] == pytest.approx(20.0, abs=0.5)
+    # the edge trails the tip (yaw along +x, blade along -x): it covers the cake from its left
+    # rim to where the tip stopped at x = 0.18 m
+    left_rim = float(np.nonzero(detection.mask[180])[0].min()) * 0.30 / 600
+    assert report.figures["cut_1_length_mm"] == pytest.approx((0.18 - left_rim) * 1000, abs=2.0)
+    outcome = cv2.imread(str(tmp_path / "outcome.png"))
+    assert outcome is not None and outcome.shape == scene.image.shape
+    # a dark cut line across the cake where there was none
+    row = round(360 - 0.09 / 0.18 * 360)
+    before = scene.image[row - 2 : row + 3, 260:340].min(axis=0).mean()
+    after = outcome[row - 2 : row + 3, 260:340].min(axis=0).mean()
+    assert after < before - 60
+    video = cv2.VideoCapture(str(tmp_path / "execution.mp4"))
+    frames = int(video.get(cv2.CAP_PROP_FRAME_COUNT))
+    assert frames == report.figures["video_frames"] >= 10 * validated.trajectory.duration_s
+    video.set(cv2.CAP_PROP_POS_FRAMES, frames // 2)
+    ok, middle = video.read()
+    assert ok and middle.shape[0] == 120
+
+
+def test_a_whole_run_in_the_simulator_with_video_frames_in_the_recording(tmp_path: Path) -> None:
+    """Render, detect, plan (offline), execute in MuJoCo; the .rrd read back holds the video."""
+    import json
+
+    from rerun.chunk import RrdReader
+
+    import keymps
+
+    task_file = tmp_path / "task.yaml"
+    task_file.write_text(
+        "name: sim\n"
+        "instruction: Cut it into 2 equal pieces\n"
+        "scene:\n"
+        "  source: mujoco\n"
+        "  source_options: {object: square_cake, seed: 2, length: 0.08, width: 0.08}\n"
+        "  object_height: 0.02\n"
+        "primitives: [straight]\n"
+        "height: {mode: start, margin: 0.005}\n"
+        "robot: {tool: knife}\n"
+        "executor: {name: mujoco, video_fps: 2, video_height_px: 96, shadows: false}\n"
+    )
+    run = keymps.run_task(task_file, out=tmp_path / "run", quiet=True)
+    execution = json.loads((run.folder / "run.json").read_text())["execution"]
+    assert execution["ok"], execution["message"]
+    assert execution["figures"]["cuts"] == 1.0
+    assert execution["figures"]["cut_1_reached_board"] == 1.0
+    assert (run.folder / "outcome.png").is_file()
+    frames = 0
+    for chunk in RrdReader(run.folder / "run.rrd").stream():
+        if chunk.entity_path == "/execution/video":
+            assert "time" in chunk.timeline_names
+            frames += chunk.num_rows
+    assert frames == execution["figures"]["video_frames"] > 0
+
+
+def test_several_detected_objects_become_several_bodies(tmp_path: Path) -> None:
+    """Detection.objects as a multi-object detector fills it (the threshold detector reports
+    one object today): each becomes a body with its own footprint."""
+    from keymps_mujoco.scene_inputs import scene_from_run
+
+    from keymps.scenes.render import SceneSpec, render_scene_cached
+    from keymps.types import DetectedObject, Detection
+
+    task = make_task("knife", height=0.03)
+    options = {"object": ["round_cake", "square_cake"], "seed": 1, "length": 0.08, "width": 0.08}
+    scene = create_component("image_source", "mujoco", options).load(make_run(task, tmp_path))
+    truth = render_scene_cached(
+        SceneSpec.from_kinds(
+            options["object"],
+            seed=1,
+            length=0.08,
+            width=0.08,
+            height=0.03,
+            board_size=(0.30, 0.18),
+        )
+    ).truth["objects"]
+    objects = tuple(
+        DetectedObject(k + 1, tuple(t["bbox_px"]), np.asarray(t["outline_px"]) - 0.5, 1.0)
+        for k, t in enumerate(truth)
+    )
+    detection = Detection(objects[0].bbox_px, scene.image[:8, :8], (0, 0), objects=objects)
+    inputs = scene_from_run(make_run(task, tmp_path, image=scene, detect=detection))
+    assert len(inputs.props) == 2
+    for found, prop, mask in zip(objects, inputs.props, inputs.footprint_masks, strict=True):
+        x0, y0, x1, y1 = found.bbox_px
+        rows, cols = np.nonzero(mask)
+        assert abs(cols.min() - x0) <= 2 and abs(cols.max() + 1 - x1) <= 2
+        assert abs(rows.min() - y0) <= 2 and abs(rows.max() + 1 - y1) <= 2
+        assert prop.height == 0.03
+        centre = np.mean(prop.outline_m, axis=0)  # each object's top is under its own centre
+        assert inputs.surface_under(centre) == (0.03, True)
+    assert inputs.surface_under(np.array([0.001, 0.001])) == (0.0, False)
+
+
+def test_the_nozzle_deposits_icing_where_it_moves_just_above_the_top(tmp_path: Path) -> None:
+    import cv2
+
+    task = make_task("piping_bag", height=0.06)
+    stroke = line([0.12, 0.09, 0.065], [0.18, 0.09, 0.065])  # 5 mm above the top, 6 cm long
+    up = line([0.18, 0.09, 0.065], [0.18, 0.11, 0.09], 11)
+    high = line([0.18, 0.11, 0.09], [0.12, 0.11, 0.09])  # 3 cm above: nothing comes out
+    validated = validated_path(task, [("work", stroke), ("travel", up), ("work", high)])
+    report = execute(validated, make_run(task, tmp_path, outline=True))
+    assert report.ok, report.message
+    deposits = report.figures["icing_deposits"]
+    # one each 1.5 mm of the stroke, rounded up to the 0.24 mm the nozzle moves per sample
+    assert 0.06 / 0.0018 <= deposits <= 0.06 / 0.0015 + 1
+    outcome = cv2.imread(str(tmp_path / "outcome.png"))
+    assert outcome is not None
+    row_stroke, row_high = round((0.18 - 0.09) * 2000), round((0.18 - 0.11) * 2000)
+    assert outcome[row_stroke, 260:340].min() > 200  # white icing along the stroke
+    assert outcome[row_high, 260:340].min() < 200  # none where the nozzle was high
