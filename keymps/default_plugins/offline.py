@@ -62,10 +62,10 @@ def choose_primitive(family: str, primitives: Mapping[str, str], context: str) -
     primitive for a hard or crusty object, else a soft-object one.
     """
     names = list(primitives)
-    if len(names) == 1:
-        return names[0], "the only primitive"
     icing = [n for n in names if n.lower() in ICING_NAMES or ICING_PRIMITIVE.search(primitives[n])]
-    cutting = [n for n in names if n not in icing] or names
+    if len(names) == 1 and (names[0] in icing) == (family == "icing"):
+        return names[0], "the only primitive"
+    cutting = [n for n in names if n not in icing]
     mentioned = _words(context)
     family_names = icing if family == "icing" else cutting
     asked = [n for n in family_names if (words := _words(n)) and words <= mentioned]
@@ -74,7 +74,15 @@ def choose_primitive(family: str, primitives: Mapping[str, str], context: str) -
     if family == "icing":
         if icing:
             return icing[0], "its description is for icing"
-        return names[0], "the first primitive (none is described for icing)"
+        raise KeympsError(
+            f"the sentence asks for icing, but no primitive of this task is for icing (cutting "
+            f"primitives: {', '.join(names)}): use an icing task (piping_bag and an icing primitive)"
+        )
+    if not [n for n in names if n not in icing]:
+        raise KeympsError(
+            f"the sentence asks for cutting, but every primitive of this task is for icing "
+            f"({', '.join(names)}): use a cutting task (knife and a cutting primitive)"
+        )
     named = [n for n in cutting if mentioned & _named_objects(primitives[n])]
     if len(named) == 1:
         word = sorted(mentioned & _named_objects(primitives[named[0]]))[0]

@@ -80,14 +80,22 @@ def make_plan(
     primitives: Mapping[str, str],
     run: Run,
     backend: str,
+    families: Mapping[str, str] | None = None,
 ) -> Plan:
-    """Ask `backend` for the keyword and keypoint pairs; validated, repaired, recorded."""
+    """Ask `backend` for the keyword and keypoint pairs; validated, repaired, recorded.
+
+    `families`: primitive name -> family (cutting, icing); read from the descriptions when
+    None. The sentence and the plan must fit the task's tool family (keymps.planning.family).
+    """
+    from keymps.planning.family import check_plan, check_sentence, families_from_descriptions
     from keymps.planning.prompt import find_prompt, png_bytes, png_data_url, prompt_family
     from keymps.planning.session import PlanSession
     from keymps.plugin.manager import create_component
 
     if not primitives:
         raise KeympsError("primitives: the task lists no primitives to choose from")
+    families = dict(families) if families is not None else families_from_descriptions(primitives)
+    check_sentence(task, task.instruction, families)
     planner = task.planner
     backend_object = create_component("vlm_backend", backend, backend_options(task))
     prompt_path = find_prompt(
@@ -132,6 +140,7 @@ def make_plan(
         placed = session.ask("pairs", keyword=chosen.keyword)
         keyword, pairs = chosen.keyword, placed.pairs
         rationale = " ".join(r for r in (chosen.rationale, placed.rationale) if r)
+    check_plan(task, keyword, families)
     pairs_crop = np.asarray(pairs, dtype=float).reshape(-1, 2, 2)
     pairs_px = pairs_crop + np.asarray(detection.crop_origin_px, dtype=float)
     return Plan(
