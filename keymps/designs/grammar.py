@@ -66,21 +66,23 @@ UNKNOWN_DESIGNS = (
     r"\b(hearts?|flowers?|petals?|roses?|daisy|daisies|tulips?|logos?|faces?|smiley\w*|emojis?|"
     r"trees?|snowflakes?|butterfl(?:y|ies)|animals?|cats?|dogs?|bears?|bunn(?:y|ies)|rabbits?|"
     r"fish|birds?|leaf|leaves|moons?|crescents?|suns?|arrows?|zig-?zags?|waves?|wavy|"
-    r"checker\w*|chessboard|lattice|crosses|crown|balloons?|rainbows?|pictures?|portraits?|"
+    r"checker\w*|chessboard|lattice|cross(?:es)?|crown|balloons?|rainbows?|pictures?|portraits?|"
     r"drawings?|cartoons?|initials|monograms?|signatures?|skulls?|ghosts?|spider\w*|paws?|"
     r"diamonds?|hexagons?|pentagons?|octagons?|ovals?|ellipses?|polka|stripes?|plaid|"
     r"swirly|scallop\w*|ruffles?|shells?|borders? of lines|cubes?|dice|diced|julienne\w*|"
     r"sticks?|batons?|chips|fries|wedges? of lemon)\b"
 )
 """Designs people ask for that the offline planner does not lay out (it refuses, never guesses)."""
-UNKNOWN_ICING_SHAPES = r"\b(?:a|an|1)\s+(triangles?|squares?|rectangles?|letters?|crosses?|x)\b"
+UNKNOWN_ICING_SHAPES = r"\b(?:a|an|1)\s+(triangles?|squares?|rectangles?|letters?|x)\b"
 """Shapes that are pieces when cutting but unknown drawings when icing."""
 WRITING = r"\b(?:spell|letters?|words?|names?|message|text|happy birthday|initials)\b"
 CUT_VERBS = (
     r"\b(?:cut\w*|slic\w+|chop\w*|split\w*|divid\w+|halve\w*|quarter\w*|carv\w+|trim\w*|"
     r"portion\w*|wedges?|pieces?|parts?|tips?|ends?)\b"
 )
-STRONG_ICING = r"\b(?:icing|icings|pip(?:e|es|ed|ing)|frost\w*|decorat\w*|dots?|rosettes?|draw|write)\b"
+STRONG_ICING = (
+    r"\b(?:icing|icings|pip(?:e|es|ed|ing)|frost\w*|decorat\w*|dots?|rosettes?|draw|write)\b"
+)
 
 
 class UnreadableInstruction(KeympsError):
@@ -231,7 +233,7 @@ def _part_count(reader: _Reader) -> tuple[int | None, PieceShape | None]:
         return 7, None
     if reader.find(r"\bfor (?:a|the|this) week\b|\b7 days\b"):
         return 7, None
-    people = reader.find(counted(PEOPLE, 2))
+    people = reader.find(counted(PEOPLE, 2)) or reader.find(r"\b(\d+) of us\b")
     reader.find(
         r"\b1\s+(?:\w+\s+)?(?:slice|piece|portion|wedge|serving)\s+(?:for\s+|to\s+)?"
         r"(?:each(?:\s+of\s+(?:them|us))?|apiece|per\s+(?:person|head|guest))\b"
@@ -328,7 +330,7 @@ def _icing_intent(reader: _Reader) -> Intent | None:
 
 
 def _rings_of_dots(reader: _Reader) -> Intent | None:
-    """"3 rings of dots", "two circles of 12 rosettes", "dots in 3 rings", "a ring of dots"."""
+    """ "3 rings of dots", "two circles of 12 rosettes", "dots in 3 rings", "a ring of dots"."""
     ring = r"(?:rings?|circles?|rows?|layers?)"
     match = reader.find(
         rf"\b(\d+|a|an|1)\s+{FILLER}{{0,3}}{ring}\s+of\s+(?:(\d+)\s+)?{FILLER}{{0,2}}{DOTS}\b"
@@ -342,9 +344,10 @@ def _rings_of_dots(reader: _Reader) -> Intent | None:
             rf"{counted(DOTS)}\s+(?:each|per\s+(?:ring|circle|row)|in\s+each(?:\s+{ring})?)\b"
         ) or reader.find(rf"\b(?:each|every)\s+{ring}\s+(?:has|with|of)\s+(\d+)\b")
         per_ring = each.group(1) if each else None
-    return Intent(
-        "icing", "dots_ring", count=int(per_ring) if per_ring else None, layers=layers
-    )
+    if per_ring is None and layers == 1 and (total := reader.find(counted(DOTS))):
+        per_ring = total.group(1)  # "15 dots in a circle"
+    count = int(per_ring) if per_ring else None
+    return Intent("icing", "dots_ring", count=count, layers=layers if layers > 1 else None)
 
 
 def _dot_count(reader: _Reader) -> int | None:
@@ -361,7 +364,7 @@ def _cut_intent(reader: _Reader) -> Intent | None:
     orientation = _orientation(reader)
     if width is not None:
         counted_slices = reader.find(
-            rf"\b(\d+)\s+(?:{NUMBER}\s*-?\s*{UNIT_RE}\s+)?{FILLER}{{0,2}}{PIECES}"
+            rf"\b(\d+)\s+{FILLER}{{0,2}}(?:{NUMBER}\s*-?\s*{UNIT_RE}\s+)?{FILLER}{{0,2}}{PIECES}"
         )
         slice_count = int(counted_slices.group(1)) if counted_slices else None
         if slice_count is None and reader.find(
@@ -385,9 +388,7 @@ def _cut_intent(reader: _Reader) -> Intent | None:
         return Intent("cut", "middle", count=1, orientation=orientation)
     if count is not None and count >= 2:
         design: Design = "parallel" if orientation else "equal"
-        return Intent(
-            "cut", design, count=count, orientation=orientation, piece_shape=shape
-        )
+        return Intent("cut", design, count=count, orientation=orientation, piece_shape=shape)
     return None
 
 

@@ -86,7 +86,7 @@ def counted(noun: str, fillers: int = 3) -> str:
 ICING_WORDS = (
     r"\b(?:icing|icings|ice|dots?|rosettes?|decorat\w*|designs?|pip(?:e|ing)|frost\w*|cream|"
     r"stars?|spirals?|swirls?|layers?|rings?|circles?|digits?|seven_segment|birthday|"
-    r"write|letters?|numbers?|rosettes?|drops?|blobs?|dollops?|pipe)\b"
+    r"write|letters?|numbers?|rosettes?|drops?|blobs?|dollops?|pipe|draw|surprise)\b"
 )
 
 
@@ -96,12 +96,19 @@ def words_to_digits(text: str) -> str:
 
     ones = "|".join(ONES[1:10])
     text = re.sub(rf"\b({'|'.join(TENS)})[- ]({ones})\b", compound, text)
+    ordinal_ones = "|".join(list(ORDINALS)[:9])
+    text = re.sub(
+        rf"\b({'|'.join(TENS)})[- ]({ordinal_ones})\b",
+        lambda m: f"{TENS[m.group(1)] + ORDINALS[m.group(2)]}th",
+        text,
+    )
     for word, value in TENS.items():
         text = re.sub(rf"\b{word}\b", str(value), text)
     for value, word in enumerate(ONES):
         text = re.sub(rf"\b{word}\b", str(value), text)
     for word, value in ORDINALS.items():
         text = re.sub(rf"\b{word}\b", f"{value}th", text)
+    text = re.sub(r"\bhalf a dozen\b", "6", text)
     text = re.sub(r"\ba dozen\b|\bdozen\b", "12", text)
     text = re.sub(r"\b(?:a\s+)?single\b", "1", text)
     text = re.sub(r"\b(?:a\s+)?couple of\b", "2", text)
