@@ -92,6 +92,8 @@ class VlmCall:
     completion_tokens: int | None = None
     cost_usd: float | None = None
     cached: bool = False
+    model_call: bool = True
+    """False for backends that ask no model (the offline planner): not counted as VLM calls."""
 
 
 @dataclass(frozen=True)

@@ -135,6 +135,8 @@ class OfflineBackend:
 
     name = "offline"
     cacheable = False
+    asks_model = False
+    """Not a VLM call: run.json and the eval tables count none for it."""
 
     def complete(self, request: PlanRequest) -> BackendAnswer:
         from keymps.designs.crop_shape import measure

@@ -24,7 +24,7 @@ def _rounded(values: Any, digits: int = 6) -> Any:
 
 
 def _vlm_summary(plan: Any) -> dict[str, Any]:
-    calls = list(plan.calls) if plan is not None else []
+    calls = [c for c in plan.calls if c.model_call] if plan is not None else []
 
     def total(attr: str) -> float | None:
         values = [getattr(c, attr) for c in calls if getattr(c, attr) is not None]

@@ -89,8 +89,21 @@ def find_prompt(explicit: Path | None, task_folder: Path, family: str) -> Path:
     )
 
 
+_COMMENT = re.compile(r"<!--.*?-->", re.DOTALL)
+
+
+def strip_comments(template: str) -> str:
+    """The template without its HTML comments (notes for humans, never sent to the model); the
+    lines they held stay as blank lines, so errors still name the right line."""
+    return _COMMENT.sub(lambda m: "\n" * m.group(0).count("\n"), template)
+
+
 def render_template(template: str, values: Mapping[str, str], source: str = "<prompt>") -> str:
-    """Fill `{{name}}` placeholders; an unknown name is a KeympsError with file:line."""
+    """Fill `{{name}}` placeholders; an unknown name is a KeympsError with file:line.
+
+    HTML comments (`<!-- ... -->`) are dropped first: they are not sent.
+    """
+    template = strip_comments(template)
     for number, line in enumerate(template.splitlines(), start=1):
         for match in _PLACEHOLDER.finditer(line):
             if match.group(1) not in PLACEHOLDERS:
@@ -99,7 +112,7 @@ def render_template(template: str, values: Mapping[str, str], source: str = "<pr
                     f"{source}:{number}: unknown placeholder {{{{{match.group(1)}}}}} "
                     f"(known: {known})"
                 )
-    return _PLACEHOLDER.sub(lambda m: values[m.group(1)], template)
+    return _PLACEHOLDER.sub(lambda m: values[m.group(1)], template).strip("\n")
 
 
 def template_values(

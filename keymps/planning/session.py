@@ -260,6 +260,7 @@ class PlanSession:
             completion_tokens=answer.completion_tokens,
             cost_usd=answer.cost_usd,
             cached=cached,
+            model_call=bool(getattr(self.backend, "asks_model", True)),
         )
         self.calls.append(call)
         self.vlm_folder.mkdir(parents=True, exist_ok=True)
