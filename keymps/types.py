@@ -165,6 +165,12 @@ class Plan:
     model: str | None = None
     rationale: str = ""
     calls: tuple[VlmCall, ...] = ()
+    coordinates: str = "pixels"
+    """How the backend wrote its points (pixels, xy_1000, yx_1000); pairs_* are pixels."""
+    design: dict[str, Any] | None = None
+    """The named design the backend answered with (keymps laid it out), else None."""
+    image_sent_px: tuple[int, int] | None = None
+    """(width, height) of the image sent when the crop was downscaled for the provider."""
 
     @property
     def num_pairs(self) -> int:

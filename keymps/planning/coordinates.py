@@ -23,9 +23,7 @@ CONVENTIONS: tuple[str, ...] = ("pixels", "xy_1000", "yx_1000")
 SCALE = 1000.0
 """The range of the normalized conventions: 0 is one edge of the image, 1000 the other."""
 
-AUTO_CONVENTIONS: tuple[tuple[str, Convention], ...] = (
-    ("gemini", "yx_1000"),
-)
+AUTO_CONVENTIONS: tuple[tuple[str, Convention], ...] = (("gemini", "yx_1000"),)
 """(substring of the model string, convention) for `auto`, first match wins; others: pixels."""
 
 MAX_IMAGE: dict[str, tuple[int, int | None]] = {
