@@ -114,6 +114,7 @@ class OfflineBackend:
     def complete(self, request: PlanRequest) -> BackendAnswer:
         from keymps.designs.grammar import read_instruction
         from keymps.designs.place import place_design
+        from keymps.planning.named_design import design_answer
         from keymps.types import BackendAnswer
 
         started = time.perf_counter()
@@ -124,7 +125,12 @@ class OfflineBackend:
         if request.step in ("combined", "keyword"):
             answer["keyword"] = keyword
         rationale = f"primitive {keyword}: {why}"
-        if request.step in ("combined", "pairs"):
+        properties = request.schema.get("schema", {}).get("properties", {})
+        if request.step in ("combined", "pairs") and "pairs" not in properties:
+            # planner.answer: design: the intent itself, laid out by keymps like any design
+            answer["design"] = design_answer(intent)
+            rationale = f"named design {intent.design}; {rationale}"
+        elif request.step in ("combined", "pairs"):
             try:
                 pairs_px, layout = place_design(
                     intent,

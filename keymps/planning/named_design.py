@@ -113,6 +113,19 @@ def catalogue_text(family: str | None) -> str:
     return "\n".join(lines)
 
 
+def design_answer(intent: Intent) -> dict[str, Any]:
+    """The `design` answer that names `intent` (the inverse of to_intent)."""
+    return {
+        "name": intent.design,
+        "count": intent.count if intent.design != "middle" else None,
+        "layers": intent.layers,
+        "slice_width_cm": intent.slice_width_mm / 10 if intent.slice_width_mm else None,
+        "object_length_cm": intent.object_length_mm / 10 if intent.object_length_mm else None,
+        "orientation": intent.orientation,
+        "text": intent.text,
+    }
+
+
 def to_intent(answer: DesignAnswer) -> tuple[Intent | None, list[str]]:
     """(the Intent, []) or (None, the problems, in words a model can act on)."""
     entry = BY_NAME.get(answer.name)

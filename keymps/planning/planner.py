@@ -107,9 +107,9 @@ def make_plan(
     )
     asks_model = bool(getattr(backend_object, "asks_model", True))
     model = planner.model if backend != "offline" else None
-    # a backend that asks no model answers in crop pixels, with pairs, on the full crop
+    # a backend that asks no model answers in pixels of the full crop
     convention = resolve_convention(planner.coordinates, model) if asks_model else "pixels"
-    answer_mode = planner.answer if asks_model else "pairs"
+    answer_mode = planner.answer
     crop = detection.crop
     crop_size = (int(crop.shape[1]), int(crop.shape[0]))
     size = sent_size(crop_size, model) if asks_model else crop_size
