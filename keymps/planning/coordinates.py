@@ -64,7 +64,9 @@ def sent_size(crop_size: tuple[int, int], model: str | None) -> tuple[int, int]:
         factor = min(factor, shortest / min(width, height))
     if factor >= 1.0:
         return width, height
-    return max(1, int(math.floor(width * factor))), max(1, int(math.floor(height * factor)))
+    return max(1, int(math.floor(width * factor + 1e-6))), max(
+        1, int(math.floor(height * factor + 1e-6))
+    )
 
 
 def limits(convention: Convention, size: tuple[int, int]) -> tuple[float, float]:
