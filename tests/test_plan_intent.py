@@ -184,3 +184,75 @@ def test_model_on_the_command_line_uses_the_vlm_although_the_task_says_offline(m
     assert choose_backend(task, None, None, None)[0] == "offline"
     with pytest.raises(KeympsError, match="pass --model too"):
         choose_backend(task, None, None, "http://127.0.0.1:9")
+
+
+# --- cuts that end just outside the object, as the prompts ask ---------------------------------
+
+
+def _across_the_middle_beyond_the_edges(keyword: str, beyond_mm: float):
+    """A scripted VLM: one vertical cut through the loaf's middle, ending `beyond_mm` outside
+    its top and bottom edges (what prompts/cutting.md asks for)."""
+
+    def answer(request) -> str:
+        import json
+
+        from keymps.designs.crop_shape import measure
+
+        mm = tuple(1000 * m for m in request.metres_per_px)
+        shape = measure(request.crop, request.crop_mask, mm)
+        outline = shape.to_pixels(shape.outline.polygon)
+        x = float(outline[:, 0].mean())
+        column = outline[np.abs(outline[:, 0] - x) < 3]
+        extra = beyond_mm / mm[1]
+        y0, y1 = float(column[:, 1].min()) - extra, float(column[:, 1].max()) + extra
+        pairs = [[[x, max(y0, 0.0)], [x, min(y1, request.crop_size_px[1])]]]
+        return json.dumps({"keyword": keyword, "pairs": pairs, "design": None, "rationale": ""})
+
+    return answer
+
+
+@pytest.mark.parametrize("primitive", ["straight", "sawing", "downward", "forward"])
+def test_a_cut_ending_5_mm_outside_the_object_runs_with_every_shipped_primitive(
+    primitive, tmp_path, keymps_plugins
+):
+    from fuzz_support import RecordingExecutor, ScriptedBackend, install
+
+    install(keymps_plugins)
+    task = keymps.load_task(REPO / "tasks" / "object_cutting.yaml")
+    scene = task.scene.model_copy(update={"image": REPO / "tasks" / "scenes" / "banana_bread.png"})
+    task = task.model_copy(update={"primitives": [primitive], "scene": scene})
+    ScriptedBackend.answers = [_across_the_middle_beyond_the_edges(primitive, 5.0)]
+    run = keymps.run_task(
+        task, instruction="Cut it in half", backend="scripted", executor="recording",
+        out=tmp_path / "r", rerun="off",
+    )  # fmt: skip
+    assert len(RecordingExecutor.calls) == 1
+    outside = run.stages.check.report.figures["max_work_outside_footprint_mm"]
+    assert outside <= 20.0
+
+
+def test_only_strokes_that_would_leave_the_margin_are_shortened():
+    """The sawing primitive's strokes overshoot a cut's ends by about 16 mm: a cut ending on
+    the edge keeps them, a cut ending 5 mm outside gets shorter strokes near its ends, and the
+    whole work stays within the safety check's margin."""
+    from keymps.motion.compose import keep_strokes_near
+    from keymps.primitives.dictionary import default_search_dirs, load_primitives
+    from keymps.robot.safety import FOOTPRINT_MARGIN_M
+    from keymps.robot.safety_geometry import outside_distance
+
+    sawing = load_primitives(["sawing"], default_search_dirs(REPO / "tasks"))["sawing"]
+    angles = np.linspace(0, 2 * np.pi, 181)[:-1]
+    outline = 0.05 * np.stack([np.cos(angles), np.sin(angles)], axis=1)  # a 10 cm object
+    for beyond, changed in ((0.0, False), (0.005, True), (0.012, True)):
+        start, goal = np.array([-0.05 - beyond, 0.0, 0.02]), np.array([0.05 + beyond, 0.0, 0.0])
+        points = sawing.rollout(start, goal, speed=0.02, heading=0.0).y
+        raw = outside_distance(points[:, :2], outline).max()
+        kept = keep_strokes_near(points, start, goal, outline)
+        limited = outside_distance(kept[:, :2], outline).max()
+        assert (not np.array_equal(kept, points)) == changed, beyond
+        assert limited <= FOOTPRINT_MARGIN_M - 0.002 + 1e-9
+        if beyond > 0.01:
+            assert raw > FOOTPRINT_MARGIN_M, "the unshortened strokes fail the check"
+        assert np.allclose(kept[:, 2], points[:, 2])  # heights unchanged
+        middle = np.abs(points[:, 0]) < 0.03
+        assert np.array_equal(kept[middle], points[middle])  # strokes inside are untouched

@@ -201,6 +201,7 @@ class _Pipeline:
                     travel_speed=task.motion.travel_speed,
                     yaw_mode=tool.yaw,
                     home=robot.home_tool_position(),
+                    footprint=run.outline_m,
                 ),
                 task,
             ),
