@@ -319,8 +319,10 @@ def _icing_intent(reader: _Reader) -> Intent | None:
         )
     if dots_around or reader.has(counted(DOTS)):
         reader.find(r"\baround\b|\bborder\b|\bedge\b")
-        count = _dot_count(reader)
-        return Intent("icing", "dots_ring", count=count)
+        dots = _dot_count(reader)
+        if dots == 1 and not dots_around:  # "pipe 1 dot": where one dot goes, the middle
+            return Intent("icing", "dot", count=1)
+        return Intent("icing", "dots_ring", count=dots)
     if reader.find(
         r"\b(?:simple|interesting|any|nice|pretty|beautiful|creative|random|your own)\b.*\bdesign\b"
         r"|\bsurprise me\b|\bdecorate (?:it|the cake)\b"

@@ -119,9 +119,7 @@ def _pipeline_output(results: StageResults, context: MethodContext) -> MethodOut
     plan, grounding, tool_path = results.plan, results.ground, results.compose
     pieces = tuple(p.points for p in tool_path.pieces if p.kind == "work") if tool_path else ()
     lines = grounding.segments_m[:, :, :2] if grounding is not None else np.zeros((0, 2, 2))
-    calls = (
-        tuple(_call_summary(c) for c in plan.calls if c.model_call) if plan is not None else ()
-    )
+    calls = tuple(_call_summary(c) for c in plan.calls if c.model_call) if plan is not None else ()
     paths = {
         name: image_file(context.folder, name, context.image_format) for name in ("plan", "outcome")
     }
