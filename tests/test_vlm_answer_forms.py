@@ -272,3 +272,13 @@ def test_the_offline_planner_is_not_counted_as_a_vlm_call(tmp_path):
     assert record["vlm"]["calls"] == 0 and record["backend"] == "offline"
     assert record["answer"] == {"coordinates": "pixels", "design": None, "image_sent_px": None}
     assert len(run.stages.plan.calls) == 1  # still recorded under vlm/
+
+
+def test_a_comment_may_hold_any_braces_and_errors_keep_their_line():
+    from keymps.errors import KeympsError
+    from keymps.planning.prompt import render_template
+
+    template = "<!-- notes: {{not_a_placeholder}}\nline 2 -->\nHello {{instruction}}\n{{nope}}\n"
+    with pytest.raises(KeympsError, match=r"^t.md:4: unknown placeholder \{\{nope\}\}"):
+        render_template(template, {"instruction": "x"}, "t.md")
+    assert render_template(template[:-9], {"instruction": "x"}, "t.md") == "Hello x"
