@@ -92,6 +92,8 @@ class VlmCall:
     completion_tokens: int | None = None
     cost_usd: float | None = None
     cached: bool = False
+    model_call: bool = True
+    """False for backends that ask no model (the offline planner): not counted as VLM calls."""
 
 
 @dataclass(frozen=True)
@@ -163,6 +165,12 @@ class Plan:
     model: str | None = None
     rationale: str = ""
     calls: tuple[VlmCall, ...] = ()
+    coordinates: str = "pixels"
+    """How the backend wrote its points (pixels, xy_1000, yx_1000); pairs_* are pixels."""
+    design: dict[str, Any] | None = None
+    """The named design the backend answered with (keymps laid it out), else None."""
+    image_sent_px: tuple[int, int] | None = None
+    """(width, height) of the image sent when the crop was downscaled for the provider."""
 
     @property
     def num_pairs(self) -> int:

@@ -210,6 +210,13 @@ def _seventh_cuts(request: Recorded) -> str:
         top = float(TOP.search(system).group(1))  # type: ignore[union-attr]
         pairs = [[[x0 + (x1 - x0) * f, y1, top], [x0 + (x1 - x0) * f, y0, 0.0]] for f in SEVENTHS]
         return json.dumps({"keyword": "straight", "pairs": pairs, "rationale": "3D"})
+    schema = request.body["response_format"]["json_schema"]["schema"]["properties"]
+    if "design" in schema and "pairs" not in schema:  # keymps-design: name it, keymps draws it
+        design = dict.fromkeys(
+            ("count", "layers", "slice_width_cm", "object_length_cm", "orientation", "text")
+        )
+        design.update(name="parallel", count=7, orientation="vertical")
+        return json.dumps({"keyword": "straight", "design": design, "rationale": "sevenths"})
     width, height = (int(v) for v in CROP.search(system + " " + user).groups())  # type: ignore[union-attr]
     margin = 10  # the detector's crop padding: the loaf spans the rest
     inner = width - 2 * margin
@@ -227,7 +234,8 @@ def vlm_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[Record
         vlm = ("--model", "openai/test-vlm", "--api-base", server.openai_base, "--out", str(out))
         result = _eval(
             "cutting_sim", "--case", "2", "--repeats", "1", "--concurrency", "4",
-            "--method", "keymps", "--method", "keymps-text", "--method", "vlm-keyword",
+            "--method", "keymps", "--method", "keymps-design", "--method", "keymps-text",
+            "--method", "vlm-keyword",
             "--method", "vlm-dmp", "--method", "vlm-mdmp", *vlm,
         )  # fmt: skip
         assert result.exit_code == 0, result.output
@@ -243,11 +251,11 @@ def vlm_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[Record
 def test_every_method_runs_against_a_vlm(vlm_run: tuple[Path, list[Recorded]]) -> None:
     out, requests = vlm_run
     records = _records(out)
-    assert len(records) == 6  # 6 methods, one repeat
+    assert len(records) == 7  # 7 methods, one repeat
     # one call each, except that vlm-keypoint asks exactly what keymps asked (same scene, same
     # prompt): the planner's answer cache serves it
     cached = [r["method"] for r in records if r["cached"]]
-    assert len(requests) == 5 and cached == ["vlm-keypoint"]
+    assert len(requests) == 6 and cached == ["vlm-keypoint"]
     by_method: dict[str, list[dict[str, Any]]] = {}
     for record in records:
         assert record["ok"], record
@@ -259,7 +267,7 @@ def test_every_method_runs_against_a_vlm(vlm_run: tuple[Path, list[Recorded]]) -
     d = {m: max(r["d_mm"] for r in rs) for m, rs in by_method.items()}
     # the right 2D design through KeyMPs lands within millimetres (with the straight primitive,
     # not the ground truth's sawing strokes); one DMP for six cuts cannot
-    assert d["keymps"] < 10 and d["keymps-text"] < 10
+    assert d["keymps"] < 10 and d["keymps-text"] < 10 and d["keymps-design"] < 10
     assert d["vlm-dmp"] > 5 * d["keymps"]
     assert all(r["pieces"] == 6 for r in by_method["vlm-mdmp"])
     assert all(r["pieces"] == 1 for r in by_method["vlm-dmp"])

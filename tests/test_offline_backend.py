@@ -346,7 +346,7 @@ def test_the_offline_planner_is_deterministic():
     ("canonical", "paraphrase"),
     [
         ("Cut it into 8 equal slices", "Please cut this pizza into eight even pieces"),
-        ("Cut it into 8 equal slices", "Divide it into 8 wedges"),
+        ("Cut it into 8 equal slices", "Divide it into 8 portions"),
         (
             "I'm having a party for 10 people, cut 1 slice for each",
             "We are ten guests, one slice each",

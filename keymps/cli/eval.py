@@ -14,7 +14,15 @@ if TYPE_CHECKING:
     from keymps.eval.runner import EvalOptions
     from keymps.eval.suites import Suite
 
-METHOD_NAMES = ("keymps", "vlm-keypoint", "keymps-text", "vlm-keyword", "vlm-dmp", "vlm-mdmp")
+METHOD_NAMES = (
+    "keymps",
+    "keymps-design",
+    "vlm-keypoint",
+    "keymps-text",
+    "vlm-keyword",
+    "vlm-dmp",
+    "vlm-mdmp",
+)
 
 
 @click.command(

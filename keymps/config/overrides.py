@@ -17,6 +17,7 @@ _OVERRIDE_FIELDS: dict[str, tuple[str, ...]] = {
     "model": ("planner", "model"),
     "api_base": ("planner", "api_base"),
     "cassette": ("planner", "cassette"),
+    "answer": ("planner", "answer"),
     "executor": ("executor", "name"),
 }
 

@@ -95,6 +95,10 @@ class Planner(StrictModel):
     """One VLM call for keyword and pairs (the paper's choice) or two calls."""
     cache: bool = True
     cassette: Path | None = None
+    coordinates: Literal["auto", "pixels", "xy_1000", "yx_1000"] = "auto"
+    """How the model writes points: auto picks by model family (docs/vlm.md)."""
+    answer: Literal["pairs", "design", "either"] = "either"
+    """Keypoint pairs, a named design from the offline catalogue, or either of them."""
 
 
 class Height(StrictModel):

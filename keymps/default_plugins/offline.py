@@ -62,10 +62,10 @@ def choose_primitive(family: str, primitives: Mapping[str, str], context: str) -
     primitive for a hard or crusty object, else a soft-object one.
     """
     names = list(primitives)
-    if len(names) == 1:
-        return names[0], "the only primitive"
     icing = [n for n in names if n.lower() in ICING_NAMES or ICING_PRIMITIVE.search(primitives[n])]
-    cutting = [n for n in names if n not in icing] or names
+    if len(names) == 1 and (names[0] in icing) == (family == "icing"):
+        return names[0], "the only primitive"
+    cutting = [n for n in names if n not in icing]
     mentioned = _words(context)
     family_names = icing if family == "icing" else cutting
     asked = [n for n in family_names if (words := _words(n)) and words <= mentioned]
@@ -74,7 +74,15 @@ def choose_primitive(family: str, primitives: Mapping[str, str], context: str) -
     if family == "icing":
         if icing:
             return icing[0], "its description is for icing"
-        return names[0], "the first primitive (none is described for icing)"
+        raise KeympsError(
+            f"the sentence asks for icing, but no primitive of this task is for icing (cutting "
+            f"primitives: {', '.join(names)}): use an icing task (piping_bag and an icing primitive)"
+        )
+    if not [n for n in names if n not in icing]:
+        raise KeympsError(
+            f"the sentence asks for cutting, but every primitive of this task is for icing "
+            f"({', '.join(names)}): use a cutting task (knife and a cutting primitive)"
+        )
     named = [n for n in cutting if mentioned & _named_objects(primitives[n])]
     if len(named) == 1:
         word = sorted(mentioned & _named_objects(primitives[named[0]]))[0]
@@ -95,76 +103,44 @@ def choose_primitive(family: str, primitives: Mapping[str, str], context: str) -
     return cutting[0], "the first cutting primitive"
 
 
-def clip_to_box(pairs_px: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
-    """Shorten each segment along its own direction so both ends stay inside [low, high]."""
-    shifted = clip_to_image(pairs_px - low, *(high - low))
-    return shifted + low
-
-
-def clip_to_image(pairs_px: np.ndarray, width: float, height: float) -> np.ndarray:
-    """Shorten each segment along its own direction so both ends stay in [0, width] x [0, height]."""
-    clipped = []
-    limit = np.array([float(width), float(height)])
-    for start, end in pairs_px:
-        a, b = start.copy(), end.copy()
-        for point, other in ((a, b), (b, a)):
-            direction = other - point
-            if np.all(point >= 0) and np.all(point <= limit):
-                continue
-            t_needed = 0.0
-            for axis in range(2):
-                if point[axis] < 0 and direction[axis] > 0:
-                    t_needed = max(t_needed, -point[axis] / direction[axis])
-                elif point[axis] > limit[axis] and direction[axis] < 0:
-                    t_needed = max(t_needed, (limit[axis] - point[axis]) / direction[axis])
-            point += min(t_needed, 1.0) * direction
-        clipped.append([np.clip(a, 0, limit), np.clip(b, 0, limit)])
-    return np.array(clipped, dtype=float).reshape(-1, 2, 2)
-
-
 class OfflineBackend:
     """Deterministic planner: the same sentence and crop always give the same design."""
 
     name = "offline"
     cacheable = False
+    asks_model = False
+    """Not a VLM call: run.json and the eval tables count none for it."""
 
     def complete(self, request: PlanRequest) -> BackendAnswer:
-        from keymps.designs.crop_shape import measure
         from keymps.designs.grammar import read_instruction
-        from keymps.designs.layout import design
+        from keymps.designs.place import place_design
+        from keymps.planning.named_design import design_answer
         from keymps.types import BackendAnswer
 
         started = time.perf_counter()
         intent = read_instruction(request.instruction)
-        mm_per_px = tuple(1000.0 * m for m in request.metres_per_px)
-        shape = measure(request.crop, request.crop_mask, (mm_per_px[0], mm_per_px[1]))
         context = f"{request.instruction} {request.task_name.replace('-', ' ').replace('_', ' ')}"
         keyword, why = choose_primitive(intent.family, request.primitives, context)
         answer: dict[str, Any] = {}
         if request.step in ("combined", "keyword"):
             answer["keyword"] = keyword
         rationale = f"primitive {keyword}: {why}"
-        if request.step in ("combined", "pairs"):
+        properties = request.schema.get("schema", {}).get("properties", {})
+        if request.step in ("combined", "pairs") and "pairs" not in properties:
+            # planner.answer: design: the intent itself, laid out by keymps like any design
+            answer["design"] = design_answer(intent)
+            rationale = f"named design {intent.design}; {rationale}"
+        elif request.step in ("combined", "pairs"):
             try:
-                pairs_mm, layout = design(intent, shape, request.max_pairs)
-            except ValueError as error:  # a design that cannot exist on this object
-                raise KeympsError(
-                    f"the offline planner cannot lay out {intent.describe()} on the "
-                    f"{shape.describe()}: {error}"
-                ) from None
-            width, height = request.crop_size_px
-            pairs_px = clip_to_image(shape.to_pixels(pairs_mm), width - 1, height - 1)
-            if intent.family == "cut":
-                # cuts reach the object's edges, not beyond its bounding box (the paper's lines)
-                outline_px = shape.to_pixels(shape.outline.polygon)
-                pairs_px = clip_to_box(pairs_px, outline_px.min(axis=0), outline_px.max(axis=0))
-            if len(pairs_px) > request.max_pairs:
-                raise KeympsError(
-                    f"the offline design needs {len(pairs_px)} keypoint pairs, more than "
-                    f"planner.max_pairs = {request.max_pairs}"
+                pairs_px, layout = place_design(
+                    intent,
+                    request.crop,
+                    request.crop_mask,
+                    request.metres_per_px,
+                    request.max_pairs,
                 )
-            if len(pairs_px) == 0:
-                raise KeympsError(f"the offline planner found no place for {intent.describe()}")
+            except KeympsError as error:
+                raise KeympsError(f"the offline planner {error}") from None
             answer["pairs"] = np.round(pairs_px, 3).tolist()
             rationale = f"{layout}; {rationale}"
         answer["rationale"] = f"offline planner ({intent.describe()}): {rationale}"

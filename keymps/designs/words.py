@@ -67,10 +67,26 @@ PEOPLE = r"(?:people|persons?|guests?|friends?|kids?|children|adults?|visitors?|
 UNIT_RE = r"(?:mm|cm|m|millimet(?:er|re)s?|centimet(?:er|re)s?|met(?:er|re)s?|inch(?:es)?|in)"
 NUMBER = r"(\d+(?:\.\d+)?)"
 LENGTH = rf"{NUMBER}\s*-?\s*({UNIT_RE})\b"
+DOTS = r"(?:dots?|icings|rosettes?|drops?|blobs?|dollops?|kisses)"
+"""Nouns for one piped dot (start = end)."""
+FILLER = (
+    r"(?:(?!(?:of|and|or|with|for|per|each|every|in|on|into|around|at|to|the|a|an|it|this|"
+    r"that|them|long|mm|cm|m|millimet(?:er|re)s?|centimet(?:er|re)s?|met(?:er|re)s?|inch(?:es)?|"
+    r"slices?|pieces?|parts?|rings?|layers?|circles?|rows?|is|are|was|be)\b)"
+    r"[a-z][a-z'-]*\s+)"
+)
+"""One word that may stand between a count and its noun ("18 little dots", "3 neat rings")."""
+
+
+def counted(noun: str, fillers: int = 3) -> str:
+    """A count, up to `fillers` adjectives, then `noun`; the count is group 1."""
+    return rf"\b(\d+)\s+{FILLER}{{0,{fillers}}}{noun}"
+
+
 ICING_WORDS = (
     r"\b(?:icing|icings|ice|dots?|rosettes?|decorat\w*|designs?|pip(?:e|ing)|frost\w*|cream|"
-    r"stars?|spirals?|swirls?|layers?|rings?|circles?|digits?|seven[- ]segment|birthday|"
-    r"write|letters?|numbers?)\b"
+    r"stars?|spirals?|swirls?|layers?|rings?|circles?|digits?|seven_segment|birthday|"
+    r"write|letters?|numbers?|rosettes?|drops?|blobs?|dollops?|pipe|draw|surprise)\b"
 )
 
 
@@ -80,12 +96,19 @@ def words_to_digits(text: str) -> str:
 
     ones = "|".join(ONES[1:10])
     text = re.sub(rf"\b({'|'.join(TENS)})[- ]({ones})\b", compound, text)
+    ordinal_ones = "|".join(list(ORDINALS)[:9])
+    text = re.sub(
+        rf"\b({'|'.join(TENS)})[- ]({ordinal_ones})\b",
+        lambda m: f"{TENS[m.group(1)] + ORDINALS[m.group(2)]}th",
+        text,
+    )
     for word, value in TENS.items():
         text = re.sub(rf"\b{word}\b", str(value), text)
     for value, word in enumerate(ONES):
         text = re.sub(rf"\b{word}\b", str(value), text)
     for word, value in ORDINALS.items():
         text = re.sub(rf"\b{word}\b", f"{value}th", text)
+    text = re.sub(r"\bhalf a dozen\b", "6", text)
     text = re.sub(r"\ba dozen\b|\bdozen\b", "12", text)
     text = re.sub(r"\b(?:a\s+)?single\b", "1", text)
     text = re.sub(r"\b(?:a\s+)?couple of\b", "2", text)
@@ -96,5 +119,7 @@ def normalise(sentence: str) -> str:
     text = sentence.lower().replace("’", "'").replace("×", "x")
     text = re.sub(r"[,;:!?()\[\]\"]", " ", text)
     text = re.sub(r"\.(?!\d)", " ", text)
+    # "seven-segment" names the digit style, not a count (kept out of the number words)
+    text = re.sub(r"\b(?:seven|7)[- ]?segments?\b", "seven_segment", text)
     text = words_to_digits(text)
     return re.sub(r"\s+", " ", text).strip()

@@ -1,13 +1,15 @@
 """The methods `keymps eval` compares (the paper's Experiments 1-2 and Appendix F).
 
 - keymps: the full pipeline (detector, VLM keyword + 2D keypoint pairs, primitive, robot checks).
+- keymps-design: the same, the VLM naming a design of the offline catalogue (planner.answer:
+  design) that keymps lays out exactly: the ablation of "understands" against "draws".
 - vlm-keypoint: the same with every primitive's DMP weights set to zero (straight pieces).
 - keymps-text: no image; the VLM reads the object's name and shape in text and answers pairs
   in the coordinates of the (unseen) crop; the rest is KeyMPs.
 - vlm-keyword: the VLM picks the primitive and writes 3D keypoints in board metres directly.
 - vlm-dmp / vlm-mdmp: the VLM writes one / several DMPs' parameters (start, goal, weights).
 
-keymps and vlm-keypoint run through keymps.run_task (any backend, offline included). The others
+keymps, keymps-design and vlm-keypoint run through keymps.run_task (any backend, offline included). The others
 need a VLM; they detect the object like KeyMPs, ask with their own prompt (prompts/methods/),
 and are scored on the motion they generate (no robot checks, as in the paper).
 """
@@ -37,7 +39,16 @@ class MethodNeedsVlm(KeympsError):
 # --------------------------------------------------------------------------- pipeline methods
 
 
-def _run_pipeline(context: MethodContext) -> MethodOutput:
+def _pipeline(answer: str) -> MethodRunner:
+    """The pipeline with planner.answer set: pairs (the paper's KeyMPs) or a named design."""
+
+    def run(context: MethodContext) -> MethodOutput:
+        return _run_pipeline(context, answer)
+
+    return run
+
+
+def _run_pipeline(context: MethodContext, answer: str | None = None) -> MethodOutput:
     """A whole keymps run (or, plan-only, its stages through grounding) in the case's folder."""
     from keymps.pipeline.engine import run_task
 
@@ -51,6 +62,8 @@ def _run_pipeline(context: MethodContext) -> MethodOutput:
         overrides["model"] = context.model
     if context.api_base:
         overrides["api_base"] = context.api_base
+    if answer:
+        overrides["answer"] = answer
     try:
         run_task(
             context.task_path,
@@ -106,7 +119,7 @@ def _pipeline_output(results: StageResults, context: MethodContext) -> MethodOut
     plan, grounding, tool_path = results.plan, results.ground, results.compose
     pieces = tuple(p.points for p in tool_path.pieces if p.kind == "work") if tool_path else ()
     lines = grounding.segments_m[:, :, :2] if grounding is not None else np.zeros((0, 2, 2))
-    calls = tuple(_call_summary(c) for c in plan.calls) if plan is not None else ()
+    calls = tuple(_call_summary(c) for c in plan.calls if c.model_call) if plan is not None else ()
     paths = {
         name: image_file(context.folder, name, context.image_format) for name in ("plan", "outcome")
     }
@@ -172,10 +185,14 @@ class Method:
 METHODS: dict[str, Method] = {
     m.name: m
     for m in [
-        Method("keymps", "KeyMPs: VLM keyword + 2D keypoint pairs + primitives", False, _run_pipeline),
+        Method("keymps", "KeyMPs: VLM keyword + 2D keypoint pairs + primitives", False, _pipeline("pairs")),
+        Method(
+            "keymps-design", "KeyMPs with a named design the VLM picks, laid out by keymps",
+            False, _pipeline("design"),
+        ),
         Method(
             "vlm-keypoint", "KeyMPs with all DMP weights zero (straight pieces)", False,
-            _run_pipeline, zero_weights=True,
+            _pipeline("pairs"), zero_weights=True,
         ),
         Method("keymps-text", "KeyMPs without the image (object and shape in text)", True, _direct("keymps_text")),
         Method("vlm-keyword", "primitive chosen, 3D keypoints written by the VLM", True, _direct("vlm_keyword")),

@@ -19,6 +19,8 @@ TURN_STEP_RAD = math.radians(5.0)
 """A turn in place is sampled at least this finely."""
 NO_HEADING_M = 0.001
 """Segments with less horizontal travel than this (dots, plunges) keep the previous yaw."""
+FOOTPRINT_SLACK_M = 0.002
+"""Strokes near a cut's ends stop this far inside the safety check's footprint margin."""
 
 
 class MotionError(KeympsError):
@@ -36,6 +38,7 @@ def compose_tool_path(
     yaw_mode: str,
     home: np.ndarray,
     home_yaw: float = 0.0,
+    footprint: np.ndarray | None = None,
 ) -> ToolPath:
     """From `home`, per segment a travel piece (rise to object_top + clearance, move over,
     descend to the start) then a work piece (the primitive re-targeted to start/goal), and a
@@ -44,6 +47,10 @@ def compose_tool_path(
     yaw_mode 'follow' (a blade): the work piece's yaw is the segment's horizontal direction,
     taken modulo 180 degrees to turn the wrist least (and kept within +-180 degrees); 'fixed'
     (a piping bag): yaw stays `home_yaw`. Yaw changes only while moving over, above the object.
+
+    `footprint` ((N, 2) board metres, the object's outline): work that would reach further
+    outside it than the safety check allows (a sawing stroke overshooting a cut that ends just
+    outside the object, as the prompts ask) is shortened smoothly near the cut's ends.
     """
     home_arr = _finite_point(home, "home")
     _check_settings(object_top, clearance, work_speed, travel_speed, yaw_mode)
@@ -63,6 +70,14 @@ def compose_tool_path(
         ).y
         for k, seg in enumerate(segments)
     ]
+    if footprint is not None and len(np.asarray(footprint).reshape(-1, 2)) >= 3:
+        outline = np.asarray(footprint, dtype=float).reshape(-1, 2)
+        work_paths = [
+            keep_strokes_near(
+                points, np.asarray(seg.start, float), np.asarray(seg.goal, float), outline
+            )
+            for points, seg in zip(work_paths, segments, strict=True)
+        ]
     position, yaw = home_arr, yaws[0] if yaw_mode == "follow" else home_yaw
     for index, (points, work_yaw) in enumerate(zip(work_paths, yaws, strict=True)):
         travel_points, travel_yaw = _travel(position, points[0], travel_z, yaw, work_yaw)
@@ -76,6 +91,48 @@ def compose_tool_path(
         Piece("travel", len(segments) - 1, travel_points, travel_yaw, float(travel_speed))
     )
     return ToolPath(pieces=tuple(pieces), keyword=primitive.name)
+
+
+def keep_strokes_near(
+    points: np.ndarray, start: np.ndarray, goal: np.ndarray, outline: np.ndarray
+) -> np.ndarray:
+    """The work path with its reach beyond the cut's ends limited so that it stays within the
+    safety check's footprint margin (less FOOTPRINT_SLACK_M) of the outline.
+
+    Along the cut, each end may be passed by `reach` = margin - slack - (how far that end is
+    already outside the object): distance to the outline grows at most as fast as the path
+    moves, so that bound holds. Overshoot beyond an end is mapped through reach * tanh(d /
+    reach), identity to second order at the end: strokes there become shorter, smoothly.
+    Paths already within reach are returned unchanged.
+    """
+    from keymps.robot.safety import FOOTPRINT_MARGIN_M
+    from keymps.robot.safety_geometry import outside_distance
+
+    axis = goal[:2] - start[:2]
+    length = float(np.linalg.norm(axis))
+    if length < NO_HEADING_M:
+        return points
+    direction = axis / length
+    along = (points[:, :2] - start[:2]) @ direction
+    allowed = FOOTPRINT_MARGIN_M - FOOTPRINT_SLACK_M
+    ends = outside_distance(np.array([start[:2], goal[:2]]), outline)
+    reach_start, reach_goal = (max(0.0, allowed - float(d)) for d in ends)
+    before, after = np.maximum(-along, 0.0), np.maximum(along - length, 0.0)
+    if before.max() <= reach_start and after.max() <= reach_goal:
+        return points
+    limited = along.copy()
+    limited[along < 0] = -_soft_limit(before[along < 0], reach_start)
+    limited[along > length] = length + _soft_limit(after[along > length], reach_goal)
+    shifted = points.copy()
+    shifted[:, :2] += (limited - along)[:, None] * direction
+    return shifted
+
+
+def _soft_limit(distance: np.ndarray, reach: float) -> np.ndarray:
+    """reach * tanh(distance / reach): about `distance` when small, never beyond `reach`."""
+    if reach <= 0.0:
+        return np.zeros_like(distance)
+    return reach * np.tanh(distance / reach)
 
 
 def _work_yaws(segments: Sequence[Segment], yaw_mode: str, home_yaw: float) -> list[float]:

@@ -175,9 +175,12 @@ class _Pipeline:
         detection = self.stage("detect", detect)
         run.warnings.extend(detection.warnings)
         descriptions = {name: p.description for name, p in parts.primitives.items()}
+        families = {name: p.family for name, p in parts.primitives.items()}
         plan = self.stage(
             "plan",
-            lambda: planning.make_plan(task, detection, scene, descriptions, run, parts.backend),
+            lambda: planning.make_plan(
+                task, detection, scene, descriptions, run, parts.backend, families
+            ),
         )
         run.write_image("plan", draw_plan(scene.image, detection, plan))
         grounding = self.stage("ground", lambda: geometry.ground(plan, detection, task, size))
@@ -198,6 +201,7 @@ class _Pipeline:
                     travel_speed=task.motion.travel_speed,
                     yaw_mode=tool.yaw,
                     home=robot.home_tool_position(),
+                    footprint=run.outline_m,
                 ),
                 task,
             ),

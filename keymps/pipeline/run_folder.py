@@ -23,8 +23,16 @@ def _rounded(values: Any, digits: int = 6) -> Any:
     return values
 
 
+def _answer_form(plan: Any) -> dict[str, Any] | None:
+    """How the plan was answered: coordinates, named design, the image size sent."""
+    if plan is None:
+        return None
+    sent = list(plan.image_sent_px) if plan.image_sent_px else None
+    return {"coordinates": plan.coordinates, "design": plan.design, "image_sent_px": sent}
+
+
 def _vlm_summary(plan: Any) -> dict[str, Any]:
-    calls = list(plan.calls) if plan is not None else []
+    calls = [c for c in plan.calls if c.model_call] if plan is not None else []
 
     def total(attr: str) -> float | None:
         values = [getattr(c, attr) for c in calls if getattr(c, attr) is not None]
@@ -84,6 +92,7 @@ def run_record(run: Run, error: BaseException | None) -> dict[str, Any]:
         "rationale": plan.rationale if plan is not None else None,
         "pairs_px": _rounded(plan.pairs_px.tolist(), 2) if plan is not None else None,
         "pairs_crop_px": _rounded(plan.pairs_crop_px.tolist(), 2) if plan is not None else None,
+        "answer": _answer_form(plan),
         "segments_m": _rounded(grounding.segments_m.tolist()) if grounding is not None else None,
         "timings_s": {k: _rounded(v, 4) for k, v in run.timings_s.items()},
         "vlm": _vlm_summary(plan),

@@ -1,7 +1,10 @@
 """The planner's answer: its JSON schema, a tolerant parser, and the validation rules.
 
-Answer shape (other tools and prompts rely on it), points in pixels of the crop that was sent:
+Answer shape (other tools and prompts rely on it), points in the coordinate convention of the
+image that was sent (keymps.planning.coordinates; pixels by default):
     {"keyword": "sawing", "pairs": [[[x0, y0], [x1, y1]], ...], "rationale": "..."}
+or, with `planner.answer: design | either`, a named design (keymps.planning.named_design):
+    {"keyword": "line", "design": {"name": "dots_ring", "count": 9, ...}, "rationale": "..."}
 """
 
 from __future__ import annotations
@@ -10,12 +13,16 @@ import json
 import math
 import re
 from collections.abc import Sequence
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from keymps.config.limits import max_answer_chars
+from keymps.planning.named_design import DesignAnswer, design_schema
 from keymps.types import Step
+
+AnswerMode = Literal["pairs", "design", "either"]
+ANSWER_MODES: tuple[str, ...] = ("pairs", "design", "either")
 
 Coordinate = Annotated[float, Field(strict=True)]
 """A JSON number: true, "12" or null are wrong types, sent back for repair, never coerced."""
@@ -28,7 +35,8 @@ class PlanAnswer(BaseModel):
 
     model_config = ConfigDict(extra="ignore")
     keyword: str
-    pairs: list[Pair]
+    pairs: list[Pair] | None = None
+    design: DesignAnswer | None = None
     rationale: str = ""
 
 
@@ -40,7 +48,8 @@ class KeywordAnswer(BaseModel):
 
 class PairsAnswer(BaseModel):
     model_config = ConfigDict(extra="ignore")
-    pairs: list[Pair]
+    pairs: list[Pair] | None = None
+    design: DesignAnswer | None = None
     rationale: str = ""
 
 
@@ -51,11 +60,29 @@ ANSWER_MODELS: dict[str, type[BaseModel]] = {
 }
 
 
-def answer_schema(step: Step, keywords: Sequence[str], max_pairs: int) -> dict[str, Any]:
-    """The JSON schema sent for structured output (OpenAI strict-mode compatible)."""
+POINT_DESCRIPTIONS = {
+    "pixels": "[x, y] in pixels of the image sent; origin top-left, x right, y down",
+    "xy_1000": "[x, y] normalized to 0-1000; origin top-left, x right, y down",
+    "yx_1000": "[y, x] normalized to 0-1000; origin top-left, y down, x right",
+}
+
+
+def answer_schema(
+    step: Step,
+    keywords: Sequence[str],
+    max_pairs: int,
+    answer: AnswerMode = "pairs",
+    convention: str = "pixels",
+    family: str | None = None,
+) -> dict[str, Any]:
+    """The JSON schema sent for structured output (OpenAI strict-mode compatible).
+
+    `answer` either: `pairs` and `design` are both present and one of them is null (a union
+    that strict mode accepts); `family` limits the design names to the task's family.
+    """
     point = {
         "type": "array",
-        "description": "[x, y] in pixels of the image sent; origin top-left, x right, y down",
+        "description": POINT_DESCRIPTIONS[convention],
         "items": {"type": "number"},
     }
     pair = {"type": "array", "description": "[start, end]; start = end makes a dot", "items": point}
@@ -66,12 +93,18 @@ def answer_schema(step: Step, keywords: Sequence[str], max_pairs: int) -> dict[s
             "enum": list(keywords),
             "description": "the primitive to use, one of the listed names",
         }
-    if step in ("combined", "pairs"):
+    if step in ("combined", "pairs") and answer in ("pairs", "either"):
         properties["pairs"] = {
-            "type": "array",
-            "description": f"1 to {max_pairs} keypoint pairs",
+            "type": ["array", "null"] if answer == "either" else "array",
+            "description": f"1 to {max_pairs} keypoint pairs"
+            + ("; null when a design is named" if answer == "either" else ""),
             "items": pair,
         }
+    if step in ("combined", "pairs") and answer in ("design", "either"):
+        design = design_schema(family)
+        if answer == "either":
+            design = {"anyOf": [design, {"type": "null"}]}
+        properties["design"] = design
     properties["rationale"] = {"type": "string", "description": "one or two sentences"}
     return strict_object_schema(f"keymps_{step}_answer", properties)
 
@@ -124,8 +157,13 @@ def parse_and_validate(
     keywords: Sequence[str],
     crop_size_px: tuple[int, int],
     max_pairs: int,
+    answer_mode: AnswerMode = "pairs",
+    convention: str = "pixels",
 ) -> tuple[BaseModel | None, list[str]]:
-    """(answer, []) when valid, else (None, the problems in words a model can act on)."""
+    """(answer, []) when valid, else (None, the problems in words a model can act on).
+
+    `crop_size_px` is the size of the image sent; points are checked in `convention`.
+    """
     longest = max_answer_chars(max_pairs)
     if len(text) > longest:
         return None, [
@@ -155,10 +193,33 @@ def parse_and_validate(
         answer = answer.model_copy(update={"keyword": keyword})
     if keyword is not None and keyword not in keywords:
         problems.append(f"keyword {keyword!r} is not one of: {', '.join(keywords)}")
+    if step != "keyword":
+        problems += _form_problems(answer, answer_mode)
     pairs = getattr(answer, "pairs", None)
     if pairs is not None:
-        problems += _pair_problems(pairs, crop_size_px, max_pairs)
+        problems += _pair_problems(pairs, crop_size_px, max_pairs, convention)
+    design = getattr(answer, "design", None)
+    if design is not None:
+        from keymps.planning.named_design import to_intent
+
+        problems += to_intent(design)[1]
     return (None, problems) if problems else (answer, [])
+
+
+def _form_problems(answer: BaseModel, mode: AnswerMode) -> list[str]:
+    """Pairs or a design, as `planner.answer` allows: exactly one of them."""
+    pairs, design = getattr(answer, "pairs", None), getattr(answer, "design", None)
+    if mode == "pairs" and pairs is None:
+        return ["pairs: give the keypoint pairs"]
+    if mode == "pairs" and design is not None:
+        return ["design: this task takes keypoint pairs only; drop the design"]
+    if mode == "design" and design is None:
+        return ["design: name a design from the list (this task takes no raw pairs)"]
+    if mode == "design" and pairs is not None:
+        return ["pairs: this task takes a named design only; set pairs to null"]
+    if mode == "either" and (pairs is None) == (design is None):
+        return ["give either pairs or a design (the other null), not both and not neither"]
+    return []
 
 
 def normalise_keyword(keyword: str, keywords: Sequence[str]) -> str:
@@ -168,8 +229,12 @@ def normalise_keyword(keyword: str, keywords: Sequence[str]) -> str:
     return matches[0] if len(matches) == 1 else keyword
 
 
-def _pair_problems(pairs: list[Pair], crop_size_px: tuple[int, int], max_pairs: int) -> list[str]:
+def _pair_problems(
+    pairs: list[Pair], crop_size_px: tuple[int, int], max_pairs: int, convention: str = "pixels"
+) -> list[str]:
     width, height = crop_size_px
+    if convention != "pixels":
+        return _normalized_problems(pairs, max_pairs, convention)
     problems = []
     if not 1 <= len(pairs) <= max_pairs:
         problems.append(f"pairs: {len(pairs)} pairs given; give between 1 and {max_pairs}")
@@ -181,6 +246,26 @@ def _pair_problems(pairs: list[Pair], crop_size_px: tuple[int, int], max_pairs: 
                 problems.append(
                     f"pair {index + 1} {which} ({x:g}, {y:g}) is outside the image: "
                     f"x must be in 0..{width}, y in 0..{height}"
+                )
+        if len(problems) > 12:
+            problems.append("... (more problems not listed)")
+            break
+    return problems
+
+
+def _normalized_problems(pairs: list[Pair], max_pairs: int, convention: str) -> list[str]:
+    order = "[y, x]" if convention == "yx_1000" else "[x, y]"
+    problems = []
+    if not 1 <= len(pairs) <= max_pairs:
+        problems.append(f"pairs: {len(pairs)} pairs given; give between 1 and {max_pairs}")
+    for index, pair in enumerate(pairs):
+        for which, (a, b) in zip(("start", "end"), pair, strict=True):
+            if not (math.isfinite(a) and math.isfinite(b)):
+                problems.append(f"pair {index + 1} {which} ({a}, {b}) is not a finite number")
+            elif not (0 <= a <= 1000 and 0 <= b <= 1000):
+                problems.append(
+                    f"pair {index + 1} {which} [{a:g}, {b:g}] is outside the image: points are "
+                    f"{order} normalized to 0..1000"
                 )
         if len(problems) > 12:
             problems.append("... (more problems not listed)")

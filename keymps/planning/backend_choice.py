@@ -30,6 +30,11 @@ PROVIDER_KEYS: dict[str, tuple[str, ...]] = {
 """litellm provider prefix -> environment variables that configure it (any one suffices)."""
 
 
+MODEL_FREE = ("offline",)
+"""Backends that ask no model: --model or --api-base on the command line replaces them
+(replay keeps answering from its cassette)."""
+
+
 def model_provider(model: str) -> str:
     """The litellm provider of a model string ('openai/gpt-4o' -> 'openai', 'claude-...')."""
     if "/" in model:
@@ -59,17 +64,36 @@ def choose_backend(
     requested = backend_override or task.planner.backend
     model = model_override or task.planner.model
     api_base = api_base_override or task.planner.api_base
+    overridden = ""
+    if (
+        backend_override is None
+        and requested in MODEL_FREE
+        and (model_override or api_base_override)
+    ):
+        # a model or server given on the command line is meant, whatever the task file says
+        given = " and ".join(
+            flag
+            for flag, value in (("--model", model_override), ("--api-base", api_base_override))
+            if value
+        )
+        overridden = f" ({given} on the command line overrides the task's backend: {requested})"
+        requested = "auto"
     if requested != "auto":
         _check_backend(task, requested, model)
         origin = "--backend" if backend_override else "the task's planner.backend"
         return requested, f"{origin} asks for the {requested} planner"
     if not model:
+        if overridden:
+            raise KeympsError(
+                f"--api-base {api_base}: no model to ask; pass --model too (e.g. "
+                "openai/Qwen/Qwen2.5-VL-7B-Instruct)"
+            )
         return "offline", "no VLM model is configured (planner.model or --model): offline planner"
     if api_base:
-        return "litellm", f"model {model} is served at {api_base}"
+        return "litellm", f"model {model} is served at {api_base}{overridden}"
     source = credential_source(task, model)
     if source:
-        return "litellm", f"model {model} with credentials from ${source}"
+        return "litellm", f"model {model} with credentials from ${source}{overridden}"
     wanted = ((task.planner.api_key_env,) if task.planner.api_key_env else ()) + PROVIDER_KEYS.get(
         model_provider(model), ()
     )
@@ -77,7 +101,7 @@ def choose_backend(
     if model_override:
         # a model asked for on the command line is meant: never fall back silently
         if model_provider(model) in ("ollama", "ollama_chat"):
-            return "litellm", f"model {model} from Ollama at its default address"
+            return "litellm", f"model {model} from Ollama at its default address{overridden}"
         raise KeympsError(
             f"--model {model}: no credentials ({need} unset, no --api-base); set the key's "
             "environment variable, or drop --model to plan offline"

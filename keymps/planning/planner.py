@@ -80,14 +80,24 @@ def make_plan(
     primitives: Mapping[str, str],
     run: Run,
     backend: str,
+    families: Mapping[str, str] | None = None,
 ) -> Plan:
-    """Ask `backend` for the keyword and keypoint pairs; validated, repaired, recorded."""
+    """Ask `backend` for the keyword and keypoint pairs; validated, repaired, recorded.
+
+    `families`: primitive name -> family (cutting, icing); read from the descriptions when
+    None. The sentence and the plan must fit the task's tool family (keymps.planning.family).
+    """
+    from keymps.planning.coordinates import rescale, sent_size, to_pixels
+    from keymps.planning.coordinates import resolve as resolve_convention
+    from keymps.planning.family import check_plan, check_sentence, families_from_descriptions
     from keymps.planning.prompt import find_prompt, png_bytes, png_data_url, prompt_family
     from keymps.planning.session import PlanSession
     from keymps.plugin.manager import create_component
 
     if not primitives:
         raise KeympsError("primitives: the task lists no primitives to choose from")
+    families = dict(families) if families is not None else families_from_descriptions(primitives)
+    check_sentence(task, task.instruction, families)
     planner = task.planner
     backend_object = create_component("vlm_backend", backend, backend_options(task))
     prompt_path = find_prompt(
@@ -95,23 +105,35 @@ def make_plan(
         task.folder,
         prompt_family(primitives),
     )
-    crop_png = png_bytes(detection.crop)  # encoded once: sent, and kept as vlm/crop.png
-    image_url = png_data_url(detection.crop, crop_png)
+    asks_model = bool(getattr(backend_object, "asks_model", True))
+    model = planner.model if backend != "offline" else None
+    # a backend that asks no model answers in pixels of the full crop
+    convention = resolve_convention(planner.coordinates, model) if asks_model else "pixels"
+    answer_mode = planner.answer
+    crop = detection.crop
+    crop_size = (int(crop.shape[1]), int(crop.shape[0]))
+    size = sent_size(crop_size, model) if asks_model else crop_size
+    metres_per_px = crop_metres_per_px(task, detection, scene)
+    mask = crop_mask(detection, scene)
+    sent, sent_mask, sent_metres = _downscaled(crop, mask, metres_per_px, size)
+    crop_png = png_bytes(sent)  # encoded once: sent, and kept as vlm/crop.png
+    image_url = png_data_url(sent, crop_png)
     base = PlanRequest(
         instruction=task.instruction,
-        crop=detection.crop,
-        crop_mask=crop_mask(detection, scene),
-        metres_per_px=crop_metres_per_px(task, detection, scene),
+        crop=sent,
+        crop_mask=sent_mask,
+        metres_per_px=sent_metres,
         primitives=dict(primitives),
         object_height=task.scene.object_height,
         max_pairs=planner.max_pairs,
         messages=[],
         schema={},
-        model=planner.model if backend != "offline" else None,
+        model=model,
         temperature=planner.temperature,
         timeout_s=planner.timeout_s,
         task_name=task.name,
     )
+    family = prompt_family(primitives)
     session = PlanSession(
         task=task,
         run=run,
@@ -121,18 +143,29 @@ def make_plan(
         system_template=_read_prompt(prompt_path),
         template_source=str(prompt_path),
         image_url=image_url,
+        convention=convention,
+        answer_mode=answer_mode,
+        family=family,
     )
     session.vlm_folder.mkdir(parents=True, exist_ok=True)
     (session.vlm_folder / "crop.png").write_bytes(crop_png)
     if planner.combined:
         combined = session.ask("combined")
-        keyword, pairs, rationale = combined.keyword, combined.pairs, combined.rationale
+        keyword, placed, rationale = combined.keyword, combined, combined.rationale
     else:
         chosen = session.ask("keyword")
         placed = session.ask("pairs", keyword=chosen.keyword)
-        keyword, pairs = chosen.keyword, placed.pairs
+        keyword = chosen.keyword
         rationale = " ".join(r for r in (chosen.rationale, placed.rationale) if r)
-    pairs_crop = np.asarray(pairs, dtype=float).reshape(-1, 2, 2)
+    check_plan(task, keyword, families)
+    if placed.design is not None:
+        pairs_crop, layout = _lay_out(
+            placed.design, keyword, families, detection, mask, metres_per_px, planner.max_pairs
+        )
+        rationale = f"{rationale} [named design laid out by keymps: {layout}]".strip()
+    else:
+        answered = np.asarray(placed.pairs, dtype=float).reshape(-1, 2, 2)
+        pairs_crop = rescale(to_pixels(answered, convention, size), size, crop_size)
     pairs_px = pairs_crop + np.asarray(detection.crop_origin_px, dtype=float)
     return Plan(
         keyword=keyword,
@@ -142,7 +175,55 @@ def make_plan(
         model=base.model,
         rationale=rationale,
         calls=tuple(session.calls),
+        coordinates=convention,
+        design=placed.design.model_dump() if placed.design is not None else None,
+        image_sent_px=size if size != crop_size else None,
     )
+
+
+def _downscaled(
+    crop: np.ndarray,
+    mask: np.ndarray | None,
+    metres_per_px: tuple[float, float],
+    size: tuple[int, int],
+) -> tuple[np.ndarray, np.ndarray | None, tuple[float, float]]:
+    """The crop, its mask and pixel size at `size` (unchanged when it already is that size)."""
+    width, height = int(crop.shape[1]), int(crop.shape[0])
+    if (width, height) == size:
+        return crop, mask, metres_per_px
+    import cv2
+
+    image = cv2.resize(crop, size, interpolation=cv2.INTER_AREA)
+    small = None
+    if mask is not None:
+        small = cv2.resize(mask.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST) > 0
+    scaled = (metres_per_px[0] * width / size[0], metres_per_px[1] * height / size[1])
+    return image, small, scaled
+
+
+def _lay_out(
+    answer: Any,
+    keyword: str,
+    families: Mapping[str, str],
+    detection: Detection,
+    mask: np.ndarray | None,
+    metres_per_px: tuple[float, float],
+    max_pairs: int,
+) -> tuple[np.ndarray, str]:
+    """A named design's exact pairs in crop pixels, on the full-resolution crop."""
+    from keymps.designs.place import place_design
+    from keymps.planning.named_design import BY_NAME, to_intent
+
+    intent, problems = to_intent(answer)
+    if intent is None:  # validated already; kept for a backend that skips validation
+        raise KeympsError(f"the named design is invalid: {'; '.join(problems)}")
+    needed = BY_NAME[answer.name].family
+    if families.get(keyword, needed) != needed:
+        raise KeympsError(
+            f"the plan names the {needed} design {answer.name!r} with the "
+            f"{families[keyword]} primitive {keyword!r}"
+        )
+    return place_design(intent, detection.crop, mask, metres_per_px, max_pairs)
 
 
 def _read_prompt(path: Path) -> str:

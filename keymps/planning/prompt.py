@@ -28,6 +28,9 @@ PLACEHOLDERS: dict[str, str] = {
     "max_pairs": "the largest number of keypoint pairs accepted",
     "output_format": "the JSON the model must answer with, for this call",
     "step": "what this call must decide (combined, keyword, or pairs)",
+    "coordinates": "the coordinate paragraph for planner.coordinates (pixels or 0-1000)",
+    "examples": "worked examples in the task's coordinate convention and answer form",
+    "designs": "the named designs the answer may use (planner.answer), or that it may not",
 }
 """Every placeholder a template may use, and what it becomes."""
 
@@ -89,8 +92,21 @@ def find_prompt(explicit: Path | None, task_folder: Path, family: str) -> Path:
     )
 
 
+_COMMENT = re.compile(r"<!--.*?-->", re.DOTALL)
+
+
+def strip_comments(template: str) -> str:
+    """The template without its HTML comments (notes for humans, never sent to the model); the
+    lines they held stay as blank lines, so errors still name the right line."""
+    return _COMMENT.sub(lambda m: "\n" * m.group(0).count("\n"), template)
+
+
 def render_template(template: str, values: Mapping[str, str], source: str = "<prompt>") -> str:
-    """Fill `{{name}}` placeholders; an unknown name is a KeympsError with file:line."""
+    """Fill `{{name}}` placeholders; an unknown name is a KeympsError with file:line.
+
+    HTML comments (`<!-- ... -->`) are dropped first: they are not sent.
+    """
+    template = strip_comments(template)
     for number, line in enumerate(template.splitlines(), start=1):
         for match in _PLACEHOLDER.finditer(line):
             if match.group(1) not in PLACEHOLDERS:
@@ -99,7 +115,7 @@ def render_template(template: str, values: Mapping[str, str], source: str = "<pr
                     f"{source}:{number}: unknown placeholder {{{{{match.group(1)}}}}} "
                     f"(known: {known})"
                 )
-    return _PLACEHOLDER.sub(lambda m: values[m.group(1)], template)
+    return _PLACEHOLDER.sub(lambda m: values[m.group(1)], template).strip("\n")
 
 
 def template_values(
@@ -111,7 +127,14 @@ def template_values(
     object_height: float,
     max_pairs: int,
     step: Step,
+    convention: str = "pixels",
+    answer: str = "pairs",
+    family: str = "cutting",
 ) -> dict[str, str]:
+    from keymps.planning.coordinates import paragraph
+    from keymps.planning.examples import examples_text
+    from keymps.planning.named_design import catalogue_text
+
     mx, my = (m * 1000 for m in metres_per_px)
     scale = f"{mx:.3g}" if abs(mx - my) <= 0.01 * mx else f"{mx:.3g} (x), {my:.3g} (y)"
     return {
@@ -123,9 +146,47 @@ def template_values(
         "mm_per_pixel": scale,
         "object_height_cm": f"{object_height * 100:.3g}",
         "max_pairs": str(max_pairs),
-        "output_format": _OUTPUT_FORMATS[step],
+        "output_format": output_format(step, answer, convention),
         "step": _STEPS[step],
+        "coordinates": paragraph(convention, crop_size_px),  # type: ignore[arg-type]
+        "examples": examples_text(family, convention, answer),  # type: ignore[arg-type]
+        "designs": _designs_text(family, answer, catalogue_text(family)),
     }
+
+
+def _designs_text(family: str, answer: str, catalogue: str) -> str:
+    if answer == "pairs":
+        return "Not used for this task: answer with keypoint pairs."
+    how = (
+        "Answer with a design instead of pairs"
+        if answer == "design"
+        else "Instead of pairs you may name a design (then pairs is null)"
+    )
+    return (
+        f"{how}: keymps measures the object and lays the design out exactly. Give its name and "
+        "the parameters it takes (a parameter marked ? is optional; every parameter it does not "
+        "take is null). Use pairs for anything the list does not describe."
+        + ("" if answer == "either" else " This task takes designs only.")
+        + f"\n\n{catalogue}"
+    )
+
+
+def output_format(step: Step, answer: str, convention: str) -> str:
+    """The JSON this call answers with, for the answer form and the coordinate convention."""
+    base = _OUTPUT_FORMATS[step]
+    if convention == "yx_1000":
+        base = base.replace("[[[x0, y0], [x1, y1]], ...]", "[[[y0, x0], [y1, x1]], ...]")
+    if step == "keyword" or answer == "pairs":
+        return base
+    design = '{"name": "<design>", "count": ..., "layers": ..., "slice_width_cm": ..., '
+    design += '"object_length_cm": ..., "orientation": ..., "text": ...}'
+    if answer == "design":
+        return re.sub(r'"pairs": \[\[\[.*?\]\], \.\.\.\]', f'"design": {design}', base)
+    return base.replace(
+        "...]",
+        f'...] or null, "design": null or {design}',
+        1,
+    )
 
 
 def png_bytes(image: Any) -> bytes:

@@ -77,6 +77,12 @@ class PlanSession:
     template_source: str
     image_url: str
     calls: list[VlmCall] = field(default_factory=list)
+    convention: str = "pixels"
+    """How the model writes points (keymps.planning.coordinates)."""
+    answer_mode: str = "pairs"
+    """pairs, design or either (planner.answer)."""
+    family: str = "cutting"
+    """The prompt's family: which examples and named designs it shows."""
 
     def __post_init__(self) -> None:
         planner = self.task.planner
@@ -102,6 +108,9 @@ class PlanSession:
             object_height=self.base.object_height,
             max_pairs=self.base.max_pairs,
             step=step,
+            convention=self.convention,
+            answer=self.answer_mode,
+            family=self.family,
         )
         system_text = render_template(self.system_template, values, self.template_source)
         messages = build_messages(
@@ -112,7 +121,14 @@ class PlanSession:
             keyword,
             history,
         )
-        schema = answer_schema(step, list(self.base.primitives), self.base.max_pairs)
+        schema = answer_schema(
+            step,
+            list(self.base.primitives),
+            self.base.max_pairs,
+            self.answer_mode,  # type: ignore[arg-type]
+            self.convention,
+            self.family,
+        )
         return replace(
             self.base,
             messages=messages,
@@ -141,7 +157,13 @@ class PlanSession:
             label=f"{step} answer",
             request_for=lambda history: self.request_for(step, keyword, history),
             validate=lambda text: parse_and_validate(
-                text, step, list(self.base.primitives), self.base.crop_size_px, self.base.max_pairs
+                text,
+                step,
+                list(self.base.primitives),
+                self.base.crop_size_px,
+                self.base.max_pairs,
+                self.answer_mode,  # type: ignore[arg-type]
+                self.convention,
             ),
         )
 
@@ -260,6 +282,7 @@ class PlanSession:
             completion_tokens=answer.completion_tokens,
             cost_usd=answer.cost_usd,
             cached=cached,
+            model_call=bool(getattr(self.backend, "asks_model", True)),
         )
         self.calls.append(call)
         self.vlm_folder.mkdir(parents=True, exist_ok=True)

@@ -33,7 +33,8 @@ class Detector(Protocol):
 class VlmBackend(Protocol):
     """Answers a planning request with the planner's JSON answer: `register_vlm_backends`.
 
-    Optional: `cacheable = True` lets keymps cache answers on disk (paid or slow backends), and
+    Optional: `cacheable = True` lets keymps cache answers on disk (paid or slow backends),
+    `asks_model = False` keeps its answers out of the VLM call counts (the offline planner), and
     `async def acomplete(request)` lets `keymps eval` make many calls at once on one event loop.
     """
 
