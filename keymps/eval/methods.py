@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -27,7 +27,6 @@ import numpy as np
 from keymps.errors import KeympsError
 from keymps.eval.context import MethodContext, MethodOutput
 from keymps.run import StageResults
-
 
 MethodRunner = Callable[[MethodContext], MethodOutput]
 

@@ -26,23 +26,22 @@ As in any multiprocessing program, a script that runs a suite with processes > 1
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import functools
 import os
 import queue
 import threading
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from keymps.errors import KeympsError
 
 if TYPE_CHECKING:
+    from keymps.eval.broker import VlmBroker
     from keymps.eval.runner import EvalOptions, Job
     from keymps.eval.suites import Suite
     from keymps.eval.turn import CpuTurn
-    from keymps.eval.broker import VlmBroker
 
 RUNS_AHEAD = 2
 """Runs each process prepares beyond its share of the VLM calls in flight."""
@@ -103,8 +102,8 @@ def _worker(
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     os.environ.clear()
     os.environ.update(environment)
-    from keymps.eval.turn import CpuTurn
     from keymps.eval.broker import BROKERED_BACKEND, BrokerClient
+    from keymps.eval.turn import CpuTurn
 
     turn = CpuTurn(active=backend == BROKERED_BACKEND)
     client = BrokerClient(*vlm, turn=turn)

@@ -22,10 +22,10 @@ import scipy.interpolate  # noqa: E402, F401
 import scipy.spatial  # noqa: E402, F401
 
 import keymps.default_plugins.litellm.backend  # noqa: E402, F401
-import keymps.pipeline.engine  # noqa: E402, F401
 import keymps.eval.methods  # noqa: E402, F401
 import keymps.eval.runner  # noqa: E402, F401
 import keymps.eval.truth  # noqa: E402, F401
+import keymps.pipeline.engine  # noqa: E402, F401
 import keymps.planning.planner  # noqa: E402, F401
 import keymps.scenes.render  # noqa: E402, F401
 

@@ -32,8 +32,8 @@ from keymps.errors import KeympsError
 from keymps.eval.suites import Suite
 
 if TYPE_CHECKING:
-    from keymps.eval.turn import CpuTurn
     from keymps.eval.broker import VlmBroker
+    from keymps.eval.turn import CpuTurn
 
 RESULTS_FILE = "results.jsonl"
 
@@ -282,8 +282,8 @@ def _write_design(folder: Path, output: Any) -> None:
 
 
 def _score(suite: Suite, case: Any, job: Job, output: Any, n: int) -> dict[str, Any]:
-    from keymps.eval.truth import case_truth
     from keymps.eval.metric import metric_d, metric_d_optimal
+    from keymps.eval.truth import case_truth
 
     truth = case_truth(suite, case, job.seed, sidecar=output.scene)
     scored: dict[str, Any] = {
@@ -327,10 +327,10 @@ def run_suite(
     suite: Suite, options: EvalOptions, on_result: ProgressCallback | None = None
 ) -> list[dict[str, Any]]:
     """Run every job not yet in out/results.jsonl; return all records for these jobs."""
+    from keymps.eval.broker import BROKERED_BACKEND, VlmBroker
     from keymps.eval.methods import check_runnable, get_method
     from keymps.eval.pool import JobRunner, default_processes, run_in_processes
     from keymps.eval.turn import CpuTurn
-    from keymps.eval.broker import BROKERED_BACKEND, VlmBroker
 
     backend = resolve_backend(options)
     for name in options.methods:

@@ -13,8 +13,8 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from keymps.bundled import bundled_dir
-from keymps.errors import KeympsError
 from keymps.config.yaml_positions import PositionedYaml, YamlSyntaxError, load_yaml_with_positions
+from keymps.errors import KeympsError
 
 PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 Fraction = Annotated[float, Field(gt=0, lt=1, allow_inf_nan=False)]
@@ -230,8 +230,8 @@ def parse_suite(text: str, source: str = "<suite>", path: Path | None = None) ->
 
 def _check_tasks(suite: Suite, source: str, parsed: PositionedYaml) -> None:
     """Every case's task (suite task + case task) must be a valid task file section set."""
-    from keymps.eval.tasks import case_task_data
     from keymps.config.task import Task
+    from keymps.eval.tasks import case_task_data
 
     for index, case in enumerate(suite.cases):
         data = case_task_data(suite, case, seed=case.scene.seed)

@@ -3,7 +3,6 @@ ask, repair invalid answers, record every call (keymps.eval.direct uses it)."""
 
 from __future__ import annotations
 
-import json
 import re
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -51,12 +50,12 @@ class Seen:
 
 
 def look(context: MethodContext) -> Seen:
+    from keymps.config.task import load_task
     from keymps.perception.frames import ImageFrame
     from keymps.planning.planner import crop_metres_per_px
     from keymps.plugin.manager import create_component
     from keymps.primitives.dictionary import default_search_dirs, load_primitives
     from keymps.run import Run
-    from keymps.config.task import load_task
 
     task = load_task(context.task_path)
     run = Run(task=task, folder=context.folder)
@@ -142,11 +141,11 @@ def ask(
     cassette, redaction, vlm/ records); return (answer, call summaries)."""
     from keymps.planning.answer import extract_json
     from keymps.planning.planner import backend_options
-    from keymps.types import PlanRequest
     from keymps.planning.prompt import png_data_url
     from keymps.planning.session import PlanSession
     from keymps.plugin.manager import create_component
     from keymps.run import Run, RunOptions
+    from keymps.types import PlanRequest
 
     task = seen.task
     if context.model:
