@@ -126,6 +126,32 @@ def _densify(
     model: RobotModel, points: np.ndarray, yaw: np.ndarray, q: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Insert IK-solved points where consecutive points are more than MAX_KNOT_SPACING apart."""
+    gaps = np.hypot(np.linalg.norm(np.diff(points, axis=0), axis=1), YAW_RADIUS_M * np.diff(yaw))
+    extra = np.maximum(np.ceil(gaps / MAX_KNOT_SPACING).astype(int) - 1, 0)
+    if not extra.any():
+        return points, yaw, q
+    # Every gap g contributes its start and `extra[g]` evenly spaced inner points.
+    per_gap = extra + 1
+    gap_of = np.repeat(np.arange(len(gaps)), per_gap)
+    starts = np.cumsum(per_gap) - per_gap
+    fraction = (np.arange(len(gap_of)) - starts[gap_of]) / per_gap[gap_of]
+    dense_p = np.vstack(
+        [points[gap_of] + fraction[:, None] * (points[gap_of + 1] - points[gap_of]), points[-1:]]
+    )
+    dense_y = np.append(yaw[gap_of] + fraction * (yaw[gap_of + 1] - yaw[gap_of]), yaw[-1])
+    original = np.append(starts, len(dense_p) - 1)
+    if model.closed_form is not None:
+        dense_q, _, _ = model.solve_points(dense_p, dense_y, q[0], where="timing")
+        if np.abs(dense_q[original] - q).max() < 1e-6:  # the same branch as the path's IK
+            dense_q[original] = q
+            return dense_p, dense_y, dense_q
+    return _densify_iterative(model, points, yaw, q)
+
+
+def _densify_iterative(
+    model: RobotModel, points: np.ndarray, yaw: np.ndarray, q: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`_densify` gap by gap, each gap's inner points solved from the IK at its start."""
     out_p, out_y, out_q = [points[:1]], [yaw[:1]], [q[:1]]
     for i in range(1, len(points)):
         gap = math.hypot(
@@ -137,7 +163,9 @@ def _densify(
             fractions = np.linspace(0, 1, extra + 2)[1:-1]
             inner_p = points[i - 1] + fractions[:, None] * (points[i] - points[i - 1])
             inner_y = yaw[i - 1] + fractions * (yaw[i] - yaw[i - 1])
-            inner_q, _, _ = model.solve_points(inner_p, inner_y, q[i - 1], where="timing")
+            inner_q, _, _ = model.solve_points(
+                inner_p, inner_y, q[i - 1], where="timing", method="iterative"
+            )
             out_p.append(inner_p)
             out_y.append(inner_y)
             out_q.append(inner_q)
@@ -239,6 +267,33 @@ def _profile(length: float, limits: Limits, period: float) -> tuple[Any, float]:
 
 
 def _sample_profile(profile: Any, times: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Position, velocity and acceleration of a 1-DOF Ruckig profile at `times`.
+
+    A Ruckig profile is seven constant-jerk phases: inside a phase the state is the cubic
+    Ruckig's own `at_time` integrates (same formula, same order of operations), evaluated here
+    for all times at once; past the end the final state continues at zero jerk, as in Ruckig.
+    """
+    phases = profile.profiles[0][0]
+    if len(profile.profiles) != 1 or phases.brake.duration > 0:
+        return _sample_profile_by_calls(profile, times)  # never for rest-to-rest strokes
+    t_sum = np.cumsum(phases.t)
+    jerk = np.append(np.asarray(phases.j, dtype=float), 0.0)
+    p0, v0, a0 = (np.asarray(values, dtype=float) for values in (phases.p, phases.v, phases.a))
+    times = np.asarray(times, dtype=float)
+    index = np.searchsorted(t_sum, times, side="right")  # Ruckig's upper_bound
+    start = np.concatenate([[0.0], t_sum])[index]
+    t = times - start
+    j, a, v, p = jerk[index], a0[index], v0[index], p0[index]
+    position = p + t * (v + t * (a / 2 + t * j / 6))
+    velocity = v + t * (a + t * j / 2)
+    acceleration = a + t * j
+    return position, velocity, acceleration
+
+
+def _sample_profile_by_calls(
+    profile: Any, times: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The same with one Ruckig call per time (the reference the numpy version is tested on)."""
     values = np.array([[v[0] for v in profile.at_time(float(t))] for t in times])
     return values[:, 0], values[:, 1], values[:, 2]
 

@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from keymps.errors import KeympsError
+from keymps.robot.closed_form import ClosedFormIk
 from keymps.robot.description import (
     ARMS,
     BUILTIN_TOOLS,
@@ -106,6 +107,9 @@ class RobotModel:
         self.acceleration_limits = np.full(6, float(max_joint_acceleration))
         self.jerk_limits = np.full(6, float(max_joint_jerk))
         self.urdf_path = ur_urdf_path()
+        self.closed_form = ClosedFormIk.for_model(self.arm, self.base_in_board.homogeneous, self.fk)
+        """The analytic IK, None when the DH chain does not reproduce this model (then every
+        point is solved iteratively)."""
 
     @classmethod
     def from_task(cls, task: Task) -> RobotModel:
@@ -306,9 +310,54 @@ class RobotModel:
         )
 
     def solve_points(
-        self, points: np.ndarray, yaws: np.ndarray, seed: np.ndarray, *, where: str = "path"
+        self,
+        points: np.ndarray,
+        yaws: np.ndarray,
+        seed: np.ndarray,
+        *,
+        where: str = "path",
+        method: str = "auto",
     ) -> tuple[np.ndarray, float, float]:
-        """Warm-started IK along consecutive points: (n, 6) joints, max position/rotation error."""
+        """IK along consecutive points, continuous from `seed`: (n, 6) joints, max position
+        and rotation error. `method` 'auto' takes the closed form when it exists and every
+        solution checks out, else the iterative solver; 'iterative' forces the latter."""
+        if method not in ("auto", "iterative"):
+            raise ValueError(f"solve_points: unknown method {method!r}")
+        if method == "auto" and self.closed_form is not None and len(points):
+            solved = self._solve_closed_form(points, yaws, seed)
+            if solved is not None:
+                return solved
+        return self._solve_iterative(points, yaws, seed, where)
+
+    def _solve_closed_form(
+        self, points: np.ndarray, yaws: np.ndarray, seed: np.ndarray
+    ) -> tuple[np.ndarray, float, float] | None:
+        """All analytic branches at once, the one continuous with `seed` kept and each point
+        verified by Pinocchio's forward kinematics; None if any point is doubtful."""
+        assert self.closed_form is not None
+        points = np.asarray(points, dtype=float)
+        yaws = np.asarray(yaws, dtype=float)
+        targets = tool_poses_down(points, yaws)
+        branches = self.closed_form.solve(targets)
+        chosen = choose_continuous_branch(branches, np.asarray(seed, dtype=float))
+        if chosen is None:
+            return None
+        if np.any(chosen[:, 2] <= 0.05) or np.any(np.sin(chosen[:, 4]) > -0.2):
+            return None  # the iterative path words the configuration error
+        if np.any(chosen < self.lower) or np.any(chosen > self.upper):
+            return None
+        positions, rotations = self.tool_poses(chosen)
+        position_error = np.linalg.norm(positions - points, axis=1)
+        rotation_error = rotation_angles(rotations, targets[:, :3, :3])
+        worst_p, worst_r = float(position_error.max()), float(rotation_error.max())
+        if worst_p > CLOSED_FORM_TOLERANCE_M or worst_r > CLOSED_FORM_TOLERANCE_RAD:
+            return None
+        return chosen, worst_p, worst_r
+
+    def _solve_iterative(
+        self, points: np.ndarray, yaws: np.ndarray, seed: np.ndarray, where: str
+    ) -> tuple[np.ndarray, float, float]:
+        """Warm-started damped least squares, point after point."""
         qs = np.empty((len(points), 6))
         previous = np.array(seed, dtype=float)
         velocity = np.zeros(6)
@@ -336,6 +385,72 @@ class RobotModel:
             worst_p = max(worst_p, result.position_error_m)
             worst_r = max(worst_r, result.rotation_error_rad)
         return qs, worst_p, worst_r
+
+
+CLOSED_FORM_TOLERANCE_M = 1e-9
+CLOSED_FORM_TOLERANCE_RAD = 1e-9
+MAX_BRANCH_STEP_RAD = 0.25
+"""A larger joint step between consecutive path points is not trusted to the closed form."""
+
+
+def tool_poses_down(points: np.ndarray, yaws: np.ndarray) -> np.ndarray:
+    """(n, 4, 4) tool poses pointing down at `points` with tool x at `yaws` (board frame)."""
+    c, s = np.cos(yaws), np.sin(yaws)
+    poses = np.zeros((len(points), 4, 4))
+    poses[:, 0, 0], poses[:, 0, 1] = c, s
+    poses[:, 1, 0], poses[:, 1, 1] = s, -c
+    poses[:, 2, 2] = -1.0
+    poses[:, :3, 3] = points
+    poses[:, 3, 3] = 1.0
+    return poses
+
+
+def rotation_angles(rotations: np.ndarray, targets: np.ndarray) -> np.ndarray:
+    """(n,) angles of rotations[i]^T targets[i] (accurate near zero)."""
+    error = np.swapaxes(rotations, 1, 2) @ targets
+    skew = np.stack(
+        [
+            error[:, 2, 1] - error[:, 1, 2],
+            error[:, 0, 2] - error[:, 2, 0],
+            error[:, 1, 0] - error[:, 0, 1],
+        ],
+        axis=1,
+    )
+    cosine = (np.trace(error, axis1=1, axis2=2) - 1.0) / 2.0
+    return np.arctan2(np.linalg.norm(skew, axis=1) / 2.0, cosine)
+
+
+def _nearest_turn(angles: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """`angles` shifted by whole turns to lie within pi of `reference` (broadcasting)."""
+    return angles + 2 * np.pi * np.round((reference - angles) / (2 * np.pi))
+
+
+def choose_continuous_branch(branches: np.ndarray, seed: np.ndarray) -> np.ndarray | None:
+    """(n, 6) joints from (n, 8, 6) analytic solutions: at the first point the branch nearest
+    `seed`, then at every point the branch nearest the previous one (unwrapped: no jumps of a
+    whole turn). None when that is not one branch kept throughout with small steps (a
+    singularity, a missing solution, or a path stepping too far between points)."""
+    first = _nearest_turn(branches[0], seed)
+    distance = np.abs(first - seed).max(axis=1)
+    if np.isnan(distance).all():
+        return None
+    branch = int(np.nanargmin(distance))
+    path = branches[:, branch].copy()
+    if np.isnan(path).any():
+        return None
+    path[0] = first[branch]
+    path = np.unwrap(path, axis=0)
+    if len(path) > 1:
+        steps = np.abs(np.diff(path, axis=0)).max(axis=1)
+        if steps.max() > MAX_BRANCH_STEP_RAD:
+            return None
+        # Every point's nearest branch to the previous point must be the branch kept.
+        others = _nearest_turn(branches[1:], path[:-1, None, :])
+        gaps = np.abs(others - path[:-1, None, :]).max(axis=2)
+        gaps = np.where(np.isnan(gaps), np.inf, gaps)
+        if np.any(np.argmin(gaps, axis=1) != branch):
+            return None
+    return path
 
 
 def _wrap(angle: float) -> float:
@@ -366,6 +481,16 @@ def solve_path(model: RobotModel, tool_path: ToolPath) -> JointPath:
     model.check_reachable(tool_path)
     first = tool_path.pieces[0]
     seed = model.tool_down_seed(first.points[0], float(first.yaw[0]))
+    if model.closed_form is not None:
+        # One analytic solve for the whole path: continuity runs across piece boundaries.
+        points = np.concatenate([piece.points for piece in tool_path.pieces])
+        yaws = np.concatenate([piece.yaw for piece in tool_path.pieces])
+        solved = model._solve_closed_form(points, yaws, seed)
+        if solved is not None:
+            qs, worst_p, worst_r = solved
+            ends = np.cumsum([len(piece.points) for piece in tool_path.pieces])[:-1]
+            pieces = tuple(np.split(qs, ends))
+            return JointPath(pieces, model.joint_names, worst_p, worst_r)
     solutions = []
     worst_p = worst_r = 0.0
     for index, piece in enumerate(tool_path.pieces):
