@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from keymps.errors import KeympsError
+from keymps.robot.batch_fk import BatchKinematics
 from keymps.robot.closed_form import ClosedFormIk
 from keymps.robot.description import (
     ARMS,
@@ -107,6 +108,10 @@ class RobotModel:
         self.acceleration_limits = np.full(6, float(max_joint_acceleration))
         self.jerk_limits = np.full(6, float(max_joint_jerk))
         self.urdf_path = ur_urdf_path()
+        self.batch = BatchKinematics.for_model(self.model)
+        """Forward kinematics of many configurations at once (None: one Pinocchio call each)."""
+        self._tcp_frame = self.model.frames[self.tcp_frame]
+        self._flange = self.model.frames[self.flange_frame]
         self.closed_form = ClosedFormIk.for_model(self.arm, self.base_in_board.homogeneous, self.fk)
         """The analytic IK, None when the DH chain does not reproduce this model (then every
         point is solved iteratively)."""
@@ -142,17 +147,17 @@ class RobotModel:
 
     def tool_positions(self, qs: np.ndarray) -> np.ndarray:
         """(n, 3) tool tip positions for (n, 6) joint vectors."""
-        import pinocchio as pin
-
-        out = np.empty((len(qs), 3))
-        model, data, frame = self.model, self.data, self.tcp_frame
-        for i, q in enumerate(np.asarray(qs, dtype=float)):
-            pin.forwardKinematics(model, data, q)
-            out[i] = pin.updateFramePlacement(model, data, frame).translation
-        return out
+        return self.tool_poses(qs)[0]
 
     def tool_poses(self, qs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(n, 3) tool tip positions and (n, 3, 3) rotations for (n, 6) joint vectors."""
+        if self.batch is None or len(qs) == 0:
+            return self.pinocchio_tool_poses(qs)
+        frame = self._tcp_frame
+        return self.batch.frame_poses(qs, frame.parentJoint, frame.placement)
+
+    def pinocchio_tool_poses(self, qs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """`tool_poses` by one Pinocchio call per configuration (what verifies the IK)."""
         import pinocchio as pin
 
         positions = np.empty((len(qs), 3))
@@ -172,6 +177,12 @@ class RobotModel:
         points = [np.array(self.data.oMi[j].translation) for j in range(1, 7)]
         points.append(np.array(self.data.oMf[self.flange_frame].translation))
         return np.array(points)
+
+    def joint_origins_many(self, qs: np.ndarray) -> np.ndarray:
+        """(n, 7, 3): `joint_origins` of each of (n, 6) joint vectors."""
+        if self.batch is None:
+            return np.array([self.joint_origins(q) for q in qs]).reshape(-1, 7, 3)
+        return self.batch.origins(qs, (self._flange.parentJoint, self._flange.placement))
 
     # -- inverse kinematics --------------------------------------------------------------------
 
@@ -346,7 +357,7 @@ class RobotModel:
             return None  # the iterative path words the configuration error
         if np.any(chosen < self.lower) or np.any(chosen > self.upper):
             return None
-        positions, rotations = self.tool_poses(chosen)
+        positions, rotations = self.pinocchio_tool_poses(chosen)
         position_error = np.linalg.norm(positions - points, axis=1)
         rotation_error = rotation_angles(rotations, targets[:, :3, :3])
         worst_p, worst_r = float(position_error.max()), float(rotation_error.max())

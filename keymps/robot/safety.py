@@ -215,19 +215,21 @@ def _check_board(
             f"the tool tilts {math.degrees(tilt[i]):.1f} degrees from straight down at "
             f"{_at(trajectory, i)}"
         )
-    lowest = math.inf
-    lowest_at = 0
-    for i in range(0, len(trajectory.q), max(1, round(trajectory.rate_hz / 50))):
-        # elbow, wrists and flange (joint origins 2..6 and the flange)
-        height = float(model.joint_origins(trajectory.q[i])[2:, 2].min())
-        if height < lowest:
-            lowest, lowest_at = height, i
+    lowest, lowest_at = _lowest_arm_point(model, trajectory)
     figures["min_arm_z_mm"] = lowest * 1000
     if lowest < ARM_CLEARANCE_M:
         problems.append(
             f"the arm comes within {lowest * 1000:.0f} mm of the board surface at "
             f"{_at(trajectory, lowest_at)}: move the base (task robot.base)"
         )
+
+
+def _lowest_arm_point(model: RobotModel, trajectory: Trajectory) -> tuple[float, int]:
+    """The lowest height of the elbow, wrists and flange over every sample, and its index."""
+    # joint origins 2..6 and the flange, all samples at once
+    heights = model.joint_origins_many(np.asarray(trajectory.q, dtype=float))[:, 2:, 2].min(axis=1)
+    index = int(np.argmin(heights))
+    return float(heights[index]), index
 
 
 def _check_footprint(

@@ -25,6 +25,11 @@ def _brute_force(points: np.ndarray, polyline: np.ndarray) -> np.ndarray:
     return out
 
 
+BLOCK_SEGMENTS = 4
+"""Consecutive segments bounded together by one box in the pruned search (small: sawing
+strokes run over each other, and every overlapping block must be searched)."""
+
+
 def distance_to_polyline(points: np.ndarray, polyline: np.ndarray) -> np.ndarray:
     """Exact distance of each point (n, 3) to a polyline (m, 3)."""
     points = np.asarray(points, dtype=float)
@@ -32,31 +37,76 @@ def distance_to_polyline(points: np.ndarray, polyline: np.ndarray) -> np.ndarray
     if len(polyline) == 1 or len(points) == 0:
         return np.linalg.norm(points - polyline[0], axis=1)
     segments = len(polyline) - 1
-    if segments * len(points) <= 200_000:
+    if segments <= 2 * BLOCK_SEGMENTS or segments * len(points) <= 50_000:
         return _brute_force(points, polyline)
-    from scipy.spatial import cKDTree
+    return _pruned(points, polyline)
 
-    # The closest segment has an endpoint within d + L/2 of the point (d: distance found,
-    # L: longest segment); candidates come from the k nearest vertices, and any point for
-    # which that bound is not covered is measured against every segment.
-    longest = float(np.linalg.norm(np.diff(polyline, axis=0), axis=1).max())
-    k = min(8, len(polyline))
-    vertex_distance, nearest = cKDTree(polyline).query(points, k)
-    first = np.clip(np.concatenate([nearest - 1, nearest], axis=1), 0, segments - 1)
-    found = _segment_distances(points, polyline[first], polyline[first + 1]).min(axis=1)
-    if k < len(polyline):
-        unsure = vertex_distance[:, -1] < found + longest / 2
-        if unsure.any():
-            found[unsure] = _brute_force(points[unsure], polyline)
-    return found
+
+def _pruned(points: np.ndarray, polyline: np.ndarray) -> np.ndarray:
+    """Branch and bound over blocks of BLOCK_SEGMENTS segments, each inside a box: the
+    distance to a block is at least the distance to its box, so only blocks whose bound is
+    below the best distance found in the most promising block can hold the nearest segment."""
+    segments = len(polyline) - 1
+    blocks = -(-segments // BLOCK_SEGMENTS)
+    first = np.arange(blocks) * BLOCK_SEGMENTS
+    last = np.minimum(first + BLOCK_SEGMENTS, segments)  # vertex index ending each block
+    low = np.minimum.reduceat(polyline[:-1], first, axis=0)
+    high = np.maximum.reduceat(polyline[1:], first, axis=0)
+    low = np.minimum(low, np.minimum.reduceat(polyline[1:], first, axis=0))
+    high = np.maximum(high, np.maximum.reduceat(polyline[:-1], first, axis=0))
+    out = np.empty(len(points))
+    chunk = max(1, 100_000 // blocks)
+    for start in range(0, len(points), chunk):
+        block_points = points[start : start + chunk, None, :]
+        gap = np.maximum(np.maximum(low - block_points, block_points - high), 0.0)
+        bound = np.sqrt((gap**2).sum(axis=2))
+        block_points = block_points[:, 0]
+        best = _block_distances(block_points, polyline, np.argmin(bound, axis=1), last)
+        pairs_point, pairs_block = np.nonzero(bound < best[:, None])
+        found = _block_distances(block_points[pairs_point], polyline, pairs_block, last)
+        np.minimum.at(best, pairs_point, found)
+        out[start : start + chunk] = best
+    return out
+
+
+def _block_distances(
+    points: np.ndarray, polyline: np.ndarray, blocks: np.ndarray, last: np.ndarray
+) -> np.ndarray:
+    """Distance of points[i] to the segments of block blocks[i]."""
+    index = blocks[:, None] * BLOCK_SEGMENTS + np.arange(BLOCK_SEGMENTS)
+    index = np.minimum(index, last[blocks][:, None] - 1)  # a short last block repeats its end
+    return _segment_distances(points, polyline[index], polyline[index + 1]).min(axis=1)
 
 
 def outside_distance(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
     """How far each 2D point lies outside a polygon (0 inside or on it), metres."""
-    import cv2
+    points = np.asarray(points, dtype=float).reshape(-1, 2)
+    polygon = np.asarray(polygon, dtype=float).reshape(-1, 2)
+    if len(points) == 0:
+        return np.zeros(0)
+    closed = np.vstack([polygon, polygon[:1]])
+    flat = np.zeros((len(closed), 3))
+    flat[:, :2] = closed
+    lifted = np.zeros((len(points), 3))
+    lifted[:, :2] = points
+    out = np.zeros(len(points))
+    outside = ~inside_polygon(points, polygon)
+    if outside.any():  # far from the edge inside, where every edge would be a candidate
+        out[outside] = distance_to_polyline(lifted[outside], flat)
+    return out
 
-    contour = np.asarray(polygon, dtype=np.float32).reshape(-1, 1, 2)
-    signed = np.array(
-        [cv2.pointPolygonTest(contour, (float(x), float(y)), True) for x, y in points]
-    )
-    return np.maximum(-signed, 0.0)
+
+def inside_polygon(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
+    """(n,) whether each 2D point is inside the polygon (even-odd rule; edges count either
+    way, which `outside_distance` does not mind: it is 0 on an edge)."""
+    inside = np.zeros(len(points), dtype=bool)
+    x, y = points[:, 0], points[:, 1]
+    chunk = max(1, 1_000_000 // len(polygon))
+    a, b = polygon, np.roll(polygon, -1, axis=0)
+    for start in range(0, len(points), chunk):
+        px, py = x[start : start + chunk, None], y[start : start + chunk, None]
+        straddles = (a[:, 1] > py) != (b[:, 1] > py)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            crossing = a[:, 0] + (py - a[:, 1]) * (b[:, 0] - a[:, 0]) / (b[:, 1] - a[:, 1])
+        inside[start : start + chunk] = (straddles & (px < crossing)).sum(axis=1) % 2 == 1
+    return inside
