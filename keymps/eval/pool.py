@@ -50,10 +50,20 @@ MIN_JOBS_PER_PROCESS = 8
 POLL_S = 0.5
 
 
-def default_processes(concurrency: int, jobs: int) -> int:
-    """Worker processes for `jobs` runs at `concurrency`: one per core; 1 means in-process."""
+OFFLINE_BACKENDS = ("offline", "replay")
+"""Planner backends that never call a VLM: `concurrency` does not bound their runs."""
+
+
+def available_cores() -> int:
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    processes = min(cores or 1, concurrency)
+    return max(1, cores or 1)
+
+
+def default_processes(concurrency: int, jobs: int, backend: str | None = None) -> int:
+    """Worker processes for `jobs` runs at `concurrency`: one per core (every core for an
+    offline backend, whatever the concurrency); 1 means in-process."""
+    cores = available_cores()
+    processes = cores if backend in OFFLINE_BACKENDS else min(cores, concurrency)
     while processes > 1 and jobs < MIN_JOBS_PER_PROCESS * processes:
         processes -= 1
     return max(1, processes)
@@ -64,6 +74,8 @@ def runs_in_flight(concurrency: int, processes: int, backend: str) -> int:
     calls go through the broker (which alone keeps them to `concurrency`)."""
     from keymps.eval.broker import BROKERED_BACKEND
 
+    if backend in OFFLINE_BACKENDS:  # nothing to wait for: one run computing per process
+        return max(1, concurrency, processes)
     ahead = RUNS_AHEAD * max(1, processes) if backend == BROKERED_BACKEND else 0
     return max(1, concurrency) + ahead
 

@@ -329,7 +329,7 @@ def run_suite(
     """Run every job not yet in out/results.jsonl; return all records for these jobs."""
     from keymps.eval.broker import BROKERED_BACKEND, VlmBroker
     from keymps.eval.methods import check_runnable, get_method
-    from keymps.eval.pool import JobRunner, default_processes, run_in_processes
+    from keymps.eval.pool import OFFLINE_BACKENDS, JobRunner, default_processes, run_in_processes
     from keymps.eval.turn import CpuTurn
 
     backend = resolve_backend(options)
@@ -357,8 +357,9 @@ def run_suite(
         if on_result:
             on_result(job, record)
 
-    processes = options.processes or default_processes(options.concurrency, len(todo))
-    processes = min(processes, options.concurrency)
+    processes = options.processes or default_processes(options.concurrency, len(todo), backend)
+    if backend not in OFFLINE_BACKENDS:  # more processes than VLM calls would only wait
+        processes = min(processes, options.concurrency)
     # given up by the broker while a run of this process waits for the VLM
     turn = CpuTurn(active=backend == BROKERED_BACKEND)
     warm_up = backend == BROKERED_BACKEND and bool(todo)

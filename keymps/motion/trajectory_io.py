@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 
 import numpy as np
@@ -17,14 +16,15 @@ CSV_HEADER = "t,q1,q2,q3,q4,q5,q6,x,y,z,piece,kind"
 def write_trajectory_csv(trajectory: Trajectory, path: str | Path) -> Path:
     """One row per controller sample: seconds, radians, tool tip metres (board), piece, kind."""
     path = Path(path)
-    rows = [CSV_HEADER]
-    for i in range(trajectory.samples):
-        q = ",".join(f"{v:.9f}" for v in trajectory.q[i])
-        xyz = ",".join(f"{v:.6f}" for v in trajectory.tool_xyz[i])
-        rows.append(
-            f"{trajectory.t[i]:.6f},{q},{xyz},{int(trajectory.piece_index[i])},{trajectory.kind[i]}"
-        )
-    _write_text(path, "\n".join(rows) + "\n")
+    row = ",".join(["%.6f"] + ["%.9f"] * 6 + ["%.6f"] * 3 + ["%d", "%s"])
+    numbers = np.column_stack([trajectory.t, trajectory.q, trajectory.tool_xyz]).tolist()
+    pieces = np.asarray(trajectory.piece_index).astype(int).tolist()
+    kinds = [str(kind) for kind in trajectory.kind]
+    rows = [
+        row % (*values, piece, kind)
+        for values, piece, kind in zip(numbers, pieces, kinds, strict=True)
+    ]
+    _write_text(path, "\n".join([CSV_HEADER, *rows]) + "\n")
     return path
 
 
@@ -59,22 +59,28 @@ def read_trajectory_csv(path: str | Path) -> dict[str, np.ndarray]:
 
 def joint_trajectory_message(trajectory: Trajectory) -> dict[str, object]:
     """trajectory_msgs/JointTrajectory as plain data (header left for the consumer to stamp)."""
-    points = []
-    for i in range(trajectory.samples):
-        t = float(trajectory.t[i])
-        seconds = math.floor(t)
-        nanoseconds = round((t - seconds) * 1e9)
-        if nanoseconds >= 1_000_000_000:
-            seconds, nanoseconds = seconds + 1, nanoseconds - 1_000_000_000
-        points.append(
-            {
-                "positions": [float(v) for v in trajectory.q[i]],
-                "velocities": [float(v) for v in trajectory.qd[i]],
-                "accelerations": [float(v) for v in trajectory.qdd[i]],
-                "effort": [],
-                "time_from_start": {"sec": int(seconds), "nanosec": int(nanoseconds)},
-            }
+    t = np.asarray(trajectory.t, dtype=float)
+    seconds = np.floor(t)
+    nanoseconds = np.round((t - seconds) * 1e9)
+    carry = nanoseconds >= 1_000_000_000
+    seconds, nanoseconds = seconds + carry, nanoseconds - carry * 1_000_000_000
+    points = [
+        {
+            "positions": q,
+            "velocities": qd,
+            "accelerations": qdd,
+            "effort": [],
+            "time_from_start": {"sec": sec, "nanosec": nanosec},
+        }
+        for q, qd, qdd, sec, nanosec in zip(
+            np.asarray(trajectory.q, dtype=float).tolist(),
+            np.asarray(trajectory.qd, dtype=float).tolist(),
+            np.asarray(trajectory.qdd, dtype=float).tolist(),
+            seconds.astype(int).tolist(),
+            nanoseconds.astype(int).tolist(),
+            strict=True,
         )
+    ]
     return {
         "header": {"stamp": {"sec": 0, "nanosec": 0}, "frame_id": ""},
         "joint_names": list(trajectory.joint_names),

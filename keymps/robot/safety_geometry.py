@@ -98,15 +98,24 @@ def outside_distance(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
 
 def inside_polygon(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
     """(n,) whether each 2D point is inside the polygon (even-odd rule; edges count either
-    way, which `outside_distance` does not mind: it is 0 on an edge)."""
-    inside = np.zeros(len(points), dtype=bool)
-    x, y = points[:, 0], points[:, 1]
-    chunk = max(1, 1_000_000 // len(polygon))
+    way, which `outside_distance` does not mind: it is 0 on an edge).
+
+    Points are sorted by y, so each edge meets only the points level with it: the work is the
+    number of (edge, point) crossings tested, about twice the points for a simple outline."""
+    order = np.argsort(points[:, 1], kind="stable")
+    ys = points[order, 1]
     a, b = polygon, np.roll(polygon, -1, axis=0)
-    for start in range(0, len(points), chunk):
-        px, py = x[start : start + chunk, None], y[start : start + chunk, None]
-        straddles = (a[:, 1] > py) != (b[:, 1] > py)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            crossing = a[:, 0] + (py - a[:, 1]) * (b[:, 0] - a[:, 0]) / (b[:, 1] - a[:, 1])
-        inside[start : start + chunk] = (straddles & (px < crossing)).sum(axis=1) % 2 == 1
-    return inside
+    low, high = np.minimum(a[:, 1], b[:, 1]), np.maximum(a[:, 1], b[:, 1])
+    # An edge straddles a point's level when exactly one end is above it (half-open: low < y).
+    first = np.searchsorted(ys, low, side="right")
+    last = np.searchsorted(ys, high, side="right")
+    counts = np.maximum(last - first, 0)
+    edge = np.repeat(np.arange(len(polygon)), counts)
+    offsets = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+    sorted_index = np.repeat(first, counts) + offsets
+    point = order[sorted_index]
+    px, py = points[point, 0], points[point, 1]
+    ax, ay, bx, by = a[edge, 0], a[edge, 1], b[edge, 0], b[edge, 1]
+    crossing = ax + (py - ay) * (bx - ax) / (by - ay)  # by != ay: a level edge straddles nothing
+    crossings = np.bincount(point[px < crossing], minlength=len(points))
+    return crossings % 2 == 1
