@@ -60,7 +60,7 @@ class Stroke:
     s: np.ndarray
     points: np.ndarray
     q_of_s: Any
-    """scipy CubicSpline: (m,) s -> (m, 6) joints, with derivatives."""
+    """keymps.motion.spline.CubicSpline: (m,) s -> (m, 6) joints, with derivatives."""
     speed: float
 
     @property
@@ -195,7 +195,7 @@ def _significant_points(points: np.ndarray, yaw: np.ndarray) -> np.ndarray:
 
 def split_strokes(model: RobotModel, tool_path: ToolPath, joint_path: JointPath) -> list[Stroke]:
     """Every piece cut at its sharp corners; parts that do not move are dropped."""
-    from scipy.interpolate import CubicSpline
+    from keymps.motion.spline import CubicSpline
 
     if len(joint_path.pieces) != len(tool_path.pieces):
         raise KeympsError(
@@ -232,7 +232,7 @@ def split_strokes(model: RobotModel, tool_path: ToolPath, joint_path: JointPath)
                     piece.kind,
                     s_plan,
                     points[part],
-                    CubicSpline(s_dense, dense_q, axis=0),
+                    CubicSpline(s_dense, dense_q),
                     float(piece.speed),
                 )
             )

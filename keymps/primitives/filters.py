@@ -2,8 +2,8 @@
 
 Two ways to run a filter B(q) / A(q) with a monic second-order A and zero history:
 
-- `fir` then `all_pole`: the two halves, the recursion solved sample after sample (a few rows:
-  rollouts);
+- `fir` then `all_pole`: the two halves, the recursion solved block after block in numpy (a
+  few rows: rollouts, on every run's path, which therefore never imports scipy);
 - `block_convolve`: the whole filter for many rows at once (a fit's 51 basis responses). The
   samples are cut into blocks; within a block the output is a small Toeplitz product, and what
   earlier blocks contribute is carried by two numbers per block (an impulse response of a
@@ -35,21 +35,55 @@ class FilterError(KeympsError):
 
 def all_pole(a: np.ndarray, x: np.ndarray, overwrite: bool = False) -> np.ndarray:
     """1 / A(q) along the last axis with zero history, for monic second-order A: the recursion
-    y[n] = x[n] - a1 y[n-1] - a2 y[n-2] is a unit lower-triangular banded system (LAPACK dtbtrs,
-    the all-pole pass of scipy.signal.lfilter without the second it takes to import it)."""
-    from scipy.linalg.lapack import dtbtrs
+    y[n] = x[n] - a1 y[n-1] - a2 y[n-2], solved in blocks of BLOCK samples without scipy (a
+    run's rollouts would otherwise pay scipy.linalg's import, a third of a second).
 
-    columns = x.reshape(1, -1) if x.ndim == 1 else x
-    length = columns.shape[-1]
-    band = np.empty((3, length))
-    band[0] = 1.0
-    band[1] = a[1]
-    band[2] = a[2]
-    # x.T of a C-ordered (m, N) array is a Fortran-ordered (N, m) right-hand side: no copy.
-    solution, info = dtbtrs(band, columns.T, uplo="L", diag="U", overwrite_b=int(overwrite))
-    if info != 0:  # pragma: no cover - a unit diagonal cannot be singular
-        raise FilterError(f"internal error: banded solve failed (info {info})")
-    return np.asarray(solution.T).reshape(x.shape)
+    Within a block the output is the input times the recursion's impulse-response Toeplitz
+    matrix (one matrix product for all blocks), plus what the two last outputs of the previous
+    block bring: those two carries follow a 2 x 2 recursion from block to block, the only loop.
+    `overwrite` is accepted for the callers' sake (the result is always a new array)."""
+    del overwrite
+    columns = np.asarray(x, dtype=float)
+    columns = columns.reshape(1, -1) if columns.ndim == 1 else columns
+    count, length = columns.shape
+    if length == 0:
+        return np.zeros(np.shape(x))
+    block = min(BLOCK, length)
+    blocks = -(-length // block)
+    padded = np.zeros((count, blocks * block))
+    padded[:, :length] = columns
+    impulse, ones, twos = _all_pole_responses(float(a[1]), float(a[2]), block)
+    shifted = np.zeros(2 * block - 1)
+    shifted[block - 1 :] = impulse
+    toeplitz = shifted[_toeplitz_index(block)]  # toeplitz[j, i] = impulse[i - j], upper
+    own = (padded.reshape(count * blocks, block) @ toeplitz).reshape(count, blocks, block)
+    # carries: block k's last two outputs, (y[-2], y[-1]), from its own part and block k - 1's
+    entering = np.zeros((count, blocks, 2))
+    previous = np.zeros((count, 2))
+    for k in range(1, blocks):
+        last = own[:, k - 1, -2:] + previous[:, :1] * twos[-2:] + previous[:, 1:] * ones[-2:]
+        entering[:, k] = previous = last
+    out = own + entering[:, :, :1] * twos + entering[:, :, 1:] * ones
+    return out.reshape(count, blocks * block)[:, :length].reshape(np.shape(x))
+
+
+@functools.lru_cache(maxsize=32)
+def _all_pole_responses(a1: float, a2: float, block: int) -> tuple[np.ndarray, ...]:
+    """The recursion's impulse response over one block, and its free responses to a previous
+    output of 1 one sample back (`ones`) and two samples back (`twos`)."""
+
+    def run(first: float, second: float, drive: float) -> np.ndarray:
+        out, y1, y2 = [], first, second  # y1 = y[-1], y2 = y[-2]
+        for n in range(block):
+            y = (drive if n == 0 else 0.0) - a1 * y1 - a2 * y2
+            out.append(y)
+            y1, y2 = y, y1
+        return np.array(out)
+
+    responses = (run(0.0, 0.0, 1.0), run(1.0, 0.0, 0.0), run(0.0, 1.0, 0.0))
+    for response in responses:
+        response.flags.writeable = False
+    return responses
 
 
 def fir(b: np.ndarray, v: np.ndarray) -> np.ndarray:

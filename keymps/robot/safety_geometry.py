@@ -25,7 +25,7 @@ def _brute_force(points: np.ndarray, polyline: np.ndarray) -> np.ndarray:
     return out
 
 
-BLOCK_SEGMENTS = 4
+BLOCK_SEGMENTS = 8
 """Consecutive segments bounded together by one box in the pruned search (small: sawing
 strokes run over each other, and every overlapping block must be searched)."""
 
@@ -62,10 +62,11 @@ def _pruned(points: np.ndarray, polyline: np.ndarray) -> np.ndarray:
         bound = np.sqrt((gap**2).sum(axis=2))
         block_points = block_points[:, 0]
         best = _block_distances(block_points, polyline, np.argmin(bound, axis=1), last)
-        pairs_point, pairs_block = np.nonzero(bound < best[:, None])
+        # Row-major: the pairs come grouped by point, and every point has its own best block.
+        pairs_point, pairs_block = np.nonzero(bound <= best[:, None])
         found = _block_distances(block_points[pairs_point], polyline, pairs_block, last)
-        np.minimum.at(best, pairs_point, found)
-        out[start : start + chunk] = best
+        starts = np.flatnonzero(np.diff(pairs_point, prepend=-1))
+        out[start : start + chunk] = np.minimum.reduceat(found, starts)
     return out
 
 

@@ -1,0 +1,109 @@
+"""Not-a-knot cubic splines through joint vectors, with derivatives, in numpy.
+
+The timing maps the path parameter s to joints through one spline per stroke. This is the
+spline scipy.interpolate.CubicSpline builds by default (bc_type 'not-a-knot', axis 0), written
+out so that a run does not import scipy.interpolate (over half a second on a busy machine) for
+it: the same linear system for the knot slopes, the same piecewise polynomial, the same
+extrapolation past the ends. tests/test_timing.py compares the two to 1e-12.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+DENSE_SOLVE_MAX = 400
+"""Up to this many knots the slope system is solved densely (LAPACK, pivoting); above it by
+the tridiagonal (Thomas) recursion, which is safe there: the interior rows dominate."""
+
+
+class CubicSpline:
+    """y(x) through knots x (n,) strictly increasing and values y (n, ...); call as f(x, nu)."""
+
+    def __init__(self, x: np.ndarray, y: np.ndarray):
+        x = np.asarray(x, dtype=float)
+        y = np.asarray(y, dtype=float)
+        if x.ndim != 1 or len(x) < 2 or len(y) != len(x):
+            raise ValueError("CubicSpline: x must be (n,) with n >= 2 and y (n, ...)")
+        h = np.diff(x)
+        if not np.all(h > 0):
+            raise ValueError("CubicSpline: x must be strictly increasing")
+        shape = y.shape[1:]
+        values = y.reshape(len(x), -1)
+        slopes = _knot_slopes(h, np.diff(values, axis=0) / h[:, None])
+        secant = np.diff(values, axis=0) / h[:, None]
+        t = (slopes[:-1] + slopes[1:] - 2 * secant) / h[:, None]
+        self.x = x
+        self.shape = shape
+        self.c = np.empty((4, len(h), values.shape[1]))
+        self.c[0] = t / h[:, None]
+        self.c[1] = (secant - slopes[:-1]) / h[:, None] - t
+        self.c[2] = slopes[:-1]
+        self.c[3] = values[:-1]
+
+    def __call__(self, at: np.ndarray, nu: int = 0) -> np.ndarray:
+        """Values (nu = 0) or the nu-th derivative (1, 2, 3) at `at` (m,): (m, ...)."""
+        at = np.asarray(at, dtype=float)
+        interval = np.clip(np.searchsorted(self.x, at, side="right") - 1, 0, len(self.x) - 2)
+        t = (at - self.x[interval])[:, None]
+        c3, c2, c1, c0 = (self.c[k][interval] for k in range(4))  # c3 multiplies t**3
+        if nu == 0:
+            out = ((c3 * t + c2) * t + c1) * t + c0
+        elif nu == 1:
+            out = (3 * c3 * t + 2 * c2) * t + c1
+        elif nu == 2:
+            out = 6 * c3 * t + 2 * c2
+        elif nu == 3:
+            out = np.broadcast_to(6 * c3, (len(at), c3.shape[1])).copy()
+        else:
+            raise ValueError(f"CubicSpline: derivative order {nu} is not 0 to 3")
+        return out.reshape(len(at), *self.shape)
+
+
+def _knot_slopes(h: np.ndarray, secant: np.ndarray) -> np.ndarray:
+    """(n, d) first derivatives at the knots of the not-a-knot spline."""
+    n = len(h) + 1
+    if n == 2:  # a straight line
+        return np.vstack([secant[0], secant[0]])
+    if n == 3:  # not-a-knot on three points: the parabola through them
+        a = np.array(
+            [[1.0, 1.0, 0.0], [h[1], 2 * (h[0] + h[1]), h[0]], [0.0, 1.0, 1.0]],
+        )
+        b = np.vstack([2 * secant[0], 3 * (h[0] * secant[1] + h[1] * secant[0]), 2 * secant[1]])
+        return np.linalg.solve(a, b)
+    lower = np.zeros(n)  # lower[i]: coefficient of s[i-1] in row i
+    diagonal = np.zeros(n)
+    upper = np.zeros(n)  # upper[i]: coefficient of s[i+1] in row i
+    rhs = np.zeros((n, secant.shape[1]))
+    lower[1:-1] = h[1:]
+    diagonal[1:-1] = 2 * (h[:-1] + h[1:])
+    upper[1:-1] = h[:-1]
+    rhs[1:-1] = 3 * (h[1:, None] * secant[:-1] + h[:-1, None] * secant[1:])
+    # not-a-knot: the third derivative is continuous across the second and last-but-one knots
+    diagonal[0], upper[0] = h[1], h[0] + h[1]
+    rhs[0] = ((h[0] + 2 * upper[0]) * h[1] * secant[0] + h[0] ** 2 * secant[1]) / upper[0]
+    diagonal[-1], lower[-1] = h[-2], h[-1] + h[-2]
+    rhs[-1] = (h[-1] ** 2 * secant[-2] + (2 * lower[-1] + h[-1]) * h[-2] * secant[-1]) / lower[-1]
+    if n <= DENSE_SOLVE_MAX:
+        matrix = np.diag(diagonal) + np.diag(upper[:-1], 1) + np.diag(lower[1:], -1)
+        return np.linalg.solve(matrix, rhs)
+    return _thomas(lower, diagonal, upper, rhs)
+
+
+def _thomas(
+    lower: np.ndarray, diagonal: np.ndarray, upper: np.ndarray, rhs: np.ndarray
+) -> np.ndarray:
+    """Tridiagonal solve without pivoting, all right-hand sides at once."""
+    n = len(diagonal)
+    c = np.zeros(n)
+    d = np.zeros_like(rhs)
+    c[0] = upper[0] / diagonal[0]
+    d[0] = rhs[0] / diagonal[0]
+    for i in range(1, n):
+        denominator = diagonal[i] - lower[i] * c[i - 1]
+        c[i] = upper[i] / denominator
+        d[i] = (rhs[i] - lower[i] * d[i - 1]) / denominator
+    out = np.empty_like(rhs)
+    out[-1] = d[-1]
+    for i in range(n - 2, -1, -1):
+        out[i] = d[i] - c[i] * out[i + 1]
+    return out
