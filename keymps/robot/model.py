@@ -400,8 +400,11 @@ class RobotModel:
 
 CLOSED_FORM_TOLERANCE_M = 1e-9
 CLOSED_FORM_TOLERANCE_RAD = 1e-9
-MAX_BRANCH_STEP_RAD = 0.25
+MAX_BRANCH_STEP_RAD = 1.0
 """A larger joint step between consecutive path points is not trusted to the closed form."""
+BRANCH_MARGIN = 0.5
+"""The kept branch must be at most this fraction of the next nearest one's distance from the
+previous point: where two branches come close (a singularity), the iterative solver decides."""
 
 
 def tool_poses_down(points: np.ndarray, yaws: np.ndarray) -> np.ndarray:
@@ -460,6 +463,9 @@ def choose_continuous_branch(branches: np.ndarray, seed: np.ndarray) -> np.ndarr
         gaps = np.abs(others - path[:-1, None, :]).max(axis=2)
         gaps = np.where(np.isnan(gaps), np.inf, gaps)
         if np.any(np.argmin(gaps, axis=1) != branch):
+            return None
+        others = np.delete(gaps, branch, axis=1).min(axis=1)
+        if np.any(gaps[:, branch] > BRANCH_MARGIN * others):
             return None
     return path
 

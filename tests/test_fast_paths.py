@@ -1,0 +1,229 @@
+"""The fast paths against the implementations they replaced, on generated inputs.
+
+Closed-form IK against the iterative solver, batched forward kinematics against Pinocchio,
+Ruckig's phases in numpy against `at_time`, the numpy spline against scipy's, the pruned
+polyline distance against brute force, the polygon test against OpenCV, and whole runs (IK,
+timing, validation) with and without the closed form.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import pytest
+from robot_toolpaths import radial_cuts, ring_of_dots
+
+from keymps.errors import KeympsError
+from keymps.robot.model import BUILTIN_TOOLS, RobotModel, Tool, solve_path, tool_poses_down
+from keymps.types import ToolPath
+
+RNG_SEED = 20261201
+
+
+def random_model(rng: np.random.Generator) -> RobotModel:
+    kind = str(rng.choice(["ur3", "ur3e"]))
+    base = (
+        float(rng.uniform(0.14, 0.16)),
+        float(rng.uniform(-0.21, -0.19)),
+        float(rng.uniform(-0.005, 0.01)),
+        float(rng.uniform(85, 95)),
+    )
+    tcp = (
+        float(rng.uniform(-0.004, 0.004)),
+        float(rng.uniform(-0.004, 0.004)),
+        0.09 + rng.random() * 0.05,
+    )
+    return RobotModel(kind, base, Tool("t", tcp, "fixed"))
+
+
+def test_every_analytic_branch_reproduces_the_pose_in_pinocchio() -> None:
+    rng = np.random.default_rng(RNG_SEED)
+    for _ in range(4):
+        model = random_model(rng)
+        assert model.closed_form is not None
+        qs = rng.uniform(-math.pi, math.pi, (60, 6))
+        positions, rotations = model.pinocchio_tool_poses(qs)
+        poses = np.zeros((len(qs), 4, 4))
+        poses[:, :3, :3], poses[:, :3, 3], poses[:, 3, 3] = rotations, positions, 1.0
+        branches = model.closed_form.solve(poses)
+        found = 0
+        for i, q in enumerate(qs):
+            valid = branches[i][~np.isnan(branches[i]).any(axis=1)]
+            got_p, got_r = model.pinocchio_tool_poses(valid)
+            assert np.abs(got_p - positions[i]).max() < 1e-9
+            assert np.abs(got_r - rotations[i]).max() < 1e-9
+            wrapped = np.abs((valid - q + math.pi) % (2 * math.pi) - math.pi).max(axis=1)
+            found += wrapped.min() < 1e-7  # the configuration we started from is among them
+        assert found >= len(qs) - 2  # (a pose next to a singularity may lose its branch)
+
+
+@pytest.mark.parametrize("make_path", [ring_of_dots, radial_cuts])
+def test_closed_form_and_iterative_ik_agree_on_varied_paths(make_path: Any) -> None:
+    rng = np.random.default_rng(RNG_SEED + 1)
+    solved = 0
+    for _ in range(6):
+        model = random_model(rng)
+        tool_path = make_path(center=(0.15 + rng.uniform(-0.01, 0.01), 0.09))
+        closed, closed_error = _solve(model, tool_path)
+        model.closed_form, kept = None, model.closed_form
+        iterative, iterative_error = _solve(model, tool_path)
+        model.closed_form = kept
+        assert closed_error == iterative_error  # the same refusal, word for word
+        if closed is None or iterative is None:
+            continue
+        solved += 1
+        for a, b in zip(closed.pieces, iterative.pieces, strict=True):
+            assert np.abs(a - b).max() < 1e-6
+        assert closed.max_position_error_m < 1e-9
+    assert solved >= 2
+
+
+def _solve(model: RobotModel, tool_path: ToolPath) -> tuple[Any, str | None]:
+    try:
+        return solve_path(model, tool_path), None
+    except KeympsError as error:
+        return None, str(error)
+
+
+def test_closed_form_solutions_are_verified_and_continuous() -> None:
+    model = RobotModel("ur3", tool=BUILTIN_TOOLS["knife"])
+    tool_path = radial_cuts()
+    joints = solve_path(model, tool_path)
+    points = np.concatenate([piece.points for piece in tool_path.pieces])
+    yaws = np.concatenate([piece.yaw for piece in tool_path.pieces])
+    seed = model.tool_down_seed(points[0], float(yaws[0]))
+    assert model._solve_closed_form(points, yaws, seed) is not None  # no fallback here
+    for piece, qs in zip(tool_path.pieces, joints.pieces, strict=True):
+        positions, rotations = model.pinocchio_tool_poses(qs)
+        targets = tool_poses_down(piece.points, piece.yaw)
+        assert np.abs(positions - piece.points).max() < 1e-9
+        assert np.abs(rotations - targets[:, :3, :3]).max() < 1e-9
+        assert np.abs(np.diff(qs, axis=0)).max() < 0.3  # sparse travel points turn the wrist
+
+
+def test_a_path_the_closed_form_cannot_take_falls_back_with_the_same_errors() -> None:
+    model = RobotModel("ur3", tool=BUILTIN_TOOLS["knife"])
+    near = np.array([[0.10, 0.05, 0.08], [0.11, 0.05, 0.08]])
+    seed = model.tool_down_seed(near[0], 0.0)
+    # A point out of reach has no analytic solution: the iterative solver words the error.
+    far = np.vstack([near, [[0.60, 0.40, 0.08]]])
+    assert model._solve_closed_form(far, np.zeros(3), seed) is None
+    messages = []
+    for method in ("auto", "iterative"):
+        with pytest.raises(KeympsError, match="inverse kinematics failed at path point 2") as info:
+            model.solve_points(far, np.zeros(3), seed, method=method)
+        messages.append(str(info.value))
+    assert messages[0] == messages[1]
+    # Without a closed form (another robot) every point is solved iteratively.
+    auto = model.solve_points(near, np.zeros(2), seed)
+    model.closed_form = None
+    assert np.abs(model.solve_points(near, np.zeros(2), seed)[0] - auto[0]).max() < 1e-6
+
+
+def test_batched_forward_kinematics_is_pinocchios() -> None:
+    rng = np.random.default_rng(RNG_SEED + 2)
+    for _ in range(3):
+        model = random_model(rng)
+        assert model.batch is not None
+        qs = rng.uniform(-2 * math.pi, 2 * math.pi, (5000, 6))  # more than one chunk
+        positions, rotations = model.tool_poses(qs)
+        expected_p, expected_r = model.pinocchio_tool_poses(qs)
+        assert np.abs(positions - expected_p).max() < 1e-12
+        assert np.abs(rotations - expected_r).max() < 1e-12
+        origins = model.joint_origins_many(qs[:200])
+        assert np.abs(origins - np.array([model.joint_origins(q) for q in qs[:200]])).max() < 1e-12
+
+
+def test_ruckig_phases_in_numpy_match_at_time() -> None:
+    from keymps.motion.timing import Limits, _profile, _sample_profile, _sample_profile_by_calls
+
+    rng = np.random.default_rng(RNG_SEED + 3)
+    for _ in range(60):
+        limits = Limits(rng.uniform(0.005, 0.3), rng.uniform(0.05, 3.0), rng.uniform(0.5, 60.0))
+        profile, duration = _profile(float(rng.uniform(1e-5, 0.4)), limits, 1 / 125)
+        times = np.append(np.arange(0.0, duration + 0.01, 0.002), [duration, 0.0])
+        fast = np.array(_sample_profile(profile, times))
+        reference = np.array(_sample_profile_by_calls(profile, times))
+        assert np.abs(fast - reference).max() < 1e-12
+
+
+def test_the_numpy_spline_is_scipys_not_a_knot_spline() -> None:
+    from scipy.interpolate import CubicSpline as ScipySpline
+
+    from keymps.motion.spline import DENSE_SOLVE_MAX, CubicSpline
+
+    rng = np.random.default_rng(RNG_SEED + 4)
+    sizes = [2, 3, 4, 5, 17, DENSE_SOLVE_MAX, DENSE_SOLVE_MAX + 1, 900]
+    for n in sizes:
+        x = np.concatenate([[0.0], np.cumsum(rng.uniform(1e-5, 3e-3, n - 1))])
+        y = np.cumsum(rng.normal(0, 0.01, (n, 6)), axis=0)
+        at = np.concatenate([x, rng.uniform(-1e-3, x[-1] + 1e-3, 400)])
+        ours, theirs = CubicSpline(x, y), ScipySpline(x, y, axis=0)
+        for nu in range(4):
+            scale = max(1.0, float(np.abs(theirs(at, nu)).max()))
+            assert np.abs(ours(at, nu) - theirs(at, nu)).max() / scale < 1e-11, (n, nu)
+
+
+def test_pruned_polyline_distance_is_exact() -> None:
+    from keymps.robot.safety_geometry import _brute_force, distance_to_polyline
+
+    rng = np.random.default_rng(RNG_SEED + 5)
+    for trial in range(12):
+        polyline = np.cumsum(rng.normal(0, 0.01, (int(rng.integers(40, 400)), 3)), axis=0)
+        if trial % 3 == 0:  # sawing: strokes running back over each other
+            polyline = np.concatenate([polyline, polyline[::-1], polyline])
+        noise = float(rng.choice([0.0, 1e-9, 1e-3, 0.05]))
+        picked = polyline[rng.integers(0, len(polyline), 1500)]
+        points = picked + rng.normal(0, noise, picked.shape)
+        got = distance_to_polyline(points, polyline)
+        assert np.abs(got - _brute_force(points, polyline)).max() < 1e-15
+
+
+def test_outside_distance_matches_opencv_on_random_outlines() -> None:
+    import cv2
+
+    from keymps.robot.safety_geometry import outside_distance
+
+    rng = np.random.default_rng(RNG_SEED + 6)
+    for trial in range(30):
+        count = int(rng.integers(3, 900))
+        angles = np.sort(rng.uniform(0, 2 * math.pi, count))
+        radius = rng.uniform(0.02, 0.08, count) if trial % 2 else 0.05  # concave or convex
+        outline = np.column_stack([0.15 + radius * np.cos(angles), 0.09 + radius * np.sin(angles)])
+        points = rng.uniform(0.0, 0.3, (2000, 2))
+        points[:20] = outline[rng.integers(0, count, 20)]  # on the outline
+        contour = outline.astype(np.float32).reshape(-1, 1, 2)
+        signed = np.array(
+            [cv2.pointPolygonTest(contour, (float(x), float(y)), True) for x, y in points]
+        )
+        assert np.abs(outside_distance(points, outline) - np.maximum(-signed, 0.0)).max() < 1e-6
+
+
+@pytest.mark.parametrize("task_file", ["cake_icing.yaml", "object_cutting.yaml"])
+def test_shipped_runs_are_unchanged_by_the_closed_form(
+    task_file: str, tmp_path: Any, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """IK, timing, validation and the simulated outcome with the closed form, and with every
+    point solved iteratively as before."""
+    from pathlib import Path
+
+    from keymps import load_task, run_task
+    from keymps.robot import closed_form
+
+    task = load_task(Path(__file__).parents[1] / "tasks" / task_file)
+    fast = run_task(task, out=tmp_path / "fast", rerun="off", backend="offline", executor="sim")
+    monkeypatch.setattr(closed_form.ClosedFormIk, "for_model", classmethod(lambda *a: None))
+    slow = run_task(task, out=tmp_path / "slow", rerun="off", backend="offline", executor="sim")
+    for a, b in zip(fast.results["solve"].pieces, slow.results["solve"].pieces, strict=True):
+        assert np.abs(a - b).max() < 1e-6
+    fast_t, slow_t = fast.results["time"], slow.results["time"]
+    assert np.array_equal(fast_t.t, slow_t.t)
+    assert np.abs(fast_t.q - slow_t.q).max() < 1e-5
+    assert np.abs(fast_t.tool_xyz - slow_t.tool_xyz).max() < 1e-6
+    fast_v, slow_v = fast.results["check"].report, slow.results["check"].report
+    assert fast_v.ok == slow_v.ok
+    for name, value in slow_v.figures.items():
+        assert fast_v.figures[name] == pytest.approx(value, rel=1e-3, abs=1e-6), name
+    assert fast.results["execute"].ok == slow.results["execute"].ok
