@@ -216,14 +216,14 @@ def test_shipped_runs_are_unchanged_by_the_closed_form(
     fast = run_task(task, out=tmp_path / "fast", rerun="off", backend="offline", executor="sim")
     monkeypatch.setattr(closed_form.ClosedFormIk, "for_model", classmethod(lambda *a: None))
     slow = run_task(task, out=tmp_path / "slow", rerun="off", backend="offline", executor="sim")
-    for a, b in zip(fast.results["solve"].pieces, slow.results["solve"].pieces, strict=True):
+    for a, b in zip(fast.stages.solve.pieces, slow.stages.solve.pieces, strict=True):
         assert np.abs(a - b).max() < 1e-6
-    fast_t, slow_t = fast.results["time"], slow.results["time"]
+    fast_t, slow_t = fast.stages.time, slow.stages.time
     assert np.array_equal(fast_t.t, slow_t.t)
     assert np.abs(fast_t.q - slow_t.q).max() < 1e-5
     assert np.abs(fast_t.tool_xyz - slow_t.tool_xyz).max() < 1e-6
-    fast_v, slow_v = fast.results["check"].report, slow.results["check"].report
+    fast_v, slow_v = fast.stages.check.report, slow.stages.check.report
     assert fast_v.ok == slow_v.ok
     for name, value in slow_v.figures.items():
         assert fast_v.figures[name] == pytest.approx(value, rel=1e-3, abs=1e-6), name
-    assert fast.results["execute"].ok == slow.results["execute"].ok
+    assert fast.stages.execute.ok == slow.stages.execute.ok

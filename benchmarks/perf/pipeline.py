@@ -1,6 +1,7 @@
 """A whole run against its floors: start-up, warm computation, each stage, recording, eval.
 
 Run: python benchmarks/perf/pipeline.py [--repeats 5] [--eval-repeats 1] [--skip-eval]
+         [--baseline-python /path/to/venv/bin/python]
 
 Everything is measured in this one run, interleaved (A, B, A, B ...) so that a busy machine
 slows a figure and its floor alike; medians are printed with the load average (`uptime`) at the
@@ -15,6 +16,11 @@ time. Figures:
   per-point footprint test.
 - `icing_recording_mb`: run.rrd of the icing run with the recording on.
 - `eval_cutting_sim_runs_per_s`: `keymps eval cutting_sim` (offline, default processes).
+
+With --baseline-python (an interpreter with another version of keymps installed, e.g. a venv
+with main's checkout), the CLI run, the warm computation, the recording and the eval are also
+measured for that version, interleaved with this one's: before/after figures from one run, on
+one machine load.
 
 Targets: cli_vs_import_floor <= 2.5, warm_ms_per_trajectory_s <= 4, icing_recording_mb < 2,
 eval_cutting_sim_runs_per_s > 8 (2 cores). The last lines are machine-readable `name: value`.
@@ -34,7 +40,8 @@ from pathlib import Path
 from typing import Any
 
 ROOT = Path(__file__).resolve().parents[2]
-KEYMPS = [sys.executable, "-c", "from keymps.cli import main; main()"]
+CLI = ["-c", "from keymps.cli import main; main()"]
+KEYMPS = [sys.executable, *CLI]
 TASKS = {"icing": ROOT / "tasks/cake_icing.yaml", "cutting": ROOT / "tasks/object_cutting.yaml"}
 
 
@@ -54,54 +61,84 @@ def interleaved(functions: dict[str, Callable[[], Any]], repeats: int) -> dict[s
     return {name: statistics.median(values) for name, values in times.items()}
 
 
-def command(arguments: list[str]) -> Callable[[], None]:
+def command(arguments: list[str], env: dict[str, str] | None = None) -> Callable[[], None]:
     def run() -> None:
-        subprocess.run(arguments, check=True, capture_output=True)
+        subprocess.run(arguments, check=True, capture_output=True, env=env)
 
     return run
 
 
-def startup(repeats: int, folder: Path) -> dict[str, float]:
+def keymps(baseline: Path | None) -> list[str]:
+    """The `keymps` command of this interpreter, or of the baseline interpreter."""
+    return [str(baseline), *CLI] if baseline is not None else KEYMPS
+
+
+def startup(repeats: int, folder: Path, baseline: Path | None) -> dict[str, float]:
     python = sys.executable
-    cli = [*KEYMPS, "run", str(TASKS["icing"]), "--rerun", "off"]
-    cli += ["--out", str(folder / "cli")]
-    measured = interleaved(
-        {
-            "import_floor": command([python, "-c", "import numpy, pinocchio, cv2"]),
-            "cli_run": command(cli),
-        },
-        repeats,
+    task = [str(TASKS["icing"]), "--rerun", "off", "--out"]
+    functions = {
+        "import_floor": command([python, "-c", "import numpy, pinocchio, cv2"]),
+        "cli_run": command([*KEYMPS, "run", *task, str(folder / "cli")]),
+    }
+    if baseline is not None:
+        functions["cli_run_baseline"] = command(
+            [*keymps(baseline), "run", *task, str(folder / "cli-baseline")]
+        )
+    return interleaved(functions, repeats)
+
+
+WARM_SCRIPT = """
+import json, sys, tempfile
+from keymps import load_task, run_task
+out = {}
+with tempfile.TemporaryDirectory() as folder:
+    for name, path in json.loads(sys.argv[1]).items():
+        task = load_task(path)
+        run_task(task, out=folder + "/cold", rerun="off", backend="offline", executor="sim")
+        runs = [
+            run_task(task, out=f"{folder}/{name}{i}", rerun="off", backend="offline",
+                     executor="sim")
+            for i in range(int(sys.argv[2]))
+        ]
+        out[name] = {
+            "totals": [sum(run.timings_s.values()) for run in runs],
+            "stages": [dict(run.timings_s) for run in runs],
+            "duration_s": float(runs[-1].stages.time.duration_s),
+        }
+print(json.dumps(out))
+"""
+
+
+def warm_computation(repeats: int, baseline: Path | None) -> dict[str, dict[str, Any]]:
+    """Warm runs of each task in a fresh process (this checkout's or the baseline's)."""
+    import json
+
+    tasks = json.dumps({name: str(path) for name, path in TASKS.items()})
+    done = subprocess.run(
+        [str(baseline or sys.executable), "-c", WARM_SCRIPT, tasks, str(repeats)],
+        check=True,
+        capture_output=True,
+        text=True,
     )
+    measured: dict[str, dict[str, Any]] = json.loads(done.stdout.strip().splitlines()[-1])
+    for item in measured.values():
+        item["computation_s"] = statistics.median(item["totals"])
+        item["stages"] = {
+            k: statistics.median(s[k] for s in item["stages"]) for k in item["stages"][0]
+        }
     return measured
 
 
-def warm_runs(repeats: int, folder: Path) -> dict[str, dict[str, Any]]:
+def warm_runs(folder: Path) -> dict[str, dict[str, Any]]:
+    """One warm run of each task in this process: the inputs of the stage floors."""
     from keymps import load_task, run_task
 
     out: dict[str, dict[str, Any]] = {}
     for name, path in TASKS.items():
         task = load_task(path)
         run_task(task, out=folder / f"cold-{name}", rerun="off", backend="offline", executor="sim")
-        totals, stages = [], []
-        for repeat in range(repeats):
-            run = run_task(
-                task,
-                out=folder / f"{name}-{repeat}",
-                rerun="off",
-                backend="offline",
-                executor="sim",
-            )
-            stages.append(dict(run.timings_s))
-            totals.append(sum(run.timings_s.values()))
-        duration = float(run.results["time"].duration_s)
-        median = statistics.median(totals)
-        out[name] = {
-            "run": run,
-            "task": task,
-            "duration_s": duration,
-            "computation_s": median,
-            "stages": {k: statistics.median(s[k] for s in stages) for k in stages[0]},
-        }
+        run = run_task(task, out=folder / name, rerun="off", backend="offline", executor="sim")
+        out[name] = {"run": run, "task": task}
     return out
 
 
@@ -116,15 +153,13 @@ def stage_floors(warm: dict[str, dict[str, Any]], repeats: int) -> dict[str, dic
     for name, item in warm.items():
         run, task = item["run"], item["task"]
         model = RobotModel.from_task(task)
-        tool_path, trajectory = run.results["compose"], run.results["time"]
+        tool_path, trajectory = run.stages.compose, run.stages.time
         points = np.concatenate([p.points for p in tool_path.pieces])
         yaws = np.concatenate([p.yaw for p in tool_path.pieces])
         seed = model.tool_down_seed(points[0], float(yaws[0]))
         profile, duration = _profile(0.2, Limits(0.15, 1.0, 20.0), 1 / 125)
         times = np.arange(0.0, duration, 0.001)
-        from keymps.perception.frames import object_outline_m
-
-        outline = object_outline_m(run.results["detect"], task, run.results["image"].size_px)
+        outline = run.outline_m
         xy = np.asarray(trajectory.tool_xyz)[:, :2]
         pairs = _stage_pairs(model, points, yaws, seed, profile, times, trajectory.q, xy, outline)
         measured = interleaved(pairs, repeats)
@@ -167,19 +202,19 @@ def _footprint_per_point(points: Any, polygon: Any) -> Any:
     return np.array([cv2.pointPolygonTest(contour, (float(x), float(y)), True) for x, y in points])
 
 
-def recording_size(folder: Path) -> float:
-    target = folder / "recorded"
+def recording_size(folder: Path, baseline: Path | None = None) -> float:
+    target = folder / ("recorded-baseline" if baseline else "recorded")
     subprocess.run(
-        [*KEYMPS, "run", str(TASKS["icing"]), "--out", str(target)],
+        [*keymps(baseline), "run", str(TASKS["icing"]), "--out", str(target)],
         check=True,
         capture_output=True,
     )
     return (target / "run.rrd").stat().st_size / 1e6
 
 
-def eval_rate(folder: Path, repeats: int) -> tuple[float, int]:
-    out = folder / "eval"
-    arguments = [*KEYMPS, "eval", "cutting_sim", "--quiet"]
+def eval_rate(folder: Path, repeats: int, baseline: Path | None = None) -> tuple[float, int]:
+    out = folder / ("eval-baseline" if baseline else "eval")
+    arguments = [*keymps(baseline), "eval", "cutting_sim", "--quiet"]
     arguments += ["--out", str(out), "--repeats", str(repeats), "--backend", "offline"]
     started = time.perf_counter()
     subprocess.run(arguments, check=True, capture_output=True)
@@ -193,13 +228,17 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--eval-repeats", type=int, default=1, help="cutting_sim repeats per case")
     parser.add_argument("--skip-eval", action="store_true")
+    parser.add_argument(
+        "--baseline-python", type=Path, help="an interpreter with another keymps to compare with"
+    )
     args = parser.parse_args()
+    baseline = args.baseline_python
     lines: list[tuple[str, str]] = []
     with tempfile.TemporaryDirectory() as scratch:
         folder = Path(scratch)
         print(f"load {load()} at start; {os.cpu_count()} cores")
 
-        measured = startup(args.repeats, folder)
+        measured = startup(args.repeats, folder, baseline)
         ratio = measured["cli_run"] / measured["import_floor"]
         print(
             f"start-up (load {load()}): import floor {measured['import_floor'] * 1000:.0f} ms, "
@@ -208,19 +247,34 @@ def main() -> None:
         lines += [("cli_vs_import_floor", f"{ratio:.2f}")]
         lines += [("cli_run_s", f"{measured['cli_run']:.3f}")]
         lines += [("import_floor_s", f"{measured['import_floor']:.3f}")]
-
-        warm = warm_runs(args.repeats, folder)
-        for name, item in warm.items():
-            per_second = item["computation_s"] * 1000 / item["duration_s"]
-            stages = " ".join(f"{k} {v * 1000:.1f}" for k, v in item["stages"].items())
+        if baseline is not None:
+            before = measured["cli_run_baseline"] / measured["import_floor"]
             print(
-                f"warm {name} (load {load()}): {item['computation_s'] * 1000:.0f} ms for "
-                f"{item['duration_s']:.1f} s of trajectory = {per_second:.2f} ms per s; "
-                f"stages (ms): {stages}"
+                f"  baseline keymps run {measured['cli_run_baseline'] * 1000:.0f} ms, ratio {before:.2f}"
             )
-            lines.append((f"warm_ms_per_trajectory_s_{name}", f"{per_second:.2f}"))
+            lines += [("baseline_cli_vs_import_floor", f"{before:.2f}")]
 
-        floors = stage_floors(warm, args.repeats)
+        sources = {"": None} if baseline is None else {"": None, "baseline_": baseline}
+        warm: dict[str, dict[str, dict[str, Any]]] = {prefix: {} for prefix in sources}
+        for _ in range(2 if baseline is not None else 1):  # interleaved in two halves
+            for prefix, source in sources.items():
+                half = warm_computation(max(1, args.repeats // 2), source)
+                for name, item in half.items():
+                    kept = warm[prefix].setdefault(name, {**item, "all": []})
+                    kept["all"] += item["totals"]
+        for prefix, measured_warm in warm.items():
+            for name, item in measured_warm.items():
+                computation = statistics.median(item["all"])
+                per_second = computation * 1000 / item["duration_s"]
+                stages = " ".join(f"{k} {v * 1000:.1f}" for k, v in item["stages"].items())
+                print(
+                    f"{prefix or 'this '}warm {name} (load {load()}): {computation * 1000:.0f} ms "
+                    f"for {item['duration_s']:.1f} s of trajectory = {per_second:.2f} ms per s; "
+                    f"stages (ms): {stages}"
+                )
+                lines.append((f"{prefix}warm_ms_per_trajectory_s_{name}", f"{per_second:.2f}"))
+
+        floors = stage_floors(warm_runs(folder), args.repeats)
         for name, measured_stages in floors.items():
             print(f"stages against their floors, {name} (load {load()}):")
             for fast, slow in (
@@ -235,14 +289,18 @@ def main() -> None:
                 )
                 lines.append((f"{fast}_speedup_{name}", f"{b / a:.1f}"))
 
-        size = recording_size(folder)
-        print(f"icing recording (load {load()}): {size:.2f} MB")
-        lines.append(("icing_recording_mb", f"{size:.2f}"))
+        for prefix, source in sources.items():
+            size = recording_size(folder, source)
+            print(f"{prefix or 'this '}icing recording (load {load()}): {size:.2f} MB")
+            lines.append((f"{prefix}icing_recording_mb", f"{size:.2f}"))
 
         if not args.skip_eval:
-            rate, runs = eval_rate(folder, args.eval_repeats)
-            print(f"eval cutting_sim (load {load()}): {runs} runs, {rate:.2f} runs/s")
-            lines.append(("eval_cutting_sim_runs_per_s", f"{rate:.2f}"))
+            for prefix, source in sources.items():
+                rate, runs = eval_rate(folder, args.eval_repeats, source)
+                print(
+                    f"{prefix or 'this '}eval cutting_sim (load {load()}): {runs} runs, {rate:.2f} runs/s"
+                )
+                lines.append((f"{prefix}eval_cutting_sim_runs_per_s", f"{rate:.2f}"))
         lines.append(("load_average", load()))
     for name, value in lines:
         print(f"{name}: {value}")
