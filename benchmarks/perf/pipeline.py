@@ -61,11 +61,17 @@ def interleaved(functions: dict[str, Callable[[], Any]], repeats: int) -> dict[s
     return {name: statistics.median(values) for name, values in times.items()}
 
 
-def command(arguments: list[str], env: dict[str, str] | None = None) -> Callable[[], None]:
+def command(arguments: list[str], cwd: str | None = None) -> Callable[[], None]:
     def run() -> None:
-        subprocess.run(arguments, check=True, capture_output=True, env=env)
+        subprocess.run(arguments, check=True, capture_output=True, cwd=cwd)
 
     return run
+
+
+def where(baseline: Path | None) -> str | None:
+    """The baseline runs outside this checkout (`python -c` puts the current folder first on
+    sys.path, where this checkout's keymps would shadow the baseline's)."""
+    return tempfile.gettempdir() if baseline is not None else None
 
 
 def keymps(baseline: Path | None) -> list[str]:
@@ -82,7 +88,7 @@ def startup(repeats: int, folder: Path, baseline: Path | None) -> dict[str, floa
     }
     if baseline is not None:
         functions["cli_run_baseline"] = command(
-            [*keymps(baseline), "run", *task, str(folder / "cli-baseline")]
+            [*keymps(baseline), "run", *task, str(folder / "cli-baseline")], where(baseline)
         )
     return interleaved(functions, repeats)
 
@@ -119,6 +125,7 @@ def warm_computation(repeats: int, baseline: Path | None) -> dict[str, dict[str,
         check=True,
         capture_output=True,
         text=True,
+        cwd=where(baseline),
     )
     measured: dict[str, dict[str, Any]] = json.loads(done.stdout.strip().splitlines()[-1])
     for item in measured.values():
@@ -208,6 +215,7 @@ def recording_size(folder: Path, baseline: Path | None = None) -> float:
         [*keymps(baseline), "run", str(TASKS["icing"]), "--out", str(target)],
         check=True,
         capture_output=True,
+        cwd=where(baseline),
     )
     return (target / "run.rrd").stat().st_size / 1e6
 
@@ -217,7 +225,7 @@ def eval_rate(folder: Path, repeats: int, baseline: Path | None = None) -> tuple
     arguments = [*keymps(baseline), "eval", "cutting_sim", "--quiet"]
     arguments += ["--out", str(out), "--repeats", str(repeats), "--backend", "offline"]
     started = time.perf_counter()
-    subprocess.run(arguments, check=True, capture_output=True)
+    subprocess.run(arguments, check=True, capture_output=True, cwd=where(baseline))
     elapsed = time.perf_counter() - started
     runs = sum(1 for _ in (out / "results.jsonl").open())
     return runs / elapsed, runs

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from keymps.errors import KeympsError
-from keymps.types import JointPath, ToolPath, Trajectory
+from keymps.types import JointPath, Piece, ToolPath, Trajectory
 
 if TYPE_CHECKING:
     from keymps.config.task import Task
@@ -122,14 +122,13 @@ def _corner_indexes(points: np.ndarray, yaw: np.ndarray) -> list[int]:
     return corners
 
 
-def _densify(
-    model: RobotModel, points: np.ndarray, yaw: np.ndarray, q: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Insert IK-solved points where consecutive points are more than MAX_KNOT_SPACING apart."""
+def _dense_points(points: np.ndarray, yaw: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Points and yaws with evenly spaced points inserted wherever consecutive points are more
+    than MAX_KNOT_SPACING apart, and the indexes of the original points among them."""
     gaps = np.hypot(np.linalg.norm(np.diff(points, axis=0), axis=1), YAW_RADIUS_M * np.diff(yaw))
     extra = np.maximum(np.ceil(gaps / MAX_KNOT_SPACING).astype(int) - 1, 0)
     if not extra.any():
-        return points, yaw, q
+        return points, yaw, np.arange(len(points))
     # Every gap g contributes its start and `extra[g]` evenly spaced inner points.
     per_gap = extra + 1
     gap_of = np.repeat(np.arange(len(gaps)), per_gap)
@@ -139,7 +138,41 @@ def _densify(
         [points[gap_of] + fraction[:, None] * (points[gap_of + 1] - points[gap_of]), points[-1:]]
     )
     dense_y = np.append(yaw[gap_of] + fraction * (yaw[gap_of + 1] - yaw[gap_of]), yaw[-1])
-    original = np.append(starts, len(dense_p) - 1)
+    return dense_p, dense_y, np.append(starts, len(dense_p) - 1)
+
+
+def _densify_all(
+    model: RobotModel, parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]]
+) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """`_densify` of every (points, yaw, q) part; with the closed form, all the inserted points
+    of the path in one solve (consecutive parts join up, so one branch runs through them)."""
+    dense = [_dense_points(points, yaw) for points, yaw, _ in parts]
+    if model.closed_form is not None and parts:
+        all_p = np.concatenate([p for p, _, _ in dense])
+        all_y = np.concatenate([y for _, y, _ in dense])
+        solved = model._solve_closed_form(all_p, all_y, parts[0][2][0])
+        if solved is not None:
+            ends = np.cumsum([len(p) for p, _, _ in dense])[:-1]
+            out = []
+            for (p, y, original), (_, _, q), dense_q in zip(
+                dense, parts, np.split(solved[0], ends), strict=True
+            ):
+                if np.abs(dense_q[original] - q).max() >= 1e-6:  # not the path's branch
+                    break
+                dense_q[original] = q
+                out.append((p, y, dense_q))
+            else:
+                return out
+    return [_densify(model, points, yaw, q) for points, yaw, q in parts]
+
+
+def _densify(
+    model: RobotModel, points: np.ndarray, yaw: np.ndarray, q: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Insert IK-solved points where consecutive points are more than MAX_KNOT_SPACING apart."""
+    dense_p, dense_y, original = _dense_points(points, yaw)
+    if len(dense_p) == len(points):
+        return points, yaw, q
     if model.closed_form is not None:
         dense_q, _, _ = model.solve_points(dense_p, dense_y, q[0], where="timing")
         if np.abs(dense_q[original] - q).max() < 1e-6:  # the same branch as the path's IK
@@ -202,7 +235,7 @@ def split_strokes(model: RobotModel, tool_path: ToolPath, joint_path: JointPath)
             f"timing: the joint path has {len(joint_path.pieces)} pieces but the tool path "
             f"has {len(tool_path.pieces)}"
         )
-    strokes = []
+    parts: list[tuple[int, Piece, np.ndarray, np.ndarray, np.ndarray]] = []
     for index, (piece, q_all) in enumerate(zip(tool_path.pieces, joint_path.pieces, strict=True)):
         if len(q_all) != len(piece.points):
             raise KeympsError(
@@ -216,26 +249,28 @@ def split_strokes(model: RobotModel, tool_path: ToolPath, joint_path: JointPath)
         cuts = [0, *_corner_indexes(points, yaw), len(points) - 1]
         for start, end in zip(cuts[:-1], cuts[1:], strict=True):
             part = slice(start, end + 1)
-            dense_p, dense_yaw, dense_q = _densify(model, points[part], yaw[part], q[part])
-            s_dense = np.concatenate(
-                [[0.0], np.cumsum(np.linalg.norm(_parameter_steps(dense_p, dense_yaw), axis=1))]
+            parts.append((index, piece, points[part], yaw[part], q[part]))
+    dense = _densify_all(model, [(p, y, q) for _, _, p, y, q in parts])
+    strokes = []
+    for (index, piece, points, yaw, _), (dense_p, dense_yaw, dense_q) in zip(
+        parts, dense, strict=True
+    ):
+        s_dense = np.concatenate(
+            [[0.0], np.cumsum(np.linalg.norm(_parameter_steps(dense_p, dense_yaw), axis=1))]
+        )
+        s_plan = np.concatenate(
+            [[0.0], np.cumsum(np.linalg.norm(_parameter_steps(points, yaw), axis=1))]
+        )
+        strokes.append(
+            Stroke(
+                index,
+                piece.kind,
+                s_plan,
+                points,
+                CubicSpline(s_dense, dense_q),
+                float(piece.speed),
             )
-            s_plan = np.concatenate(
-                [
-                    [0.0],
-                    np.cumsum(np.linalg.norm(_parameter_steps(points[part], yaw[part]), axis=1)),
-                ]
-            )
-            strokes.append(
-                Stroke(
-                    index,
-                    piece.kind,
-                    s_plan,
-                    points[part],
-                    CubicSpline(s_dense, dense_q),
-                    float(piece.speed),
-                )
-            )
+        )
     if not strokes:
         raise KeympsError("timing: the tool path does not move")
     return strokes
@@ -303,9 +338,7 @@ def _joint_motion(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """q, q dot, q double dot from q(s) and the timing of s (chain rule)."""
     s = np.clip(s, 0.0, stroke.length)
-    q = stroke.q_of_s(s)
-    dq = stroke.q_of_s(s, 1)
-    ddq = stroke.q_of_s(s, 2)
+    q, dq, ddq = stroke.q_of_s.with_derivatives(s)
     return q, dq * sd[:, None], ddq * (sd**2)[:, None] + dq * sdd[:, None]
 
 
