@@ -18,7 +18,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import cv2  # noqa: E402, F401
 import numpy  # noqa: E402, F401
 import pinocchio  # noqa: E402, F401
-import scipy.interpolate  # noqa: E402, F401
+import scipy.optimize  # noqa: E402, F401  (the metric's assignment; runs need no scipy)
 import scipy.spatial  # noqa: E402, F401
 
 import keymps.default_plugins.litellm.backend  # noqa: E402, F401
