@@ -59,8 +59,9 @@ def pytest_terminal_summary(terminalreporter: Any) -> None:
 
 @pytest.fixture(autouse=True, scope="session")
 def _private_vlm_cache(tmp_path_factory: pytest.TempPathFactory) -> Any:
-    """No test writes VLM answers into the user's own cache folder."""
+    """No test writes VLM answers into the user's own cache folder, or reads their config."""
     mp = pytest.MonkeyPatch()
     mp.setenv("KEYMPS_CACHE_DIR", str(tmp_path_factory.mktemp("vlm-cache")))
+    mp.setenv("KEYMPS_CONFIG", str(tmp_path_factory.mktemp("user-config") / "config.yaml"))
     yield
     mp.undo()

@@ -39,6 +39,9 @@ def env(monkeypatch: Any, tmp_path: Path) -> Path:
     monkeypatch.setenv("OPENAI_API_KEY", OPENAI_CANARY)
     monkeypatch.setenv("MY_VLM_KEY", OTHER_CANARY)
     monkeypatch.setenv("KEYMPS_CACHE_DIR", str(tmp_path / "cache"))
+    config = tmp_path / "config.yaml"  # a task may name MY_VLM_KEY only when the user allows it
+    config.write_text("api_key_envs: [MY_VLM_KEY]\n")
+    monkeypatch.setenv("KEYMPS_CONFIG", str(config))
     monkeypatch.chdir(tmp_path)
     return tmp_path
 

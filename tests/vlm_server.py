@@ -61,6 +61,12 @@ class Reply:
         return Reply("broken_json", status=status)
 
     @staticmethod
+    def trickle(interval_s: float = 1.0) -> Reply:
+        """Headers at once, then the answer one byte every `interval_s` (each read is quick,
+        the whole answer takes minutes: a per-read timeout never fires)."""
+        return Reply("trickle", text='{"keyword": "line", "pairs": []}', delay_s=interval_s)
+
+    @staticmethod
     def not_http() -> Reply:
         """Bytes that are not an HTTP response at all, then the connection closes."""
         return Reply("not_http")
@@ -119,6 +125,7 @@ class VlmServer:
         self.requests: list[Recorded] = []
         self._queue: list[Reply] = []
         self._lock = threading.Lock()
+        self._closing = threading.Event()
         self._server = ThreadingHTTPServer(("127.0.0.1", 0), self._handler_class())
         self._server.daemon_threads = True
         self._thread = threading.Thread(target=self._server.serve_forever, daemon=True)
@@ -160,6 +167,7 @@ class VlmServer:
         self.close()
 
     def close(self) -> None:
+        self._closing.set()
         self._server.shutdown()
         self._server.server_close()
 
@@ -189,6 +197,20 @@ class VlmServer:
                 self.end_headers()
                 self.wfile.write(payload)
 
+            def _trickle(self, reply: Reply, model: str) -> None:
+                payload = json.dumps(_openai_completion(reply.text, model)).encode()
+                self.send_response(200)
+                self.send_header("Content-Type", "application/json")
+                self.send_header("Content-Length", str(len(payload)))
+                self.end_headers()
+                self.wfile.flush()
+                for index in range(len(payload)):
+                    if server._closing.wait(reply.delay_s):
+                        break
+                    self.wfile.write(payload[index : index + 1])
+                    self.wfile.flush()
+                self.close_connection = True
+
             def do_GET(self) -> None:
                 if self.path.rstrip("/").endswith(("/models", "/api/tags")):
                     self._send_json(200, {"object": "list", "data": [], "models": []})
@@ -214,6 +236,9 @@ class VlmServer:
                     self._send_json(200, {"model_info": {}, "details": {}, "template": ""})
                     return
                 reply = server._next() or Reply.text_answer(server.responder(record))
+                if reply.kind == "trickle":
+                    self._trickle(reply, str(body.get("model", "test")))
+                    return
                 if reply.delay_s:
                     time.sleep(reply.delay_s)
                 model = str(body.get("model", "test"))

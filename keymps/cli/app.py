@@ -104,13 +104,16 @@ def validate(task_files: tuple[Path, ...]) -> None:
 
     failed = False
     for path in task_files:
-        problems = validate_task_file(path)
+        notes: list[str] = []
+        problems = validate_task_file(path, notes)
         for line in problems:
             click.echo(line, err=True)
         if problems:
             failed = True
         else:
             click.echo(f"ok: {path}")
+        for note in notes:
+            click.echo(f"note: {note}", err=True)
     if failed:
         sys.exit(1)
 
@@ -125,7 +128,9 @@ def plugins(as_json: bool) -> None:
 
 
 def _one_line_warning(message: Warning | str, category: type[Warning], *_: Any, **__: Any) -> str:
-    return f"warning: {message}\n"
+    from keymps.planning.redaction import redact_text
+
+    return f"warning: {redact_text(str(message))}\n"
 
 
 _finished_cleanly = False

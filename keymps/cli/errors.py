@@ -20,7 +20,9 @@ def user_errors(command: Callable[..., Any]) -> Callable[..., Any]:
         try:
             return command(*args, **kwargs)
         except KeympsError as error:
-            for line in str(error).splitlines() or ["unknown error"]:
+            from keymps.planning.redaction import redact_text
+
+            for line in redact_text(str(error)).splitlines() or ["unknown error"]:
                 click.echo(f"error: {line}", err=True)
             sys.exit(1)
 

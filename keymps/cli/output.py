@@ -7,6 +7,7 @@ from typing import Any
 
 import click
 
+from keymps.planning.redaction import redact_text
 from keymps.run import Run
 
 _STAGE_TITLES = {
@@ -58,6 +59,9 @@ class RunPrinter:
             return
         title = _STAGE_TITLES.get(stage, stage)
         detail = _stage_detail(stage, result)
+        from rich.markup import escape
+
+        detail = escape(redact_text(detail))
         self.console.print(f"[green]✓[/] {title:<32} {seconds:7.3f} s  [dim]{detail}[/]")
 
     def summary(self, run: Run) -> None:
@@ -78,7 +82,7 @@ class RunPrinter:
             lines.append(f"open with   rerun {folder / 'run.rrd'}")
         for warning in run.warnings:
             lines.append(f"warning     {warning}")
-        click.echo("\n".join(lines))
+        click.echo(redact_text("\n".join(lines)))
 
 
 def print_plugins(as_json: bool) -> None:

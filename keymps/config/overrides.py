@@ -52,4 +52,6 @@ def apply_overrides(task: Task, overrides: dict[str, Any]) -> Task:
         raise KeympsError(f"override {field}: {first['msg']}") from None
     updated._source = task._source
     updated._yaml = task._yaml
+    # an api_base given here is the user's own: the one the file wrote no longer applies
+    updated._api_base_from_file = None if "api_base" in given else task._api_base_from_file
     return updated

@@ -165,6 +165,9 @@ class Task(StrictModel):
     """The task file this was loaded from (None when built in code)."""
     _source: str = PrivateAttr(default="<task>")
     _yaml: PositionedYaml | None = PrivateAttr(default=None)
+    _api_base_from_file: str | None = PrivateAttr(default=None)
+    """planner.api_base as the task file wrote it: a server no key is sent to unless the user
+    names it too (--api-base, user config; keymps.planning.backend_choice)."""
 
     @field_validator("instruction")
     @classmethod
@@ -178,6 +181,12 @@ class Task(StrictModel):
     @property
     def folder(self) -> Path:
         return self.path.parent if self.path else Path.cwd()
+
+    @property
+    def api_base_from_file(self) -> bool:
+        """True when planner.api_base is the task file's own value, not one the user gave."""
+        api_base = self.planner.api_base
+        return api_base is not None and api_base == self._api_base_from_file
 
     def resolve(self, relative: Path) -> Path:
         """A path from the task file, relative to the task file's folder."""
@@ -257,15 +266,15 @@ def parse_task(text: str, source: str = "<task>", path: Path | None = None) -> T
         raise TaskFileError(problems)
     task._source = source
     task._yaml = parsed
+    task._api_base_from_file = task.planner.api_base
     return task
 
 
 def _check_referenced_files(task: Task, source: str, parsed: PositionedYaml) -> list[str]:
     checks: list[tuple[tuple[str, ...], Path | None]] = [
         (("scene", "image"), task.scene.image if task.scene.source == "file" else None),
-        (("planner", "prompt"), task.planner.prompt),
     ]
-    problems = []
+    problems = _check_trust(task, source, parsed)
     for key_path, relative in checks:
         if relative is None:
             continue
@@ -275,6 +284,34 @@ def _check_referenced_files(task: Task, source: str, parsed: PositionedYaml) -> 
             problems.append(
                 f"{source}:{line}:{column}: {'.'.join(key_path)}: file not found: {resolved}"
             )
+    return problems
+
+
+def _check_trust(task: Task, source: str, parsed: PositionedYaml) -> list[str]:
+    """What a shared task file may not do: name any variable as its key, read any file."""
+    from keymps.config import trust
+    from keymps.config.user import load_user_config
+
+    problems = []
+
+    def problem(key_path: tuple[str, ...], message: str) -> None:
+        line, column = parsed.locate(key_path)
+        problems.append(f"{source}:{line}:{column}: {'.'.join(key_path)}: {message}")
+
+    env = task.planner.api_key_env
+    if env is not None:
+        allowed = load_user_config().api_key_envs
+        wrong = trust.api_key_env_problem(env, allowed)
+        if wrong:
+            problem(("planner", "api_key_env"), wrong)
+    if task.planner.prompt is not None:
+        wrong = trust.readable_file_problem(
+            task.resolve(task.planner.prompt),
+            trust.prompt_roots(task.folder),
+            trust.MAX_PROMPT_BYTES,
+        )
+        if wrong:
+            problem(("planner", "prompt"), wrong)
     return problems
 
 

@@ -30,6 +30,7 @@ import numpy as np
 
 from keymps.errors import KeympsError
 from keymps.eval.suites import Suite
+from keymps.planning.redaction import redact
 
 if TYPE_CHECKING:
     from keymps.eval.broker import VlmBroker
@@ -352,6 +353,7 @@ def run_suite(
                 on_result(job, done[key(job)])
 
     def finished(job: Job, record: dict[str, Any]) -> None:
+        record = redact(record)  # results.jsonl, the summaries and the gallery come from it
         results.append(record)
         records[key(job)] = record
         if on_result:

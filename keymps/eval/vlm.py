@@ -139,7 +139,10 @@ def ask(
 ) -> tuple[Any, list[dict[str, Any]]]:
     """Ask the VLM with the method's prompt through the planner's own session (repair, cache,
     cassette, redaction, vlm/ records); return (answer, call summaries)."""
+    from keymps.config.overrides import apply_overrides
     from keymps.planning.answer import extract_json
+    from keymps.planning.backend_choice import keys_the_task_may_send
+    from keymps.planning.redaction import remember
     from keymps.planning.planner import backend_options
     from keymps.planning.prompt import png_data_url
     from keymps.planning.session import PlanSession
@@ -147,15 +150,8 @@ def ask(
     from keymps.run import Run, RunOptions
     from keymps.types import PlanRequest
 
-    task = seen.task
-    if context.model:
-        task = task.model_copy(
-            update={"planner": task.planner.model_copy(update={"model": context.model})}
-        )
-    if context.api_base:
-        task = task.model_copy(
-            update={"planner": task.planner.model_copy(update={"api_base": context.api_base})}
-        )
+    task = apply_overrides(seen.task, {"model": context.model, "api_base": context.api_base})
+    remember(*keys_the_task_may_send(task))
     backend = create_component("vlm_backend", context.backend, backend_options(task))
     system = render_prompt(PROMPTS_DIR / f"{method}.md", _values(seen, context))
     image_url = png_data_url(seen.detection.crop)

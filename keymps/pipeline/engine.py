@@ -238,6 +238,7 @@ def run_task(
     problem; nothing after the failing stage runs, above all no executor.
     """
     from keymps.pipeline.run_folder import write_run_json
+    from keymps.planning.backend_choice import untrusted_api_base_warning
     from keymps.planning.planner import choose_backend
 
     if not isinstance(task, Task):
@@ -269,6 +270,10 @@ def run_task(
     parts = Components(task, backend, through)
     run = Run(task=task, folder=_new_run_folder(task, Path(out) if out else None), options=options)
     run.backend, run.backend_reason, run.robot = backend, reason, parts.robot
+    keyless = untrusted_api_base_warning(task) if backend not in ("offline", "replay") else None
+    if keyless:
+        run.warnings.append(keyless)
+        warnings.warn(keyless, UserWarning, stacklevel=2)
     pipeline = _Pipeline(run, parts, on_stage, through)
     error: BaseException | None = None
     try:

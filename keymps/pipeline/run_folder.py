@@ -120,4 +120,7 @@ def run_record(run: Run, error: BaseException | None) -> dict[str, Any]:
 
 def write_run_json(run: Run, error: BaseException | None = None) -> None:
     path = run.path("run.json")
-    path.write_text(json.dumps(run_record(run, error), indent=2) + "\n", encoding="utf-8")
+    from keymps.planning.redaction import redact
+
+    record = redact(run_record(run, error))
+    path.write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")

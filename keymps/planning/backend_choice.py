@@ -5,7 +5,10 @@ from __future__ import annotations
 import os
 from typing import TYPE_CHECKING
 
+from keymps.config.trust import is_provider_endpoint, same_server
+from keymps.config.user import config_path, load_user_config
 from keymps.errors import KeympsError
+from keymps.planning.redaction import redact_text, url_secrets
 
 if TYPE_CHECKING:
     from keymps.config.task import Task
@@ -52,6 +55,41 @@ def credential_source(task: Task, model: str) -> str | None:
         model_provider(model), ()
     )
     return next((name for name in names if os.environ.get(name)), None)
+
+
+def api_base_trusted(task: Task) -> bool:
+    """May a backend send the user's key to planner.api_base? Yes when it is unset (the
+    provider's own endpoint), given by the user (--api-base, run_task(api_base=...), a task
+    built in code), listed in the user config, or the provider's own https endpoint; no when
+    only the task file names it (docs/security.md)."""
+    if not task.api_base_from_file:
+        return True
+    api_base = task.planner.api_base or ""
+    if is_provider_endpoint(api_base, model_provider(task.planner.model or "")):
+        return True
+    return any(same_server(api_base, t) for t in load_user_config().trusted_api_bases)
+
+
+def untrusted_api_base_warning(task: Task) -> str | None:
+    """The one line a run prints when it sends no key because only the task names the server."""
+    if api_base_trusted(task):
+        return None
+    return redact_text(
+        f"{task.where('planner', 'api_base')}: planner.api_base {task.planner.api_base} is "
+        "named only by the task file, so no API key is sent to it; to send one, pass "
+        f"--api-base or list it under trusted_api_bases in {config_path()}"
+    )
+
+
+def keys_the_task_may_send(task: Task) -> list[str]:
+    """Every credential a backend may send for this task (for the redactor): the values of the
+    key variables, and what planner.api_base carries (userinfo, ?api_key=)."""
+    names = ((task.planner.api_key_env,) if task.planner.api_key_env else ()) + PROVIDER_KEYS.get(
+        model_provider(task.planner.model or ""), ()
+    )
+    keys = [name for name in names if not name.endswith("_API_BASE")]  # a URL, not a key
+    values = [value for name in keys if (value := os.environ.get(name))]
+    return values + url_secrets(task.planner.api_base)
 
 
 def choose_backend(

@@ -6,6 +6,7 @@ import contextlib
 import hashlib
 import json
 import os
+import stat
 import time
 from pathlib import Path
 from typing import Any
@@ -77,9 +78,20 @@ def append_to_cassette(path: Path, entry: dict[str, Any]) -> None:
         raise KeympsError(f"--record: cannot write the cassette {path}: {error.strerror}") from None
 
 
+MAX_CASSETTE_BYTES = 256 * 1024 * 1024
+"""A cassette holds text answers: tens of thousands of them fit in far less."""
+
+
 def read_cassette(path: Path) -> dict[str, dict[str, Any]]:
     """digest -> entry; a later entry for the same digest wins."""
     try:
+        info = path.stat()
+        if not stat.S_ISREG(info.st_mode):  # /dev/zero or a FIFO named as planner.cassette
+            raise KeympsError(f"cassette {path} is not a regular file")
+        if info.st_size > MAX_CASSETTE_BYTES:
+            raise KeympsError(
+                f"cassette {path}: {info.st_size} bytes, more than {MAX_CASSETTE_BYTES}"
+            )
         lines = path.read_text(encoding="utf-8").splitlines()
     except FileNotFoundError:
         raise KeympsError(f"cassette not found: {path}") from None

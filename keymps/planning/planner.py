@@ -5,7 +5,8 @@ validates each answer, sends invalid ones back with the problems for repair, rec
 attempt under run.folder/vlm, and answers from the cache or records to a cassette on request.
 
 Backends implement keymps.plugin.VlmBackend (see docs/vlm.md). The factory receives the planner options: model, api_base, api_key_env, temperature,
-timeout_s, cassette (None when unset).
+timeout_s, cassette (None when unset), and api_base_trusted: False when only the task file
+names api_base, and then a backend sends no key from the environment (docs/security.md).
 """
 
 from __future__ import annotations
@@ -18,7 +19,14 @@ import numpy as np
 
 from keymps.errors import KeympsError
 from keymps.planning.answer import parse_and_validate
-from keymps.planning.backend_choice import choose_backend, credential_source, model_provider
+from keymps.planning.backend_choice import (
+    api_base_trusted,
+    choose_backend,
+    credential_source,
+    keys_the_task_may_send,
+    model_provider,
+)
+from keymps.planning.redaction import redact_text, remember
 from keymps.types import BackendAnswer, Detection, Plan, PlanRequest, SceneImage
 
 if TYPE_CHECKING:
@@ -36,6 +44,7 @@ def backend_options(task: Task) -> dict[str, Any]:
         "temperature": planner.temperature,
         "timeout_s": planner.timeout_s,
         "cassette": str(task.resolve(planner.cassette)) if planner.cassette else None,
+        "api_base_trusted": api_base_trusted(task),
     }
 
 
@@ -99,11 +108,13 @@ def make_plan(
     families = dict(families) if families is not None else families_from_descriptions(primitives)
     check_sentence(task, task.instruction, families)
     planner = task.planner
+    remember(*keys_the_task_may_send(task))
     backend_object = create_component("vlm_backend", backend, backend_options(task))
     prompt_path = find_prompt(
         task.resolve(planner.prompt) if planner.prompt else None,
         task.folder,
         prompt_family(primitives),
+        where=f"{task.where('planner', 'prompt')}: planner.prompt",
     )
     asks_model = bool(getattr(backend_object, "asks_model", True))
     model = planner.model if backend != "offline" else None
@@ -173,7 +184,7 @@ def make_plan(
         pairs_px=pairs_px,
         backend=backend,
         model=base.model,
-        rationale=rationale,
+        rationale=redact_text(rationale),
         calls=tuple(session.calls),
         coordinates=convention,
         design=placed.design.model_dump() if placed.design is not None else None,
@@ -227,8 +238,14 @@ def _lay_out(
 
 
 def _read_prompt(path: Path) -> str:
+    from keymps.config.trust import MAX_PROMPT_BYTES
+
     try:
-        return path.read_text(encoding="utf-8")
+        with path.open("rb") as handle:  # bounded: the file may have grown since it was checked
+            data = handle.read(MAX_PROMPT_BYTES + 1)
+        if len(data) > MAX_PROMPT_BYTES:
+            raise KeympsError(f"prompt template {path} has more than {MAX_PROMPT_BYTES} bytes")
+        return data.decode("utf-8")
     except UnicodeDecodeError:
         raise KeympsError(f"prompt template {path} is not a UTF-8 text file") from None
     except OSError as error:

@@ -7,13 +7,17 @@ message. Placeholders are `{{name}}`; an unknown name is an error naming the fil
 from __future__ import annotations
 
 import base64
-import os
 import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from keymps.bundled import bundled_dir
+from keymps.config.trust import (
+    MAX_PROMPT_BYTES,
+    prompt_roots,
+    prompt_search_dirs,
+    readable_file_problem,
+)
 from keymps.errors import KeympsError
 from keymps.planning.answer import Step
 
@@ -68,23 +72,23 @@ def prompt_family(primitives: Mapping[str, str]) -> str:
     return "icing" if ICING_WORDS.search(text) else "cutting"
 
 
-def prompt_search_dirs(task_folder: Path) -> list[Path]:
-    dirs = [task_folder / "prompts", task_folder.parent / "prompts"]
-    dirs += [Path(p) for p in os.environ.get("KEYMPS_PROMPTS_PATH", "").split(os.pathsep) if p]
-    dirs += [Path.cwd() / "prompts", bundled_dir("prompts")]
-    return dirs
-
-
-def find_prompt(explicit: Path | None, task_folder: Path, family: str) -> Path:
-    """The task's prompt file, or prompts/<family>.md from the search path."""
+def find_prompt(
+    explicit: Path | None, task_folder: Path, family: str, where: str = "planner.prompt"
+) -> Path:
+    """The task's prompt file, or prompts/<family>.md from the search path; either must be a
+    small regular file inside the task's folder tree or a search folder (docs/security.md)."""
     if explicit is not None:
-        if not explicit.is_file():
-            raise KeympsError(f"planner.prompt: file not found: {explicit}")
+        wrong = readable_file_problem(explicit, prompt_roots(task_folder), MAX_PROMPT_BYTES)
+        if wrong:
+            raise KeympsError(f"{where}: {wrong}")
         return explicit
     searched = prompt_search_dirs(task_folder)
     for folder in searched:
         candidate = folder / f"{family}.md"
-        if candidate.is_file():
+        if candidate.exists() or candidate.is_symlink():
+            wrong = readable_file_problem(candidate, [folder], MAX_PROMPT_BYTES)
+            if wrong:
+                raise KeympsError(f"prompt template {family}.md: {wrong}")
             return candidate
     raise KeympsError(
         f"no prompt template {family}.md found (looked in: {', '.join(map(str, searched))}); "

@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
-import re
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -14,42 +12,12 @@ from typing import TYPE_CHECKING, Any
 
 from keymps.errors import KeympsError
 from keymps.planning.answer import Step, answer_schema
-from keymps.planning.backend_choice import PROVIDER_KEYS, model_provider
+from keymps.planning.redaction import redact
 from keymps.types import BackendAnswer, PlanRequest, VlmCall
 
 if TYPE_CHECKING:
     from keymps.config.task import Task
     from keymps.run import Run
-
-
-_SECRET_KEY = re.compile(
-    r"^(api[_-]?key|x-api-key|authorization|secret|password|access[_-]?token|\w*_secret)$",
-    re.IGNORECASE,
-)
-
-
-def _secrets(task: Task) -> list[str]:
-    names = set(PROVIDER_KEYS.get(model_provider(task.planner.model or ""), ()))
-    if task.planner.api_key_env:
-        names.add(task.planner.api_key_env)
-    names |= {n for n in os.environ if n.endswith(("_API_KEY", "_TOKEN", "_SECRET"))}
-    return [v for n in names if len(v := os.environ.get(n, "")) >= 8]
-
-
-def redact(value: Any, secrets: list[str]) -> Any:
-    """Drop credential-like keys and blank out any secret value anywhere in `value`."""
-    if isinstance(value, dict):
-        return {
-            k: "[redacted]" if _SECRET_KEY.match(str(k)) else redact(v, secrets)
-            for k, v in value.items()
-        }
-    if isinstance(value, list | tuple):
-        return [redact(v, secrets) for v in value]
-    if isinstance(value, str):
-        for secret in secrets:
-            value = value.replace(secret, "[redacted]")
-        return value
-    return value
 
 
 def image_reference(image_url: str, image_file: str) -> str:
@@ -91,7 +59,6 @@ class PlanSession:
             and planner.cache
             and not self.run.options.no_cache
         )
-        self.secrets = _secrets(self.task)
         self.vlm_folder = self.run.folder / "vlm"
         self.image_reference = image_reference(self.image_url, "crop.png")
 
@@ -211,7 +178,7 @@ class PlanSession:
         AnswerCache().put(
             key,
             {
-                "text": answer.text,
+                "text": redact(answer.text),
                 "prompt_tokens": answer.prompt_tokens,
                 "completion_tokens": answer.completion_tokens,
                 "cost_usd": answer.cost_usd,
@@ -269,14 +236,14 @@ class PlanSession:
             "messages": _without_image(request.messages, self.image_url, self.image_reference),
             "response_format": {"type": "json_schema", "json_schema": request.schema},
         }
-        request_record = redact(request_record, self.secrets)
-        answer_text = redact(answer.text, self.secrets)
+        request_record = redact(request_record)
+        answer_text = redact(answer.text)
         error = "; ".join(problems) if problems else None
         call = VlmCall(
             attempt=request.attempt,
             request=request_record,
             answer_text=answer_text,
-            error=redact(error, self.secrets) if error else None,
+            error=redact(error) if error else None,
             latency_s=answer.latency_s,
             prompt_tokens=answer.prompt_tokens,
             completion_tokens=answer.completion_tokens,
@@ -289,14 +256,14 @@ class PlanSession:
         record = {
             "request": request_record,
             "answer": answer_text,
-            "errors": [redact(p, self.secrets) for p in problems],
+            "errors": redact(problems),
             "valid": not problems,
             "cached": cached,
             "latency_s": answer.latency_s,
             "prompt_tokens": answer.prompt_tokens,
             "completion_tokens": answer.completion_tokens,
             "cost_usd": answer.cost_usd,
-            "retries": [redact(line, self.secrets) for line in answer.retries],
+            "retries": redact(list(answer.retries)),
         }
         path = self.vlm_folder / f"{index:02d}-{request.step}-attempt{request.attempt}.json"
         path.write_text(json.dumps(record, indent=2), encoding="utf-8")

@@ -14,6 +14,7 @@ from typing import Any, Literal
 import numpy as np
 
 from keymps.bundled import bundled_dir
+from keymps.config.trust import MAX_PRIMITIVE_BYTES, readable_file_problem
 from keymps.errors import KeympsError
 from keymps.primitives.demos import (
     Preprocessing,
@@ -386,6 +387,10 @@ def load_primitives(names: Sequence[str], search_dirs: Sequence[Path]) -> dict[s
             raise PrimitiveError(
                 f"unknown primitive {name!r}; available: {listing} (searched {searched})"
             )
+        # a shared task folder's primitives/x.yaml may be a link to /dev/zero or a secret
+        wrong = readable_file_problem(available[name], search_dirs, MAX_PRIMITIVE_BYTES)
+        if wrong:
+            raise PrimitiveError(f"primitive {name!r}: {wrong}")
         primitive = load_primitive(available[name])
         if primitive.name != name:
             raise PrimitiveError(

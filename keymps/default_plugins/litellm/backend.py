@@ -16,8 +16,10 @@ from urllib.parse import urlparse
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from keymps.default_plugins.litellm.deadline import DeadlineExceeded, await_within, call_within
 from keymps.default_plugins.litellm.retry import Retrying
 from keymps.errors import KeympsError
+from keymps.planning.redaction import remember, url_secrets
 from keymps.plugin import RegisterVlmBackend, hookimpl, parse_options
 
 if TYPE_CHECKING:
@@ -31,6 +33,8 @@ BACKOFF_S = 1.0
 _REGISTERED: set[str] = set()
 """Local models registered with litellm at zero price in this process."""
 _LOCAL_PROVIDERS = {"ollama", "ollama_chat", "hosted_vllm", "lm_studio", "llamafile"}
+_ENVIRONMENT_SIGNED = {"bedrock", "sagemaker", "vertex_ai", "vertex_ai_beta"}
+"""Providers whose requests litellm signs with cloud credentials it finds itself."""
 
 
 class LitellmOptions(BaseModel):
@@ -43,6 +47,8 @@ class LitellmOptions(BaseModel):
     cassette: str | None = None
     retries: int = Field(default=MAX_RETRIES, ge=0, le=10)
     backoff_s: float = Field(default=BACKOFF_S, ge=0, le=60)
+    api_base_trusted: bool = False
+    """False when only the task file names api_base: no key from the environment is sent."""
 
 
 def import_litellm() -> Any:
@@ -86,6 +92,28 @@ class LitellmBackend:
             return value
         return None
 
+    def _key_for(self, provider: str) -> str | None:
+        """The key this call sends: none from the environment to an api_base that only a task
+        file names (docs/security.md); else planner.api_key_env or the provider's variable."""
+        from keymps.planning.backend_choice import PROVIDER_KEYS
+
+        api_base = self.options.api_base
+        if api_base and not self.options.api_base_trusted:
+            if provider in _ENVIRONMENT_SIGNED:
+                raise KeympsError(
+                    f"planner.api_base {api_base} is named only by the task file, and {provider} "
+                    "signs every request with your cloud credentials: pass --api-base, or list it "
+                    "under trusted_api_bases in your user config (docs/security.md)"
+                )
+            return "no-key-needed"  # given, so that litellm does not read $OPENAI_API_KEY itself
+        key = self._api_key()
+        if key is None:  # read here, not by litellm, so that the key sent is known
+            names = [n for n in PROVIDER_KEYS.get(provider, ()) if n.endswith("_API_KEY")]
+            key = next((os.environ[n] for n in names if os.environ.get(n)), None)
+        if key is None and api_base and provider in ("openai", "hosted_vllm"):
+            key = "no-key-needed"  # OpenAI-compatible local servers want some key
+        return key
+
     def _register_local_model(self, litellm: Any, model: str) -> None:
         # litellm does not price local models; registering them at zero gives a cost of 0.0
         if model in _REGISTERED:  # once per process: every call of an eval builds a backend
@@ -121,7 +149,7 @@ class LitellmBackend:
         retrying = self._retrying(call)
         for attempt in range(self.options.retries + 1):
             try:
-                response = call.litellm.completion(**call.arguments)
+                response = self._within_deadline(call)
                 break
             except Exception as error:
                 pause = retrying.pause_after(error, attempt)
@@ -139,7 +167,7 @@ class LitellmBackend:
         retrying = self._retrying(call)
         for attempt in range(self.options.retries + 1):
             try:
-                response = await call.litellm.acompletion(**call.arguments)
+                response = await self._awaited_within_deadline(call)
                 break
             except Exception as error:
                 pause = retrying.pause_after(error, attempt)
@@ -147,6 +175,23 @@ class LitellmBackend:
                     raise
                 await asyncio.sleep(pause)
         return self._answer(call, response, time.perf_counter() - started, retrying.notes)
+
+    def _within_deadline(self, call: _Call) -> Any:
+        """One try, over by planner.timeout_s whatever the server does (keymps...deadline)."""
+        try:
+            return call_within(
+                self.options.timeout_s, lambda: call.litellm.completion(**call.arguments)
+            )
+        except DeadlineExceeded:
+            raise _timeout(call) from None
+
+    async def _awaited_within_deadline(self, call: _Call) -> Any:
+        try:
+            return await await_within(
+                self.options.timeout_s, call.litellm.acompletion(**call.arguments)
+            )
+        except DeadlineExceeded:
+            raise _timeout(call) from None
 
     def _prepare(self, request: PlanRequest) -> _Call:
         from keymps.planning.backend_choice import model_provider
@@ -174,10 +219,9 @@ class LitellmBackend:
         }
         if self.options.api_base:
             arguments["api_base"] = self.options.api_base
-        key = self._api_key()
-        if key is None and self.options.api_base and provider in ("openai", "hosted_vllm"):
-            key = os.environ.get("OPENAI_API_KEY") if provider == "openai" else None
-            key = key or "no-key-needed"  # OpenAI-compatible local servers want some key
+        key = self._key_for(provider)
+        # redacted from everything written or printed, whatever its length
+        remember(key, *url_secrets(self.options.api_base))
         if key is not None:
             arguments["api_key"] = key
         if _supports_schema(litellm, model, provider):
@@ -217,6 +261,12 @@ class LitellmBackend:
             model=call.model,
             retries=tuple(notes),
         )
+
+
+def _timeout(call: _Call) -> Exception:
+    """litellm's own Timeout, so that the deadline reads like every other timeout."""
+    provider = call.model.split("/", 1)[0] if "/" in call.model else "openai"
+    return call.litellm.Timeout(message="deadline", model=call.model, llm_provider=provider)
 
 
 @dataclass(frozen=True)

@@ -9,13 +9,13 @@ back at the same instant. Every other failure, and the last retryable one, becom
 from __future__ import annotations
 
 import email.utils
-import os
 import random
 import time
 from dataclasses import dataclass, field
 from typing import Any
 
 from keymps.errors import KeympsError
+from keymps.planning.redaction import known_secrets, redact_text, remember
 
 MAX_WAIT_S = 30.0
 """No single wait is longer, whatever the server asks."""
@@ -52,17 +52,15 @@ def retry_after_s(error: Exception, now: float | None = None) -> float | None:
 
 
 def secret_values(arguments: dict[str, Any]) -> list[str]:
-    """The key sent and every credential-like variable: servers may quote them in errors."""
-    names = [n for n in os.environ if n.endswith(("_API_KEY", "_TOKEN", "_SECRET"))]
-    values = [str(arguments.get("api_key") or "")] + [os.environ[n] for n in names]
-    return [v for v in values if len(v) >= 8 and v != "no-key-needed"]
+    """Every secret to blank in messages (servers may quote keys in errors): the key sent, which
+    the shared redactor then remembers, and every credential-like variable."""
+    remember(arguments.get("api_key"))
+    return known_secrets()
 
 
 def short(error: Exception, secrets: list[str] | None = None) -> str:
     """The error as one line of at most 300 characters, secrets blanked out."""
-    text = " ".join(str(error).split())
-    for secret in secrets or ():
-        text = text.replace(secret, "[redacted]")
+    text = redact_text(" ".join(str(error).split()), secrets)
     return text[:300] + ("..." if len(text) > 300 else "")
 
 

@@ -159,7 +159,7 @@ def _open(run: Run) -> _Session:
     except Exception as error:
         raise KeympsError(f"rerun {mode} failed: {error}") from None
     from keymps.default_plugins.rerun.entities import log_world_setup
-    from keymps.default_plugins.rerun.text import redact
+    from keymps.planning.redaction import redact_text as redact
 
     stream.send_recording_name(redact(f"{run.task.name} ({run.folder.name})"))
     log_world_setup(stream)

@@ -213,7 +213,7 @@ def log_tool(rec: Any, task: Task) -> None:
     """The tool as a capsule from the flange to its tip, riding on the flange frame."""
     import rerun as rr
 
-    from keymps.default_plugins.rerun.text import redact
+    from keymps.planning.redaction import redact_text as redact
 
     tcp = tool_tcp(task)
     if tcp is None:

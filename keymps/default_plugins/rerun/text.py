@@ -1,60 +1,37 @@
-"""The text side of a Rerun recording: VLM exchange, reports and summary, secrets redacted."""
+"""The text side of a Rerun recording: VLM exchange, reports and summary, secrets redacted
+(keymps.planning.redaction)."""
 
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
+
+from keymps.planning.redaction import redact, redact_text
 
 if TYPE_CHECKING:
     from keymps.run import Run
     from keymps.types import ExecutionReport, Plan, ValidatedTrajectory, VlmCall
 
-REDACTED = "[redacted]"
-SECRET_SUFFIXES = ("_API_KEY", "_TOKEN")
-SECRET_FIELDS = {"api_key", "apikey", "authorization", "x-api-key", "token", "access_token"}
 
-
-def secrets_in_environment() -> list[str]:
-    """Values of environment variables whose names end with _API_KEY or _TOKEN."""
-    found = [
-        value
-        for name, value in os.environ.items()
-        if name.upper().endswith(SECRET_SUFFIXES) and len(value.strip()) >= 4
-    ]
-    return sorted(set(found), key=len, reverse=True)
-
-
-def redact(text: str) -> str:
-    """The text with every secret from the environment replaced by [redacted]."""
-    for secret in secrets_in_environment():
-        text = text.replace(secret, REDACTED)
-    return text
-
-
-def _redact_value(value: Any) -> Any:
+def _shortened(value: Any) -> Any:
+    """`value` with inline data (the crop as a data URL) replaced by its size."""
     if isinstance(value, dict):
-        return {
-            key: REDACTED if str(key).lower() in SECRET_FIELDS else _redact_value(item)
-            for key, item in value.items()
-        }
+        return {key: _shortened(item) for key, item in value.items()}
     if isinstance(value, list | tuple):
-        return [_redact_value(item) for item in value]
-    if isinstance(value, str):
-        if value.startswith("data:") and len(value) > 200:
-            return f"[inline data: {len(value)} characters]"
-        return value
+        return [_shortened(item) for item in value]
+    if isinstance(value, str) and value.startswith("data:") and len(value) > 200:
+        return f"[inline data: {len(value)} characters]"
     return value
 
 
 def _markdown(rr: Any, text: str) -> Any:
-    return rr.TextDocument(redact(text), media_type=rr.MediaType.MARKDOWN)
+    return rr.TextDocument(redact_text(text), media_type=rr.MediaType.MARKDOWN)
 
 
 def _render_request(request: dict[str, Any]) -> str:
     """A request as readable markdown: chat messages as sections, images by size only."""
-    request = _redact_value(request)
+    request = redact(_shortened(request))
     messages = request.get("messages") if isinstance(request, dict) else None
     if not isinstance(messages, list):
         return "```json\n" + json.dumps(request, indent=2, default=str) + "\n```"
@@ -187,5 +164,7 @@ def log_finished(rec: Any, error: BaseException | None, run: Run) -> None:
     if error is not None:
         rec.log(
             "run/error",
-            rr.TextLog(redact(f"{type(error).__name__}: {error}"), level=rr.TextLogLevel.ERROR),
+            rr.TextLog(
+                redact_text(f"{type(error).__name__}: {error}"), level=rr.TextLogLevel.ERROR
+            ),
         )

@@ -1,0 +1,133 @@
+"""What a task file may make keymps do with the user's secrets and files (docs/security.md).
+
+A task file is shared between labs, so it is not trusted with anything the user did not give:
+
+- `planner.api_key_env` may name only a provider-style key variable (KEY_ENV_PATTERN, a few
+  known names, or a name the user lists in their own config): never AWS_SECRET_ACCESS_KEY;
+- an `api_base` only a task file names receives no key (keymps.planning.backend_choice);
+- files a task makes keymps read and send (prompts, primitives) must be regular files inside
+  the task's folder or the documented search folders, and small.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import stat
+from collections.abc import Sequence
+from pathlib import Path
+from urllib.parse import urlsplit
+
+KEY_ENV_PATTERN = re.compile(r"^[A-Z][A-Z0-9_]*_API_(KEY|TOKEN)$")
+"""Names a task's planner.api_key_env may use: OPENAI_API_KEY, LAB_VLM_API_KEY, ..."""
+KNOWN_KEY_ENVS = frozenset({"HF_TOKEN", "WATSONX_APIKEY", "AZURE_AD_TOKEN"})
+"""Provider variables litellm documents that do not follow KEY_ENV_PATTERN."""
+NEVER_READ = (Path("/proc"), Path("/sys"), Path("/dev"))
+"""Kernel and device files: a task never makes keymps read one, whatever folder it names."""
+MAX_PROMPT_BYTES = 256 * 1024
+"""A prompt template is a few kilobytes of Markdown."""
+MAX_PRIMITIVE_BYTES = 4 * 1024 * 1024
+"""A primitive file is a few kilobytes of YAML (DMP weights)."""
+
+
+def api_key_env_problem(name: str, allowed: Sequence[str] = ()) -> str | None:
+    """Why a task file may not name the variable `name` (None when it may)."""
+    if KEY_ENV_PATTERN.match(name) or name in KNOWN_KEY_ENVS or name in allowed:
+        return None
+    return (
+        f"{name!r} is not a provider key variable: a task file may name only NAME_API_KEY "
+        "(or NAME_API_TOKEN) variables; list others under api_key_envs in your user config "
+        "(docs/security.md)"
+    )
+
+
+def readable_file_problem(path: Path, roots: Sequence[Path], max_bytes: int) -> str | None:
+    """Why `path` may not be read on a task's behalf (None when it may): it must be a regular
+    file, at most `max_bytes`, whose real path (symlinks followed) is inside one of `roots`."""
+    try:
+        real = path.resolve(strict=True)
+        info = real.stat()
+    except FileNotFoundError:
+        return f"file not found: {path}"
+    except RuntimeError:  # a symlink loop (Python < 3.13)
+        return f"cannot resolve {path}: a symlink loop"
+    except OSError as error:
+        return f"cannot resolve {path}: {error.strerror or error}"
+    if any(real == p or p in real.parents for p in NEVER_READ):
+        return f"{path} is a kernel or device file ({real}); not read"
+    if not stat.S_ISREG(info.st_mode):
+        return f"{path} is not a regular file (a folder, device, pipe or socket)"
+    real_roots = [_real(root) for root in roots]
+    if not any(real == root or root in real.parents for root in real_roots):
+        shown = ", ".join(str(r) for r in real_roots)
+        return (
+            f"{path} is outside the task's folder and the search folders ({shown}); "
+            "copy it next to the task"
+        )
+    if info.st_size > max_bytes:
+        return (
+            f"{path}: {info.st_size} bytes, more than the {max_bytes} a file of its kind may have"
+        )
+    return None
+
+
+def prompt_search_dirs(task_folder: Path) -> list[Path]:
+    """Where prompt templates are looked for, first match wins: the task folder's prompts/ and
+    ../prompts, each folder in KEYMPS_PROMPTS_PATH, ./prompts, the bundled prompts."""
+    from keymps.bundled import bundled_dir
+
+    dirs = [task_folder / "prompts", task_folder.parent / "prompts"]
+    dirs += [Path(p) for p in os.environ.get("KEYMPS_PROMPTS_PATH", "").split(os.pathsep) if p]
+    dirs += [Path.cwd() / "prompts", bundled_dir("prompts")]
+    return dirs
+
+
+def prompt_roots(task_folder: Path) -> list[Path]:
+    """Folders a prompt file may be in: the task's folder tree and the prompt search folders."""
+    return [task_folder, *prompt_search_dirs(task_folder)]
+
+
+def _real(folder: Path) -> Path:
+    try:
+        return folder.resolve()
+    except (OSError, RuntimeError):
+        return Path(os.path.abspath(folder))
+
+
+PROVIDER_HOSTS: dict[str, tuple[str, ...]] = {
+    "openai": ("api.openai.com",),
+    "anthropic": ("api.anthropic.com",),
+    "gemini": ("generativelanguage.googleapis.com",),
+    "mistral": ("api.mistral.ai",),
+    "groq": ("api.groq.com",),
+    "openrouter": ("openrouter.ai",),
+    "together_ai": ("api.together.xyz",),
+    "xai": ("api.x.ai",),
+    "deepseek": ("api.deepseek.com",),
+}
+"""The providers' own endpoints (https only): a task naming one still sends the key there."""
+
+
+def is_provider_endpoint(api_base: str, provider: str) -> bool:
+    """True when `api_base` is the provider's own https endpoint."""
+    parts = urlsplit(api_base)
+    return parts.scheme == "https" and (parts.hostname or "") in PROVIDER_HOSTS.get(provider, ())
+
+
+def same_server(api_base: str, trusted: str) -> bool:
+    """True when `api_base` is `trusted` or a path below it (scheme, host and port equal)."""
+    a, b = urlsplit(api_base.strip()), urlsplit(trusted.strip())
+    try:
+        ports = (a.port or _default_port(a.scheme), b.port or _default_port(b.scheme))
+    except ValueError:  # a port that is not a number
+        return False
+    if (a.scheme.lower(), (a.hostname or "").lower()) != (b.scheme.lower(), (b.hostname or "")):
+        return False
+    if ports[0] != ports[1]:
+        return False
+    path, prefix = a.path.rstrip("/"), b.path.rstrip("/")
+    return path == prefix or path.startswith(prefix + "/")
+
+
+def _default_port(scheme: str) -> int | None:
+    return {"http": 80, "https": 443}.get(scheme.lower())
