@@ -177,7 +177,7 @@ class LitellmBackend:
         return self._answer(call, response, time.perf_counter() - started, retrying.notes)
 
     def _within_deadline(self, call: _Call) -> Any:
-        """One try, over by planner.timeout_s whatever the server does (keymps...deadline)."""
+        """One try, ended by planner.timeout_s whatever the server does (deadline.py)."""
         try:
             return call_within(
                 self.options.timeout_s, lambda: call.litellm.completion(**call.arguments)
