@@ -1,7 +1,8 @@
 """Canaries: secrets planted every way a run could leak them never appear in a byte it writes.
 
-Real `keymps run` processes (python -m keymps.cli.app) against tests/vlm_server.py on
-127.0.0.1, with canaries as
+`keymps run` against tests/vlm_server.py on 127.0.0.1, a successful run in its own process
+(python -m keymps.cli.app) and a failing one in this process (click's streams and the file
+descriptors both captured), with canaries as
 
 - a key under an odd variable name (planner.api_key_env: MY_ODD_VLM_KEY, allowed by the user
   config), which the server quotes back into the answer's rationale and into a first, invalid
@@ -11,7 +12,7 @@ Real `keymps run` processes (python -m keymps.cli.app) against tests/vlm_server.
 - a credential-like variable the run does not use (OPENAI_API_KEY), which the server quotes.
 
 Every byte under the run folders, the answer cache and the cassette, and the captured stdout
-and stderr of both processes, is then searched for every canary (raw, JSON-escaped and
+and stderr of both runs, is then searched for every canary (raw, JSON-escaped and
 URL-encoded), and a marker that must be there shows the search sees inside run.rrd.
 """
 
@@ -27,8 +28,11 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import quote
 
+from click.testing import CliRunner
 from fuzz_support import task_copy
 from vlm_server import Recorded, Reply, VlmServer
+
+from keymps.cli.app import cli
 
 ODD = "odd-" + secrets.token_hex(10)
 SHORT = "".join(secrets.choice(string.ascii_letters) for _ in range(6)) + "7"
@@ -70,17 +74,21 @@ def _leaks(data: bytes, where: str) -> list[str]:
     return found
 
 
-def test_no_canary_in_any_byte_written_or_printed(tmp_path: Path, fuzz_counter: Any) -> None:
+def test_no_canary_in_any_byte_written_or_printed(
+    tmp_path: Path, monkeypatch: Any, capfd: Any, fuzz_counter: Any
+) -> None:
     config = tmp_path / "config.yaml"
     config.write_text("api_key_envs: [MY_ODD_VLM_KEY]\n")
-    env = {
-        **os.environ,
+    planted = {
         "MY_ODD_VLM_KEY": ODD,
         "SHORT_API_KEY": SHORT,
         "OPENAI_API_KEY": UNUSED,
         "KEYMPS_CACHE_DIR": str(tmp_path / "cache"),
         "KEYMPS_CONFIG": str(config),
     }
+    for name, value in planted.items():
+        monkeypatch.setenv(name, value)
+    env = {**os.environ, **planted}
     written = tmp_path / "written"
     printed: dict[str, str] = {}
     with VlmServer(responder=_quoting) as server:
@@ -107,12 +115,13 @@ def test_no_canary_in_any_byte_written_or_printed(tmp_path: Path, fuzz_counter: 
         )
         server.script(Reply.error(400, message=f"bad key {SHORT} at lab:{USERINFO}, {UNUSED}"))
         userinfo_base = f"http://lab:{USERINFO}@127.0.0.1:{server.port}/v1"
-        failed = _keymps(
-            env, "run", str(short_task), "--api-base", userinfo_base, "--no-cache",
-            "--out", str(written / "failed"),
+        failed = CliRunner().invoke(
+            cli, ["run", str(short_task), "--api-base", userinfo_base, "--no-cache",
+                  "--out", str(written / "failed")],
         )  # fmt: skip
-        printed["failed run"] = failed.stdout + failed.stderr
-        assert failed.returncode == 1 and "refused the request" in failed.stderr, failed.stderr
+        descriptors = capfd.readouterr()
+        printed["failed run"] = failed.output + descriptors.out + descriptors.err
+        assert failed.exit_code == 1 and "refused the request" in failed.output, failed.output
     files = [p for p in written.rglob("*") if p.is_file()]
     files += [p for p in (tmp_path / "cache").rglob("*") if p.is_file()]
     names = {p.relative_to(tmp_path).as_posix() for p in files}
