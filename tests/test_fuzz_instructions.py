@@ -176,7 +176,7 @@ def test_fuzzed_prompt_templates(
 ) -> None:
     """Found by fuzzing: a template that is not UTF-8 was a raw UnicodeDecodeError."""
     install(keymps_plugins)
-    template = tmp_path / "prompt.md"
+    template = task.folder / "prompt.md"  # a prompt is read only from the task's folder tree
     template.write_bytes(data)
     with_template = task.model_copy(
         update={"planner": task.planner.model_copy(update={"prompt": template})}
@@ -194,7 +194,7 @@ def test_fuzzed_prompt_templates(
 
 def test_a_prompt_template_that_is_not_text(task: Any, keymps_plugins: Any, tmp_path: Path) -> None:
     install(keymps_plugins)
-    template = tmp_path / "prompt.md"
+    template = task.folder / "prompt.md"  # a prompt is read only from the task's folder tree
     template.write_bytes(b"\xff\xfe\x00\x01 not UTF-8")
     with_template = task.model_copy(
         update={"planner": task.planner.model_copy(update={"prompt": template})}
