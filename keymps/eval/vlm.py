@@ -142,9 +142,9 @@ def ask(
     from keymps.config.overrides import apply_overrides
     from keymps.planning.answer import extract_json
     from keymps.planning.backend_choice import keys_the_task_may_send
-    from keymps.planning.redaction import remember
     from keymps.planning.planner import backend_options
     from keymps.planning.prompt import png_data_url
+    from keymps.planning.redaction import remember
     from keymps.planning.session import PlanSession
     from keymps.plugin.manager import create_component
     from keymps.run import Run, RunOptions
