@@ -31,6 +31,7 @@ import keymps.scenes.render  # noqa: E402, F401
 
 LAZY_MODULES = (
     # what a run's stages and the default plugins import when first used
+    "keymps.default_plugins.board_detector",
     "keymps.default_plugins.file_executor",
     "keymps.default_plugins.image_sources",
     "keymps.default_plugins.offline",

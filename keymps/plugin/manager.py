@@ -19,6 +19,7 @@ from keymps.plugin import hookspecs
 ENTRY_POINT_GROUP = "keymps"
 
 DEFAULT_PLUGINS: dict[str, str] = {
+    "board_detector": "keymps.default_plugins.board_detector",
     "threshold_detector": "keymps.default_plugins.threshold_detector",
     "offline_backend": "keymps.default_plugins.offline",
     "litellm_backend": "keymps.default_plugins.litellm.backend",

@@ -1,0 +1,383 @@
+"""The default detector: the object is what differs from a model of the board, in colour.
+
+1. The board's colour is fitted where the board must be, a band along the border of the
+   searched area, as a smooth surface in CIE Lab (keymps.perception.board_model): lighting
+   gradients and vignetting are part of the board.
+2. Every pixel's distance to that surface, forgiving half of a darkening (soft shadows).
+3. A threshold from the board's own noise, raised to half the object's contrast (so the
+   edge falls where a pixel is half object, as the true box is drawn), or the task's.
+4. Regions: crumbs (under min_area) are dropped; a region that touches three or more sides of
+   the searched area, or covers most of it, is the board (or the table), never an object: the
+   detection stops there. The largest remaining region is the object (or the one `pick` names);
+   every region is in Detection.objects, numbered left to right, then top to bottom.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+from keymps.errors import StageError
+from keymps.perception.board_model import (
+    BoardModel,
+    border_band,
+    distance_to_board,
+    fit_board,
+    to_lab,
+)
+from keymps.perception.image_io import to_bgr8
+from keymps.perception.search_area import SearchArea
+from keymps.plugin import Register, hookimpl
+from keymps.plugin import parse_options as plugin_options
+from keymps.types import DetectedObject, Detection, SceneImage
+
+NOISE_FACTOR = 1.5
+"""The automatic threshold is at least this times the board's 99.5th-percentile distance."""
+MIN_THRESHOLD = 3.0
+"""Lab units: below this no camera tells board from object."""
+TEXTURE_CONTRAST = 1.6
+"""A region whose median distance is under this times the noise threshold is board texture."""
+
+
+class DetectionError(StageError):
+    """The detector found no object, or only the board (or cannot read the image)."""
+
+    def __init__(self, message: str):
+        super().__init__("detect", message)
+
+
+class BoardOptions(BaseModel):
+    """The detector section of a task file (every key but `name`)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    threshold: float | None = Field(default=None, gt=0, le=200)
+    """Lab distance (Delta E) a pixel must be from the board model to be object; automatic
+    when not given (see the module docstring)."""
+    blur: int = Field(default=5, ge=0, le=99)
+    """Gaussian kernel size in pixels (odd) before the colour comparison; 0 or 1: none."""
+    padding: int = Field(default=10, ge=0, le=10_000)
+    """Pixels added around the box for the crop sent to the planner."""
+    min_area: int | None = Field(default=None, ge=1)
+    """Regions smaller than this many pixels are crumbs; default 0.1 % of the searched area
+    (at least 50 px)."""
+    border: int | None = Field(default=None, ge=1, le=1000)
+    """Width in pixels of the band along the searched area's border where the board is
+    sampled; default 2 % of the area's shorter side (at least 3 px)."""
+    surface: int = Field(default=2, ge=0, le=3)
+    """Degree of the polynomial the board's colour follows across the image (0: uniform,
+    1: a linear lighting gradient, 2: also vignetting)."""
+    shadow: float = Field(default=0.5, ge=0, lt=1)
+    """Fraction of a pixel's darkening forgiven (a soft shadow); 0 counts it in full."""
+    max_coverage: float = Field(default=0.75, gt=0, le=1)
+    """A region covering more than this fraction of the searched area is the board."""
+    comparable: float = Field(default=0.5, gt=0, le=1)
+    """A second region at least this fraction of the chosen one's area triggers a warning."""
+    pick: int = Field(default=0, ge=0)
+    """Which object to use, by index in order of decreasing area (0 = the largest)."""
+    roi: list[tuple[float, float]] | None = None
+    """Search only inside this polygon of image pixels, or box [x0, y0, x1, y1]."""
+
+    @field_validator("roi", mode="before")
+    @classmethod
+    def _polygon(cls, value: Any) -> Any:
+        if value is None:
+            return None
+        if (
+            isinstance(value, (list, tuple))
+            and len(value) == 4
+            and all(isinstance(v, (int, float)) for v in value)
+        ):
+            x0, y0, x1, y1 = value
+            if x1 <= x0 or y1 <= y0:
+                raise ValueError(f"a box must be [x0, y0, x1, y1] with x0 < x1, y0 < y1: {value}")
+            return [(x0, y1), (x1, y1), (x1, y0), (x0, y0)]
+        if not isinstance(value, (list, tuple)) or len(value) < 3:
+            raise ValueError(
+                "must be a box [x0, y0, x1, y1] or a polygon of 3 or more [x, y] points"
+            )
+        return value
+
+    @field_validator("blur")
+    @classmethod
+    def _odd(cls, value: int) -> int:
+        if value > 1 and value % 2 == 0:
+            raise ValueError(f"must be odd (a Gaussian kernel size), got {value}")
+        return value
+
+
+def parse_options(options: dict[str, Any]) -> BoardOptions:
+    """Validate the task file's detector options; one clear line per bad option."""
+    return plugin_options(BoardOptions, options, "board detector")
+
+
+@dataclass(frozen=True)
+class Region:
+    contour: np.ndarray
+    """(N, 2) boundary pixel indices (OpenCV's external contour)."""
+    mask: np.ndarray
+    """Bool H x W, filled (holes included)."""
+    area: float
+    bbox: tuple[int, int, int, int]
+    coverage: float
+    """Fraction of the searched area."""
+    sides: tuple[str, ...]
+    contrast: float
+    """Median distance to the board model inside the region, Lab."""
+
+    def describe(self) -> dict[str, Any]:
+        return {
+            "bbox_px": list(self.bbox),
+            "area_px": round(self.area, 1),
+            "coverage": round(self.coverage, 4),
+            "sides_touched": list(self.sides),
+            "contrast": round(self.contrast, 2),
+        }
+
+
+class BoardDetector:
+    """Detects objects against a colour model of the board (see the module docstring)."""
+
+    def __init__(self, options: BoardOptions | None = None):
+        self.options = options or BoardOptions()
+
+    def detect(self, scene: SceneImage | np.ndarray) -> Detection:
+        import cv2
+
+        raw = scene.image if isinstance(scene, SceneImage) else np.asarray(scene)
+        if raw.size == 0 or raw.ndim not in (2, 3):
+            raise DetectionError(f"the scene image is empty (shape {raw.shape})")
+        image = to_bgr8(raw)
+        height, width = image.shape[:2]
+        area = SearchArea.of((width, height), self.options.roi)
+        kernel = self.options.blur
+        blurred = cv2.GaussianBlur(image, (kernel, kernel), 0) if kernel > 1 else image
+        lab = to_lab(blurred)
+        distance, board, board_image, noise = self._board_distance(lab, area)
+        min_area = self.min_area(area)
+        bands = area.side_bands(1.5)
+
+        t_noise = max(MIN_THRESHOLD, NOISE_FACTOR * noise)
+        first = self._regions(distance > t_noise, distance, area, bands, min_area)
+        candidates = [r for r in first if r.contrast >= TEXTURE_CONTRAST * t_noise or _board(r, self.options)]
+        if self.options.threshold is not None:
+            threshold, how = float(self.options.threshold), "detector.threshold"
+        elif candidates:
+            strongest = max(candidates, key=lambda r: r.area)
+            threshold = max(t_noise, 0.5 * strongest.contrast)
+            how = (
+                f"automatic: half the contrast {strongest.contrast:.1f} of the largest region, "
+                f"at least {NOISE_FACTOR:g} x the board's noise {noise:.2f}"
+            )
+        else:
+            threshold, how = t_noise, f"automatic: {NOISE_FACTOR:g} x the board's noise {noise:.2f}"
+        regions = self._regions(distance > threshold, distance, area, bands, min_area)
+        report: dict[str, Any] = {
+            "detector": "board",
+            "searched_area": {"polygon_px": area.polygon.round(2).tolist(), "pixels": area.pixels},
+            "board_model": board.describe(board_image) | {"noise_p995": round(noise, 3)},
+            "threshold": {"value": round(threshold, 3), "how": how},
+            "min_area_px": min_area,
+            "regions": [],
+        }
+        objects, board_like = [], []
+        for region in regions:
+            entry = region.describe()
+            if _board(region, self.options):
+                entry["verdict"] = "board"
+                entry["why"] = _board_reason(region, self.options)
+                board_like.append(region)
+            elif self.options.threshold is None and region.contrast < TEXTURE_CONTRAST * t_noise:
+                entry["verdict"] = "texture"
+                entry["why"] = (
+                    f"median contrast {region.contrast:.1f} is under {TEXTURE_CONTRAST:g} x the "
+                    f"noise threshold {t_noise:.1f}: grain or a stain of the board"
+                )
+            else:
+                entry["verdict"] = "object"
+                objects.append(region)
+            report["regions"].append(entry)
+        if board_like:
+            raise DetectionError(_board_message(board_like[0], self.options))
+        if not objects:
+            raise DetectionError(
+                f"no object found: nothing of at least {min_area} px differs from the board's "
+                f"colour model by more than {threshold:.1f} (Lab; {how}); if an object is "
+                "there, lower detector.threshold, or check the image and scene.camera"
+            )
+        objects.sort(key=lambda r: r.area, reverse=True)
+        pick = self.options.pick
+        if pick >= len(objects):
+            raise DetectionError(
+                f"detector.pick is {pick} but only {len(objects)} object(s) were found "
+                f"(largest first: {_list(objects)})"
+            )
+        chosen = objects[pick]
+        report["chosen"] = {
+            "bbox_px": list(chosen.bbox),
+            "why": f"object #{pick} by decreasing area"
+            + (" (the largest)" if pick == 0 else f" (detector.pick = {pick})"),
+        }
+        numbered = sorted(objects, key=_reading_order)
+        report["objects"] = [
+            {"id": i + 1, "bbox_px": list(r.bbox), "area_px": round(r.area, 1)}
+            for i, r in enumerate(numbered)
+        ]
+        pad = self.options.padding
+        x0, y0, x1, y1 = chosen.bbox
+        cx0, cy0 = max(0, x0 - pad), max(0, y0 - pad)
+        cx1, cy1 = min(width, x1 + pad), min(height, y1 + pad)
+        return Detection(
+            bbox_px=chosen.bbox,
+            crop=np.ascontiguousarray(image[cy0:cy1, cx0:cx1]),
+            crop_origin_px=(cx0, cy0),
+            contour_px=chosen.contour.astype(float),
+            mask=chosen.mask,
+            others_px=tuple(r.bbox for r in objects if r is not chosen),
+            warnings=tuple(_warnings(chosen, pick, objects, self.options)),
+            objects=tuple(
+                DetectedObject(
+                    id=i + 1,
+                    bbox_px=r.bbox,
+                    contour_px=r.contour.astype(float),
+                    area_px=r.area,
+                    mask=r.mask,
+                )
+                for i, r in enumerate(numbered)
+            ),
+            report=report,
+        )
+
+    def min_area(self, area: SearchArea) -> int:
+        if self.options.min_area is not None:
+            return self.options.min_area
+        return max(50, round(0.001 * area.pixels))
+
+    def _board_distance(
+        self, lab: np.ndarray, area: SearchArea
+    ) -> tuple[np.ndarray, BoardModel, np.ndarray, float]:
+        """Distance to the board model, the model, and the board's noise (99.5th percentile)."""
+        import cv2
+
+        height, width = area.mask.shape
+        border = self.options.border or max(3, round(0.02 * min(width, height)))
+        band = border_band(area.mask, border)
+        degree = self.options.surface
+        model = fit_board(lab, band, degree)
+        surface = model.image()
+        distance = distance_to_board(lab, surface, self.options.shadow)
+        # refit on every pixel that looks like board, away from anything that does not
+        rough = distance > max(MIN_THRESHOLD, 4.0 * model.residual + 2.0)
+        grown = cv2.dilate(rough.astype(np.uint8), np.ones((9, 9), np.uint8)) > 0
+        board_pixels = area.mask & ~grown
+        if board_pixels.sum() > 10 * (degree + 1) ** 2:
+            model = fit_board(lab, board_pixels, degree)
+            surface = model.image()
+            distance = distance_to_board(lab, surface, self.options.shadow)
+        else:
+            board_pixels = band
+        samples = distance[board_pixels]
+        typical = float(np.median(samples))
+        inliers = samples[samples <= 3.0 * typical + 1.0]
+        noise = float(np.percentile(inliers, 99.5)) if inliers.size else typical
+        distance[~area.mask] = 0.0
+        return distance, model, surface, noise
+
+    def _regions(
+        self,
+        mask: np.ndarray,
+        distance: np.ndarray,
+        area: SearchArea,
+        bands: list[np.ndarray],
+        min_area: int,
+    ) -> list[Region]:
+        import cv2
+
+        binary = (mask & area.mask).astype(np.uint8) * 255
+        contours, _ = cv2.findContours(binary, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+        found = []
+        for contour in contours:
+            region_area = float(cv2.contourArea(contour))
+            if region_area < min_area:
+                continue
+            filled = np.zeros(binary.shape, np.uint8)
+            cv2.drawContours(filled, [contour], -1, 255, cv2.FILLED)
+            inside = filled > 0
+            x, y, w, h = cv2.boundingRect(contour)
+            found.append(
+                Region(
+                    contour=contour.reshape(-1, 2),
+                    mask=inside,
+                    area=region_area,
+                    bbox=(x, y, x + w, y + h),
+                    coverage=float(inside.sum()) / max(area.pixels, 1),
+                    sides=tuple(area.sides_touched(inside, bands)),
+                    contrast=float(np.median(distance[inside & mask])),
+                )
+            )
+        found.sort(key=lambda r: r.area, reverse=True)
+        return found
+
+
+def _board(region: Region, options: BoardOptions) -> bool:
+    return len(region.sides) >= 3 or region.coverage > options.max_coverage
+
+
+def _board_reason(region: Region, options: BoardOptions) -> str:
+    if len(region.sides) >= 3:
+        return f"touches {len(region.sides)} sides of the searched area ({', '.join(region.sides)})"
+    return (
+        f"covers {100 * region.coverage:.0f} % of the searched area "
+        f"(more than detector.max_coverage {100 * options.max_coverage:.0f} %)"
+    )
+
+
+def _board_message(region: Region, options: BoardOptions) -> str:
+    return (
+        f"the region found (box {list(region.bbox)}) {_board_reason(region, options)}: that is "
+        "the board or the table around it, not an object, and nothing is planned on it; "
+        "if the photo shows more than the board, give scene.camera.board_corners_px "
+        "(or detector.roi); if the object really fills the board, use a larger board or raise "
+        "detector.max_coverage"
+    )
+
+
+def _reading_order(region: Region) -> tuple[float, float]:
+    x0, y0, x1, y1 = region.bbox
+    return ((x0 + x1) / 2, (y0 + y1) / 2)
+
+
+def _list(regions: list[Region]) -> str:
+    return "; ".join(f"#{i} box {list(r.bbox)} ({r.area:.0f} px)" for i, r in enumerate(regions))
+
+
+def _warnings(
+    chosen: Region, pick: int, objects: list[Region], options: BoardOptions
+) -> list[str]:
+    found = []
+    if chosen.sides:
+        found.append(
+            f"detect: the object (box {list(chosen.bbox)}) touches the "
+            f"{' and '.join(chosen.sides)} side(s) of the searched area: it may be cut off, "
+            "and its box smaller than the object"
+        )
+    for index, region in enumerate(objects):
+        if index != pick and region.area >= options.comparable * chosen.area:
+            found.append(
+                f"detect: two objects of comparable size: #{pick} box {list(chosen.bbox)} "
+                f"({chosen.area:.0f} px, used) and #{index} box {list(region.bbox)} "
+                f"({region.area:.0f} px); set detector.pick to {index} to use the other"
+            )
+    return found
+
+
+def make_detector(options: dict[str, Any]) -> BoardDetector:
+    return BoardDetector(parse_options(options))
+
+
+@hookimpl
+def register_detectors(register: Register) -> None:
+    register("board", make_detector)

@@ -1,0 +1,145 @@
+"""The board's colour where no object is: a smooth surface in CIE Lab, fitted to the board itself.
+
+The board is estimated from where it must be, the border of the searched area, not from the
+histogram's mode (which a uniform object covering a third of the image wins). Each Lab channel
+is a low-order polynomial of the pixel position, so a lighting gradient or vignetting is part of
+the model and not an object. The fit is robust: samples far from it (crumbs, an object's edge
+reaching into the border band) are dropped and the fit repeated. `refit` then fits again on
+every pixel judged board, which pins the surface down in the middle of the image too.
+
+The distance of a pixel to the model forgives darkening (a soft shadow keeps the board's hue and
+scales its chroma) by `shadow` of its lightness difference; any other colour change counts in
+full. Units are Lab (Delta E 1976): about 2.3 is the smallest difference a person sees.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+MAX_SAMPLES = 12_000
+"""Board pixels used for one fit (drawn evenly); more change the surface by nothing visible."""
+
+
+def to_lab(image: np.ndarray) -> np.ndarray:
+    """BGR uint8 (H x W x 3) -> float32 CIE Lab: L in [0, 100], a and b about [-128, 127]."""
+    import cv2
+
+    return np.asarray(cv2.cvtColor(image.astype(np.float32) / 255.0, cv2.COLOR_BGR2Lab))
+
+
+def border_band(searched: np.ndarray, width_px: int) -> np.ndarray:
+    """The pixels of `searched` (bool H x W) within width_px of its boundary."""
+    import cv2
+
+    padded = np.pad(searched.astype(np.uint8), 1)
+    distance = cv2.distanceTransform(padded, cv2.DIST_L2, 3)[1:-1, 1:-1]
+    return searched & (distance <= width_px)
+
+
+def _exponents(degree: int) -> list[tuple[int, int]]:
+    return [(i, d - i) for d in range(degree + 1) for i in range(d + 1)]
+
+
+def _monomials(x: np.ndarray, y: np.ndarray, degree: int) -> np.ndarray:
+    return np.stack([x**i * y**j for i, j in _exponents(degree)], axis=-1)
+
+
+@dataclass(frozen=True)
+class BoardModel:
+    """Lab = polynomial(x, y) per channel, x and y scaled to [-1, 1] over the image."""
+
+    coefficients: np.ndarray
+    """(terms, 3): one column per Lab channel."""
+    degree: int
+    size_px: tuple[int, int]
+    samples: int
+    """Board pixels the last fit used."""
+    residual: float
+    """Median distance of those pixels to the model (the board's texture and noise), Lab."""
+
+    def _normalized(self, cols: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        width, height = self.size_px
+        return (
+            (2.0 * cols + 1.0) / width - 1.0,
+            (2.0 * rows + 1.0) / height - 1.0,
+        )
+
+    def at(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """Model colour (N, 3) at these pixel indices."""
+        x, y = self._normalized(cols.astype(np.float32), rows.astype(np.float32))
+        return _monomials(x, y, self.degree) @ self.coefficients
+
+    def image(self) -> np.ndarray:
+        """The model over the whole image (H x W x 3, float32)."""
+        width, height = self.size_px
+        x, y = self._normalized(
+            np.arange(width, dtype=np.float32)[None, :], np.arange(height, dtype=np.float32)[:, None]
+        )
+        result = np.zeros((height, width, 3), np.float32)
+        for (i, j), weights in zip(_exponents(self.degree), self.coefficients, strict=True):
+            term = x**i * y**j  # (1, W) times (H, 1): one H x W product per term
+            for channel in range(3):
+                result[..., channel] += weights[channel] * term
+        return result
+
+    def describe(self, model: np.ndarray) -> dict[str, object]:
+        """JSON-ready summary: the mean colour, how much it varies, the fit's residual.
+        `model` is self.image() (computed once by the caller)."""
+        lightness = model[..., 0]
+        return {
+            "colour_space": "CIE Lab (D65)",
+            "surface_degree": self.degree,
+            "mean_lab": [round(float(v), 2) for v in model.reshape(-1, 3).mean(axis=0)],
+            "lightness_range": [round(float(lightness.min()), 2), round(float(lightness.max()), 2)],
+            "samples": self.samples,
+            "residual": round(self.residual, 3),
+        }
+
+
+def fit_board(
+    lab: np.ndarray, where: np.ndarray, degree: int, *, iterations: int = 3
+) -> BoardModel:
+    """Robust least-squares fit of the board surface to the pixels `where` (bool H x W)."""
+    height, width = where.shape
+    rows, cols = np.nonzero(where)
+    if len(rows) > MAX_SAMPLES:
+        keep = np.linspace(0, len(rows) - 1, MAX_SAMPLES).astype(int)
+        rows, cols = rows[keep], cols[keep]
+    values = lab[rows, cols].astype(np.float64)
+    probe = BoardModel(np.zeros((1, 3)), degree, (width, height), 0, 0.0)
+    x, y = probe._normalized(cols.astype(np.float64), rows.astype(np.float64))
+    design = _monomials(x, y, degree)
+    inliers = np.ones(len(rows), bool)
+    coefficients = np.zeros((design.shape[1], 3))
+    residual = np.zeros(len(rows))
+    for _ in range(iterations):
+        if inliers.sum() < design.shape[1] * 4:
+            break
+        used = design[inliers]
+        # normal equations: a (terms x terms) solve instead of an SVD of every sample
+        coefficients = np.linalg.solve(
+            used.T @ used + 1e-9 * np.eye(used.shape[1]), used.T @ values[inliers]
+        )
+        residual = np.linalg.norm(values - design @ coefficients, axis=1)
+        typical = float(np.median(residual[inliers]))
+        inliers = residual <= 3.0 * typical + 1.0
+    return BoardModel(
+        coefficients.astype(np.float32),
+        degree,
+        (width, height),
+        int(inliers.sum()),
+        float(np.median(residual[inliers])) if inliers.any() else 0.0,
+    )
+
+
+def distance_to_board(lab: np.ndarray, model: np.ndarray, shadow: float) -> np.ndarray:
+    """Per-pixel Lab distance to the board model; darkening counts (1 - shadow) of its size."""
+    lightness = lab[..., 0] - model[..., 0]
+    # a shadow scales (L + 16, a, b) alike: compare chroma with the board's, scaled as much
+    ratio = np.clip((lab[..., 0] + 16.0) / np.maximum(model[..., 0] + 16.0, 1.0), 0.0, 1.0)
+    da = lab[..., 1] - ratio * model[..., 1]
+    db = lab[..., 2] - ratio * model[..., 2]
+    weight = np.where(lightness < 0, 1.0 - shadow, 1.0).astype(np.float32)
+    return np.sqrt((weight * lightness) ** 2 + da**2 + db**2)

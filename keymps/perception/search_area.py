@@ -1,0 +1,71 @@
+"""The part of an image a detector searches (the whole image, or a polygon) and its sides."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from keymps.errors import KeympsError
+
+SIDE_NAMES = ("bottom", "right", "top", "left")
+"""Names of a four-sided area's sides, in the order of its corners bottom-left, bottom-right,
+top-right, top-left (the order of scene.camera.board_corners_px)."""
+
+
+@dataclass(frozen=True)
+class SearchArea:
+    mask: np.ndarray
+    """Bool H x W: the pixels searched."""
+    polygon: np.ndarray
+    """(N, 2) corners in continuous pixel coordinates."""
+
+    @classmethod
+    def of(cls, size_px: tuple[int, int], polygon: list[tuple[float, float]] | None) -> SearchArea:
+        """The polygon (continuous pixel coordinates), or the whole image when None."""
+        import cv2
+
+        width, height = size_px
+        if polygon is None:
+            corners = np.array([[0, height], [width, height], [width, 0], [0, 0]], float)
+            return cls(np.ones((height, width), bool), corners)
+        corners = np.asarray(polygon, dtype=float).reshape(-1, 2)
+        area = np.zeros((height, width), np.uint8)
+        # Pixel centres at +0.5: a polygon vertex (x, y) is index (x - 0.5, y - 0.5).
+        points = np.round((corners - 0.5) * 16).astype(np.int32)
+        cv2.fillPoly(area, [points.reshape(-1, 1, 2)], 255, cv2.LINE_8, 4)
+        if not area.any():
+            raise KeympsError(
+                f"detector.roi {corners.tolist()} lies outside the {width} x {height} px image"
+            )
+        return cls(area > 0, corners)
+
+    @property
+    def pixels(self) -> int:
+        return int(self.mask.sum())
+
+    def side_names(self) -> list[str]:
+        if len(self.polygon) == 4:
+            return list(SIDE_NAMES)
+        return [f"side {i + 1}" for i in range(len(self.polygon))]
+
+    def side_bands(self, width_px: float = 2.0) -> list[np.ndarray]:
+        """Per side, the searched pixels whose centre lies within width_px of that side."""
+        height, width = self.mask.shape
+        cols = np.arange(width, dtype=np.float32)[None, :] + 0.5
+        rows = np.arange(height, dtype=np.float32)[:, None] + 0.5
+        bands = []
+        for a, b in zip(self.polygon, np.roll(self.polygon, -1, axis=0), strict=True):
+            edge = b - a
+            length = max(float(np.hypot(*edge)), 1e-9)
+            t = np.clip(((cols - a[0]) * edge[0] + (rows - a[1]) * edge[1]) / length**2, 0, 1)
+            dx = cols - (a[0] + t * edge[0])
+            dy = rows - (a[1] + t * edge[1])
+            bands.append(self.mask & (dx * dx + dy * dy <= width_px * width_px))
+        return bands
+
+    def sides_touched(self, region: np.ndarray, bands: list[np.ndarray] | None = None) -> list[str]:
+        """Names of the sides the region (bool H x W) reaches."""
+        bands = bands if bands is not None else self.side_bands()
+        names = self.side_names()
+        return [names[i] for i, band in enumerate(bands) if (region & band).any()]
