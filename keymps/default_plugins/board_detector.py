@@ -127,6 +127,8 @@ class Region:
     sides: tuple[str, ...]
     contrast: float
     """Median distance to the board model inside the region, Lab."""
+    edge_contrast: float
+    """Median distance 3 to 7 px inside its edge (past the blur): what places the edge."""
 
     def describe(self) -> dict[str, Any]:
         return {
@@ -135,6 +137,7 @@ class Region:
             "coverage": round(self.coverage, 4),
             "sides_touched": list(self.sides),
             "contrast": round(self.contrast, 2),
+            "edge_contrast": round(self.edge_contrast, 2),
         }
 
 
@@ -167,9 +170,10 @@ class BoardDetector:
             threshold, how = float(self.options.threshold), "detector.threshold"
         elif candidates:
             strongest = max(candidates, key=lambda r: r.area)
-            threshold = max(t_noise, 0.5 * strongest.contrast)
+            threshold = max(t_noise, 0.5 * strongest.edge_contrast)
             how = (
-                f"automatic: half the contrast {strongest.contrast:.1f} of the largest region, "
+                f"automatic: half the edge contrast {strongest.edge_contrast:.1f} of the "
+                "largest region, "
                 f"at least {NOISE_FACTOR:g} x the board's noise {noise:.2f}"
             )
         else:
@@ -316,10 +320,27 @@ class BoardDetector:
                     coverage=float(inside.sum()) / max(area.pixels, 1),
                     sides=tuple(area.sides_touched(inside, bands)),
                     contrast=float(np.median(distance[inside & mask])),
+                    edge_contrast=_edge_contrast(filled, distance, (x, y, x + w, y + h)),
                 )
             )
         found.sort(key=lambda r: r.area, reverse=True)
         return found
+
+
+def _edge_contrast(
+    filled: np.ndarray, distance: np.ndarray, bbox: tuple[int, int, int, int]
+) -> float:
+    import cv2
+
+    x0, y0, x1, y1 = bbox
+    part = filled[y0:y1, x0:x1]
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (7, 7))
+    outer = cv2.erode(part, kernel, borderValue=0)
+    inner = cv2.erode(outer, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (9, 9)), borderValue=0)
+    ring = (outer > 0) & (inner == 0)
+    if not ring.any():
+        ring = part > 0
+    return float(np.median(distance[y0:y1, x0:x1][ring]))
 
 
 def _board(region: Region, options: BoardOptions) -> bool:
