@@ -1,0 +1,282 @@
+"""Scenes for the perception benchmark: what a kitchen varies, with the true answer.
+
+`flat_case` draws one top-down board (Appendix B: the image spans it) with a random board
+colour and texture, an object of random colour, texture, shape and coverage (5-60 % of the
+board, sometimes near an edge), optionally a second smaller object, crumbs, a soft shadow,
+a lighting gradient up to +-15 %, vignetting, sensor noise and JPEG compression; or an empty
+board. `hue_only` objects have the board's lightness and differ in hue alone. The truth is the
+box of the pixels at least half covered by the largest object (as the scene sidecar's bbox_px).
+
+`photo_case` puts such a board (with an object of real height) in front of a pinhole camera
+tilted 20-45 degrees from straight down: the board plane and every height of the object (its
+sides, then its top) are drawn through their own homographies, with lens distortion, and with or
+without four ArUco markers outside the board's corners (keymps.perception.markers).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from keymps.scenes.render import _coverage, half_covered_box
+from keymps.scenes.textures import smooth_noise
+
+BOARD_M = (0.30, 0.18)
+PX_PER_M = 2000.0
+BOARDS: dict[str, tuple[float, float, float]] = {
+    "light wood": (62.0, 6.0, 24.0),
+    "dark wood": (42.0, 10.0, 22.0),
+    "white plastic": (88.0, -1.0, 3.0),
+    "green plastic": (55.0, -30.0, 18.0),
+    "blue plastic": (50.0, 0.0, -32.0),
+    "slate": (32.0, 0.0, -3.0),
+    "bamboo": (70.0, 4.0, 30.0),
+}
+"""Board colours, CIE Lab."""
+
+
+@dataclass(frozen=True)
+class FlatScene:
+    image: np.ndarray
+    """BGR uint8, the board seen from straight above."""
+    truth_bbox: tuple[int, int, int, int] | None
+    """Box of the largest object (None: an empty board)."""
+    board: np.ndarray
+    """Float BGR 0-255 of the board alone (lighting and shadow applied), for photo_case."""
+    object_alpha: np.ndarray | None
+    """Coverage of the objects (0-1, H x W)."""
+    object_colour: np.ndarray | None
+    """Float BGR of the objects where they are."""
+    variation: dict[str, Any] = field(default_factory=dict)
+
+
+def lab_to_bgr(lab: np.ndarray) -> np.ndarray:
+    """Float Lab (..., 3) -> float BGR 0-255."""
+    import cv2
+
+    lab = np.asarray(lab, np.float32).reshape(-1, 1, 3)
+    return np.clip(cv2.cvtColor(lab, cv2.COLOR_Lab2BGR).reshape(-1, 3) * 255.0, 0, 255)
+
+
+def _object_lab(rng: np.random.Generator, board: np.ndarray, hue_only: bool) -> np.ndarray:
+    if hue_only:
+        chroma = rng.uniform(35, 55)
+        angle = np.arctan2(board[2], board[1]) + rng.uniform(0.6 * np.pi, 1.4 * np.pi)
+        lightness = np.clip(board[0] + rng.uniform(-3, 3), 35, 75)
+        return np.array([lightness, chroma * np.cos(angle), chroma * np.sin(angle)])
+    while True:
+        colour = np.array([rng.uniform(15, 95), rng.uniform(-40, 60), rng.uniform(-40, 70)])
+        if np.linalg.norm(colour - board) >= 25:
+            return colour
+
+
+def _outline(rng: np.random.Generator, area_px: float, room: tuple[float, float]) -> np.ndarray:
+    """A closed polygon (N, 2) about the origin of about area_px pixels, fitting in room."""
+    shape = rng.choice(["ellipse", "rounded", "blob"])
+    aspect = rng.uniform(1.0, 1.8)
+    theta = np.linspace(0, 2 * np.pi, 240, endpoint=False)
+    if shape == "rounded":
+        power = rng.uniform(3, 6)
+        c, s = np.cos(theta), np.sin(theta)
+        unit = np.c_[np.sign(c) * np.abs(c) ** (2 / power), np.sign(s) * np.abs(s) ** (2 / power)]
+    else:
+        unit = np.c_[np.cos(theta), np.sin(theta)]
+        if shape == "blob":
+            wobble = sum(
+                rng.normal(0, 0.05) * np.cos(k * theta + rng.uniform(0, 6.3)) for k in range(2, 6)
+            )
+            unit = unit * (1 + wobble)[:, None]
+    unit = unit * np.array([aspect, 1.0])
+    angle = rng.uniform(0, np.pi)
+    rotation = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+    unit = unit @ rotation.T
+    x, y = unit.T
+    unit_area = 0.5 * abs(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
+    polygon = unit * np.sqrt(area_px / unit_area)
+    extent = polygon.max(axis=0) - polygon.min(axis=0)
+    fit = min(1.0, room[0] / extent[0], room[1] / extent[1])
+    return polygon * fit
+
+
+def _texture(rng: np.random.Generator, shape: tuple[int, int], kind: str) -> np.ndarray:
+    """A multiplicative texture (1 + t) of the given kind."""
+    if kind == "plain":
+        return np.ones(shape, np.float32)
+    if kind == "grain":
+        rows = np.arange(shape[0], dtype=np.float32)[:, None]
+        warp = smooth_noise(shape, 60, rng)
+        grain = np.sin(2 * np.pi * (rows / rng.uniform(10, 20) + 0.6 * warp))
+        return (1 + rng.uniform(0.015, 0.04) * grain).astype(np.float32)
+    if kind == "mottled":
+        return (1 + rng.uniform(0.01, 0.03) * smooth_noise(shape, 25, rng)).astype(np.float32)
+    return (1 + rng.uniform(0.01, 0.03) * smooth_noise(shape, 2, rng)).astype(np.float32)
+
+
+def _place(
+    rng: np.random.Generator, polygon: np.ndarray, size: tuple[int, int], near_edge: bool,
+    keep_out: list[tuple[float, float, float, float]], gap: float,
+) -> np.ndarray | None:  # fmt: skip
+    width, height = size
+    low, high = polygon.min(axis=0), polygon.max(axis=0)
+    for _ in range(200):
+        if near_edge:
+            side = rng.integers(4)
+            offset = rng.uniform(6, 14)
+            cx = rng.uniform(gap - low[0], width - gap - high[0])
+            cy = rng.uniform(gap - low[1], height - gap - high[1])
+            if side == 0:
+                cx = offset - low[0]
+            elif side == 1:
+                cx = width - offset - high[0]
+            elif side == 2:
+                cy = offset - low[1]
+            else:
+                cy = height - offset - high[1]
+        else:
+            cx = rng.uniform(gap - low[0], width - gap - high[0])
+            cy = rng.uniform(gap - low[1], height - gap - high[1])
+        box = (cx + low[0], cy + low[1], cx + high[0], cy + high[1])
+        if box[0] < 5 or box[1] < 5 or box[2] > width - 5 or box[3] > height - 5:
+            continue
+        if all(
+            box[2] + gap < k[0] or k[2] + gap < box[0] or box[3] + gap < k[1] or k[3] + gap < box[1]
+            for k in keep_out
+        ):
+            return polygon + (cx, cy)
+    return None
+
+
+def _alpha(polygon_px: np.ndarray, size: tuple[int, int]) -> tuple[np.ndarray, list[int]]:
+    width, height = size
+    alpha = np.zeros((height, width), np.float32)
+    x0, y0 = np.maximum(np.floor(polygon_px.min(axis=0)).astype(int) - 1, 0)
+    x1, y1 = np.ceil(polygon_px.max(axis=0)).astype(int) + 1
+    x1, y1 = min(x1, width), min(y1, height)
+    part = _coverage(polygon_px, None, (x0, y0, x1, y1))
+    alpha[y0:y1, x0:x1] = part
+    return alpha, half_covered_box(part, (x0, y0))
+
+
+def flat_case(
+    seed: int,
+    *,
+    empty: bool = False,
+    hue_only: bool = False,
+    size_px: tuple[int, int] = (600, 360),
+    coverage: float | None = None,
+    jpeg: bool | None = None,
+    finish: bool = True,
+) -> FlatScene:
+    """One random board, with its true box (see the module docstring)."""
+    import cv2
+
+    rng = np.random.default_rng([seed, 17])
+    width, height = size_px
+    board_name = str(rng.choice(list(BOARDS)))
+    board_lab = np.array(BOARDS[board_name]) + rng.normal(0, [4, 2, 3])
+    texture_kind = str(rng.choice(["plain", "grain", "mottled", "speckle"]))
+    board = lab_to_bgr(board_lab)[0][None, None, :] * _texture(rng, (height, width), texture_kind)[..., None]
+    variation: dict[str, Any] = {"board": board_name, "board_texture": texture_kind}
+    alpha_all = np.zeros((height, width), np.float32)
+    colour_all = np.zeros((height, width, 3), np.float32)
+    truth: tuple[int, int, int, int] | None = None
+    boxes: list[tuple[float, float, float, float]] = []
+    main_alpha = None
+    if not empty:
+        share = coverage if coverage is not None else float(rng.uniform(0.05, 0.6))
+        near_edge = bool(rng.random() < 0.3)
+        polygon = _outline(rng, share * width * height, (width - 24, height - 24))
+        placed = _place(rng, polygon, size_px, near_edge, [], 6)
+        if placed is None:
+            placed = polygon - polygon.mean(axis=0) + (width / 2, height / 2)
+        main_alpha, box = _alpha(placed, size_px)
+        truth = (box[0], box[1], box[2], box[3])
+        boxes.append(tuple(float(v) for v in box))
+        object_lab = _object_lab(rng, board_lab, hue_only)
+        colour = _paint_object(rng, object_lab, (height, width), board_lab)
+        alpha_all, colour_all = main_alpha, colour
+        variation |= {"coverage": round(float(main_alpha.sum()) / (width * height), 3),
+                      "near_edge": near_edge, "hue_only": hue_only,
+                      "object_lab": np.round(object_lab, 1).tolist()}  # fmt: skip
+        if rng.random() < 0.3:
+            second = _outline(rng, share * width * height * rng.uniform(0.1, 0.4), (width / 3, height / 2))
+            spot = _place(rng, second, size_px, False, boxes, 14)
+            if spot is not None:
+                alpha2, box2 = _alpha(spot, size_px)
+                colour2 = _paint_object(rng, _object_lab(rng, board_lab, hue_only), (height, width), board_lab)
+                alpha_all = np.maximum(alpha_all, alpha2)
+                colour_all = np.where(alpha2[..., None] > 0, colour2, colour_all)
+                boxes.append(tuple(float(v) for v in box2))
+                variation["second_object"] = box2
+    if rng.random() < 0.35:  # crumbs: specks of a few pixels, away from the objects
+        count = int(rng.integers(5, 30))
+        crumb_colour = lab_to_bgr(_object_lab(rng, board_lab, False))[0]
+        crumbs = np.zeros((height, width), np.uint8)
+        for _ in range(count):
+            x, y = rng.uniform(4, width - 4), rng.uniform(4, height - 4)
+            if any(k[0] - 10 < x < k[2] + 10 and k[1] - 10 < y < k[3] + 10 for k in boxes):
+                continue
+            cv2.circle(crumbs, (int(x), int(y)), int(rng.integers(1, 4)), 255, -1, cv2.LINE_AA)
+        weight = crumbs.astype(np.float32)[..., None] / 255.0
+        board = board * (1 - weight) + crumb_colour * weight
+        variation["crumbs"] = count
+    if main_alpha is not None and rng.random() < 0.4:  # a soft shadow beside the object
+        shift = rng.uniform(3, 8) * np.array([np.cos(a := rng.uniform(0, 6.3)), np.sin(a)])
+        moved = cv2.warpAffine(alpha_all, np.float32([[1, 0, shift[0]], [0, 1, shift[1]]]), (width, height))
+        sigma = rng.uniform(3, 6)
+        soft = cv2.GaussianBlur(moved, (0, 0), sigma)
+        darkness = rng.uniform(0.15, 0.35)
+        board = board * (1 - darkness * soft)[..., None]
+        variation["shadow"] = {"darkness": round(darkness, 2), "sigma_px": round(sigma, 1)}
+    image = board * (1 - alpha_all[..., None]) + colour_all * alpha_all[..., None]
+    light = _lighting(rng, (width, height), variation)
+    image = image * light[..., None]
+    board_lit = board * light[..., None]
+    colour_lit = colour_all * light[..., None]
+    pixels = _finish(rng, image, variation, jpeg) if finish else np.clip(np.rint(image), 0, 255).astype(np.uint8)
+    return FlatScene(
+        pixels, truth, board_lit, alpha_all if not empty else None,
+        colour_lit if not empty else None, variation,
+    )  # fmt: skip
+
+
+def _paint_object(
+    rng: np.random.Generator, lab: np.ndarray, shape: tuple[int, int], board_lab: np.ndarray
+) -> np.ndarray:
+    kind = str(rng.choice(["plain", "mottled", "speckle", "spots"]))
+    base = lab_to_bgr(lab)[0][None, None, :] * _texture(rng, shape, "plain" if kind == "spots" else kind)[..., None]
+    if kind == "spots":  # toppings of a second colour, at least 15 from the board
+        spots = (smooth_noise(shape, 8, rng) > 1.2).astype(np.float32)
+        while True:
+            second = lab + rng.normal(0, 12, 3)
+            if np.linalg.norm(second - board_lab) > 15:
+                break
+        base = base * (1 - spots[..., None]) + lab_to_bgr(second)[0] * spots[..., None]
+    return base.astype(np.float32)
+
+
+def _lighting(rng: np.random.Generator, size: tuple[int, int], variation: dict[str, Any]) -> np.ndarray:
+    width, height = size
+    x = np.linspace(-1, 1, width, dtype=np.float32)[None, :]
+    y = np.linspace(-1, 1, height, dtype=np.float32)[:, None]
+    gradient = float(rng.uniform(0, 0.15))
+    angle = rng.uniform(0, 2 * np.pi)
+    ramp = (np.cos(angle) * x + np.sin(angle) * y) / max(abs(np.cos(angle)) + abs(np.sin(angle)), 1e-6)
+    vignette = float(rng.uniform(0, 0.25)) if rng.random() < 0.5 else 0.0
+    variation |= {"gradient": round(gradient, 3), "vignetting": round(vignette, 3)}
+    return ((1 + gradient * ramp) * (1 - vignette * (x * x + y * y) / 2)).astype(np.float32)
+
+
+def _finish(rng: np.random.Generator, image: np.ndarray, variation: dict[str, Any], jpeg: bool | None) -> np.ndarray:
+    import cv2
+
+    noisy = image + rng.normal(0, rng.uniform(1.0, 3.0), image.shape).astype(np.float32)
+    pixels = np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
+    if jpeg if jpeg is not None else rng.random() < 0.5:
+        quality = int(rng.integers(60, 96))
+        ok, data = cv2.imencode(".jpg", pixels, [cv2.IMWRITE_JPEG_QUALITY, quality])
+        pixels = cv2.imdecode(data, cv2.IMREAD_COLOR)
+        variation["jpeg_quality"] = quality
+    return pixels
