@@ -22,6 +22,30 @@ prompt (keymps.eval.vlm)."""
 
 
 @dataclass(frozen=True)
+class Rectification:
+    """How a photo became the metric top-down image the stages work in (scene.camera)."""
+
+    photo: np.ndarray
+    """The photo as the image source gave it (BGR, uint8)."""
+    mm_per_px: float
+    """Size of a rectified pixel on the board (scene.camera.mm_per_px)."""
+    plane_z: float
+    """Height (metres) of the plane shown at true scale: 0 (the board), or the object's top
+    when intrinsics give the camera's pose."""
+    to_photo: np.ndarray
+    """3x3: rectified pixels -> undistorted photo pixels (continuous coordinates)."""
+    board_polygon_px: np.ndarray
+    """(4, 2) the board's corners (bottom-left first) in the rectified image."""
+    camera_matrix: np.ndarray | None = None
+    """3x3 intrinsics (OpenCV convention), when given."""
+    distortion: np.ndarray | None = None
+    camera_position_m: tuple[float, float, float] | None = None
+    """The camera's centre in the board frame (solvePnP on the corners), with intrinsics."""
+    camera_foot_px: tuple[float, float] | None = None
+    """The point of the board straight below the camera, in rectified pixels."""
+
+
+@dataclass(frozen=True)
 class SceneImage:
     """The environment image (BGR, uint8) and where it came from."""
 
@@ -29,6 +53,8 @@ class SceneImage:
     source: str
     truth: dict[str, Any] | None = None
     """A synthetic scene's true geometry (its JSON sidecar, keymps.scenes); None for photos."""
+    rectification: Rectification | None = None
+    """Set when `image` is the photo rectified to the board (scene.camera.board_corners_px)."""
 
     @property
     def size_px(self) -> tuple[int, int]:

@@ -89,7 +89,7 @@ def test_every_stage_runs_in_order_and_is_announced(tmp_path: Path, observer: En
 def test_first_error_stops_the_run_and_no_executor_is_called(
     tmp_path: Path, observer: EnginePlugin
 ) -> None:
-    path = _task_copy(tmp_path, ("detector: {name: threshold}", "detector: {name: broken}"))
+    path = _task_copy(tmp_path, ("detector: {name: board}", "detector: {name: broken}"))
     with pytest.raises(StageError, match=r"^detect: no object found"):
         keymps.run_task(path, executor="recording", out=tmp_path / "run", rerun="off")
     assert [stage for stage, _ in observer.events] == ["image", "finished"]
@@ -166,7 +166,7 @@ def test_a_plugin_bug_is_one_line_and_nothing_runs_after_it(
 ) -> None:
     monkeypatch.delenv("KEYMPS_DEBUG", raising=False)
     keymps_plugins.register(_CrashPlugin(), name="crash-plugin")
-    path = _task_copy(tmp_path, ("detector: {name: threshold}", "detector: {name: crashing}"))
+    path = _task_copy(tmp_path, ("detector: {name: board}", "detector: {name: crashing}"))
     with pytest.raises(StageError) as caught:
         keymps.run_task(path, executor="recording", out=tmp_path / "run", rerun="off")
     assert str(caught.value) == (

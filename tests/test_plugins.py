@@ -16,7 +16,7 @@ from keymps.plugin.hookspecs import hookimpl
 from keymps.plugin.manager import DEFAULT_PLUGINS, build_manager, components, plugin_infos
 
 BUILT_IN_COMPONENTS = {
-    "detector": {"threshold"},
+    "detector": {"board", "threshold"},
     "vlm_backend": {"offline", "litellm", "replay"},
     "executor": {"sim", "file"},
     "image_source": {"file", "synthetic", "opencv"},

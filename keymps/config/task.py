@@ -56,9 +56,33 @@ class Workspace(StrictModel):
     """g_shift: offset of the board frame's origin, metres."""
 
 
+class Intrinsics(StrictModel):
+    """A calibrated pinhole camera (OpenCV's convention: pixel centres at integers)."""
+
+    fx: PositiveFloat
+    fy: PositiveFloat
+    cx: FiniteFloat
+    cy: FiniteFloat
+    distortion: tuple[FiniteFloat, ...] = ()
+    """k1, k2, p1, p2[, k3[, k4, k5, k6]] as cv2.calibrateCamera gives them; empty: none."""
+
+    @field_validator("distortion")
+    @classmethod
+    def _opencv_lengths(cls, value: tuple[float, ...]) -> tuple[float, ...]:
+        if len(value) not in (0, 4, 5, 8):
+            raise ValueError(
+                f"needs 4, 5 or 8 coefficients (k1, k2, p1, p2[, k3[, k4, k5, k6]]), got {len(value)}"
+            )
+        return value
+
+
 class Camera(StrictModel):
     board_corners_px: tuple[Point2, Point2, Point2, Point2] | None = None
     """Pixels of the workspace corners: bottom-left, bottom-right, top-right, top-left."""
+    mm_per_px: Annotated[float, Field(ge=0.05, le=10, allow_inf_nan=False)] = 0.5
+    """Resolution of the rectified top-down image the stages work in (with board corners)."""
+    intrinsics: Intrinsics | None = None
+    """With board corners: undistort, find the camera's pose, ground on the object's top."""
 
 
 class Scene(StrictModel):
@@ -154,7 +178,7 @@ class Task(StrictModel):
     name: str = Field(min_length=1, max_length=200)
     instruction: str = Field(min_length=1, max_length=4000)
     scene: Scene
-    detector: PluginSection = PluginSection(name="threshold")
+    detector: PluginSection = PluginSection(name="board")
     planner: Planner = Planner()
     primitives: list[str] = Field(min_length=1)
     height: Height = Height()

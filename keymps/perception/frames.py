@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Literal
 import numpy as np
 
 from keymps.errors import KeympsError, StageError
-from keymps.types import Detection, Grounding, Plan, Segment
+from keymps.types import Detection, Grounding, Plan, SceneImage, Segment
 
 if TYPE_CHECKING:
     from keymps.config.task import Task
@@ -122,6 +122,17 @@ class ImageFrame:
                 image_size_px, workspace.size, np.array(corners), workspace.shift
             )
         return cls.linear(image_size_px, workspace.size, workspace.shift)
+
+    @classmethod
+    def for_scene(cls, task: Task, scene: SceneImage | tuple[int, int]) -> ImageFrame:
+        """The frame of the image the stages work in: Appendix B on a rectified image (it
+        spans the workspace exactly), else what the task file asks for (from_task)."""
+        if isinstance(scene, SceneImage):
+            if scene.rectification is not None:
+                workspace = task.scene.workspace
+                return cls.linear(scene.size_px, workspace.size, workspace.shift)
+            return cls.from_task(task, scene.size_px)
+        return cls.from_task(task, scene)
 
     @property
     def inverse(self) -> np.ndarray:
@@ -226,11 +237,13 @@ def pairs_full_image_px(plan: Plan, detection: Detection) -> np.ndarray:
 
 
 def ground(
-    plan: Plan, detection: Detection, task: Task, image_size_px: tuple[int, int]
+    plan: Plan, detection: Detection, task: Task, image: SceneImage | tuple[int, int]
 ) -> Grounding:
-    """Appendix B (crop pixels -> board metres) and Appendix C (heights): 3D segments."""
+    """Appendix B (crop pixels -> board metres) and Appendix C (heights): 3D segments.
+
+    `image` is the scene the plan was made on (or its size, for an unrectified image)."""
     pairs = pairs_full_image_px(plan, detection)
-    frame = ImageFrame.from_task(task, image_size_px)
+    frame = ImageFrame.for_scene(task, image)
     board = frame.to_board(pairs.reshape(-1, 2)).reshape(-1, 2, 2)
     z_start, z_goal = height_pair(task)
     segments = tuple(
@@ -250,13 +263,13 @@ def ground(
 
 
 def object_outline_m(
-    detection: Detection, task: Task, image_size_px: tuple[int, int]
+    detection: Detection, task: Task, image: SceneImage | tuple[int, int]
 ) -> np.ndarray:
     """The object's footprint polygon (N, 2) in board metres, counter-clockwise.
 
     Uses the detected contour (pixel centres) or, without one, the bounding box's corners.
     """
-    frame = ImageFrame.from_task(task, image_size_px)
+    frame = ImageFrame.for_scene(task, image)
     contour = np.asarray(detection.contour_px, dtype=float).reshape(-1, 2)
     if len(contour) >= 3:
         pixels = contour + 0.5

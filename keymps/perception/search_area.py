@@ -6,7 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from keymps.errors import KeympsError
+from keymps.errors import KeympsError, StageError
+from keymps.types import Detection
 
 SIDE_NAMES = ("bottom", "right", "top", "left")
 """Names of a four-sided area's sides, in the order of its corners bottom-left, bottom-right,
@@ -69,3 +70,42 @@ class SearchArea:
         bands = bands if bands is not None else self.side_bands()
         names = self.side_names()
         return [names[i] for i, band in enumerate(bands) if (region & band).any()]
+
+
+MAX_OBJECT_COVERAGE = 0.75
+"""A detected box over this fraction of the image is the board, whatever the detector."""
+
+
+def refuse_the_board(detection: Detection, size_px: tuple[int, int]) -> Detection:
+    """The detection, unless its object is the board: a box touching three or more sides of
+    the image, or covering most of it (any detector; the board detector refuses it itself)."""
+    width, height = size_px
+    x0, y0, x1, y1 = detection.bbox_px
+    sides = [
+        name
+        for name, touching in (
+            ("bottom", y1 >= height),
+            ("right", x1 >= width),
+            ("top", y0 <= 0),
+            ("left", x0 <= 0),
+        )
+        if touching
+    ]
+    covered = (
+        float(np.asarray(detection.mask).sum())
+        if detection.mask is not None and detection.mask.shape[:2] == (height, width)
+        else float((x1 - x0) * (y1 - y0))
+    ) / max(width * height, 1)
+    if len(sides) >= 3 or covered > MAX_OBJECT_COVERAGE:
+        reason = (
+            f"touches {len(sides)} sides of the image ({', '.join(sides)})"
+            if len(sides) >= 3
+            else f"covers {100 * covered:.0f} % of the image"
+        )
+        raise StageError(
+            "detect",
+            f"the object found (box {list(detection.bbox_px)}) {reason}: that is the board, not "
+            "an object, and nothing is planned on it; use the board detector "
+            "(detector: {name: board}), or give scene.camera.board_corners_px or detector.roi",
+        )
+    return detection

@@ -155,21 +155,26 @@ class _Pipeline:
         from keymps.motion.timing import time_trajectory
         from keymps.motion.trajectory_io import write_trajectory_csv
         from keymps.perception import frames as geometry
-        from keymps.pipeline.overlay import draw_plan
+        from keymps.perception.rectify import rectify_scene, top_surface
+        from keymps.perception.search_area import refuse_the_board
+        from keymps.pipeline.overlay import draw_plan, draw_plan_on_photo
         from keymps.planning import planner as planning
         from keymps.robot.model import solve_path
         from keymps.robot.safety import validate
 
         run, parts, task = self.run, self.parts, self.run.task
-        scene: SceneImage = self.stage("image", lambda: parts.image_source.load(run))
+        # with board corners, every later stage works in the rectified top-down image
+        scene: SceneImage = self.stage(
+            "image", lambda: rectify_scene(parts.image_source.load(run), task)
+        )
         size = scene.size_px
         pixel_shape = geometry.pixel_shape_warning(task, size)
         if pixel_shape:
             run.warnings.append(pixel_shape)
 
         def detect() -> Detection:
-            found = parts.detector.detect(scene)
-            run.outline_m = geometry.object_outline_m(found, task, size)
+            found = top_surface(refuse_the_board(parts.detector.detect(scene), size), scene)
+            run.outline_m = geometry.object_outline_m(found, task, scene)
             return found
 
         detection = self.stage("detect", detect)
@@ -183,7 +188,10 @@ class _Pipeline:
             ),
         )
         run.write_image("plan", draw_plan(scene.image, detection, plan))
-        grounding = self.stage("ground", lambda: geometry.ground(plan, detection, task, size))
+        on_photo = draw_plan_on_photo(scene, detection, plan)
+        if on_photo is not None:
+            run.write_image("plan_photo", on_photo)
+        grounding = self.stage("ground", lambda: geometry.ground(plan, detection, task, scene))
         if self.through == "ground":
             return
         robot, executor = parts.robot, parts.executor

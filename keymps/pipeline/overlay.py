@@ -1,10 +1,11 @@
-"""plan.png: the scene with the detection box and the numbered keypoint pairs (paper Fig. 13)."""
+"""plan.png: the scene with the detection box and the numbered keypoint pairs (paper Fig. 13);
+plan_photo.png: the same carried back into the original photo of a rectified scene."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from keymps.types import Detection, Plan
+from keymps.types import Detection, Plan, SceneImage
 
 RED = (0, 0, 255)
 GREEN = (0, 200, 0)
@@ -92,3 +93,38 @@ def _rectangle(
     top_left = (int(round(x0)), int(round(y0)))
     bottom_right = (int(round(x1)) - 1, int(round(y1)) - 1)
     cv2.rectangle(canvas, top_left, bottom_right, colour, thick, cv2.LINE_8)
+
+
+def draw_plan_on_photo(scene: SceneImage, detection: Detection, plan: Plan) -> np.ndarray | None:
+    """The original photo of a rectified scene with the board's outline (cyan), the object's
+    outline and the keypoint pairs carried back into it, to check the rectification by eye;
+    None when the scene was not rectified."""
+    import cv2
+
+    from keymps.perception.rectify import photo_points
+
+    info = scene.rectification
+    if info is None:
+        return None
+    canvas = _as_bgr(info.photo)
+    thick = max(1, round(min(canvas.shape[:2]) / 400))
+
+    def polyline(points: np.ndarray, colour: tuple, closed: bool) -> None:
+        photo = photo_points(info, points)
+        fixed = np.round((photo - 0.5) * (1 << _SHIFT)).astype(np.int32).reshape(-1, 1, 2)
+        cv2.polylines(canvas, [fixed], closed, colour, thick, cv2.LINE_AA, _SHIFT)
+
+    board = np.asarray(info.board_polygon_px, float)
+    edges = np.concatenate([np.linspace(a, b, 32) for a, b in zip(board, np.roll(board, -1, 0))])
+    polyline(edges, BOX, True)
+    contour = np.asarray(detection.contour_px, float).reshape(-1, 2)
+    if len(contour) >= 3:
+        polyline(contour + 0.5, GREEN, True)
+    for start, end in np.asarray(plan.pairs_px, dtype=float).reshape(-1, 2, 2):
+        if np.linalg.norm(end - start) < DOT_PX:
+            (centre,) = photo_points(info, start[None])
+            point = tuple(int(v) for v in np.round((centre - 0.5) * (1 << _SHIFT)))
+            cv2.circle(canvas, point, (3 * thick) << _SHIFT, RED, thick, cv2.LINE_AA, _SHIFT)
+        else:
+            polyline(np.linspace(start, end, 16), RED, False)
+    return canvas

@@ -62,6 +62,22 @@ def _validation(checked: ValidatedTrajectory | None, error: BaseException | None
     return None
 
 
+def _image_record(scene: Any) -> dict[str, Any]:
+    record: dict[str, Any] = {"source": scene.source, "size_px": list(scene.size_px)}
+    info = getattr(scene, "rectification", None)
+    if info is not None:
+        record["rectified"] = {
+            "photo_size_px": [int(info.photo.shape[1]), int(info.photo.shape[0])],
+            "mm_per_px": info.mm_per_px,
+            "plane_z_m": _rounded(info.plane_z),
+            "board_polygon_px": _rounded(info.board_polygon_px.tolist(), 3),
+            "camera_position_m": _rounded(list(info.camera_position_m))
+            if info.camera_position_m is not None
+            else None,
+        }
+    return record
+
+
 def run_record(run: Run, error: BaseException | None) -> dict[str, Any]:
     """Everything run.json holds, as plain JSON data."""
     stages = run.stages
@@ -79,7 +95,7 @@ def run_record(run: Run, error: BaseException | None) -> dict[str, Any]:
         "backend": run.backend,
         "backend_reason": run.backend_reason,
         "model": plan.model if plan is not None else task.planner.model,
-        "image": {"source": scene.source, "size_px": list(scene.size_px)} if scene else None,
+        "image": _image_record(scene) if scene else None,
         "detection": None
         if detection is None
         else {
@@ -87,6 +103,11 @@ def run_record(run: Run, error: BaseException | None) -> dict[str, Any]:
             "crop_origin_px": [int(v) for v in detection.crop_origin_px],
             "crop_size_px": list(detection.crop_size_px),
             "warnings": list(detection.warnings),
+            "objects": [
+                {"id": o.id, "bbox_px": [int(v) for v in o.bbox_px], "area_px": _rounded(o.area_px, 1)}
+                for o in detection.objects
+            ],
+            "report": detection.report,
         },
         "keyword": plan.keyword if plan is not None else None,
         "rationale": plan.rationale if plan is not None else None,

@@ -58,7 +58,7 @@ def crop_metres_per_px(task: Task, detection: Detection, scene: SceneImage) -> t
             raise
         ws = task.scene.workspace.size
         return ws[0] / width, ws[1] / height
-    frame = ImageFrame.from_task(task, (width, height))
+    frame = ImageFrame.for_scene(task, scene)
     cx = detection.crop_origin_px[0] + detection.crop_size_px[0] / 2
     cy = detection.crop_origin_px[1] + detection.crop_size_px[1] / 2
     board = frame.to_board(np.array([[cx, cy], [cx + 1, cy], [cx, cy + 1]], dtype=float))

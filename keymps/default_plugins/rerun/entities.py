@@ -63,7 +63,7 @@ def _image_frame(run: Run) -> Any | None:
     except ImportError:
         return None
     try:
-        return ImageFrame.from_task(run.task, scene.size_px)
+        return ImageFrame.for_scene(run.task, scene)
     except Exception:  # a recorder must never stop the run over a drawing
         return None
 
@@ -315,6 +315,6 @@ def _outline_m(run: Run, detection: Detection, scene: SceneImage) -> np.ndarray 
     from keymps.perception.frames import object_outline_m
 
     try:
-        return np.asarray(object_outline_m(detection, run.task, scene.size_px), dtype=float)
+        return np.asarray(object_outline_m(detection, run.task, scene), dtype=float)
     except Exception:
         return None

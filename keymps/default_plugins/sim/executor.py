@@ -184,9 +184,12 @@ def render_outcome(
     found: Marks,
     options: SimOptions,
     footprint: np.ndarray | None = None,
+    *,
+    rectified: bool = False,
 ) -> Any:
     """The scene image with what the tool did drawn where it did it (BGR uint8); cuts only
-    inside the `footprint` polygon (board metres) when it is given."""
+    inside the `footprint` polygon (board metres) when it is given. `rectified`: the scene is
+    the photo rectified to the workspace (it spans it exactly, Appendix B)."""
     import cv2
 
     from keymps.perception.frames import ImageFrame
@@ -196,7 +199,12 @@ def render_outcome(
         scene = np.full((round(height * 2000), round(width * 2000), 3), 235, np.uint8)
     image = np.ascontiguousarray(scene.copy())
     size = (int(image.shape[1]), int(image.shape[0]))
-    frame = ImageFrame.from_task(task, size)
+    workspace = task.scene.workspace
+    frame = (
+        ImageFrame.linear(size, workspace.size, workspace.shift)
+        if rectified
+        else ImageFrame.from_task(task, size)
+    )
     per_metre = 1.0 / frame.metres_per_pixel()
     shift = 4  # sub-pixel drawing: coordinates in 1/16 pixel
 
@@ -295,7 +303,15 @@ class SimExecutor:
             scene = run.stages.image
             picture = scene.image if isinstance(scene, SceneImage) else None
             path = run.write_image(
-                "outcome", render_outcome(task, picture, found, self.options, outline)
+                "outcome",
+                render_outcome(
+                    task,
+                    picture,
+                    found,
+                    self.options,
+                    outline,
+                    rectified=isinstance(scene, SceneImage) and scene.rectification is not None,
+                ),
             )
             files.append(str(path))
         problems = []
@@ -328,7 +344,7 @@ def _footprint(run: Run) -> np.ndarray | None:
     detection, scene = run.stages.detect, run.stages.image
     if not isinstance(detection, Detection) or not isinstance(scene, SceneImage):
         return None
-    return object_outline_m(detection, run.task, scene.size_px)
+    return object_outline_m(detection, run.task, scene)
 
 
 def _length_mm(lines: list[np.ndarray]) -> float:

@@ -1,0 +1,248 @@
+"""A photo at an angle -> a metric top-down image of the board, before anything is detected.
+
+With `scene.camera.board_corners_px` the photo is warped so that the board fills the image at
+`scene.camera.mm_per_px` (0.5 mm per pixel by default): the image then spans the workspace
+exactly, Appendix B holds, and detection, planning and grounding measure true millimetres.
+
+With `scene.camera.intrinsics` as well, the photo is undistorted, the camera's pose is recovered
+from the four corners (cv2.solvePnP), and the image shown is the plane of the object's *top*
+(z = scene.object_height): keypoints drawn on the top surface are then where they are on the
+board, instead of shifted by height x tan(view angle). `top_surface` removes the object's
+visible sides from a detection in that image (see its docstring).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from keymps.errors import KeympsError, StageError
+from keymps.perception.frames import ImageFrame, _homography
+from keymps.types import DetectedObject, Detection, Rectification, SceneImage
+
+if TYPE_CHECKING:
+    from keymps.config.task import Task
+
+
+def _to_continuous() -> np.ndarray:
+    """OpenCV pixel indices (centre of the first pixel at 0) -> continuous coordinates."""
+    return np.array([[1.0, 0, 0.5], [0, 1.0, 0.5], [0, 0, 1.0]])
+
+
+def camera_matrix(task: Task) -> tuple[np.ndarray, np.ndarray] | None:
+    """(K, distortion) from scene.camera.intrinsics, or None."""
+    given = task.scene.camera.intrinsics
+    if given is None:
+        return None
+    matrix = np.array([[given.fx, 0, given.cx], [0, given.fy, given.cy], [0, 0, 1.0]])
+    return matrix, np.array(given.distortion or (0.0, 0.0, 0.0, 0.0), dtype=float)
+
+
+def undistort_points(points_px: np.ndarray, matrix: np.ndarray, distortion: np.ndarray) -> np.ndarray:
+    """Continuous photo pixels -> the pixels an ideal (distortion-free) camera K would see."""
+    import cv2
+
+    index = np.asarray(points_px, float).reshape(-1, 1, 2) - 0.5
+    ideal = cv2.undistortPoints(index, matrix, distortion, P=matrix)
+    return ideal.reshape(-1, 2) + 0.5
+
+
+def distort_points(points_px: np.ndarray, matrix: np.ndarray, distortion: np.ndarray) -> np.ndarray:
+    """The inverse of undistort_points: ideal continuous pixels -> photo pixels."""
+    import cv2
+
+    index = np.asarray(points_px, float).reshape(-1, 2) - 0.5
+    normalized = (index - matrix[:2, 2]) / np.diag(matrix)[:2]
+    rays = np.hstack([normalized, np.ones((len(normalized), 1))]).reshape(-1, 1, 3)
+    projected, _ = cv2.projectPoints(rays, np.zeros(3), np.zeros(3), matrix, distortion)
+    return projected.reshape(-1, 2) + 0.5
+
+
+def board_pose(
+    corners_px: np.ndarray, board_m: np.ndarray, matrix: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(R, t) of the board frame in the camera frame from the ideal corner pixels (IPPE)."""
+    import cv2
+
+    objects = np.hstack([board_m, np.zeros((4, 1))]).astype(np.float64)
+    found, rvec, tvec = cv2.solvePnP(
+        objects, corners_px.reshape(-1, 1, 2) - 0.5, matrix, None, flags=cv2.SOLVEPNP_IPPE
+    )
+    if not found:
+        raise KeympsError("scene.camera: the camera's pose cannot be found from the board corners")
+    rotation, _ = cv2.Rodrigues(rvec)
+    return rotation, tvec.reshape(3)
+
+
+def rectify_scene(scene: SceneImage, task: Task) -> SceneImage:
+    """The scene as the stages see it: rectified when the task gives board corners."""
+    import cv2
+
+    camera = task.scene.camera
+    if camera.board_corners_px is None:
+        return scene
+    workspace = task.scene.workspace
+    scale = camera.mm_per_px / 1000.0
+    size = (round(workspace.size[0] / scale), round(workspace.size[1] / scale))
+    if size[0] * size[1] > task.scene.max_image_pixels:
+        raise KeympsError(
+            f"scene.camera.mm_per_px: {camera.mm_per_px:g} mm per pixel makes the rectified "
+            f"board {size[0]} x {size[1]} px, over scene.max_image_pixels; choose a larger value"
+        )
+    corners = np.asarray(camera.board_corners_px, float)
+    ImageFrame.from_corners(scene.size_px, workspace.size, corners, workspace.shift)  # checks
+    frame = ImageFrame.linear(size, workspace.size, workspace.shift)
+    board_m = frame.to_board(np.array([[0, size[1]], [size[0], size[1]], [size[0], 0], [0, 0]]))
+    intrinsics = camera_matrix(task)
+    position: tuple[float, float, float] | None = None
+    plane_z = 0.0
+    if intrinsics is None:
+        plane_to_photo = _homography(board_m, corners)
+        board_polygon = np.array([[0, size[1]], [size[0], size[1]], [size[0], 0], [0, 0]], float)
+    else:
+        matrix, distortion = intrinsics
+        ideal = undistort_points(corners, matrix, distortion)
+        rotation, translation = board_pose(ideal, board_m, matrix)
+        centre = -rotation.T @ translation
+        height = float(task.scene.object_height)
+        if centre[2] <= height + 0.01:
+            raise KeympsError(
+                f"scene.camera: the camera found from the board corners is {centre[2]:.3f} m "
+                "above the board, not above the object: check the corners' order "
+                "(bottom-left, bottom-right, top-right, top-left) and the intrinsics"
+            )
+        position = (float(centre[0]), float(centre[1]), float(centre[2]))
+        plane_z = height
+        columns = np.c_[rotation[:, 0], rotation[:, 1], translation + height * rotation[:, 2]]
+        plane_to_photo = _to_continuous() @ matrix @ columns
+        # where the board's corners (z = 0) appear in the plane of the top
+        foot = np.array(position[:2])
+        shrink = (centre[2] - height) / centre[2]
+        board_polygon = frame.to_pixels(foot + (board_m - foot) * shrink)
+    to_photo = plane_to_photo @ frame.matrix
+    map_x, map_y = _remap_grid(to_photo, size, intrinsics)
+    rectified = cv2.remap(
+        scene.image, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT
+    )
+    info = Rectification(
+        photo=scene.image,
+        mm_per_px=float(camera.mm_per_px),
+        plane_z=plane_z,
+        to_photo=to_photo,
+        board_polygon_px=board_polygon,
+        camera_matrix=None if intrinsics is None else intrinsics[0],
+        distortion=None if intrinsics is None else intrinsics[1],
+        camera_position_m=position,
+        camera_foot_px=None
+        if position is None
+        else tuple(float(v) for v in frame.to_pixels(np.array(position[:2]))[0]),
+    )
+    return SceneImage(rectified, f"{scene.source} (rectified)", info)
+
+
+def _remap_grid(
+    to_photo: np.ndarray,
+    size: tuple[int, int],
+    intrinsics: tuple[np.ndarray, np.ndarray] | None,
+) -> tuple[np.ndarray, np.ndarray]:
+    width, height = size
+    cols, rows = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5)
+    points = np.c_[cols.ravel(), rows.ravel(), np.ones(cols.size)] @ to_photo.T
+    photo = points[:, :2] / points[:, 2:3]
+    if intrinsics is not None and np.any(intrinsics[1]):
+        photo = distort_points(photo, *intrinsics)
+    photo = (photo - 0.5).astype(np.float32)
+    return photo[:, 0].reshape(height, width), photo[:, 1].reshape(height, width)
+
+
+def photo_points(rectification: Rectification, points_px: np.ndarray) -> np.ndarray:
+    """Rectified pixels (N, 2) -> the photo's own pixels (distortion applied)."""
+    points = np.asarray(points_px, float).reshape(-1, 2)
+    mapped = np.c_[points, np.ones(len(points))] @ rectification.to_photo.T
+    photo = mapped[:, :2] / mapped[:, 2:3]
+    if rectification.camera_matrix is not None and rectification.distortion is not None:
+        if np.any(rectification.distortion):
+            photo = distort_points(photo, rectification.camera_matrix, rectification.distortion)
+    return photo
+
+
+def top_surface(detection: Detection, scene: SceneImage) -> Detection:
+    """In the image of the top plane, the object's visible sides appear as a band between its
+    top (at true scale) and its footprint (shrunk toward the camera's foot point c by
+    (Cz - h) / Cz). The top is what lies in the silhouette S *and* in S grown about c by
+    Cz / (Cz - h): exact for a prism, a close bound for a rounded one."""
+    import cv2
+
+    info = scene.rectification
+    if info is None or info.camera_position_m is None or info.plane_z <= 0:
+        return detection
+    width, height = scene.size_px
+    cz = info.camera_position_m[2]
+    grow = cz / (cz - info.plane_z)
+    assert info.camera_foot_px is not None
+    foot = np.asarray(info.camera_foot_px, float)
+    centre = foot - 0.5  # warpAffine works in pixel indices
+    affine = np.float32([[grow, 0, centre[0] * (1 - grow)], [0, grow, centre[1] * (1 - grow)]])
+
+    def refine(mask: np.ndarray | None) -> np.ndarray | None:
+        if mask is None:
+            return None
+        grown = cv2.warpAffine(mask.astype(np.uint8), affine, (width, height), flags=cv2.INTER_NEAREST)
+        top = (mask & (grown > 0)).astype(np.uint8)
+        contours, _ = cv2.findContours(top, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+        if not contours:
+            return None
+        largest = max(contours, key=cv2.contourArea)
+        filled = np.zeros_like(top)
+        cv2.drawContours(filled, [largest], -1, 1, cv2.FILLED)
+        return filled > 0
+
+    top = refine(detection.mask)
+    if top is None:
+        raise StageError(
+            "detect",
+            f"the object (box {list(detection.bbox_px)}) has no top surface once its sides are "
+            f"removed for scene.object_height {info.plane_z:g} m: is the height right?",
+        )
+    bbox, contour = _box_and_contour(top)
+    pad_x = max(0, detection.bbox_px[0] - detection.crop_origin_px[0])
+    pad_y = max(0, detection.bbox_px[1] - detection.crop_origin_px[1])
+    pad = max(pad_x, pad_y)
+    cx0, cy0 = max(0, bbox[0] - pad), max(0, bbox[1] - pad)
+    cx1, cy1 = min(width, bbox[2] + pad), min(height, bbox[3] + pad)
+    objects = []
+    for item in detection.objects:
+        refined = refine(item.mask)
+        if refined is None:
+            continue
+        box, outline = _box_and_contour(refined)
+        objects.append(DetectedObject(item.id, box, outline, float(refined.sum()), refined))
+    report = dict(detection.report)
+    report["top_surface"] = {
+        "camera_position_m": [round(v, 4) for v in info.camera_position_m],
+        "silhouette_bbox_px": list(detection.bbox_px),
+        "top_bbox_px": list(bbox),
+        "why": f"sides removed: the silhouette intersected with itself grown x{grow:.4f} "
+        "about the camera's foot point",
+    }
+    return dataclasses.replace(
+        detection,
+        bbox_px=bbox,
+        crop=np.ascontiguousarray(scene.image[cy0:cy1, cx0:cx1]),
+        crop_origin_px=(cx0, cy0),
+        contour_px=contour,
+        mask=top,
+        objects=tuple(objects),
+        report=report,
+    )
+
+
+def _box_and_contour(mask: np.ndarray) -> tuple[tuple[int, int, int, int], np.ndarray]:
+    import cv2
+
+    contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    largest = max(contours, key=cv2.contourArea)
+    x, y, w, h = cv2.boundingRect(largest)
+    return (x, y, x + w, y + h), largest.reshape(-1, 2).astype(float)
