@@ -30,8 +30,8 @@ class Rectification:
     mm_per_px: float
     """Size of a rectified pixel on the board (scene.camera.mm_per_px)."""
     plane_z: float
-    """Height (metres) of the plane shown at true scale: 0 (the board), or the object's top
-    when intrinsics give the camera's pose."""
+    """Height (metres) of the plane keypoints are grounded on: 0 (the board), or the object's
+    top when intrinsics give the camera's position (the image always shows the board plane)."""
     to_photo: np.ndarray
     """3x3: rectified pixels -> undistorted photo pixels (continuous coordinates)."""
     board_polygon_px: np.ndarray

@@ -20,6 +20,7 @@ _LAZY_GROUPS: dict[str, tuple[str, str]] = {
     "primitives": ("keymps.cli.primitives", "primitives"),
     "scene": ("keymps.cli.scene", "scene"),
     "eval": ("keymps.cli.eval", "eval_command"),
+    "calibrate": ("keymps.cli.calibrate", "calibrate"),
 }
 """Sub-commands that live in their own modules, imported only when listed or used."""
 

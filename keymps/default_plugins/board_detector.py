@@ -155,7 +155,7 @@ class BoardDetector:
             raise DetectionError(f"the scene image is empty (shape {raw.shape})")
         image = to_bgr8(raw)
         height, width = image.shape[:2]
-        area = SearchArea.of((width, height), self._roi(scene))
+        area = SearchArea.of((width, height), self.options.roi)
         kernel = self.options.blur
         blurred = cv2.GaussianBlur(image, (kernel, kernel), 0) if kernel > 1 else image
         lab = to_lab(blurred)
@@ -254,15 +254,6 @@ class BoardDetector:
             ),
             report=report,
         )
-
-    def _roi(self, scene: SceneImage | np.ndarray) -> list[tuple[float, float]] | None:
-        """detector.roi; else, in the image of an object's top plane, where the board shows."""
-        if self.options.roi is not None:
-            return self.options.roi
-        info = scene.rectification if isinstance(scene, SceneImage) else None
-        if info is not None and info.plane_z > 0:
-            return [(float(x), float(y)) for x, y in info.board_polygon_px]
-        return None
 
     def min_area(self, area: SearchArea) -> int:
         if self.options.min_area is not None:

@@ -27,7 +27,7 @@ from keymps.types import Detection, Grounding, Plan, SceneImage, Segment
 if TYPE_CHECKING:
     from keymps.config.task import Task
 
-FrameMode = Literal["linear", "homography"]
+FrameMode = Literal["linear", "homography", "top_plane"]
 
 
 def _as_points(points: np.ndarray, what: str) -> np.ndarray:
@@ -128,9 +128,25 @@ class ImageFrame:
         """The frame of the image the stages work in: Appendix B on a rectified image (it
         spans the workspace exactly), else what the task file asks for (from_task)."""
         if isinstance(scene, SceneImage):
-            if scene.rectification is not None:
+            info = scene.rectification
+            if info is not None:
                 workspace = task.scene.workspace
-                return cls.linear(scene.size_px, workspace.size, workspace.shift)
+                board = cls.linear(scene.size_px, workspace.size, workspace.shift)
+                if info.camera_position_m is None or info.plane_z <= 0:
+                    return board
+                # the top plane appears scaled by Cz / (Cz - h) about the camera's foot point
+                cx, cy, cz = info.camera_position_m
+                shrink = (cz - info.plane_z) / cz
+                about_foot = np.array(
+                    [[shrink, 0, cx * (1 - shrink)], [0, shrink, cy * (1 - shrink)], [0, 0, 1]]
+                )
+                return cls(
+                    about_foot @ board.matrix,
+                    board.image_size_px,
+                    board.workspace_size,
+                    board.shift,
+                    "top_plane",
+                )
             return cls.from_task(task, scene.size_px)
         return cls.from_task(task, scene)
 

@@ -4,11 +4,12 @@ With `scene.camera.board_corners_px` the photo is warped so that the board fills
 `scene.camera.mm_per_px` (0.5 mm per pixel by default): the image then spans the workspace
 exactly, Appendix B holds, and detection, planning and grounding measure true millimetres.
 
-With `scene.camera.intrinsics` as well, the photo is undistorted, the camera's pose is recovered
-from the four corners (cv2.solvePnP), and the image shown is the plane of the object's *top*
-(z = scene.object_height): keypoints drawn on the top surface are then where they are on the
-board, instead of shifted by height x tan(view angle). `top_surface` removes the object's
-visible sides from a detection in that image (see its docstring).
+With `scene.camera.intrinsics` as well, the photo is undistorted and the camera's position is
+recovered from the four corners (cv2.solvePnP). The object's top (z = scene.object_height)
+then appears in the rectified image scaled by k = Cz / (Cz - h) about the camera's foot point
+(the board point under the camera): ImageFrame.for_scene grounds pixels on that plane
+(undoing the scale) instead of shifting them by height x tan(view angle), and `top_surface`
+removes the object's visible sides from a detection (see its docstring).
 """
 
 from __future__ import annotations
@@ -98,10 +99,8 @@ def rectify_scene(scene: SceneImage, task: Task) -> SceneImage:
     intrinsics = camera_matrix(task)
     position: tuple[float, float, float] | None = None
     plane_z = 0.0
-    if intrinsics is None:
-        plane_to_photo = _homography(board_m, corners)
-        board_polygon = np.array([[0, size[1]], [size[0], size[1]], [size[0], 0], [0, 0]], float)
-    else:
+    ideal = corners
+    if intrinsics is not None:
         matrix, distortion = intrinsics
         ideal = undistort_points(corners, matrix, distortion)
         rotation, translation = board_pose(ideal, board_m, matrix)
@@ -115,12 +114,8 @@ def rectify_scene(scene: SceneImage, task: Task) -> SceneImage:
             )
         position = (float(centre[0]), float(centre[1]), float(centre[2]))
         plane_z = height
-        columns = np.c_[rotation[:, 0], rotation[:, 1], translation + height * rotation[:, 2]]
-        plane_to_photo = _to_continuous() @ matrix @ columns
-        # where the board's corners (z = 0) appear in the plane of the top
-        foot = np.array(position[:2])
-        shrink = (centre[2] - height) / centre[2]
-        board_polygon = frame.to_pixels(foot + (board_m - foot) * shrink)
+    plane_to_photo = _homography(board_m, ideal)
+    board_polygon = np.array([[0, size[1]], [size[0], size[1]], [size[0], 0], [0, 0]], float)
     to_photo = plane_to_photo @ frame.matrix
     map_x, map_y = _remap_grid(to_photo, size, intrinsics)
     rectified = cv2.remap(
@@ -169,10 +164,11 @@ def photo_points(rectification: Rectification, points_px: np.ndarray) -> np.ndar
 
 
 def top_surface(detection: Detection, scene: SceneImage) -> Detection:
-    """In the image of the top plane, the object's visible sides appear as a band between its
-    top (at true scale) and its footprint (shrunk toward the camera's foot point c by
-    (Cz - h) / Cz). The top is what lies in the silhouette S *and* in S grown about c by
-    Cz / (Cz - h): exact for a prism, a close bound for a rounded one."""
+    """The detection of the object's top alone. In the rectified board image, the footprint F
+    is at true scale and the top at F scaled by k = Cz / (Cz - h) about the camera's foot c;
+    the sides fill the band between, so the silhouette S is the union of F scaled by 1 to k.
+    The top is what lies in S *and* in S scaled by k about c: exact for a prism, a close bound
+    for a rounded object."""
     import cv2
 
     info = scene.rectification

@@ -280,3 +280,129 @@ def _finish(rng: np.random.Generator, image: np.ndarray, variation: dict[str, An
         pixels = cv2.imdecode(data, cv2.IMREAD_COLOR)
         variation["jpeg_quality"] = quality
     return pixels
+
+
+@dataclass(frozen=True)
+class PhotoCase:
+    """A board photographed at an angle, with what a calibration would give."""
+
+    photo: np.ndarray
+    """BGR uint8 as the camera saw it (distortion included)."""
+    flat: FlatScene
+    """The same board seen from straight above (board px = metres x PX_PER_M)."""
+    corners_px: np.ndarray
+    """(4, 2) true board corners in the photo, bottom-left first (continuous pixels)."""
+    intrinsics: dict[str, Any]
+    """fx, fy, cx, cy, distortion: what scene.camera.intrinsics would hold."""
+    object_height: float
+    tilt_deg: float
+    markers: bool
+
+
+def _look_at(target: np.ndarray, tilt: float, azimuth: float, distance: float) -> tuple[np.ndarray, np.ndarray]:
+    """(R, t) of a camera `distance` from target, tilted from straight down, near side at the
+    bottom of its image."""
+    back = np.array([np.sin(tilt) * np.sin(azimuth), -np.sin(tilt) * np.cos(azimuth), np.cos(tilt)])
+    forward = -back
+    right = np.cross(forward, [0.0, 0.0, 1.0])
+    right /= np.linalg.norm(right)
+    down = np.cross(forward, right)
+    rotation = np.array([right, down, forward])
+    centre = target + distance * back
+    return rotation, -rotation @ centre
+
+
+def _plane_homography(matrix: np.ndarray, rotation: np.ndarray, translation: np.ndarray, z: float) -> np.ndarray:
+    """Board metres (x, y) on the plane at height z -> ideal photo pixel indices."""
+    return matrix @ np.c_[rotation[:, 0], rotation[:, 1], translation + z * rotation[:, 2]]
+
+
+def photo_case(seed: int, *, markers: bool, flat_object: bool = False) -> PhotoCase:
+    """A board with one object photographed from 20-45 degrees (see the module docstring)."""
+    import cv2
+
+    from keymps.perception.markers import marker_image
+
+    rng = np.random.default_rng([seed, 29])
+    height_m = 0.0 if flat_object else float(rng.uniform(0.02, 0.06))
+    size = (1280, 960)
+    focal = float(rng.uniform(1000, 1200))
+    matrix = np.array([[focal, 0, 639.5 + rng.uniform(-15, 15)], [0, focal, 479.5 + rng.uniform(-15, 15)], [0, 0, 1]])
+    distortion = np.array([rng.uniform(-0.12, 0.08), rng.uniform(-0.05, 0.05), 0, 0, 0])
+    tilt = float(rng.uniform(20, 45))
+    rotation, translation = _look_at(
+        np.array([BOARD_M[0] / 2, BOARD_M[1] / 2, 0.0]), np.radians(tilt),
+        np.radians(rng.uniform(-20, 20)), float(rng.uniform(0.5, 0.6)),
+    )  # fmt: skip
+    centre = -rotation.T @ translation
+    flat = _photo_board(seed, centre, height_m)
+    margin, scale = 0.06, 1.0 / PX_PER_M
+    canvas_px = (round((BOARD_M[0] + 2 * margin) * PX_PER_M), round((BOARD_M[1] + 2 * margin) * PX_PER_M))
+    table_lab = np.array([rng.uniform(20, 45), rng.uniform(-5, 10), rng.uniform(-10, 15)])
+    canvas = np.broadcast_to(lab_to_bgr(table_lab)[0], (canvas_px[1], canvas_px[0], 3)).astype(np.float32)
+    canvas = canvas * _texture(rng, (canvas_px[1], canvas_px[0]), "mottled")[..., None]
+    off = round(margin * PX_PER_M)
+    canvas[off : off + flat.board.shape[0], off : off + flat.board.shape[1]] = flat.board
+    if markers:
+        side = round(0.035 * PX_PER_M)
+        quiet = round(0.006 * PX_PER_M)
+        bw, bh = flat.board.shape[1], flat.board.shape[0]
+        for marker_id, (cx, cy, sx, sy) in enumerate(
+            [(off, off + bh, -1, 1), (off + bw, off + bh, 1, 1), (off + bw, off, 1, -1), (off, off, -1, -1)]
+        ):
+            square = np.rot90(marker_image(marker_id, side), int(rng.integers(4))).astype(np.float32)
+            x0 = cx if sx > 0 else cx - side
+            y0 = cy if sy > 0 else cy - side
+            wx0, wy0 = (x0 - quiet if sx > 0 else x0 - quiet), (y0 - quiet if sy > 0 else y0 - quiet)
+            white = canvas[max(wy0, 0) : y0 + side + quiet, max(wx0, 0) : x0 + side + quiet]
+            white[:] = 235.0
+            canvas[y0 : y0 + side, x0 : x0 + side] = square[..., None] * (235.0 / 255.0)
+            # the board keeps its corner: the quiet zone stays on the table's side
+            canvas[off : off + bh, off : off + bw] = flat.board
+    canvas_to_board = np.array([[scale, 0, -margin], [0, -scale, BOARD_M[1] + margin], [0, 0, 1]])
+    to_index = np.array([[1.0, 0, -0.5], [0, 1, -0.5], [0, 0, 1]])
+    from_index = np.linalg.inv(to_index)
+    board_plane = _plane_homography(matrix, rotation, translation, 0.0)
+    photo = cv2.warpPerspective(canvas, board_plane @ canvas_to_board @ from_index, size, flags=cv2.INTER_AREA)
+    board_to_m = np.array([[scale, 0, 0], [0, -scale, BOARD_M[1]], [0, 0, 1]])
+    if flat.object_alpha is not None and flat.object_colour is not None:
+        top_px = focal * height_m * np.tan(np.radians(tilt)) / 0.5
+        levels = np.linspace(0.0, height_m, max(2, int(np.ceil(top_px / 1.5)) + 1))
+        for z in levels:
+            warp = _plane_homography(matrix, rotation, translation, float(z)) @ board_to_m @ from_index
+            alpha = cv2.warpPerspective(flat.object_alpha, warp, size, flags=cv2.INTER_LINEAR)
+            colour = cv2.warpPerspective(flat.object_colour, warp, size, flags=cv2.INTER_LINEAR)
+            shade = 1.0 if z == levels[-1] else 0.72
+            photo = photo * (1 - alpha[..., None]) + colour * shade * alpha[..., None]
+    # the lens: each photo pixel shows the ideal pixel its ray would reach
+    grid = np.stack(np.meshgrid(np.arange(size[0]), np.arange(size[1])), -1).reshape(-1, 1, 2).astype(np.float64)
+    ideal = cv2.undistortPoints(grid, matrix, distortion, P=matrix).reshape(size[1], size[0], 2).astype(np.float32)
+    photo = cv2.remap(photo.astype(np.float32), ideal[..., 0], ideal[..., 1], cv2.INTER_LINEAR)
+    variation = dict(flat.variation)
+    pixels = _finish(rng, photo, variation, None)
+    corners_m = np.array([[0, 0], [BOARD_M[0], 0], [BOARD_M[0], BOARD_M[1]], [0, BOARD_M[1]]], float)
+    corners3 = np.c_[corners_m, np.zeros(4)]
+    projected, _ = cv2.projectPoints(corners3, cv2.Rodrigues(rotation)[0], translation, matrix, distortion)
+    intrinsics = {"fx": focal, "fy": focal, "cx": float(matrix[0, 2]), "cy": float(matrix[1, 2]),
+                  "distortion": [float(v) for v in distortion]}  # fmt: skip
+    flat_with = FlatScene(flat.image, flat.truth_bbox, flat.board, flat.object_alpha, flat.object_colour, variation)
+    return PhotoCase(pixels, flat_with, projected.reshape(4, 2) + 0.5, intrinsics, height_m, tilt, markers)
+
+
+def _photo_board(seed: int, camera: np.ndarray, height_m: float) -> FlatScene:
+    """A top-down board with one object whose whole silhouette the camera sees on the board
+    (its top, seen scaled by Cz / (Cz - h) about the camera's foot, stays 3 mm inside)."""
+    grow = camera[2] / (camera[2] - height_m)
+    for attempt in range(200):
+        scene = flat_case(seed * 1000 + attempt, coverage=None, jpeg=False, finish=False)
+        variation = scene.variation
+        if scene.truth_bbox is None or "second_object" in variation:
+            continue
+        if not 0.05 <= variation["coverage"] <= 0.35:
+            continue
+        x0, y0, x1, y1 = scene.truth_bbox
+        box_m = np.array([[x0, BOARD_M[1] * PX_PER_M - y1], [x1, BOARD_M[1] * PX_PER_M - y0]]) / PX_PER_M
+        seen = camera[:2] + (box_m - camera[:2]) * grow
+        if np.all(seen >= 0.003) and np.all(seen <= np.array(BOARD_M) - 0.003):
+            return scene
+    raise RuntimeError("no board fits")  # pragma: no cover

@@ -1,0 +1,114 @@
+"""Four ArUco markers at the board's corners -> scene.camera.board_corners_px.
+
+Markers 0, 1, 2, 3 of OpenCV's DICT_4X4_50 lie on the table just outside the board's
+bottom-left, bottom-right, top-right and top-left corners (as seen in the photo), each with one
+corner of its black square touching the board's corner. That touching corner is the one nearest
+the middle of the four markers, so a marker may be turned any way.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from keymps.errors import KeympsError
+
+DICTIONARY_NAME = "DICT_4X4_50"
+CORNER_NAMES = ("bottom-left", "bottom-right", "top-right", "top-left")
+"""Marker id -> the board corner it marks."""
+
+
+def _dictionary():  # type: ignore[no-untyped-def]
+    import cv2
+
+    return cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, DICTIONARY_NAME))
+
+
+@dataclass(frozen=True)
+class FoundMarkers:
+    corners_px: np.ndarray
+    """(4, 2) board corners, bottom-left first, continuous pixel coordinates."""
+    marker_corners_px: dict[int, np.ndarray]
+    """Marker id -> its four corners (ArUco order), continuous pixel coordinates."""
+    ignored_ids: tuple[int, ...]
+    """Markers seen that are not 0-3."""
+
+
+def find_board_corners(image: np.ndarray, source: str = "the image") -> FoundMarkers:
+    """The board's corners from markers 0-3; a clear error when one is missing or doubled."""
+    import cv2
+
+    gray = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    parameters = cv2.aruco.DetectorParameters()
+    parameters.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
+    detector = cv2.aruco.ArucoDetector(_dictionary(), parameters)
+    found, ids, _ = detector.detectMarkers(gray)
+    seen: dict[int, list[np.ndarray]] = {}
+    for corners, marker_id in zip(found, [] if ids is None else ids.ravel(), strict=True):
+        seen.setdefault(int(marker_id), []).append(corners.reshape(4, 2).astype(float) + 0.5)
+    doubled = [i for i in range(4) if len(seen.get(i, [])) > 1]
+    if doubled:
+        where = "; ".join(
+            f"marker {i} ({CORNER_NAMES[i]}) at "
+            + " and ".join(f"({c.mean(0)[0]:.0f}, {c.mean(0)[1]:.0f})" for c in seen[i])
+            for i in doubled
+        )
+        raise KeympsError(
+            f"{source}: {where}: each of markers 0-3 must appear once; cover or remove the extra"
+        )
+    missing = [i for i in range(4) if i not in seen]
+    if missing:
+        names = ", ".join(f"{i} ({CORNER_NAMES[i]})" for i in missing)
+        present = ", ".join(str(i) for i in sorted(seen)) or "none"
+        raise KeympsError(
+            f"{source}: marker {names} not found (found: {present}); every corner of the board "
+            f"needs its {DICTIONARY_NAME} marker in view, flat, unoccluded and well lit "
+            "(`keymps calibrate --print-markers FILE.png` prints them)"
+        )
+    markers = {i: seen[i][0] for i in range(4)}
+    middle = np.mean([markers[i].mean(axis=0) for i in range(4)], axis=0)
+    inner = np.array(
+        [markers[i][np.argmin(np.linalg.norm(markers[i] - middle, axis=1))] for i in range(4)]
+    )
+    ignored = tuple(sorted(i for i in seen if i > 3))
+    return FoundMarkers(inner, markers, ignored)
+
+
+def marker_image(marker_id: int, side_px: int) -> np.ndarray:
+    """The marker's black-and-white square (side_px x side_px, uint8)."""
+    import cv2
+
+    return np.asarray(cv2.aruco.generateImageMarker(_dictionary(), marker_id, side_px))
+
+
+def marker_sheet(marker_mm: float, dpi: int = 300) -> np.ndarray:
+    """A printable page (A4 portrait at dpi) of markers 0-3, each labelled with its corner."""
+    import cv2
+
+    px_per_mm = dpi / 25.4
+    page = np.full((round(297 * px_per_mm), round(210 * px_per_mm)), 255, np.uint8)
+    side = round(marker_mm * px_per_mm)
+    if 2 * side + round(60 * px_per_mm) > page.shape[1]:
+        raise KeympsError(f"--marker-size {marker_mm:g} mm: two markers do not fit across an A4 page")
+    font, scale = cv2.FONT_HERSHEY_SIMPLEX, 0.9 * dpi / 300
+    thick = max(1, round(2 * dpi / 300))
+    margin = round(20 * px_per_mm)
+    gap_x = page.shape[1] - 2 * margin - 2 * side
+    for marker_id in range(4):
+        row, col = divmod(marker_id, 2)
+        x = margin + col * (side + gap_x)
+        y = margin + round(25 * px_per_mm) + row * (side + round(45 * px_per_mm))
+        page[y : y + side, x : x + side] = marker_image(marker_id, side)
+        label = f"{marker_id}: {CORNER_NAMES[marker_id]}"
+        cv2.putText(page, label, (x, y - round(4 * px_per_mm)), font, scale, 0, thick, cv2.LINE_AA)
+    lines = [
+        f"keymps markers {DICTIONARY_NAME}, each {marker_mm:g} mm square: print at 100 % (no fit-to-page)",
+        "Cut them out; lay each flat just outside its corner of the board,",
+        "one corner of its black square touching the board's corner.",
+    ]
+    y = page.shape[0] - margin - round(12 * px_per_mm) * len(lines)
+    for line in lines:
+        cv2.putText(page, line, (margin, y), font, 0.8 * scale, 0, thick, cv2.LINE_AA)
+        y += round(12 * px_per_mm)
+    return page
