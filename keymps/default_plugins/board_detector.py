@@ -125,6 +125,8 @@ class Region:
     coverage: float
     """Fraction of the searched area."""
     sides: tuple[str, ...]
+    along: float
+    """The largest fraction of one side's length the region runs along."""
     contrast: float
     """Median distance to the board model inside the region, Lab."""
     edge_contrast: float
@@ -136,6 +138,7 @@ class Region:
             "area_px": round(self.area, 1),
             "coverage": round(self.coverage, 4),
             "sides_touched": list(self.sides),
+            "along_side": round(self.along, 3),
             "contrast": round(self.contrast, 2),
             "edge_contrast": round(self.edge_contrast, 2),
         }
@@ -319,6 +322,7 @@ class BoardDetector:
                     bbox=(x, y, x + w, y + h),
                     coverage=float(inside.sum()) / max(area.pixels, 1),
                     sides=tuple(area.sides_touched(inside, bands)),
+                    along=max(float((inside & band).sum()) / max(int(band.sum()), 1) for band in bands),
                     contrast=float(np.median(distance[inside & mask])),
                     edge_contrast=_edge_contrast(filled, distance, (x, y, x + w, y + h)),
                 )
@@ -343,13 +347,27 @@ def _edge_contrast(
     return float(np.median(distance[y0:y1, x0:x1][ring]))
 
 
+MAX_ALONG_SIDE = 0.5
+"""A region running along more than half of a side is the table or the board's edge: an
+object cut off by the image border meets it along its own width."""
+
+
 def _board(region: Region, options: BoardOptions) -> bool:
-    return len(region.sides) >= 3 or region.coverage > options.max_coverage
+    return (
+        len(region.sides) >= 3
+        or region.coverage > options.max_coverage
+        or region.along > MAX_ALONG_SIDE
+    )
 
 
 def _board_reason(region: Region, options: BoardOptions) -> str:
     if len(region.sides) >= 3:
         return f"touches {len(region.sides)} sides of the searched area ({', '.join(region.sides)})"
+    if region.along > MAX_ALONG_SIDE:
+        return (
+            f"runs along {100 * region.along:.0f} % of the {' and '.join(region.sides)} side of "
+            "the searched area"
+        )
     return (
         f"covers {100 * region.coverage:.0f} % of the searched area "
         f"(more than detector.max_coverage {100 * options.max_coverage:.0f} %)"

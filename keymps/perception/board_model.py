@@ -111,9 +111,11 @@ def fit_board(
     probe = BoardModel(np.zeros((1, 3)), degree, (width, height), 0, 0.0)
     x, y = probe._normalized(cols.astype(np.float64), rows.astype(np.float64))
     design = _monomials(x, y, degree)
-    inliers = np.ones(len(rows), bool)
+    # start from the median colour: where the border is mostly board, that is the board's,
+    # even with something else along part of it (the table, an object's edge)
+    residual = np.linalg.norm(values - np.median(values, axis=0), axis=1)
+    inliers = residual <= 3.0 * float(np.median(residual)) + 1.0
     coefficients = np.zeros((design.shape[1], 3))
-    residual = np.zeros(len(rows))
     for _ in range(iterations):
         if inliers.sum() < design.shape[1] * 4:
             break
