@@ -72,8 +72,11 @@ def _object_lab(rng: np.random.Generator, board: np.ndarray, hue_only: bool) -> 
             return colour
 
 
-def _outline(rng: np.random.Generator, area_px: float, room: tuple[float, float]) -> np.ndarray:
-    """A closed polygon (N, 2) about the origin of about area_px pixels, fitting in room."""
+def _outline(
+    rng: np.random.Generator, area_px: float, room: tuple[float, float]
+) -> tuple[np.ndarray, str, float]:
+    """A closed polygon (N, 2) about the origin of about area_px pixels, fitting in room; its
+    shape (ellipse, rounded, blob) and aspect ratio."""
     shape = rng.choice(["ellipse", "rounded", "blob"])
     aspect = rng.uniform(1.0, 1.8)
     theta = np.linspace(0, 2 * np.pi, 240, endpoint=False)
@@ -97,7 +100,7 @@ def _outline(rng: np.random.Generator, area_px: float, room: tuple[float, float]
     polygon = unit * np.sqrt(area_px / unit_area)
     extent = polygon.max(axis=0) - polygon.min(axis=0)
     fit = min(1.0, room[0] / extent[0], room[1] / extent[1])
-    return polygon * fit
+    return polygon * fit, str(shape), float(aspect)
 
 
 def _texture(rng: np.random.Generator, shape: tuple[int, int], kind: str) -> np.ndarray:
@@ -187,7 +190,7 @@ def flat_case(
     if not empty:
         share = coverage if coverage is not None else float(rng.uniform(0.05, 0.6))
         near_edge = bool(rng.random() < 0.3)
-        polygon = _outline(rng, share * width * height, (width - 24, height - 24))
+        polygon, shape, aspect = _outline(rng, share * width * height, (width - 24, height - 24))
         placed = _place(rng, polygon, size_px, near_edge, [], 6)
         if placed is None:
             placed = polygon - polygon.mean(axis=0) + (width / 2, height / 2)
@@ -198,10 +201,11 @@ def flat_case(
         colour = _paint_object(rng, object_lab, (height, width), board_lab)
         alpha_all, colour_all = main_alpha, colour
         variation |= {"coverage": round(float(main_alpha.sum()) / (width * height), 3),
+                      "shape": shape, "aspect": round(aspect, 3),
                       "near_edge": near_edge, "hue_only": hue_only,
                       "object_lab": np.round(object_lab, 1).tolist()}  # fmt: skip
         if rng.random() < 0.3:
-            second = _outline(rng, share * width * height * rng.uniform(0.1, 0.4), (width / 3, height / 2))
+            second, _, _ = _outline(rng, share * width * height * rng.uniform(0.1, 0.4), (width / 3, height / 2))
             spot = _place(rng, second, size_px, False, boxes, 14)
             if spot is not None:
                 alpha2, box2 = _alpha(spot, size_px)
@@ -390,7 +394,7 @@ def photo_case(seed: int, *, markers: bool, flat_object: bool = False) -> PhotoC
 
 
 def _photo_board(seed: int, camera: np.ndarray, height_m: float) -> FlatScene:
-    """A top-down board with one object whose whole silhouette the camera sees on the board
+    """A top-down board with one round cake whose whole silhouette the camera sees on the board
     (its top, seen scaled by Cz / (Cz - h) about the camera's foot, stays 3 mm inside)."""
     grow = camera[2] / (camera[2] - height_m)
     for attempt in range(200):
@@ -400,6 +404,8 @@ def _photo_board(seed: int, camera: np.ndarray, height_m: float) -> FlatScene:
             continue
         if not 0.05 <= variation["coverage"] <= 0.35:
             continue
+        if variation["shape"] != "ellipse" or variation["aspect"] > 1.15:
+            continue  # a round cake: the offline planner's ring of dots is well defined
         x0, y0, x1, y1 = scene.truth_bbox
         box_m = np.array([[x0, BOARD_M[1] * PX_PER_M - y1], [x1, BOARD_M[1] * PX_PER_M - y0]]) / PX_PER_M
         seen = camera[:2] + (box_m - camera[:2]) * grow
