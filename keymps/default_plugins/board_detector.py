@@ -67,6 +67,9 @@ class BoardOptions(BaseModel):
     border: int | None = Field(default=None, ge=1, le=1000)
     """Width in pixels of the band along the searched area's border where the board is
     sampled; default 2 % of the area's shorter side (at least 3 px)."""
+    edge: int = Field(default=2, ge=0, le=100)
+    """Pixels along the searched area's border left out of every region: the board's own
+    edge, blended with the table in a rectified photo."""
     surface: int = Field(default=2, ge=0, le=3)
     """Degree of the polynomial the board's colour follows across the image (0: uniform,
     1: a linear lighting gradient, 2: also vignetting)."""
@@ -164,7 +167,9 @@ class BoardDetector:
         lab = to_lab(blurred)
         distance, board, board_image, noise = self._board_distance(lab, area)
         min_area = self.min_area(area)
-        bands = area.side_bands(1.5)
+        bands = area.side_bands(1.5 + self.options.edge)
+        if self.options.edge:
+            distance[border_band(area.mask, self.options.edge)] = 0.0
 
         t_noise = max(MIN_THRESHOLD, NOISE_FACTOR * noise)
         first = self._regions(distance > t_noise, distance, area, bands, min_area)

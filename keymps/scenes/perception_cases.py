@@ -24,6 +24,7 @@ from keymps.scenes.render import _coverage, half_covered_box
 from keymps.scenes.textures import smooth_noise
 
 BOARD_M = (0.30, 0.18)
+PHOTO_SIZE_PX = (960, 720)
 PX_PER_M = 2000.0
 BOARDS: dict[str, tuple[float, float, float]] = {
     "light wood": (62.0, 6.0, 24.0),
@@ -73,12 +74,12 @@ def _object_lab(rng: np.random.Generator, board: np.ndarray, hue_only: bool) -> 
 
 
 def _outline(
-    rng: np.random.Generator, area_px: float, room: tuple[float, float]
+    rng: np.random.Generator, area_px: float, room: tuple[float, float], round_only: bool = False
 ) -> tuple[np.ndarray, str, float]:
     """A closed polygon (N, 2) about the origin of about area_px pixels, fitting in room; its
     shape (ellipse, rounded, blob) and aspect ratio."""
-    shape = rng.choice(["ellipse", "rounded", "blob"])
-    aspect = rng.uniform(1.0, 1.8)
+    shape = "ellipse" if round_only else rng.choice(["ellipse", "rounded", "blob"])
+    aspect = rng.uniform(1.0, 1.15 if round_only else 1.8)
     theta = np.linspace(0, 2 * np.pi, 240, endpoint=False)
     if shape == "rounded":
         power = rng.uniform(3, 6)
@@ -171,8 +172,10 @@ def flat_case(
     coverage: float | None = None,
     jpeg: bool | None = None,
     finish: bool = True,
+    round_cake: bool = False,
 ) -> FlatScene:
-    """One random board, with its true box (see the module docstring)."""
+    """One random board, with its true box (see the module docstring). `round_cake`: one
+    round object (aspect at most 1.15), nothing else on the board."""
     import cv2
 
     rng = np.random.default_rng([seed, 17])
@@ -190,7 +193,9 @@ def flat_case(
     if not empty:
         share = coverage if coverage is not None else float(rng.uniform(0.05, 0.6))
         near_edge = bool(rng.random() < 0.3)
-        polygon, shape, aspect = _outline(rng, share * width * height, (width - 24, height - 24))
+        polygon, shape, aspect = _outline(
+            rng, share * width * height, (width - 24, height - 24), round_cake
+        )
         placed = _place(rng, polygon, size_px, near_edge, [], 6)
         if placed is None:
             placed = polygon - polygon.mean(axis=0) + (width / 2, height / 2)
@@ -204,7 +209,7 @@ def flat_case(
                       "shape": shape, "aspect": round(aspect, 3),
                       "near_edge": near_edge, "hue_only": hue_only,
                       "object_lab": np.round(object_lab, 1).tolist()}  # fmt: skip
-        if rng.random() < 0.3:
+        if rng.random() < 0.3 and not round_cake:
             second, _, _ = _outline(rng, share * width * height * rng.uniform(0.1, 0.4), (width / 3, height / 2))
             spot = _place(rng, second, size_px, False, boxes, 14)
             if spot is not None:
@@ -329,9 +334,9 @@ def photo_case(seed: int, *, markers: bool, flat_object: bool = False) -> PhotoC
 
     rng = np.random.default_rng([seed, 29])
     height_m = 0.0 if flat_object else float(rng.uniform(0.02, 0.06))
-    size = (1280, 960)
-    focal = float(rng.uniform(1000, 1200))
-    matrix = np.array([[focal, 0, 639.5 + rng.uniform(-15, 15)], [0, focal, 479.5 + rng.uniform(-15, 15)], [0, 0, 1]])
+    size = PHOTO_SIZE_PX
+    focal = float(rng.uniform(750, 900))
+    matrix = np.array([[focal, 0, 479.5 + rng.uniform(-12, 12)], [0, focal, 359.5 + rng.uniform(-12, 12)], [0, 0, 1]])
     distortion = np.array([rng.uniform(-0.12, 0.08), rng.uniform(-0.05, 0.05), 0, 0, 0])
     tilt = float(rng.uniform(20, 45))
     rotation, translation = _look_at(
@@ -371,7 +376,7 @@ def photo_case(seed: int, *, markers: bool, flat_object: bool = False) -> PhotoC
     board_to_m = np.array([[scale, 0, 0], [0, -scale, BOARD_M[1]], [0, 0, 1]])
     if flat.object_alpha is not None and flat.object_colour is not None:
         top_px = focal * height_m * np.tan(np.radians(tilt)) / 0.5
-        levels = np.linspace(0.0, height_m, max(2, int(np.ceil(top_px / 1.5)) + 1))
+        levels = np.linspace(0.0, height_m, max(2, int(np.ceil(top_px / 2.0)) + 1))
         for z in levels:
             warp = _plane_homography(matrix, rotation, translation, float(z)) @ board_to_m @ from_index
             alpha = cv2.warpPerspective(flat.object_alpha, warp, size, flags=cv2.INTER_LINEAR)
@@ -379,8 +384,15 @@ def photo_case(seed: int, *, markers: bool, flat_object: bool = False) -> PhotoC
             shade = 1.0 if z == levels[-1] else 0.72
             photo = photo * (1 - alpha[..., None]) + colour * shade * alpha[..., None]
     # the lens: each photo pixel shows the ideal pixel its ray would reach
-    grid = np.stack(np.meshgrid(np.arange(size[0]), np.arange(size[1])), -1).reshape(-1, 1, 2).astype(np.float64)
-    ideal = cv2.undistortPoints(grid, matrix, distortion, P=matrix).reshape(size[1], size[0], 2).astype(np.float32)
+    # (on a grid every 4 px, interpolated: the distortion is smooth)
+    step = 4
+    cols, rows = np.arange(0, size[0] + step, step), np.arange(0, size[1] + step, step)
+    grid = np.stack(np.meshgrid(cols, rows), -1).reshape(-1, 1, 2).astype(np.float64)
+    coarse = cv2.undistortPoints(grid, matrix, distortion, P=matrix).reshape(len(rows), len(cols), 2)
+    fine = cv2.resize(coarse.astype(np.float32), (len(cols) * step, len(rows) * step), interpolation=cv2.INTER_LINEAR)
+    shift = (step - 1) / 2  # resize aligns pixel centres: coarse sample k sits at fine k*step + shift
+    fine = cv2.warpAffine(fine, np.float32([[1, 0, -shift], [0, 1, -shift]]), fine.shape[1::-1], borderMode=cv2.BORDER_REPLICATE)
+    ideal = fine[: size[1], : size[0]]
     photo = cv2.remap(photo.astype(np.float32), ideal[..., 0], ideal[..., 1], cv2.INTER_LINEAR)
     variation = dict(flat.variation)
     pixels = _finish(rng, photo, variation, None)
@@ -398,14 +410,14 @@ def _photo_board(seed: int, camera: np.ndarray, height_m: float) -> FlatScene:
     (its top, seen scaled by Cz / (Cz - h) about the camera's foot, stays 3 mm inside)."""
     grow = camera[2] / (camera[2] - height_m)
     for attempt in range(200):
-        scene = flat_case(seed * 1000 + attempt, coverage=None, jpeg=False, finish=False)
+        # a round cake: the offline planner's ring of dots is well defined on it
+        coverage = float(np.random.default_rng([seed, attempt]).uniform(0.05, 0.3))
+        scene = flat_case(
+            seed * 1000 + attempt, coverage=coverage, jpeg=False, finish=False, round_cake=True
+        )
         variation = scene.variation
-        if scene.truth_bbox is None or "second_object" in variation:
+        if scene.truth_bbox is None:
             continue
-        if not 0.05 <= variation["coverage"] <= 0.35:
-            continue
-        if variation["shape"] != "ellipse" or variation["aspect"] > 1.15:
-            continue  # a round cake: the offline planner's ring of dots is well defined
         x0, y0, x1, y1 = scene.truth_bbox
         box_m = np.array([[x0, BOARD_M[1] * PX_PER_M - y1], [x1, BOARD_M[1] * PX_PER_M - y0]]) / PX_PER_M
         seen = camera[:2] + (box_m - camera[:2]) * grow
