@@ -100,8 +100,8 @@ def test_a_run_on_a_photo_plans_in_board_millimetres(tall: object, tmp_path: Pat
     record = json.loads((tmp_path / "run" / "run.json").read_text())
     assert record["ok"], record["error"]
     rectified = record["image"]["rectified"]
-    assert record["image"]["size_px"] == [600, 360] and rectified["photo_size_px"] == [1280, 960]
-    assert rectified["plane_z_m"] == pytest.approx(tall.object_height)  # type: ignore[attr-defined]
+    assert record["image"]["size_px"] == [600, 360] and rectified["photo_size_px"] == [960, 720]
+    assert rectified["plane_z_m"] == pytest.approx(tall.object_height, abs=1e-6)  # type: ignore[attr-defined]
     assert rectified["camera_position_m"][2] > 0.3
     assert "top_surface" in record["detection"]["report"]
     assert (tmp_path / "run" / "plan_photo.jpg").exists() or (tmp_path / "run" / "plan_photo.png").exists()

@@ -1,0 +1,121 @@
+"""`keymps calibrate`: ArUco markers at the board's corners -> the scene.camera block."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+from click.testing import CliRunner
+
+from keymps.cli.app import cli
+from keymps.config.task import Task
+from keymps.perception.markers import find_board_corners
+from keymps.scenes.perception_cases import photo_case
+
+
+@pytest.fixture(scope="module")
+def photo(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, object]:
+    case = photo_case(4, markers=True)
+    path = tmp_path_factory.mktemp("calibrate") / "photo.png"
+    cv2.imwrite(str(path), case.photo)
+    return path, case
+
+
+def calibrate(*args: str) -> tuple[int, str, str]:
+    result = CliRunner().invoke(cli, ["calibrate", *args])
+    return result.exit_code, result.stdout, result.stderr
+
+
+def test_the_markers_give_the_board_corners_and_a_task_accepts_the_block(
+    photo: tuple[Path, object], tmp_path: Path
+) -> None:
+    path, case = photo
+    out = tmp_path / "camera.yaml"
+    code, stdout, stderr = calibrate(str(path), "--board", "0.30,0.18", "--marker-size", "35", "--out", str(out))
+    assert code == 0, stderr
+    assert stdout.strip() == f"wrote {out}" and stderr == ""
+    block = yaml.safe_load(out.read_text())
+    corners = np.array(block["scene"]["camera"]["board_corners_px"])
+    assert np.abs(corners - case.corners_px).max() < 0.6  # type: ignore[attr-defined]
+    task = Task.model_validate(
+        {"name": "t", "instruction": "x", "primitives": ["line"], "scene": {"image": "p.png", **block["scene"]}}
+    )
+    assert task.scene.workspace.size == (0.30, 0.18) and task.scene.camera.mm_per_px == 0.5
+    assert "35.0 mm printed" in out.read_text() or "(35 mm printed)" in out.read_text()
+
+
+def test_intrinsics_add_the_camera_pose(photo: tuple[Path, object]) -> None:
+    path, case = photo
+    given = case.intrinsics  # type: ignore[attr-defined]
+    camera = f"{given['fx']},{given['fy']},{given['cx']},{given['cy']}"
+    distortion = ",".join(str(v) for v in given["distortion"])
+    code, stdout, stderr = calibrate(
+        str(path), "--board", "0.30,0.18", "--marker-size", "35",
+        "--intrinsics", camera, "--distortion", distortion,
+    )  # fmt: skip
+    assert code == 0, stderr
+    assert "# camera at (" in stdout and "degrees from straight down" in stdout
+    tilt = float(stdout.split("degrees from straight down")[0].split()[-1])
+    assert tilt == pytest.approx(case.tilt_deg, abs=1.5)  # type: ignore[attr-defined]
+    block = yaml.safe_load(stdout)
+    assert block["scene"]["camera"]["intrinsics"]["fx"] == pytest.approx(given["fx"], rel=1e-5)
+
+
+def test_a_wrong_board_size_is_noticed_from_the_markers(photo: tuple[Path, object]) -> None:
+    path, _ = photo
+    code, _, stderr = calibrate(str(path), "--board", "0.38,0.24", "--marker-size", "35")
+    assert code == 0
+    assert "warning: the markers measure" in stderr and "check --board" in stderr
+
+
+def test_missing_and_doubled_markers_are_named(photo: tuple[Path, object], tmp_path: Path) -> None:
+    path, case = photo
+    image = cv2.imread(str(path))
+    found = find_board_corners(image)
+    covered = image.copy()
+    top_right = found.marker_corners_px[2]
+    x0, y0 = np.floor(top_right.min(axis=0)).astype(int) - 4
+    x1, y1 = np.ceil(top_right.max(axis=0)).astype(int) + 4
+    covered[y0:y1, x0:x1] = 200
+    cv2.imwrite(str(tmp_path / "covered.png"), covered)
+    code, _, stderr = calibrate(str(tmp_path / "covered.png"), "--board", "0.30,0.18")
+    assert code == 1
+    assert stderr.startswith(f"error: {tmp_path / 'covered.png'}: marker 2 (top-right) not found (found: 0, 1, 3)")
+    doubled = image.copy()
+    bottom_right = found.marker_corners_px[1]
+    x0, y0 = np.floor(bottom_right.min(axis=0)).astype(int) - 6
+    x1, y1 = np.ceil(bottom_right.max(axis=0)).astype(int) + 6
+    patch = image[y0:y1, x0:x1].copy()
+    doubled[20 : 20 + patch.shape[0], 20 : 20 + patch.shape[1]] = patch
+    cv2.imwrite(str(tmp_path / "doubled.png"), doubled)
+    code, _, stderr = calibrate(str(tmp_path / "doubled.png"), "--board", "0.30,0.18")
+    assert code == 1
+    assert "marker 1 (bottom-right) at (" in stderr and "must appear once" in stderr
+    assert "Traceback" not in stderr
+
+
+def test_the_printed_sheet_holds_the_four_markers_at_their_size(tmp_path: Path) -> None:
+    sheet = tmp_path / "markers.png"
+    code, stdout, _ = calibrate("--print-markers", str(sheet), "--marker-size", "50")
+    assert code == 0 and "50 mm squares" in stdout
+    page = cv2.imread(str(sheet), cv2.IMREAD_GRAYSCALE)
+    assert page.shape == (round(297 * 300 / 25.4), round(210 * 300 / 25.4))
+    found = find_board_corners(page)
+    side_px = np.linalg.norm(np.diff(found.marker_corners_px[0], axis=0), axis=1).mean()
+    assert side_px * 25.4 / 300 == pytest.approx(50, abs=0.3)
+
+
+def test_usage_errors_are_one_line(tmp_path: Path) -> None:
+    code, _, stderr = calibrate(str(tmp_path / "none.png"), "--board", "0.3,0.18")
+    assert code == 1 and "none.png" in stderr and "Traceback" not in stderr
+    code, _, stderr = calibrate(str(tmp_path / "none.png"))
+    assert code == 2 and "--board" in stderr
+    code, _, stderr = calibrate(str(tmp_path / "x.png"), "--board", "0.3")
+    assert code == 2 and "--board: 2 numbers" in stderr
+    code, _, stderr = calibrate(str(tmp_path / "x.png"), "--board", "0.3,0.2", "--distortion", "0,0,0,0")
+    assert code == 2 and "--distortion needs --intrinsics" in stderr
+    code, _, stderr = calibrate("--print-markers", str(tmp_path / "sheet.jpg"))
+    assert code == 1 and "written as PNG" in stderr
