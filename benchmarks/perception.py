@@ -26,7 +26,9 @@ def main() -> int:
     flat = flat_benchmark(args.boards)
     photos = photo_benchmark(args.photos)
     print(table(flat, photos))
-    print(f"\n{args.boards} boards, {2 * args.photos} photos in {time.perf_counter() - started:.0f} s")
+    print(
+        f"\n{args.boards} boards, {2 * args.photos} photos in {time.perf_counter() - started:.0f} s"
+    )
     board, tall = flat["board"], photos["board+intrinsics"]
     if args.failures:
         for name, tallies in {**flat, **photos}.items():

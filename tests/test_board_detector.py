@@ -35,7 +35,9 @@ def gradient(size: tuple[int, int], amount: float) -> np.ndarray:
     return 1 + amount * x
 
 
-def paint(image: np.ndarray, box: tuple[int, int, int, int], lab: tuple[float, float, float]) -> None:
+def paint(
+    image: np.ndarray, box: tuple[int, int, int, int], lab: tuple[float, float, float]
+) -> None:
     x0, y0, x1, y1 = box
     image[y0:y1, x0:x1] = lab_to_bgr(np.array(lab))[0]
 
@@ -188,7 +190,9 @@ def test_a_board_detection_stops_the_run_before_planning(tmp_path: Path) -> None
     paint(framed, (0, 320, 600, 360), (20.0, 2.0, 4.0))
     image = tmp_path / "framed.png"
     cv2.imwrite(str(image), finish(framed))
-    text = (ROOT / "tasks" / "object_cutting.yaml").read_text().replace("scenes/pizza.png", str(image))
+    text = (
+        (ROOT / "tasks" / "object_cutting.yaml").read_text().replace("scenes/pizza.png", str(image))
+    )
     text = text.replace("../prompts/", str(ROOT / "prompts") + "/")
     task = tmp_path / "task.yaml"
     task.write_text(text)

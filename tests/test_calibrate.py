@@ -34,14 +34,21 @@ def test_the_markers_give_the_board_corners_and_a_task_accepts_the_block(
 ) -> None:
     path, case = photo
     out = tmp_path / "camera.yaml"
-    code, stdout, stderr = calibrate(str(path), "--board", "0.30,0.18", "--marker-size", "35", "--out", str(out))
+    code, stdout, stderr = calibrate(
+        str(path), "--board", "0.30,0.18", "--marker-size", "35", "--out", str(out)
+    )
     assert code == 0, stderr
     assert stdout.strip() == f"wrote {out}" and stderr == ""
     block = yaml.safe_load(out.read_text())
     corners = np.array(block["scene"]["camera"]["board_corners_px"])
     assert np.abs(corners - case.corners_px).max() < 0.6  # type: ignore[attr-defined]
     task = Task.model_validate(
-        {"name": "t", "instruction": "x", "primitives": ["line"], "scene": {"image": "p.png", **block["scene"]}}
+        {
+            "name": "t",
+            "instruction": "x",
+            "primitives": ["line"],
+            "scene": {"image": "p.png", **block["scene"]},
+        }
     )
     assert task.scene.workspace.size == (0.30, 0.18) and task.scene.camera.mm_per_px == 0.5
     assert "35.0 mm printed" in out.read_text() or "(35 mm printed)" in out.read_text()
@@ -83,7 +90,9 @@ def test_missing_and_doubled_markers_are_named(photo: tuple[Path, object], tmp_p
     cv2.imwrite(str(tmp_path / "covered.png"), covered)
     code, _, stderr = calibrate(str(tmp_path / "covered.png"), "--board", "0.30,0.18")
     assert code == 1
-    assert stderr.startswith(f"error: {tmp_path / 'covered.png'}: marker 2 (top-right) not found (found: 0, 1, 3)")
+    assert stderr.startswith(
+        f"error: {tmp_path / 'covered.png'}: marker 2 (top-right) not found (found: 0, 1, 3)"
+    )
     doubled = image.copy()
     bottom_right = found.marker_corners_px[1]
     x0, y0 = np.floor(bottom_right.min(axis=0)).astype(int) - 6
@@ -115,7 +124,9 @@ def test_usage_errors_are_one_line(tmp_path: Path) -> None:
     assert code == 2 and "--board" in stderr
     code, _, stderr = calibrate(str(tmp_path / "x.png"), "--board", "0.3")
     assert code == 2 and "--board: 2 numbers" in stderr
-    code, _, stderr = calibrate(str(tmp_path / "x.png"), "--board", "0.3,0.2", "--distortion", "0,0,0,0")
+    code, _, stderr = calibrate(
+        str(tmp_path / "x.png"), "--board", "0.3,0.2", "--distortion", "0,0,0,0"
+    )
     assert code == 2 and "--distortion needs --intrinsics" in stderr
     code, _, stderr = calibrate("--print-markers", str(tmp_path / "sheet.jpg"))
     assert code == 1 and "written as PNG" in stderr

@@ -14,7 +14,9 @@ def test_the_board_detector_meets_the_targets_where_the_threshold_detector_does_
     assert board["refused"].rate == 1.0, board["refused"].failures
     assert threshold["found"].rate < 0.6 and threshold["hue_only"].rate < 0.5
     photos = photo_benchmark(1, methods=("board+intrinsics", "threshold"))
-    assert photos["board+intrinsics"]["tall"].rate == 1.0, photos["board+intrinsics"]["tall"].failures
+    assert photos["board+intrinsics"]["tall"].rate == 1.0, photos["board+intrinsics"][
+        "tall"
+    ].failures
     assert photos["board+intrinsics"]["flat"].rate == 1.0
     assert photos["threshold"]["tall"].worst > 5
     shown = table(flat, photos)

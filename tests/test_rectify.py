@@ -8,7 +8,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-
 import yaml
 
 from keymps.config.task import Task, parse_task
@@ -104,14 +103,18 @@ def test_a_run_on_a_photo_plans_in_board_millimetres(tall: object, tmp_path: Pat
     assert rectified["plane_z_m"] == pytest.approx(tall.object_height, abs=1e-6)  # type: ignore[attr-defined]
     assert rectified["camera_position_m"][2] > 0.3
     assert "top_surface" in record["detection"]["report"]
-    assert (tmp_path / "run" / "plan_photo.jpg").exists() or (tmp_path / "run" / "plan_photo.png").exists()
+    assert (tmp_path / "run" / "plan_photo.jpg").exists() or (
+        tmp_path / "run" / "plan_photo.png"
+    ).exists()
     dots = np.array(record["segments_m"])[:, 0, :2]
     assert design_error_mm(dots, _reference_m(tall)) <= 1.5  # type: ignore[arg-type]
     assert run.results["image"].rectification is not None
 
 
 def test_camera_errors_are_one_line(tall: object, tmp_path: Path) -> None:
-    with pytest.raises(TaskFileError, match=r"t.yaml:\d+:\d+: scene.camera.intrinsics.distortion: .*4, 5 or 8"):
+    with pytest.raises(
+        TaskFileError, match=r"t.yaml:\d+:\d+: scene.camera.intrinsics.distortion: .*4, 5 or 8"
+    ):
         parse_task(camera_yaml(tall).replace("distortion: [", "distortion: [0.1, "), "t.yaml")
     task = task_of(camera_yaml(tall, height=0.9))
     with pytest.raises(KeympsError, match=r"camera found from the board corners is 0\.\d+ m above"):

@@ -34,7 +34,9 @@ def _numbers(text: str, count: tuple[int, ...], what: str) -> list[float]:
 )  # fmt: skip
 @click.option("--intrinsics", help="fx,fy,cx,cy of a calibrated camera (pixels, OpenCV).")
 @click.option("--distortion", help="k1,k2,p1,p2[,k3] of that camera (with --intrinsics).")
-@click.option("--mm-per-px", type=float, default=0.5, show_default=True, help="Rectified resolution.")
+@click.option(
+    "--mm-per-px", type=float, default=0.5, show_default=True, help="Rectified resolution."
+)
 @click.option("--out", type=click.Path(dir_okay=False, path_type=Path), help="Write the YAML here.")
 @click.option(
     "--print-markers", "sheet", type=click.Path(dir_okay=False, path_type=Path),

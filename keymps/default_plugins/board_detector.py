@@ -173,7 +173,9 @@ class BoardDetector:
 
         t_noise = max(MIN_THRESHOLD, NOISE_FACTOR * noise)
         first = self._regions(distance > t_noise, distance, area, bands, min_area)
-        candidates = [r for r in first if r.contrast >= TEXTURE_CONTRAST * t_noise or _board(r, self.options)]
+        candidates = [
+            r for r in first if r.contrast >= TEXTURE_CONTRAST * t_noise or _board(r, self.options)
+        ]
         if self.options.threshold is not None:
             threshold, how = float(self.options.threshold), "detector.threshold"
         elif candidates:
@@ -327,7 +329,9 @@ class BoardDetector:
                     bbox=(x, y, x + w, y + h),
                     coverage=float(inside.sum()) / max(area.pixels, 1),
                     sides=tuple(area.sides_touched(inside, bands)),
-                    along=max(float((inside & band).sum()) / max(int(band.sum()), 1) for band in bands),
+                    along=max(
+                        float((inside & band).sum()) / max(int(band.sum()), 1) for band in bands
+                    ),
                     contrast=float(np.median(distance[inside & mask])),
                     edge_contrast=_edge_contrast(filled, distance, (x, y, x + w, y + h)),
                 )
@@ -398,9 +402,7 @@ def _list(regions: list[Region]) -> str:
     return "; ".join(f"#{i} box {list(r.bbox)} ({r.area:.0f} px)" for i, r in enumerate(regions))
 
 
-def _warnings(
-    chosen: Region, pick: int, objects: list[Region], options: BoardOptions
-) -> list[str]:
+def _warnings(chosen: Region, pick: int, objects: list[Region], options: BoardOptions) -> list[str]:
     found = []
     if chosen.sides:
         found.append(

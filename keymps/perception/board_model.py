@@ -75,7 +75,8 @@ class BoardModel:
         """The model over the whole image (H x W x 3, float32)."""
         width, height = self.size_px
         x, y = self._normalized(
-            np.arange(width, dtype=np.float32)[None, :], np.arange(height, dtype=np.float32)[:, None]
+            np.arange(width, dtype=np.float32)[None, :],
+            np.arange(height, dtype=np.float32)[:, None],
         )
         result = np.zeros((height, width, 3), np.float32)
         for (i, j), weights in zip(_exponents(self.degree), self.coefficients, strict=True):

@@ -9,7 +9,12 @@ import numpy as np
 from keymps.errors import KeympsError
 from keymps.perception.frames import ImageFrame
 from keymps.perception.image_io import read_image
-from keymps.perception.markers import CORNER_NAMES, DICTIONARY_NAME, find_board_corners, marker_sheet
+from keymps.perception.markers import (
+    CORNER_NAMES,
+    DICTIONARY_NAME,
+    find_board_corners,
+    marker_sheet,
+)
 
 MARKER_SIZE_TOLERANCE = 0.05
 """Markers measured more than 5 % off their printed size mean a wrong --board or --marker-size."""
@@ -63,7 +68,9 @@ def calibration_yaml(
             "(the distance between the markers' touching corners) and --marker-size"
         )
     if found.ignored_ids:
-        notes.append(f"markers {list(found.ignored_ids)} are not corner markers (0-3) and were ignored")
+        notes.append(
+            f"markers {list(found.ignored_ids)} are not corner markers (0-3) and were ignored"
+        )
     lines = [
         f"# keymps calibrate {image_path.name}: markers 0-3 ({DICTIONARY_NAME}) in a "
         f"{size[0]} x {size[1]} px photo",
@@ -100,7 +107,9 @@ def write_marker_sheet(path: Path, marker_mm: float) -> str:
     import cv2
 
     if path.suffix.lower() != ".png":
-        raise KeympsError(f"--print-markers {path}: the sheet is written as PNG (end the name in .png)")
+        raise KeympsError(
+            f"--print-markers {path}: the sheet is written as PNG (end the name in .png)"
+        )
     page = marker_sheet(marker_mm)
     if not cv2.imwrite(str(path), page):
         raise KeympsError(f"--print-markers {path}: cannot write the file")

@@ -90,7 +90,9 @@ def marker_sheet(marker_mm: float, dpi: int = 300) -> np.ndarray:
     page = np.full((round(297 * px_per_mm), round(210 * px_per_mm)), 255, np.uint8)
     side = round(marker_mm * px_per_mm)
     if 2 * side + round(60 * px_per_mm) > page.shape[1]:
-        raise KeympsError(f"--marker-size {marker_mm:g} mm: two markers do not fit across an A4 page")
+        raise KeympsError(
+            f"--marker-size {marker_mm:g} mm: two markers do not fit across an A4 page"
+        )
     font, scale = cv2.FONT_HERSHEY_SIMPLEX, 0.9 * dpi / 300
     thick = max(1, round(2 * dpi / 300))
     margin = round(20 * px_per_mm)

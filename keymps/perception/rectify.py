@@ -41,7 +41,9 @@ def camera_matrix(task: Task) -> tuple[np.ndarray, np.ndarray] | None:
     return matrix, np.array(given.distortion or (0.0, 0.0, 0.0, 0.0), dtype=float)
 
 
-def undistort_points(points_px: np.ndarray, matrix: np.ndarray, distortion: np.ndarray) -> np.ndarray:
+def undistort_points(
+    points_px: np.ndarray, matrix: np.ndarray, distortion: np.ndarray
+) -> np.ndarray:
     """Continuous photo pixels -> the pixels an ideal (distortion-free) camera K would see."""
     import cv2
 
@@ -157,9 +159,9 @@ def photo_points(rectification: Rectification, points_px: np.ndarray) -> np.ndar
     points = np.asarray(points_px, float).reshape(-1, 2)
     mapped = np.c_[points, np.ones(len(points))] @ rectification.to_photo.T
     photo = mapped[:, :2] / mapped[:, 2:3]
-    if rectification.camera_matrix is not None and rectification.distortion is not None:
-        if np.any(rectification.distortion):
-            photo = distort_points(photo, rectification.camera_matrix, rectification.distortion)
+    matrix, distortion = rectification.camera_matrix, rectification.distortion
+    if matrix is not None and distortion is not None and np.any(distortion):
+        photo = distort_points(photo, matrix, distortion)
     return photo
 
 
@@ -185,7 +187,9 @@ def top_surface(detection: Detection, scene: SceneImage) -> Detection:
     def refine(mask: np.ndarray | None) -> np.ndarray | None:
         if mask is None:
             return None
-        grown = cv2.warpAffine(mask.astype(np.uint8), affine, (width, height), flags=cv2.INTER_NEAREST)
+        grown = cv2.warpAffine(
+            mask.astype(np.uint8), affine, (width, height), flags=cv2.INTER_NEAREST
+        )
         top = (mask & (grown > 0)).astype(np.uint8)
         contours, _ = cv2.findContours(top, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
         if not contours:

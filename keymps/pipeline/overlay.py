@@ -115,7 +115,9 @@ def draw_plan_on_photo(scene: SceneImage, detection: Detection, plan: Plan) -> n
         cv2.polylines(canvas, [fixed], closed, colour, thick, cv2.LINE_AA, _SHIFT)
 
     board = np.asarray(info.board_polygon_px, float)
-    edges = np.concatenate([np.linspace(a, b, 32) for a, b in zip(board, np.roll(board, -1, 0))])
+    edges = np.concatenate(
+        [np.linspace(a, b, 32) for a, b in zip(board, np.roll(board, -1, 0), strict=True)]
+    )
     polyline(edges, BOX, True)
     contour = np.asarray(detection.contour_px, float).reshape(-1, 2)
     if len(contour) >= 3:

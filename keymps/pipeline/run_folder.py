@@ -104,7 +104,11 @@ def run_record(run: Run, error: BaseException | None) -> dict[str, Any]:
             "crop_size_px": list(detection.crop_size_px),
             "warnings": list(detection.warnings),
             "objects": [
-                {"id": o.id, "bbox_px": [int(v) for v in o.bbox_px], "area_px": _rounded(o.area_px, 1)}
+                {
+                    "id": o.id,
+                    "bbox_px": [int(v) for v in o.bbox_px],
+                    "area_px": _rounded(o.area_px, 1),
+                }
                 for o in detection.objects
             ],
             "report": detection.report,

@@ -183,7 +183,10 @@ def flat_case(
     board_name = str(rng.choice(list(BOARDS)))
     board_lab = np.array(BOARDS[board_name]) + rng.normal(0, [4, 2, 3])
     texture_kind = str(rng.choice(["plain", "grain", "mottled", "speckle"]))
-    board = lab_to_bgr(board_lab)[0][None, None, :] * _texture(rng, (height, width), texture_kind)[..., None]
+    board = (
+        lab_to_bgr(board_lab)[0][None, None, :]
+        * _texture(rng, (height, width), texture_kind)[..., None]
+    )
     variation: dict[str, Any] = {"board": board_name, "board_texture": texture_kind}
     alpha_all = np.zeros((height, width), np.float32)
     colour_all = np.zeros((height, width, 3), np.float32)
@@ -210,11 +213,15 @@ def flat_case(
                       "near_edge": near_edge, "hue_only": hue_only,
                       "object_lab": np.round(object_lab, 1).tolist()}  # fmt: skip
         if rng.random() < 0.3 and not round_cake:
-            second, _, _ = _outline(rng, share * width * height * rng.uniform(0.1, 0.4), (width / 3, height / 2))
+            second, _, _ = _outline(
+                rng, share * width * height * rng.uniform(0.1, 0.4), (width / 3, height / 2)
+            )
             spot = _place(rng, second, size_px, False, boxes, 14)
             if spot is not None:
                 alpha2, box2 = _alpha(spot, size_px)
-                colour2 = _paint_object(rng, _object_lab(rng, board_lab, hue_only), (height, width), board_lab)
+                colour2 = _paint_object(
+                    rng, _object_lab(rng, board_lab, hue_only), (height, width), board_lab
+                )
                 alpha_all = np.maximum(alpha_all, alpha2)
                 colour_all = np.where(alpha2[..., None] > 0, colour2, colour_all)
                 boxes.append(tuple(float(v) for v in box2))
@@ -233,7 +240,9 @@ def flat_case(
         variation["crumbs"] = count
     if main_alpha is not None and rng.random() < 0.4:  # a soft shadow beside the object
         shift = rng.uniform(3, 8) * np.array([np.cos(a := rng.uniform(0, 6.3)), np.sin(a)])
-        moved = cv2.warpAffine(alpha_all, np.float32([[1, 0, shift[0]], [0, 1, shift[1]]]), (width, height))
+        moved = cv2.warpAffine(
+            alpha_all, np.float32([[1, 0, shift[0]], [0, 1, shift[1]]]), (width, height)
+        )
         sigma = rng.uniform(3, 6)
         soft = cv2.GaussianBlur(moved, (0, 0), sigma)
         darkness = rng.uniform(0.15, 0.35)
@@ -244,7 +253,11 @@ def flat_case(
     image = image * light[..., None]
     board_lit = board * light[..., None]
     colour_lit = colour_all * light[..., None]
-    pixels = _finish(rng, image, variation, jpeg) if finish else np.clip(np.rint(image), 0, 255).astype(np.uint8)
+    pixels = (
+        _finish(rng, image, variation, jpeg)
+        if finish
+        else np.clip(np.rint(image), 0, 255).astype(np.uint8)
+    )
     return FlatScene(
         pixels, truth, board_lit, alpha_all if not empty else None,
         colour_lit if not empty else None, variation,
@@ -255,7 +268,10 @@ def _paint_object(
     rng: np.random.Generator, lab: np.ndarray, shape: tuple[int, int], board_lab: np.ndarray
 ) -> np.ndarray:
     kind = str(rng.choice(["plain", "mottled", "speckle", "spots"]))
-    base = lab_to_bgr(lab)[0][None, None, :] * _texture(rng, shape, "plain" if kind == "spots" else kind)[..., None]
+    base = (
+        lab_to_bgr(lab)[0][None, None, :]
+        * _texture(rng, shape, "plain" if kind == "spots" else kind)[..., None]
+    )
     if kind == "spots":  # toppings of a second colour, at least 15 from the board
         spots = (smooth_noise(shape, 8, rng) > 1.2).astype(np.float32)
         while True:
@@ -266,19 +282,25 @@ def _paint_object(
     return base.astype(np.float32)
 
 
-def _lighting(rng: np.random.Generator, size: tuple[int, int], variation: dict[str, Any]) -> np.ndarray:
+def _lighting(
+    rng: np.random.Generator, size: tuple[int, int], variation: dict[str, Any]
+) -> np.ndarray:
     width, height = size
     x = np.linspace(-1, 1, width, dtype=np.float32)[None, :]
     y = np.linspace(-1, 1, height, dtype=np.float32)[:, None]
     gradient = float(rng.uniform(0, 0.15))
     angle = rng.uniform(0, 2 * np.pi)
-    ramp = (np.cos(angle) * x + np.sin(angle) * y) / max(abs(np.cos(angle)) + abs(np.sin(angle)), 1e-6)
+    ramp = (np.cos(angle) * x + np.sin(angle) * y) / max(
+        abs(np.cos(angle)) + abs(np.sin(angle)), 1e-6
+    )
     vignette = float(rng.uniform(0, 0.25)) if rng.random() < 0.5 else 0.0
     variation |= {"gradient": round(gradient, 3), "vignetting": round(vignette, 3)}
     return ((1 + gradient * ramp) * (1 - vignette * (x * x + y * y) / 2)).astype(np.float32)
 
 
-def _finish(rng: np.random.Generator, image: np.ndarray, variation: dict[str, Any], jpeg: bool | None) -> np.ndarray:
+def _finish(
+    rng: np.random.Generator, image: np.ndarray, variation: dict[str, Any], jpeg: bool | None
+) -> np.ndarray:
     import cv2
 
     noisy = image + rng.normal(0, rng.uniform(1.0, 3.0), image.shape).astype(np.float32)
@@ -308,7 +330,9 @@ class PhotoCase:
     markers: bool
 
 
-def _look_at(target: np.ndarray, tilt: float, azimuth: float, distance: float) -> tuple[np.ndarray, np.ndarray]:
+def _look_at(
+    target: np.ndarray, tilt: float, azimuth: float, distance: float
+) -> tuple[np.ndarray, np.ndarray]:
     """(R, t) of a camera `distance` from target, tilted from straight down, near side at the
     bottom of its image."""
     back = np.array([np.sin(tilt) * np.sin(azimuth), -np.sin(tilt) * np.cos(azimuth), np.cos(tilt)])
@@ -321,7 +345,9 @@ def _look_at(target: np.ndarray, tilt: float, azimuth: float, distance: float) -
     return rotation, -rotation @ centre
 
 
-def _plane_homography(matrix: np.ndarray, rotation: np.ndarray, translation: np.ndarray, z: float) -> np.ndarray:
+def _plane_homography(
+    matrix: np.ndarray, rotation: np.ndarray, translation: np.ndarray, z: float
+) -> np.ndarray:
     """Board metres (x, y) on the plane at height z -> ideal photo pixel indices."""
     return matrix @ np.c_[rotation[:, 0], rotation[:, 1], translation + z * rotation[:, 2]]
 
@@ -336,7 +362,13 @@ def photo_case(seed: int, *, markers: bool, flat_object: bool = False) -> PhotoC
     height_m = 0.0 if flat_object else float(rng.uniform(0.02, 0.06))
     size = PHOTO_SIZE_PX
     focal = float(rng.uniform(750, 900))
-    matrix = np.array([[focal, 0, 479.5 + rng.uniform(-12, 12)], [0, focal, 359.5 + rng.uniform(-12, 12)], [0, 0, 1]])
+    matrix = np.array(
+        [
+            [focal, 0, 479.5 + rng.uniform(-12, 12)],
+            [0, focal, 359.5 + rng.uniform(-12, 12)],
+            [0, 0, 1],
+        ]
+    )
     distortion = np.array([rng.uniform(-0.12, 0.08), rng.uniform(-0.05, 0.05), 0, 0, 0])
     tilt = float(rng.uniform(20, 45))
     rotation, translation = _look_at(
@@ -346,9 +378,14 @@ def photo_case(seed: int, *, markers: bool, flat_object: bool = False) -> PhotoC
     centre = -rotation.T @ translation
     flat = _photo_board(seed, centre, height_m)
     margin, scale = 0.06, 1.0 / PX_PER_M
-    canvas_px = (round((BOARD_M[0] + 2 * margin) * PX_PER_M), round((BOARD_M[1] + 2 * margin) * PX_PER_M))
+    canvas_px = (
+        round((BOARD_M[0] + 2 * margin) * PX_PER_M),
+        round((BOARD_M[1] + 2 * margin) * PX_PER_M),
+    )
     table_lab = np.array([rng.uniform(20, 45), rng.uniform(-5, 10), rng.uniform(-10, 15)])
-    canvas = np.broadcast_to(lab_to_bgr(table_lab)[0], (canvas_px[1], canvas_px[0], 3)).astype(np.float32)
+    canvas = np.broadcast_to(lab_to_bgr(table_lab)[0], (canvas_px[1], canvas_px[0], 3)).astype(
+        np.float32
+    )
     canvas = canvas * _texture(rng, (canvas_px[1], canvas_px[0]), "mottled")[..., None]
     off = round(margin * PX_PER_M)
     canvas[off : off + flat.board.shape[0], off : off + flat.board.shape[1]] = flat.board
@@ -357,12 +394,22 @@ def photo_case(seed: int, *, markers: bool, flat_object: bool = False) -> PhotoC
         quiet = round(0.006 * PX_PER_M)
         bw, bh = flat.board.shape[1], flat.board.shape[0]
         for marker_id, (cx, cy, sx, sy) in enumerate(
-            [(off, off + bh, -1, 1), (off + bw, off + bh, 1, 1), (off + bw, off, 1, -1), (off, off, -1, -1)]
+            [
+                (off, off + bh, -1, 1),
+                (off + bw, off + bh, 1, 1),
+                (off + bw, off, 1, -1),
+                (off, off, -1, -1),
+            ]
         ):
-            square = np.rot90(marker_image(marker_id, side), int(rng.integers(4))).astype(np.float32)
+            square = np.rot90(marker_image(marker_id, side), int(rng.integers(4))).astype(
+                np.float32
+            )
             x0 = cx if sx > 0 else cx - side
             y0 = cy if sy > 0 else cy - side
-            wx0, wy0 = (x0 - quiet if sx > 0 else x0 - quiet), (y0 - quiet if sy > 0 else y0 - quiet)
+            wx0, wy0 = (
+                (x0 - quiet if sx > 0 else x0 - quiet),
+                (y0 - quiet if sy > 0 else y0 - quiet),
+            )
             white = canvas[max(wy0, 0) : y0 + side + quiet, max(wx0, 0) : x0 + side + quiet]
             white[:] = 235.0
             canvas[y0 : y0 + side, x0 : x0 + side] = square[..., None] * (235.0 / 255.0)
@@ -372,13 +419,17 @@ def photo_case(seed: int, *, markers: bool, flat_object: bool = False) -> PhotoC
     to_index = np.array([[1.0, 0, -0.5], [0, 1, -0.5], [0, 0, 1]])
     from_index = np.linalg.inv(to_index)
     board_plane = _plane_homography(matrix, rotation, translation, 0.0)
-    photo = cv2.warpPerspective(canvas, board_plane @ canvas_to_board @ from_index, size, flags=cv2.INTER_AREA)
+    photo = cv2.warpPerspective(
+        canvas, board_plane @ canvas_to_board @ from_index, size, flags=cv2.INTER_AREA
+    )
     board_to_m = np.array([[scale, 0, 0], [0, -scale, BOARD_M[1]], [0, 0, 1]])
     if flat.object_alpha is not None and flat.object_colour is not None:
         top_px = focal * height_m * np.tan(np.radians(tilt)) / 0.5
         levels = np.linspace(0.0, height_m, max(2, int(np.ceil(top_px / 2.0)) + 1))
         for z in levels:
-            warp = _plane_homography(matrix, rotation, translation, float(z)) @ board_to_m @ from_index
+            warp = (
+                _plane_homography(matrix, rotation, translation, float(z)) @ board_to_m @ from_index
+            )
             alpha = cv2.warpPerspective(flat.object_alpha, warp, size, flags=cv2.INTER_LINEAR)
             colour = cv2.warpPerspective(flat.object_colour, warp, size, flags=cv2.INTER_LINEAR)
             shade = 1.0 if z == levels[-1] else 0.72
@@ -388,21 +439,42 @@ def photo_case(seed: int, *, markers: bool, flat_object: bool = False) -> PhotoC
     step = 4
     cols, rows = np.arange(0, size[0] + step, step), np.arange(0, size[1] + step, step)
     grid = np.stack(np.meshgrid(cols, rows), -1).reshape(-1, 1, 2).astype(np.float64)
-    coarse = cv2.undistortPoints(grid, matrix, distortion, P=matrix).reshape(len(rows), len(cols), 2)
-    fine = cv2.resize(coarse.astype(np.float32), (len(cols) * step, len(rows) * step), interpolation=cv2.INTER_LINEAR)
-    shift = (step - 1) / 2  # resize aligns pixel centres: coarse sample k sits at fine k*step + shift
-    fine = cv2.warpAffine(fine, np.float32([[1, 0, -shift], [0, 1, -shift]]), fine.shape[1::-1], borderMode=cv2.BORDER_REPLICATE)
+    coarse = cv2.undistortPoints(grid, matrix, distortion, P=matrix).reshape(
+        len(rows), len(cols), 2
+    )
+    fine = cv2.resize(
+        coarse.astype(np.float32),
+        (len(cols) * step, len(rows) * step),
+        interpolation=cv2.INTER_LINEAR,
+    )
+    shift = (
+        step - 1
+    ) / 2  # resize aligns pixel centres: coarse sample k sits at fine k*step + shift
+    fine = cv2.warpAffine(
+        fine,
+        np.float32([[1, 0, -shift], [0, 1, -shift]]),
+        fine.shape[1::-1],
+        borderMode=cv2.BORDER_REPLICATE,
+    )
     ideal = fine[: size[1], : size[0]]
     photo = cv2.remap(photo.astype(np.float32), ideal[..., 0], ideal[..., 1], cv2.INTER_LINEAR)
     variation = dict(flat.variation)
     pixels = _finish(rng, photo, variation, None)
-    corners_m = np.array([[0, 0], [BOARD_M[0], 0], [BOARD_M[0], BOARD_M[1]], [0, BOARD_M[1]]], float)
+    corners_m = np.array(
+        [[0, 0], [BOARD_M[0], 0], [BOARD_M[0], BOARD_M[1]], [0, BOARD_M[1]]], float
+    )
     corners3 = np.c_[corners_m, np.zeros(4)]
-    projected, _ = cv2.projectPoints(corners3, cv2.Rodrigues(rotation)[0], translation, matrix, distortion)
+    projected, _ = cv2.projectPoints(
+        corners3, cv2.Rodrigues(rotation)[0], translation, matrix, distortion
+    )
     intrinsics = {"fx": focal, "fy": focal, "cx": float(matrix[0, 2]), "cy": float(matrix[1, 2]),
                   "distortion": [float(v) for v in distortion]}  # fmt: skip
-    flat_with = FlatScene(flat.image, flat.truth_bbox, flat.board, flat.object_alpha, flat.object_colour, variation)
-    return PhotoCase(pixels, flat_with, projected.reshape(4, 2) + 0.5, intrinsics, height_m, tilt, markers)
+    flat_with = FlatScene(
+        flat.image, flat.truth_bbox, flat.board, flat.object_alpha, flat.object_colour, variation
+    )
+    return PhotoCase(
+        pixels, flat_with, projected.reshape(4, 2) + 0.5, intrinsics, height_m, tilt, markers
+    )
 
 
 def _photo_board(seed: int, camera: np.ndarray, height_m: float) -> FlatScene:
@@ -415,11 +487,13 @@ def _photo_board(seed: int, camera: np.ndarray, height_m: float) -> FlatScene:
         scene = flat_case(
             seed * 1000 + attempt, coverage=coverage, jpeg=False, finish=False, round_cake=True
         )
-        variation = scene.variation
         if scene.truth_bbox is None:
             continue
         x0, y0, x1, y1 = scene.truth_bbox
-        box_m = np.array([[x0, BOARD_M[1] * PX_PER_M - y1], [x1, BOARD_M[1] * PX_PER_M - y0]]) / PX_PER_M
+        box_m = (
+            np.array([[x0, BOARD_M[1] * PX_PER_M - y1], [x1, BOARD_M[1] * PX_PER_M - y0]])
+            / PX_PER_M
+        )
         seen = camera[:2] + (box_m - camera[:2]) * grow
         if np.all(seen >= 0.003) and np.all(seen <= np.array(BOARD_M) - 0.003):
             return scene
