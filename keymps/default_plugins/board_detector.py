@@ -20,7 +20,6 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from keymps.errors import StageError
 from keymps.perception.board_model import (
     BoardModel,
     border_band,
@@ -30,7 +29,7 @@ from keymps.perception.board_model import (
 )
 from keymps.perception.image_io import to_bgr8
 from keymps.perception.search_area import SearchArea
-from keymps.plugin import Register, hookimpl
+from keymps.plugin import DetectionError, RegisterDetector, hookimpl
 from keymps.plugin import parse_options as plugin_options
 from keymps.types import DetectedObject, Detection, SceneImage
 
@@ -40,13 +39,6 @@ MIN_THRESHOLD = 3.0
 """Lab units: below this no camera tells board from object."""
 TEXTURE_CONTRAST = 1.6
 """A region whose median distance is under this times the noise threshold is board texture."""
-
-
-class DetectionError(StageError):
-    """The detector found no object, or only the board (or cannot read the image)."""
-
-    def __init__(self, message: str):
-        super().__init__("detect", message)
 
 
 class BoardOptions(BaseModel):
@@ -425,5 +417,5 @@ def make_detector(options: dict[str, Any]) -> BoardDetector:
 
 
 @hookimpl
-def register_detectors(register: Register) -> None:
+def register_detectors(register: RegisterDetector) -> None:
     register("board", make_detector)

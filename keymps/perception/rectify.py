@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from keymps.errors import KeympsError, StageError
+from keymps.errors import DetectionError, KeympsError
 from keymps.perception.frames import ImageFrame, _homography
 from keymps.types import DetectedObject, Detection, Rectification, SceneImage
 
@@ -134,9 +134,14 @@ def rectify_scene(scene: SceneImage, task: Task) -> SceneImage:
         camera_position_m=position,
         camera_foot_px=None
         if position is None
-        else tuple(float(v) for v in frame.to_pixels(np.array(position[:2]))[0]),
+        else _point(frame.to_pixels(np.array(position[:2]))),
     )
-    return SceneImage(rectified, f"{scene.source} (rectified)", info)
+    return SceneImage(rectified, f"{scene.source} (rectified)", truth=None, rectification=info)
+
+
+def _point(points: np.ndarray) -> tuple[float, float]:
+    x, y = (float(v) for v in np.asarray(points, float).reshape(-1, 2)[0])
+    return x, y
 
 
 def _remap_grid(
@@ -182,7 +187,7 @@ def top_surface(detection: Detection, scene: SceneImage) -> Detection:
     assert info.camera_foot_px is not None
     foot = np.asarray(info.camera_foot_px, float)
     centre = foot - 0.5  # warpAffine works in pixel indices
-    affine = np.float32([[grow, 0, centre[0] * (1 - grow)], [0, grow, centre[1] * (1 - grow)]])
+    affine = np.array([[grow, 0, centre[0] * (1 - grow)], [0, grow, centre[1] * (1 - grow)]])
 
     def refine(mask: np.ndarray | None) -> np.ndarray | None:
         if mask is None:
@@ -201,8 +206,7 @@ def top_surface(detection: Detection, scene: SceneImage) -> Detection:
 
     top = refine(detection.mask)
     if top is None:
-        raise StageError(
-            "detect",
+        raise DetectionError(
             f"the object (box {list(detection.bbox_px)}) has no top surface once its sides are "
             f"removed for scene.object_height {info.plane_z:g} m: is the height right?",
         )

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from keymps.errors import KeympsError, StageError
+from keymps.errors import DetectionError, KeympsError
 from keymps.types import Detection
 
 SIDE_NAMES = ("bottom", "right", "top", "left")
@@ -102,8 +102,7 @@ def refuse_the_board(detection: Detection, size_px: tuple[int, int]) -> Detectio
             if len(sides) >= 3
             else f"covers {100 * covered:.0f} % of the image"
         )
-        raise StageError(
-            "detect",
+        raise DetectionError(
             f"the object found (box {list(detection.bbox_px)}) {reason}: that is the board, not "
             "an object, and nothing is planned on it; use the board detector "
             "(detector: {name: board}), or give scene.camera.board_corners_px or detector.roi",

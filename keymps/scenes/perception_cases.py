@@ -88,9 +88,9 @@ def _outline(
     else:
         unit = np.c_[np.cos(theta), np.sin(theta)]
         if shape == "blob":
-            wobble = sum(
-                rng.normal(0, 0.05) * np.cos(k * theta + rng.uniform(0, 6.3)) for k in range(2, 6)
-            )
+            wobble = np.zeros_like(theta)
+            for k in range(2, 6):
+                wobble += rng.normal(0, 0.05) * np.cos(k * theta + rng.uniform(0, 6.3))
             unit = unit * (1 + wobble)[:, None]
     unit = unit * np.array([aspect, 1.0])
     angle = rng.uniform(0, np.pi)
@@ -152,6 +152,11 @@ def _place(
     return None
 
 
+def _box(box: list[int]) -> tuple[float, float, float, float]:
+    x0, y0, x1, y1 = (float(v) for v in box)
+    return x0, y0, x1, y1
+
+
 def _alpha(polygon_px: np.ndarray, size: tuple[int, int]) -> tuple[np.ndarray, list[int]]:
     width, height = size
     alpha = np.zeros((height, width), np.float32)
@@ -204,7 +209,7 @@ def flat_case(
             placed = polygon - polygon.mean(axis=0) + (width / 2, height / 2)
         main_alpha, box = _alpha(placed, size_px)
         truth = (box[0], box[1], box[2], box[3])
-        boxes.append(tuple(float(v) for v in box))
+        boxes.append(_box(box))
         object_lab = _object_lab(rng, board_lab, hue_only)
         colour = _paint_object(rng, object_lab, (height, width), board_lab)
         alpha_all, colour_all = main_alpha, colour
@@ -224,7 +229,7 @@ def flat_case(
                 )
                 alpha_all = np.maximum(alpha_all, alpha2)
                 colour_all = np.where(alpha2[..., None] > 0, colour2, colour_all)
-                boxes.append(tuple(float(v) for v in box2))
+                boxes.append(_box(box2))
                 variation["second_object"] = box2
     if rng.random() < 0.35:  # crumbs: specks of a few pixels, away from the objects
         count = int(rng.integers(5, 30))
@@ -241,7 +246,7 @@ def flat_case(
     if main_alpha is not None and rng.random() < 0.4:  # a soft shadow beside the object
         shift = rng.uniform(3, 8) * np.array([np.cos(a := rng.uniform(0, 6.3)), np.sin(a)])
         moved = cv2.warpAffine(
-            alpha_all, np.float32([[1, 0, shift[0]], [0, 1, shift[1]]]), (width, height)
+            alpha_all, np.array([[1, 0, shift[0]], [0, 1, shift[1]]]), (width, height)
         )
         sigma = rng.uniform(3, 6)
         soft = cv2.GaussianBlur(moved, (0, 0), sigma)
@@ -452,7 +457,7 @@ def photo_case(seed: int, *, markers: bool, flat_object: bool = False) -> PhotoC
     ) / 2  # resize aligns pixel centres: coarse sample k sits at fine k*step + shift
     fine = cv2.warpAffine(
         fine,
-        np.float32([[1, 0, -shift], [0, 1, -shift]]),
+        np.array([[1, 0, -shift], [0, 1, -shift]]),
         fine.shape[1::-1],
         borderMode=cv2.BORDER_REPLICATE,
     )
