@@ -35,18 +35,37 @@ class FoundMarkers:
     """Markers seen that are not 0-3."""
 
 
+MAX_REFINE_PX = 3.0
+"""A sub-pixel corner further than this from the fitted lines' corner has wandered."""
+
+
+def _detect(gray: np.ndarray, refinement: int) -> dict[int, list[np.ndarray]]:
+    """Marker id -> each detection's four corners (continuous pixel coordinates)."""
+    import cv2
+
+    parameters = cv2.aruco.DetectorParameters()
+    parameters.cornerRefinementMethod = refinement
+    found, ids, _ = cv2.aruco.ArucoDetector(_dictionary(), parameters).detectMarkers(gray)
+    seen: dict[int, list[np.ndarray]] = {}
+    for corners, marker_id in zip(found, [] if ids is None else ids.ravel(), strict=True):
+        seen.setdefault(int(marker_id), []).append(corners.reshape(4, 2).astype(float) + 0.5)
+    return seen
+
+
 def find_board_corners(image: np.ndarray, source: str = "the image") -> FoundMarkers:
     """The board's corners from markers 0-3; a clear error when one is missing or doubled."""
     import cv2
 
     gray = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
-    parameters = cv2.aruco.DetectorParameters()
-    parameters.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
-    detector = cv2.aruco.ArucoDetector(_dictionary(), parameters)
-    found, ids, _ = detector.detectMarkers(gray)
-    seen: dict[int, list[np.ndarray]] = {}
-    for corners, marker_id in zip(found, [] if ids is None else ids.ravel(), strict=True):
-        seen.setdefault(int(marker_id), []).append(corners.reshape(4, 2).astype(float) + 0.5)
+    seen = _detect(gray, cv2.aruco.CORNER_REFINE_SUBPIX)
+    # lines fitted to the sides of each black square and intersected: robust where the corner
+    # touching the board has board, not paper, around it; sub-pixel corners unless they wandered
+    lines = _detect(gray, cv2.aruco.CORNER_REFINE_CONTOUR)
+    for marker_id, found in seen.items():
+        robust = lines.get(marker_id, [])
+        if len(found) == 1 and len(robust) == 1:
+            far = np.linalg.norm(found[0] - robust[0], axis=1) > MAX_REFINE_PX
+            found[0][far] = robust[0][far]
     doubled = [i for i in range(4) if len(seen.get(i, [])) > 1]
     if doubled:
         where = "; ".join(
@@ -67,12 +86,26 @@ def find_board_corners(image: np.ndarray, source: str = "the image") -> FoundMar
             "(`keymps calibrate --print-markers FILE.png` prints them)"
         )
     markers = {i: seen[i][0] for i in range(4)}
-    middle = np.mean([markers[i].mean(axis=0) for i in range(4)], axis=0)
-    inner = np.array(
-        [markers[i][np.argmin(np.linalg.norm(markers[i] - middle, axis=1))] for i in range(4)]
-    )
+    inner = np.array([_touching_corner(i, markers) for i in range(4)])
     ignored = tuple(sorted(i for i in seen if i > 3))
     return FoundMarkers(inner, markers, ignored)
+
+
+def _touching_corner(marker_id: int, markers: dict[int, np.ndarray]) -> np.ndarray:
+    """The corner of this marker nearest the middle of the four, judged on the board plane
+    (the marker's own square fixes that plane's metric up to scale, whatever the perspective)."""
+    import cv2
+
+    square = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], np.float64)
+    to_plane = cv2.getPerspectiveTransform(
+        markers[marker_id].astype(np.float32), square.astype(np.float32)
+    )
+    centres = [
+        cv2.perspectiveTransform(markers[i].reshape(-1, 1, 2), to_plane).reshape(-1, 2).mean(axis=0)
+        for i in range(4)
+    ]
+    middle = np.mean(centres, axis=0)
+    return markers[marker_id][int(np.argmin(np.linalg.norm(square - middle, axis=1)))]
 
 
 def marker_image(marker_id: int, side_px: int) -> np.ndarray:

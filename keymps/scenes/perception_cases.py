@@ -25,6 +25,8 @@ from keymps.scenes.textures import smooth_noise
 
 BOARD_M = (0.30, 0.18)
 PHOTO_SIZE_PX = (960, 720)
+MARKER_M = 0.04
+"""Side of the ArUco markers outside the board's corners (the default printed size)."""
 PX_PER_M = 2000.0
 BOARDS: dict[str, tuple[float, float, float]] = {
     "light wood": (62.0, 6.0, 24.0),
@@ -395,7 +397,7 @@ def photo_case(seed: int, *, markers: bool, flat_object: bool = False) -> PhotoC
     off = round(margin * PX_PER_M)
     canvas[off : off + flat.board.shape[0], off : off + flat.board.shape[1]] = flat.board
     if markers:
-        side = round(0.035 * PX_PER_M)
+        side = round(MARKER_M * PX_PER_M)
         quiet = round(0.006 * PX_PER_M)
         bw, bh = flat.board.shape[1], flat.board.shape[0]
         for marker_id, (cx, cy, sx, sy) in enumerate(
