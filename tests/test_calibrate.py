@@ -35,7 +35,7 @@ def test_the_markers_give_the_board_corners_and_a_task_accepts_the_block(
     path, case = photo
     out = tmp_path / "camera.yaml"
     code, stdout, stderr = calibrate(
-        str(path), "--board", "0.30,0.18", "--marker-size", "35", "--out", str(out)
+        str(path), "--board", "0.30,0.18", "--marker-size", "40", "--out", str(out)
     )
     assert code == 0, stderr
     assert stdout.strip() == f"wrote {out}" and stderr == ""
@@ -51,7 +51,7 @@ def test_the_markers_give_the_board_corners_and_a_task_accepts_the_block(
         }
     )
     assert task.scene.workspace.size == (0.30, 0.18) and task.scene.camera.mm_per_px == 0.5
-    assert "35.0 mm printed" in out.read_text() or "(35 mm printed)" in out.read_text()
+    assert "(40 mm printed)" in out.read_text()
 
 
 def test_intrinsics_add_the_camera_pose(photo: tuple[Path, object]) -> None:
@@ -60,7 +60,7 @@ def test_intrinsics_add_the_camera_pose(photo: tuple[Path, object]) -> None:
     camera = f"{given['fx']},{given['fy']},{given['cx']},{given['cy']}"
     distortion = ",".join(str(v) for v in given["distortion"])
     code, stdout, stderr = calibrate(
-        str(path), "--board", "0.30,0.18", "--marker-size", "35",
+        str(path), "--board", "0.30,0.18", "--marker-size", "40",
         "--intrinsics", camera, "--distortion", distortion,
     )  # fmt: skip
     assert code == 0, stderr
@@ -73,7 +73,7 @@ def test_intrinsics_add_the_camera_pose(photo: tuple[Path, object]) -> None:
 
 def test_a_wrong_board_size_is_noticed_from_the_markers(photo: tuple[Path, object]) -> None:
     path, _ = photo
-    code, _, stderr = calibrate(str(path), "--board", "0.38,0.24", "--marker-size", "35")
+    code, _, stderr = calibrate(str(path), "--board", "0.38,0.24", "--marker-size", "40")
     assert code == 0
     assert "warning: the markers measure" in stderr and "check --board" in stderr
 

@@ -108,7 +108,7 @@ def test_a_run_on_a_photo_plans_in_board_millimetres(tall: object, tmp_path: Pat
     ).exists()
     dots = np.array(record["segments_m"])[:, 0, :2]
     assert design_error_mm(dots, _reference_m(tall)) <= 1.5  # type: ignore[arg-type]
-    assert run.results["image"].rectification is not None
+    assert run.stages.image is not None and run.stages.image.rectification is not None
 
 
 def test_camera_errors_are_one_line(tall: object, tmp_path: Path) -> None:

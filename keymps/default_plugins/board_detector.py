@@ -159,9 +159,12 @@ class BoardDetector:
         lab = to_lab(blurred)
         distance, board, board_image, noise = self._board_distance(lab, area)
         min_area = self.min_area(area)
+        # a region touches a side when it reaches the first 1.5 px inside the left-out edge
         bands = area.side_bands(1.5 + self.options.edge)
         if self.options.edge:
             distance[border_band(area.mask, self.options.edge)] = 0.0
+            left_out = area.side_bands(self.options.edge)
+            bands = [band & ~out for band, out in zip(bands, left_out, strict=True)]
 
         t_noise = max(MIN_THRESHOLD, NOISE_FACTOR * noise)
         first = self._regions(distance > t_noise, distance, area, bands, min_area)
