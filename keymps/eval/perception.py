@@ -116,25 +116,17 @@ def _task(case: PhotoCase, corners: np.ndarray, intrinsics: bool, detector: dict
 
 
 def _offline_design(task: Any, detection: Detection, scene: SceneImage) -> Plan:
-    import json
+    """The offline planner's design, made the way a run makes it (keymps.planning.make_plan)."""
+    import tempfile
+    from pathlib import Path
 
-    from keymps.default_plugins.offline import OfflineBackend
-    from keymps.planning.planner import PlanRequest, crop_mask, crop_metres_per_px
+    from keymps.planning.planner import make_plan
+    from keymps.run import Run
 
-    request = PlanRequest(
-        instruction=task.instruction,
-        crop=detection.crop,
-        crop_mask=crop_mask(detection, scene),
-        metres_per_px=crop_metres_per_px(task, detection, scene),
-        primitives={"line": "icing: descend to the surface, then move laterally"},
-        object_height=task.scene.object_height,
-        max_pairs=64,
-        messages=[],
-        schema={},
-    )
-    answer = json.loads(OfflineBackend().complete(request).text)
-    pairs = np.asarray(answer["pairs"], float).reshape(-1, 2, 2)
-    return Plan("line", pairs, pairs + np.asarray(detection.crop_origin_px, float), "offline")
+    primitives = {"line": "icing: descend to the surface, then move laterally"}
+    with tempfile.TemporaryDirectory(prefix="keymps-perception-") as folder:
+        run = Run(task=task, folder=Path(folder))
+        return make_plan(task, detection, scene, primitives, run, "offline")
 
 
 def _design_m(task: Any, detection: Detection, scene: SceneImage) -> np.ndarray:
