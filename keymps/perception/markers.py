@@ -35,7 +35,7 @@ class FoundMarkers:
     """Markers seen that are not 0-3."""
 
 
-MAX_REFINE_PX = 3.0
+MAX_REFINE_PX = 1.5
 """A sub-pixel corner further than this from the fitted lines' corner has wandered."""
 
 
