@@ -8,8 +8,11 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
+from keymps import _decoder_limit
 from keymps._version import __version__
 from keymps.errors import KeympsError
+
+_decoder_limit.install()  # before anything imports cv2: decode bombs are refused from headers
 
 __all__ = ["KeympsError", "Run", "Task", "__version__", "hookimpl", "load_task", "run_task"]
 

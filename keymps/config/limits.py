@@ -3,7 +3,8 @@
 Each bound is configurable (see docs/safety.md):
 
 - image size in pixels, read from the file's header before anything is decoded
-  (`scene.max_image_pixels`);
+  (`scene.max_image_pixels`; OpenCV's own decoders refuse images over
+  `OPENCV_IO_MAX_IMAGE_PIXELS`, which `import keymps` sets: keymps/_decoder_limit.py);
 - planner answer length in characters, from `planner.max_pairs` (`max_answer_chars`);
 - tool path length and estimated duration, right after the path is composed, before the costly
   inverse kinematics (`motion.max_path_length`, `motion.max_duration_s`);
@@ -12,6 +13,7 @@ Each bound is configurable (see docs/safety.md):
 
 from __future__ import annotations
 
+import re
 import struct
 from typing import TYPE_CHECKING
 
@@ -35,7 +37,11 @@ def max_answer_chars(max_pairs: int) -> int:
 
 
 def image_size_from_header(data: bytes) -> tuple[int, int] | None:
-    """(width, height) from a PNG, JPEG, GIF, BMP, WebP or TIFF header; None if unrecognised."""
+    """(width, height) from a PNG, JPEG, GIF, BMP, WebP, TIFF or PNM header; None if unrecognised.
+
+    `data` is the whole file: a TIFF's directory is often at its end, and a JPEG's frame header
+    may follow any amount of metadata.
+    """
     try:
         if data[:8] == b"\x89PNG\r\n\x1a\n" and data[12:16] == b"IHDR":
             width, height = struct.unpack(">II", data[16:24])
@@ -52,7 +58,9 @@ def image_size_from_header(data: bytes) -> tuple[int, int] | None:
             return _webp_size(data)
         if data[:4] in (b"II*\x00", b"MM\x00*"):
             return _tiff_size(data)
-    except struct.error:
+        if re.match(rb"P[1-7]\s", data[:3]):
+            return _pnm_size(data[:4096])
+    except (struct.error, ValueError):
         return None  # a header cut short: let the decoder report the corrupt file
     return None
 
@@ -60,9 +68,14 @@ def image_size_from_header(data: bytes) -> tuple[int, int] | None:
 def _jpeg_size(data: bytes) -> tuple[int, int] | None:
     index = 2
     while index + 9 < len(data):
-        if data[index] != 0xFF:
-            return None
+        if data[index] != 0xFF:  # libjpeg skips stray bytes before a marker: so does this
+            index = data.find(b"\xff", index)
+            if index < 0:
+                return None
+            continue
         marker = data[index + 1]
+        if marker == 0xDA:  # start of scan: no frame header came before it
+            return None
         if marker == 0xFF:  # fill byte
             index += 1
             continue
@@ -89,6 +102,19 @@ def _webp_size(data: bytes) -> tuple[int, int] | None:
     if chunk == b"VP8 ":
         width, height = struct.unpack("<HH", data[26:30])
         return int(width) & 0x3FFF, int(height) & 0x3FFF
+    return None
+
+
+def _pnm_size(head: bytes) -> tuple[int, int] | None:
+    """Netpbm (P1-P6: width and height after the magic, # comments allowed; P7: WIDTH, HEIGHT)."""
+    text = re.sub(rb"#[^\n]*", b" ", head[2:]).split()
+    if head[1:2] == b"7":
+        fields = dict(zip(text[::2], text[1::2], strict=False))
+        if b"WIDTH" in fields and b"HEIGHT" in fields:
+            return int(fields[b"WIDTH"]), int(fields[b"HEIGHT"])
+        return None
+    if len(text) >= 2 and text[0].isdigit() and text[1].isdigit():
+        return int(text[0]), int(text[1])
     return None
 
 

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Any
 
 from pydantic import ValidationError
 
-from keymps.config.task import Task
+from keymps.config.task import Task, file_problem
 from keymps.errors import KeympsError
 
 _OVERRIDE_FIELDS: dict[str, tuple[str, ...]] = {
@@ -37,10 +38,11 @@ def apply_overrides(task: Task, overrides: dict[str, Any]) -> Task:
         for parent in parents:
             target = target[parent]
         if key in ("image", "cassette"):
-            value = Path(value).resolve()
+            value = Path(os.path.abspath(value))  # resolve() raises on a symlink loop
             if key == "image":
-                if not value.is_file():
-                    raise KeympsError(f"--image: file not found: {value}")
+                problem = file_problem(value)
+                if problem:
+                    raise KeympsError(f"--image: {problem}")
                 data["scene"]["source"] = "file"
         target[leaf] = value
     data["path"] = task.path

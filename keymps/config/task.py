@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import stat
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -46,24 +47,40 @@ a task file is millimetres, caught where it is written."""
 BoardSide = Annotated[float, Field(gt=0, le=MAX_BOARD_M, allow_inf_nan=False)]
 """A side of the imaged board, metres."""
 BaseOffset = Annotated[float, Field(ge=-MAX_BOARD_M, le=MAX_BOARD_M, allow_inf_nan=False)]
-"""A coordinate of the robot base on the board, metres."""
+"""A coordinate of the robot base (or of the board frame's origin) on the board, metres."""
+MAX_PIXEL_COORDINATE = 2**20
+"""OpenCV reads no image wider or taller than this (OPENCV_IO_MAX_IMAGE_WIDTH's default)."""
+PixelCoordinate = Annotated[
+    float, Field(ge=-MAX_PIXEL_COORDINATE, le=MAX_PIXEL_COORDINATE, allow_inf_nan=False)
+]
+Degrees = Annotated[float, Field(ge=-360, le=360, allow_inf_nan=False)]
+ToolOffset = Annotated[float, Field(ge=-1.0, le=1.0, allow_inf_nan=False)]
+"""A tool tip coordinate in the flange frame, metres: no UR3 tool is a metre long."""
+MAX_IMAGE_PIXELS_LIMIT = 2**30
+"""OpenCV's own ceiling (OPENCV_IO_MAX_IMAGE_PIXELS' default): scene.max_image_pixels' bound."""
 
 
 class Workspace(StrictModel):
     size: tuple[BoardSide, BoardSide] = (0.30, 0.18)
     """s_env: (width, height) of the area the image spans, metres."""
-    shift: tuple[FiniteFloat, FiniteFloat] = (0.0, 0.0)
+    shift: tuple[BaseOffset, BaseOffset] = (0.0, 0.0)
     """g_shift: offset of the board frame's origin, metres."""
+
+
+PixelPoint = tuple[PixelCoordinate, PixelCoordinate]
+FocalLength = Annotated[float, Field(gt=0, le=1e6, allow_inf_nan=False)]
+"""Pixels: a million is a telephoto lens on a 20000-pixel sensor, beyond any table camera."""
+DistortionCoefficient = Annotated[float, Field(ge=-1e4, le=1e4, allow_inf_nan=False)]
 
 
 class Intrinsics(StrictModel):
     """A calibrated pinhole camera (OpenCV's convention: pixel centres at integers)."""
 
-    fx: PositiveFloat
-    fy: PositiveFloat
-    cx: FiniteFloat
-    cy: FiniteFloat
-    distortion: tuple[FiniteFloat, ...] = ()
+    fx: FocalLength
+    fy: FocalLength
+    cx: PixelCoordinate
+    cy: PixelCoordinate
+    distortion: tuple[DistortionCoefficient, ...] = ()
     """k1, k2, p1, p2[, k3[, k4, k5, k6]] as cv2.calibrateCamera gives them; empty: none."""
 
     @field_validator("distortion")
@@ -77,7 +94,7 @@ class Intrinsics(StrictModel):
 
 
 class Camera(StrictModel):
-    board_corners_px: tuple[Point2, Point2, Point2, Point2] | None = None
+    board_corners_px: tuple[PixelPoint, PixelPoint, PixelPoint, PixelPoint] | None = None
     """Pixels of the workspace corners: bottom-left, bottom-right, top-right, top-left."""
     mm_per_px: Annotated[float, Field(ge=0.05, le=10, allow_inf_nan=False)] = 0.5
     """Resolution of the rectified top-down image the stages work in (with board corners)."""
@@ -93,7 +110,7 @@ class Scene(StrictModel):
     workspace: Workspace = Workspace()
     object_height: Annotated[float, Field(ge=0, le=1.0, allow_inf_nan=False)] = 0.05
     camera: Camera = Camera()
-    max_image_pixels: Annotated[int, Field(ge=1)] = 64_000_000
+    max_image_pixels: Annotated[int, Field(ge=1, le=MAX_IMAGE_PIXELS_LIMIT)] = 64_000_000
     """Larger images are refused from their header, before decoding (keymps.config.limits)."""
 
     @model_validator(mode="after")
@@ -111,8 +128,8 @@ class Planner(StrictModel):
     api_base: str | None = None
     api_key_env: str | None = None
     """Name of the environment variable holding the key (never the key itself)."""
-    temperature: Annotated[float, Field(ge=0, le=2)] = 0.0
-    timeout_s: PositiveFloat = 60.0
+    temperature: Annotated[float, Field(ge=0, le=2, allow_inf_nan=False)] = 0.0
+    timeout_s: Annotated[float, Field(gt=0, le=3600, allow_inf_nan=False)] = 60.0
     max_pairs: Annotated[int, Field(ge=1, le=10_000)] = 64
     attempts: Annotated[int, Field(ge=1, le=10)] = 2
     combined: bool = True
@@ -131,14 +148,20 @@ class Height(StrictModel):
     """Added to the object's top surface wherever the height is integrated, metres."""
 
 
+MAX_PATH_LENGTH_M = 1000.0
+"""motion.max_path_length's own bound: a kilometre of strokes is no kitchen task."""
+MAX_DURATION_S = 4 * 3600.0
+"""motion.max_duration_s' own bound: at 500 Hz, 4 h is 7.2 million samples (about 1 GB)."""
+
+
 class Motion(StrictModel):
     clearance: Annotated[float, Field(ge=0.005, le=0.3, allow_inf_nan=False)] = 0.03
     """Travel moves rise this far above the object's top, metres."""
     work_speed: Annotated[float, Field(gt=0, le=0.5, allow_inf_nan=False)] = 0.03
     travel_speed: Annotated[float, Field(gt=0, le=1.0, allow_inf_nan=False)] = 0.15
-    max_path_length: Annotated[float, Field(gt=0, allow_inf_nan=False)] = 50.0
+    max_path_length: Annotated[float, Field(gt=0, le=MAX_PATH_LENGTH_M, allow_inf_nan=False)] = 50.0
     """Longer tool paths are refused before inverse kinematics, metres (keymps.config.limits)."""
-    max_duration_s: Annotated[float, Field(gt=0, allow_inf_nan=False)] = 1800.0
+    max_duration_s: Annotated[float, Field(gt=0, le=MAX_DURATION_S, allow_inf_nan=False)] = 1800.0
     """Longer motions are refused (estimated before IK, measured after timing), seconds."""
 
 
@@ -146,7 +169,7 @@ class ToolSpec(StrictModel):
     """A tool: a built-in name (knife, piping_bag) alone, or a name with its own TCP."""
 
     name: str
-    tcp: tuple[FiniteFloat, FiniteFloat, FiniteFloat] | None = None
+    tcp: tuple[ToolOffset, ToolOffset, ToolOffset] | None = None
     """Tool tip in the flange frame, metres; None takes the built-in tool's."""
     yaw: Literal["follow", "fixed"] | None = None
     """'follow': the blade turns with the cut direction (knife); None takes the built-in's."""
@@ -157,16 +180,16 @@ class ToolSpec(StrictModel):
 
 class Robot(StrictModel):
     model: Literal["ur3", "ur3e"] = "ur3"
-    base: tuple[BaseOffset, BaseOffset, BaseOffset, FiniteFloat] = (0.15, -0.20, 0.0, 90.0)
+    base: tuple[BaseOffset, BaseOffset, BaseOffset, Degrees] = (0.15, -0.20, 0.0, 90.0)
     """x, y, z in metres and yaw in degrees of the robot base in the board frame."""
     tool: ToolSpec = ToolSpec(name="knife")
-    rate_hz: Annotated[float, Field(ge=10, le=1000)] | None = None
+    rate_hz: Annotated[float, Field(ge=10, le=1000, allow_inf_nan=False)] | None = None
     """Controller rate: 125 Hz for CB3, 500 Hz for e-Series when omitted."""
-    max_joint_acceleration: Annotated[float, Field(gt=0, le=50)] = 3.0
+    max_joint_acceleration: Annotated[float, Field(gt=0, le=50, allow_inf_nan=False)] = 3.0
     """rad/s^2, every joint (the maker publishes none; a conservative default)."""
-    max_joint_jerk: Annotated[float, Field(gt=0, le=5000)] = 100.0
-    max_tool_acceleration: Annotated[float, Field(gt=0, le=10)] = 0.5
-    max_tool_jerk: Annotated[float, Field(gt=0, le=1000)] = 20.0
+    max_joint_jerk: Annotated[float, Field(gt=0, le=5000, allow_inf_nan=False)] = 100.0
+    max_tool_acceleration: Annotated[float, Field(gt=0, le=10, allow_inf_nan=False)] = 0.5
+    max_tool_jerk: Annotated[float, Field(gt=0, le=1000, allow_inf_nan=False)] = 20.0
 
     @field_validator("tool", mode="before")
     @classmethod
@@ -180,7 +203,9 @@ class Task(StrictModel):
     scene: Scene
     detector: PluginSection = PluginSection(name="board")
     planner: Planner = Planner()
-    primitives: list[str] = Field(min_length=1)
+    primitives: list[Annotated[str, Field(min_length=1, max_length=200)]] = Field(
+        min_length=1, max_length=100
+    )
     height: Height = Height()
     motion: Motion = Motion()
     robot: Robot = Robot()
@@ -265,7 +290,7 @@ def _format_problems(source: str, parsed: PositionedYaml, error: ValidationError
 def _display_path(path: Path) -> str:
     try:
         return str(path.resolve().relative_to(Path.cwd().resolve()))
-    except ValueError:
+    except (ValueError, OSError, RuntimeError):  # elsewhere, or a symlink loop
         return str(path)
 
 
@@ -294,6 +319,21 @@ def parse_task(text: str, source: str = "<task>", path: Path | None = None) -> T
     return task
 
 
+def file_problem(path: Path) -> str | None:
+    """Why `path` cannot be read as an input file (None when it is a regular file)."""
+    try:
+        mode = path.stat().st_mode
+    except OSError as error:  # ENOENT, ENAMETOOLONG, ELOOP, EACCES ...
+        if isinstance(error, FileNotFoundError):
+            return f"file not found: {path}"
+        return f"cannot read {path}: {error.strerror}"
+    if stat.S_ISDIR(mode):
+        return f"is a folder, not a file: {path}"
+    if not stat.S_ISREG(mode):
+        return f"not a regular file (a device, a pipe or a socket): {path}"
+    return None
+
+
 def _check_referenced_files(task: Task, source: str, parsed: PositionedYaml) -> list[str]:
     checks: list[tuple[tuple[str, ...], Path | None]] = [
         (("scene", "image"), task.scene.image if task.scene.source == "file" else None),
@@ -303,11 +343,10 @@ def _check_referenced_files(task: Task, source: str, parsed: PositionedYaml) -> 
         if relative is None:
             continue
         resolved = task.resolve(relative)
-        if not resolved.is_file():
+        problem = file_problem(resolved)
+        if problem:
             line, column = parsed.locate(key_path)
-            problems.append(
-                f"{source}:{line}:{column}: {'.'.join(key_path)}: file not found: {resolved}"
-            )
+            problems.append(f"{source}:{line}:{column}: {'.'.join(key_path)}: {problem}")
     return problems
 
 

@@ -57,8 +57,10 @@ class _Walker:
     def scalar(self, node: yaml.Node) -> Any:
         try:
             return self.constructor.construct_object(node, deep=True)
-        except (yaml.YAMLError, ValueError, TypeError, OverflowError) as error:
-            message = getattr(error, "problem", None) or str(error).splitlines()[0]
+        except Exception as error:  # PyYAML's tag constructors raise anything (`!!int` alone)
+            message = getattr(error, "problem", None) or (str(error).splitlines() or [""])[0]
+            if isinstance(error, (IndexError, KeyError, AttributeError)) or not message:
+                message = f"{node.value!r} is not a valid {node.tag.rsplit(':', 1)[-1]}"
             raise YamlSyntaxError(f"invalid value: {message}", _mark(node)) from None
 
     def walk(self, node: yaml.Node, path: tuple[Any, ...]) -> Any:
@@ -74,6 +76,8 @@ class _Walker:
                 if not isinstance(key_node, yaml.ScalarNode):
                     raise YamlSyntaxError("a key must be a plain value", _mark(key_node))
                 key = self.scalar(key_node)
+                if not isinstance(key, str):
+                    raise YamlSyntaxError(_not_a_name(key_node, key), _mark(key_node))
                 if key in result:
                     raise YamlSyntaxError(f"duplicate key {key!r}", _mark(key_node))
                 self.key_positions[(*path, key)] = _mark(key_node)
@@ -82,6 +86,11 @@ class _Walker:
         if isinstance(node, yaml.SequenceNode):
             return [self.walk(item, (*path, i)) for i, item in enumerate(node.value)]
         return self.scalar(node)
+
+
+def _not_a_name(node: yaml.ScalarNode, key: Any) -> str:
+    kind = "a boolean" if isinstance(key, bool) else "null" if key is None else type(key).__name__
+    return f"key {node.value!r} is {kind} in YAML, not a name (quote it if it is meant)"
 
 
 FAST_PARSE_CHARS = 8000

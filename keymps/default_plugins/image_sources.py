@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -15,6 +15,12 @@ from keymps.types import SceneImage
 
 def _parse(model: type[BaseModel], options: dict[str, Any], source: str) -> Any:
     return parse_options(model, options, f"{source} image source: scene.source_options")
+
+
+MAX_OBJECTS = 50
+"""Objects in one synthetic scene (the renderer places them left to right on the board)."""
+MAX_CAMERA_SIDE_PX = 2**16
+"""No camera frame is wider or taller than this."""
 
 
 class FileOptions(BaseModel):
@@ -40,9 +46,9 @@ class FileSource:
 
 class SyntheticOptions(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
-    object: str | list[str] = "round_cake"
+    object: str | Annotated[list[str], Field(max_length=MAX_OBJECTS)] = "round_cake"
     """One object kind, or several (placed left to right)."""
-    seed: int = 0
+    seed: int = Field(default=0, ge=0, le=2**63 - 1)
     length: float | None = Field(default=None, gt=0, le=5)
     width: float | None = Field(default=None, gt=0, le=5)
     height: float | None = Field(default=None, gt=0, le=1)
@@ -93,8 +99,8 @@ class OpenCvOptions(BaseModel):
     """A camera index (0, 1 ...), a video file, or a stream URL OpenCV can open."""
     warmup_frames: int = Field(default=5, ge=0, le=300)
     """Frames read and dropped first (auto exposure settles)."""
-    width: int | None = Field(default=None, gt=0)
-    height: int | None = Field(default=None, gt=0)
+    width: int | None = Field(default=None, gt=0, le=MAX_CAMERA_SIDE_PX)
+    height: int | None = Field(default=None, gt=0, le=MAX_CAMERA_SIDE_PX)
 
 
 class OpenCvSource:

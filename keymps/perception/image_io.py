@@ -38,7 +38,7 @@ def read_image(path: Path, max_pixels: int | None = None) -> np.ndarray:
     """
     import cv2
 
-    from keymps.config.limits import check_image_pixels, image_size_from_header
+    from keymps.config.limits import image_size_from_header
 
     if not path.exists():
         raise ImageSourceError(f"scene image not found: {path}")
@@ -58,19 +58,46 @@ def read_image(path: Path, max_pixels: int | None = None) -> np.ndarray:
         raise ImageSourceError(f"cannot read scene image {path}: {error.strerror}") from None
     if not data:
         raise ImageSourceError(f"scene image is empty (0 bytes): {path}")
-    header_size = image_size_from_header(data[:65536])
+    header_size = image_size_from_header(data)
     if max_pixels is not None and header_size is not None:
-        try:
-            check_image_pixels(header_size, max_pixels, f"scene image {path}")
-        except KeympsError as error:
-            raise ImageSourceError(str(error)) from None
+        _check_pixels(header_size, max_pixels, path)
     try:
         decoded = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
-    except cv2.error:  # OpenCV asserts on some corrupt headers (e.g. a BMP 1 x 1048577)
+    except cv2.error as error:  # OpenCV asserts on some corrupt headers (e.g. a BMP 1 x 1048577)
+        if "CV_IO_MAX_IMAGE" in str(error):
+            raise ImageSourceError(_over_decoder_limit(path, str(error))) from None
         decoded = None
     if decoded is None or decoded.size == 0:
         raise ImageSourceError(
             f"cannot decode scene image {path}: not an image OpenCV can read "
             "(PNG, JPEG, TIFF, BMP, WebP ...) or the file is corrupt"
         )
+    if max_pixels is not None:  # a format whose header keymps does not read
+        _check_pixels((decoded.shape[1], decoded.shape[0]), max_pixels, path)
     return to_bgr8(decoded)
+
+
+def _check_pixels(size_px: tuple[int, int], max_pixels: int, path: Path) -> None:
+    from keymps.config.limits import check_image_pixels
+
+    try:
+        check_image_pixels(size_px, max_pixels, f"scene image {path}")
+    except KeympsError as error:
+        raise ImageSourceError(str(error)) from None
+
+
+def _over_decoder_limit(path: Path, opencv_message: str) -> str:
+    from keymps._decoder_limit import ENV, in_force
+
+    if "CV_IO_MAX_IMAGE_PIXELS" in opencv_message:
+        limit = in_force()
+        shown = f"{ENV} = {limit} ({limit / 1e6:.1f} MP)" if limit else ENV
+        return (
+            f"scene image {path} has more pixels than OpenCV's decoder limit {shown}, read "
+            f"from its header before decoding; use a smaller image, or set {ENV} in the "
+            "environment before keymps starts (and raise scene.max_image_pixels)"
+        )
+    return (
+        f"scene image {path} is wider or taller than OpenCV decodes (OPENCV_IO_MAX_IMAGE_WIDTH "
+        "and _HEIGHT, 1048576 px by default)"
+    )

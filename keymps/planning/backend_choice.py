@@ -117,7 +117,14 @@ def choose_backend(
         overridden = f" ({given} on the command line overrides the task's backend: {requested})"
         requested = "auto"
     if requested != "auto":
-        _check_backend(task, requested, model)
+        try:
+            _check_backend(task, requested, model)
+        except KeympsError as error:
+            if backend_override:
+                raise KeympsError(f"--backend {requested}: {error}") from None
+            raise KeympsError(
+                f"{task.where('planner', 'backend')}: planner.backend: {error}"
+            ) from None
         origin = "--backend" if backend_override else "the task's planner.backend"
         return requested, f"{origin} asks for the {requested} planner"
     if not model:
