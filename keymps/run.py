@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import os
+import secrets
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import IO, TYPE_CHECKING, Any
 
 from keymps.config.task import Task
 from keymps.errors import KeympsError
@@ -116,10 +119,45 @@ def image_file(folder: Path, stem: str, image_format: str) -> Path:
 
 
 def write_image(path: Path, image: Any) -> Path:
-    """Write a BGR image; the suffix (.png or .jpg) chooses the format."""
+    """Write a BGR image atomically; the suffix (.png or .jpg) chooses the format."""
     import cv2
 
     options = [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY] if path.suffix == ".jpg" else []
-    if not cv2.imwrite(str(path), image, options):
-        raise KeympsError(f"cannot write {path}")
+    ok, encoded = cv2.imencode(path.suffix, image, options)
+    if not ok:
+        raise KeympsError(f"cannot encode {path} as {path.suffix}")
+    return write_atomically(path, encoded.tobytes())
+
+
+@contextmanager
+def open_atomically(path: Path, text: bool = True) -> Iterator[IO[Any]]:
+    """A file handle whose content appears at `path` only when the block ends without error.
+
+    It writes a hidden temporary file beside `path` and renames it over `path`: a reader, a
+    full disk or a Ctrl-C never leaves a half-written or empty file (the old one, if any,
+    stays). An OSError always names the path (a full disk's write error names none).
+    """
+    temporary = path.with_name(f".{path.name}.{os.getpid()}-{secrets.token_hex(4)}.tmp")
+    try:
+        descriptor = os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        with os.fdopen(descriptor, "w" if text else "wb", encoding="utf-8" if text else None) as f:
+            yield f
+        os.replace(temporary, path)
+    except OSError as error:
+        _remove(temporary)
+        raise OSError(error.errno, error.strerror, str(path)) from None
+    except BaseException:
+        _remove(temporary)
+        raise
+
+
+def write_atomically(path: Path, data: str | bytes) -> Path:
+    """Write text (UTF-8) or bytes to `path` through open_atomically."""
+    with open_atomically(path, text=isinstance(data, str)) as handle:
+        handle.write(data)
     return path
+
+
+def _remove(path: Path) -> None:
+    with suppress(OSError):
+        path.unlink()

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from keymps.errors import KeympsError
+from keymps.run import write_atomically
 from keymps.types import Trajectory
 
 CSV_HEADER = "t,q1,q2,q3,q4,q5,q6,x,y,z,piece,kind"
@@ -98,6 +99,6 @@ def write_joint_trajectory_json(trajectory: Trajectory, path: str | Path) -> Pat
 def _write_text(path: Path, text: str) -> None:
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(text, encoding="utf-8")
+        write_atomically(path, text)
     except OSError as error:
         raise KeympsError(f"{path}: cannot write: {error.strerror}") from None

@@ -9,7 +9,7 @@ from typing import Any
 from keymps._version import __version__
 from keymps.errors import StageError
 from keymps.robot.safety import SafetyError
-from keymps.run import Run
+from keymps.run import Run, write_atomically
 from keymps.types import ValidatedTrajectory
 
 SCHEMA_VERSION = "1.0"
@@ -144,8 +144,8 @@ def run_record(run: Run, error: BaseException | None) -> dict[str, Any]:
 
 
 def write_run_json(run: Run, error: BaseException | None = None) -> None:
-    path = run.path("run.json")
+    """Write run.json (secrets redacted) atomically: never empty or cut, even on a full disk."""
     from keymps.planning.redaction import redact
 
     record = redact(run_record(run, error))
-    path.write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")
+    write_atomically(run.path("run.json"), json.dumps(record, indent=2) + "\n")
