@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import errno
+
 _MAX_LISTED = 12
 """A SafetyError's message lists this many problems, then counts the rest."""
 
@@ -26,6 +28,29 @@ class SafetyError(KeympsError):
         shown = problems[:_MAX_LISTED]
         more = f"; and {len(problems) - _MAX_LISTED} more" if len(problems) > _MAX_LISTED else ""
         super().__init__("safety: " + "; ".join(shown) + more)
+
+
+_WRITE_ERRORS = {errno.ENOSPC, errno.EROFS, errno.EDQUOT, errno.EFBIG}
+
+
+def os_error_message(error: OSError) -> str:
+    """One line for a failed file operation, naming the path ('cannot write PATH: No space ...')."""
+    names = [str(name) for name in (error.filename, error.filename2) if name is not None]
+    where = " -> ".join(names) if names else "a file"
+    action = "write" if error.errno in _WRITE_ERRORS else "access"
+    return f"cannot {action} {where}: {error.strerror or error}"
+
+
+class RunInterrupted(KeympsError):
+    """A run stopped by the user (Ctrl-C): what run.json records; the KeyboardInterrupt goes on."""
+
+    def __init__(self, running: str | None, done: str | None = None):
+        self.stage = running
+        if running:
+            where = f"during stage {running!r}"
+        else:
+            where = f"after stage {done!r}" if done else "before its first stage"
+        super().__init__(f"interrupted by the user (Ctrl-C) {where}; nothing after it ran")
 
 
 class StageError(KeympsError):

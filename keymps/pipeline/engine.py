@@ -12,7 +12,7 @@ from typing import Any
 
 from keymps.config.overrides import apply_overrides
 from keymps.config.task import Task, load_task
-from keymps.errors import KeympsError, StageError
+from keymps.errors import KeympsError, RunInterrupted, StageError, os_error_message
 from keymps.plugin.manager import create_component, get_manager
 from keymps.run import IMAGE_FORMATS, STAGES, Run, RunOptions
 from keymps.types import Detection, SceneImage
@@ -82,9 +82,10 @@ def _new_run_folder(task: Task, out: Path | None) -> Path:
         try:
             out.mkdir(parents=True, exist_ok=True)
         except OSError as error:  # a file of that name, a read-only place ...
-            raise KeympsError(
-                f"--out {out}: cannot create the run folder: {error.strerror}"
-            ) from None
+            reason = error.strerror
+            if out.is_symlink() and not out.exists():
+                reason = "a symbolic link that leads nowhere (a loop or a missing target)"
+            raise KeympsError(f"--out {out}: cannot create the run folder: {reason}") from None
         return out
     stamp = time.strftime("%Y%m%d-%H%M%S")
     base = Path("runs") / f"{task.name}-{stamp}"
@@ -110,9 +111,13 @@ class _Pipeline:
         self.on_stage = on_stage
         self.through = through
         self.manager = get_manager()
+        self.current: str | None = None
+        """The stage running, if any, and the last one done: where an interrupt stopped it."""
+        self.done: str | None = None
 
     def stage(self, name: str, work: Callable[[], Any]) -> Any:
         started = time.perf_counter()
+        self.current = name
         try:
             result = work()
         except StageError as error:
@@ -121,6 +126,10 @@ class _Pipeline:
             raise
         except KeympsError as error:
             raise StageError(name, str(error), detail=error) from None
+        except OSError as error:  # a full disk, a read-only folder ...: the path, in one line
+            if error.filename is None:  # a failed write() names no file
+                error = OSError(error.errno, error.strerror, f"a file in {self.run.folder}")
+            raise StageError(name, os_error_message(error), detail=error) from None
         except Exception as error:
             # A bug in keymps or in a plugin: still one line (and nothing after this stage
             # runs); KEYMPS_DEBUG=1 shows the traceback for whoever fixes it.
@@ -133,6 +142,7 @@ class _Pipeline:
                 "(a bug in keymps or a plugin; KEYMPS_DEBUG=1 shows the traceback)",
             ) from error
         seconds = time.perf_counter() - started
+        self.current, self.done = None, name
         self.run.stages.record(name, result)
         self.run.timings_s[name] = seconds
         if self.on_stage:
@@ -187,10 +197,10 @@ class _Pipeline:
                 task, detection, scene, descriptions, run, parts.backend, families
             ),
         )
-        run.write_image("plan", draw_plan(scene.image, detection, plan))
+        _write_file(lambda: run.write_image("plan", draw_plan(scene.image, detection, plan)))
         on_photo = draw_plan_on_photo(scene, detection, plan)
         if on_photo is not None:
-            run.write_image("plan_photo", on_photo)
+            _write_file(lambda: run.write_image("plan_photo", on_photo))
         grounding = self.stage("ground", lambda: geometry.ground(plan, detection, task, scene))
         if self.through == "ground":
             return
@@ -224,10 +234,31 @@ class _Pipeline:
         validated = self.stage(
             "check", lambda: validate(robot, trajectory, tool_path, outline, task)
         )
-        write_trajectory_csv(validated.trajectory, run.path("trajectory.csv"))
+        _write_file(lambda: write_trajectory_csv(validated.trajectory, run.path("trajectory.csv")))
         report = self.stage("execute", lambda: executor.execute(validated, run))
         if not report.ok:
             raise StageError("execute", report.message or f"executor {report.executor} failed")
+
+
+def _write_file(write: Callable[[], Any]) -> None:
+    """A run-folder file written between stages: an OSError becomes one line naming it."""
+    try:
+        write()
+    except OSError as error:
+        raise KeympsError(os_error_message(error)) from None
+
+
+def _write_record(run: Run, error: BaseException | None, pipeline: _Pipeline) -> str | None:
+    """Write run.json (an interrupt recorded as such); the problem if it could not be written."""
+    from keymps.pipeline.run_folder import write_run_json
+
+    if isinstance(error, KeyboardInterrupt):
+        error = RunInterrupted(pipeline.current, pipeline.done)
+    try:
+        write_run_json(run, error)
+    except OSError as failure:
+        return os_error_message(failure)
+    return None
 
 
 def run_task(
@@ -245,7 +276,7 @@ def run_task(
     rerun_url, no_cache, record, confirm, quiet, image_format. Raises KeympsError on the first
     problem; nothing after the failing stage runs, above all no executor.
     """
-    from keymps.pipeline.run_folder import write_run_json
+    from keymps.pipeline.folder_lock import FolderLock
     from keymps.planning.backend_choice import untrusted_api_base_warning
     from keymps.planning.planner import choose_backend
 
@@ -276,7 +307,9 @@ def run_task(
         task, overrides.get("backend"), overrides.get("model"), overrides.get("api_base")
     )
     parts = Components(task, backend, through)
-    run = Run(task=task, folder=_new_run_folder(task, Path(out) if out else None), options=options)
+    folder = _new_run_folder(task, Path(out) if out else None)
+    lock = FolderLock(folder).acquire()  # a second run into this folder refuses here
+    run = Run(task=task, folder=folder, options=options)
     run.backend, run.backend_reason, run.robot = backend, reason, parts.robot
     keyless = untrusted_api_base_warning(task) if backend not in ("offline", "replay") else None
     if keyless:
@@ -284,12 +317,20 @@ def run_task(
         warnings.warn(keyless, UserWarning, stacklevel=2)
     pipeline = _Pipeline(run, parts, on_stage, through)
     error: BaseException | None = None
+    problem: str | None = None
     try:
         pipeline.execute_all()
     except BaseException as caught:
         error = caught
         raise
     finally:
-        pipeline.announce("finished", error)
-        write_run_json(run, error)
+        try:
+            pipeline.announce("finished", error)
+            problem = _write_record(run, error, pipeline)
+        finally:
+            lock.release()
+        if problem and error is not None:  # the run's own error is the one reported
+            warnings.warn(f"run.json not written: {problem}", RuntimeWarning, stacklevel=2)
+    if problem:
+        raise KeympsError(problem)
     return run

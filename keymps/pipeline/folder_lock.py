@@ -33,7 +33,9 @@ class FolderLock:
         try:
             handle = path.open("a+", encoding="utf-8")
         except OSError as error:
-            raise KeympsError(f"cannot lock the run folder {path}: {error.strerror}") from None
+            raise KeympsError(
+                f"run folder {self.folder}: cannot write {LOCK_FILE} in it: {error.strerror}"
+            ) from None
         try:
             fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:

@@ -7,7 +7,7 @@ import math
 from typing import Any
 
 from keymps._version import __version__
-from keymps.errors import StageError
+from keymps.errors import RunInterrupted, StageError
 from keymps.robot.safety import SafetyError
 from keymps.run import Run, write_atomically
 from keymps.types import ValidatedTrajectory
@@ -78,6 +78,13 @@ def _image_record(scene: Any) -> dict[str, Any]:
     return record
 
 
+def _status(error: BaseException | None) -> str:
+    """ok, failed, or interrupted (Ctrl-C)."""
+    if error is None:
+        return "ok"
+    return "interrupted" if isinstance(error, (RunInterrupted, KeyboardInterrupt)) else "failed"
+
+
 def run_record(run: Run, error: BaseException | None) -> dict[str, Any]:
     """Everything run.json holds, as plain JSON data."""
     stages = run.stages
@@ -88,6 +95,7 @@ def run_record(run: Run, error: BaseException | None) -> dict[str, Any]:
         "schema_version": SCHEMA_VERSION,
         "keymps_version": __version__,
         "ok": error is None,
+        "status": _status(error),
         "error": None if error is None else str(error),
         "task": task.name,
         "task_file": str(task.path) if task.path else None,

@@ -2,6 +2,9 @@
 
 run.options.rerun chooses the sink: "save" (run.rrd in the run folder, the default), "spawn"
 (a new viewer), "connect" (a running viewer at run.options.rerun_url) or "off" (nothing).
+
+"save" records into memory and writes run.rrd once, atomically, when the run ends: Rerun's own
+file sink hung the run on a full disk (in `save`, `flush` or `disconnect`), and left a cut file.
 """
 
 from __future__ import annotations
@@ -9,14 +12,16 @@ from __future__ import annotations
 import os
 import re
 import sys
+import threading
 import uuid
 import weakref
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
-from keymps.errors import KeympsError
+from keymps.errors import KeympsError, os_error_message
 from keymps.plugin import hookimpl
-from keymps.run import Run
+from keymps.run import Run, write_atomically
 from keymps.types import STAGES
 
 APPLICATION_ID = "keymps"
@@ -26,6 +31,8 @@ MIN_RERUN_VERSION = (0, 41)
 """Oldest rerun-sdk tested (named transform frames, rerun.urdf, rerun.chunk.RrdReader)."""
 FLUSH_TIMEOUT_S = 30.0
 """Longest wait for the recording to reach its file or viewer when a run ends."""
+DISCONNECT_TIMEOUT_S = 5.0
+"""Longest wait for a viewer connection to close after the flush (a viewer that is gone)."""
 ROBOT_RATE_HZ = 25.0
 """The animated robot and tool tip are subsampled to this rate; joint series keep every sample."""
 STAGE_ORDER: tuple[str, ...] = ("image", *STAGES, "finished")
@@ -37,6 +44,9 @@ class _Session:
     stream: Any
     """rerun.RecordingStream of this run (never the global one)."""
     mode: str
+    memory: Any = None
+    """"save": the rerun.BinaryStream the recording goes to, written to `target` at the end."""
+    target: Path | None = None
 
 
 _sessions: dict[int, _Session | None] = {}
@@ -143,9 +153,11 @@ def _open(run: Run) -> _Session:
     stream.set_log_time_enabled(False)
     stream.set_log_tick_enabled(False)
     layout = blueprint(run)
+    memory = None
     try:
         if mode == "save":
-            stream.save(run.path(RECORDING_FILE), default_blueprint=layout)
+            memory = rr.binary_stream(recording=stream)
+            stream.send_blueprint(layout, make_active=True, make_default=True)
         elif mode == "spawn":
             stream.spawn(default_blueprint=layout)
         else:
@@ -163,7 +175,8 @@ def _open(run: Run) -> _Session:
 
     stream.send_recording_name(redact(f"{run.task.name} ({run.folder.name})"))
     log_world_setup(stream)
-    return _Session(stream=stream, mode=mode)
+    target = run.folder / RECORDING_FILE if memory is not None else None
+    return _Session(stream=stream, mode=mode, memory=memory, target=target)
 
 
 def _close(key: int) -> str | None:
@@ -179,13 +192,36 @@ def _close(key: int) -> str | None:
         session.stream.flush(timeout_sec=FLUSH_TIMEOUT_S)
     except Exception as error:
         problem = str(error)
-    try:
-        session.stream.disconnect()
-    except Exception as error:
-        problem = problem or str(error)
+    problem = _disconnect(session.stream) or problem
+    if session.memory is not None and session.target is not None and problem is None:
+        try:
+            data = session.memory.read(flush=True, flush_timeout_sec=FLUSH_TIMEOUT_S) or b""
+            write_atomically(session.target, data)
+        except OSError as error:
+            return f"rerun save: {os_error_message(error)}"
+        except Exception as error:
+            problem = str(error)
     if problem is None:
         return None
     return f"rerun {session.mode}: the recording was not fully delivered: {problem}"
+
+
+def _disconnect(stream: Any) -> str | None:
+    """Close the stream's sink, waiting at most DISCONNECT_TIMEOUT_S; the problem, if any."""
+    problems: list[str] = []
+
+    def close() -> None:
+        try:
+            stream.disconnect()
+        except Exception as error:
+            problems.append(str(error))
+
+    closing = threading.Thread(target=close, name="keymps-rerun-disconnect", daemon=True)
+    closing.start()
+    closing.join(DISCONNECT_TIMEOUT_S)
+    if closing.is_alive():
+        return f"the sink did not close within {DISCONNECT_TIMEOUT_S:g} s"
+    return problems[0] if problems else None
 
 
 def _session_for(run: Run) -> _Session | None:
