@@ -180,26 +180,42 @@ def check_tool_path(tool_path: ToolPath, task: Task) -> ToolPath:
             f"motion.max_path_length = {motion.max_path_length:g} m; ask for fewer or shorter "
             "strokes, or raise the limit"
         )
-    estimate = sum(
+    at_speed = sum(
         piece.length_m / max(float(piece.speed), 1e-9)
         for piece in tool_path.pieces
         if len(piece.points) > 1
     )
+    estimate = max(at_speed, _rest_to_rest_s(length, task))
     if estimate > motion.max_duration_s:
         raise KeympsError(
-            f"the tool path would take at least {estimate:.0f} s at the set speeds, more than "
-            f"motion.max_duration_s = {motion.max_duration_s:g} s; ask for fewer strokes, raise "
-            "motion.work_speed, or raise the limit"
+            f"the tool path would take at least {estimate:.0f} s at the set speeds and tool "
+            f"limits, more than motion.max_duration_s = {motion.max_duration_s:g} s; ask for "
+            "fewer strokes, raise motion.work_speed or robot.max_tool_*, or raise the limit"
         )
     return tool_path
 
 
+def _rest_to_rest_s(length: float, task: Task) -> float:
+    """The shortest time to cover `length` metres from rest to rest at the tool's acceleration
+    and jerk limits: a lower bound for the whole path too (its strokes each start and end at
+    rest, and the square and cube roots are concave)."""
+    robot = task.robot
+    by_acceleration = 2.0 * np.sqrt(length / robot.max_tool_acceleration)
+    by_jerk = np.cbrt(32.0 * length / robot.max_tool_jerk)
+    return float(max(by_acceleration, by_jerk))
+
+
 def check_duration(trajectory: Trajectory, task: Task) -> Trajectory:
     """Refuse a timed trajectory longer than motion.max_duration_s."""
+    check_timed_duration(trajectory.duration_s, task)
+    return trajectory
+
+
+def check_timed_duration(duration_s: float, task: Task) -> None:
+    """Refuse a motion timed longer than motion.max_duration_s (before it is sampled)."""
     limit = task.motion.max_duration_s
-    if trajectory.duration_s > limit:
+    if not np.isfinite(duration_s) or duration_s > limit:
         raise KeympsError(
-            f"the trajectory lasts {trajectory.duration_s:.0f} s, more than "
+            f"the trajectory lasts {duration_s:.0f} s, more than "
             f"motion.max_duration_s = {limit:g} s; ask for fewer strokes or raise the limit"
         )
-    return trajectory

@@ -185,11 +185,12 @@ class Robot(StrictModel):
     tool: ToolSpec = ToolSpec(name="knife")
     rate_hz: Annotated[float, Field(ge=10, le=1000, allow_inf_nan=False)] | None = None
     """Controller rate: 125 Hz for CB3, 500 Hz for e-Series when omitted."""
-    max_joint_acceleration: Annotated[float, Field(gt=0, le=50, allow_inf_nan=False)] = 3.0
+    max_joint_acceleration: Annotated[float, Field(ge=0.05, le=50, allow_inf_nan=False)] = 3.0
     """rad/s^2, every joint (the maker publishes none; a conservative default)."""
-    max_joint_jerk: Annotated[float, Field(gt=0, le=5000, allow_inf_nan=False)] = 100.0
-    max_tool_acceleration: Annotated[float, Field(gt=0, le=10, allow_inf_nan=False)] = 0.5
-    max_tool_jerk: Annotated[float, Field(gt=0, le=1000, allow_inf_nan=False)] = 20.0
+    max_joint_jerk: Annotated[float, Field(ge=0.5, le=5000, allow_inf_nan=False)] = 100.0
+    max_tool_acceleration: Annotated[float, Field(ge=0.01, le=10, allow_inf_nan=False)] = 0.5
+    """m/s^2; the lower bounds keep one stroke's timing within minutes, not years."""
+    max_tool_jerk: Annotated[float, Field(ge=0.05, le=1000, allow_inf_nan=False)] = 20.0
 
     @field_validator("tool", mode="before")
     @classmethod

@@ -392,7 +392,10 @@ def time_trajectory(
     model: RobotModel, tool_path: ToolPath, joint_path: JointPath, task: Task
 ) -> Trajectory:
     """Jerk-limited, joint-limit-respecting trajectory sampled at the controller rate."""
+    from keymps.config.limits import check_timed_duration
+
     timed = time_strokes(model, tool_path, joint_path, task)
+    check_timed_duration(sum(item.duration for item in timed), task)  # before sampling it
     rate = float(task.robot.rate_hz or model.rate_hz)
     return sample_trajectory(model, tool_path, timed, rate)
 
