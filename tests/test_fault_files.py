@@ -384,7 +384,8 @@ def test_a_second_run_into_a_locked_folder_refuses_at_once(
             "-c",
             "import sys, time; from pathlib import Path; "
             "from keymps.pipeline.folder_lock import FolderLock; "
-            f"FolderLock(Path({str(folder)!r})).acquire(); print('held', flush=True); time.sleep(60)",
+            f"lock = FolderLock(Path({str(folder)!r})).acquire(); print('held', flush=True); "
+            "time.sleep(60)",
         ],
         stdout=subprocess.PIPE,
         text=True,
