@@ -12,7 +12,8 @@ from keymps.robot.safety import SafetyError
 from keymps.run import Run, write_atomically
 from keymps.types import ValidatedTrajectory
 
-SCHEMA_VERSION = "1.0"
+SCHEMA_VERSION = "1.1"
+"""1.1: `status` (ok, failed, interrupted)."""
 
 
 def _rounded(values: Any, digits: int = 6) -> Any:
