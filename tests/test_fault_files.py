@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import os
+import random
 import shutil
 import signal
 import subprocess
@@ -330,8 +331,9 @@ def test_atomic_writes_keep_the_old_file_on_failure(tmp_path: Path) -> None:
 # -- Ctrl-C --
 
 
-def _interrupted_run(out: Path, after_line: str) -> tuple[int, str]:
-    """Start `keymps run`, send SIGINT once stderr shows `after_line`; (exit code, stderr)."""
+def _interrupted_run(out: Path, after_line: str, delay_s: float = 0.0) -> tuple[int, str]:
+    """Start `keymps run`, send SIGINT `delay_s` after stderr shows `after_line`; (exit code,
+    stderr)."""
     process = subprocess.Popen(
         [*KEYMPS, "run", str(REPO / "tasks/object_cutting.yaml"), "--backend", "offline"]
         + ["--out", str(out)],
@@ -346,6 +348,7 @@ def _interrupted_run(out: Path, after_line: str) -> tuple[int, str]:
     for line in process.stderr:
         seen.append(line)
         if after_line in line:
+            time.sleep(delay_s)
             process.send_signal(signal.SIGINT)
             break
         assert time.monotonic() < deadline
@@ -353,11 +356,18 @@ def _interrupted_run(out: Path, after_line: str) -> tuple[int, str]:
     return process.returncode, "".join(seen) + rest
 
 
-@pytest.mark.parametrize("after", ["load image", "inverse kinematics"])
+RANDOM_DELAYS = [round(random.Random(seed).uniform(0.0, 2.5), 2) for seed in range(3)]
+
+
+@pytest.mark.parametrize(
+    ("after", "delay_s"),
+    [("load image", 0.0), ("inverse kinematics", 0.0)]
+    + [("load image", delay) for delay in RANDOM_DELAYS],
+)
 def test_ctrl_c_records_interrupted_and_exits_130(
-    after: str, tmp_path: Path, fuzz_counter: Any
+    after: str, delay_s: float, tmp_path: Path, fuzz_counter: Any
 ) -> None:
-    code, stderr = _interrupted_run(tmp_path / "run", after)
+    code, stderr = _interrupted_run(tmp_path / "run", after, delay_s)
     if code == 0:
         pytest.skip("the run finished before the interrupt arrived")
     assert code == 130, stderr[-2000:]
@@ -366,7 +376,8 @@ def test_ctrl_c_records_interrupted_and_exits_130(
     assert record["ok"] is False and record["status"] == "interrupted"
     assert record["error"].startswith("interrupted by the user (Ctrl-C) ")
     assert record["execution"] is None  # nothing executed after the interrupt
-    fuzz_counter.add("interrupts/Ctrl-C in a run", after, "recorded")
+    where = record["error"].split("(Ctrl-C) ")[1].split(";")[0]
+    fuzz_counter.add("interrupts/Ctrl-C in a run", (after, delay_s), where)
 
 
 # -- one run at a time in a run folder --
