@@ -372,10 +372,15 @@ def test_ctrl_c_records_interrupted_and_exits_130(
         pytest.skip("the run finished before the interrupt arrived")
     assert code == 130, stderr[-2000:]
     assert _one_error_line(stderr) == "error: interrupted (Ctrl-C)"
-    record = json.loads((tmp_path / "run" / "run.json").read_text())
+    record = json.loads((tmp_path / "run" / "run.json").read_text())  # written, always
+    if record["status"] == "ok":  # the run had ended; the summary was printing
+        assert record["execution"]["ok"]
+        fuzz_counter.add("interrupts/Ctrl-C in a run", (after, delay_s), "after run.json")
+        return
     assert record["ok"] is False and record["status"] == "interrupted"
     assert record["error"].startswith("interrupted by the user (Ctrl-C) ")
-    assert record["execution"] is None  # nothing executed after the interrupt
+    if "after stage 'execute'" not in record["error"]:
+        assert record["execution"] is None  # nothing executed after the interrupt
     where = record["error"].split("(Ctrl-C) ")[1].split(";")[0]
     fuzz_counter.add("interrupts/Ctrl-C in a run", (after, delay_s), where)
 
@@ -433,3 +438,30 @@ def test_the_lock_is_released_after_a_run(tmp_path: Path) -> None:
         FolderLock(tmp_path).acquire()  # another open file: flock refuses it too
     lock.release()
     FolderLock(tmp_path).acquire().release()
+
+
+class _CtrlCWhenFinishing:
+    """An observer that presses Ctrl-C (SIGINT to this process) when the run ends."""
+
+    @keymps.hookimpl
+    def keymps_stage_done(self, stage: str, result: Any, run: Any) -> None:
+        if stage == "finished":
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.5)  # the handler runs here, inside the observer
+
+
+def test_ctrl_c_while_the_run_closes_still_writes_run_json(
+    keymps_plugins: Any, tmp_path: Path
+) -> None:
+    """A Ctrl-C after the last stage (while the recording closes) skipped run.json."""
+    install(keymps_plugins)
+    keymps_plugins.register(_CtrlCWhenFinishing(), name="ctrl-c")
+    out = tmp_path / "run"
+    with pytest.raises(KeyboardInterrupt):
+        keymps.run_task(
+            task_copy(tmp_path / "task"), backend="offline", executor="recording", out=out
+        )
+    record = json.loads((out / "run.json").read_text())
+    assert record["status"] == "interrupted" and record["execution"]["ok"]
+    assert "after stage 'execute'" in record["error"]
+    assert len(RecordingExecutor.calls) == 1

@@ -322,16 +322,19 @@ def parse_task(text: str, source: str = "<task>", path: Path | None = None) -> T
 
 def file_problem(path: Path) -> str | None:
     """Why `path` cannot be read as an input file (None when it is a regular file)."""
+    shown = str(path) if str(path).isprintable() else repr(str(path))
     try:
         mode = path.stat().st_mode
+    except ValueError:  # a NUL character: no file can have this name
+        return f"not a valid file name: {shown}"
     except OSError as error:  # ENOENT, ENAMETOOLONG, ELOOP, EACCES ...
         if isinstance(error, FileNotFoundError):
-            return f"file not found: {path}"
-        return f"cannot read {path}: {error.strerror}"
+            return f"file not found: {shown}"
+        return f"cannot read {shown}: {error.strerror}"
     if stat.S_ISDIR(mode):
-        return f"is a folder, not a file: {path}"
+        return f"is a folder, not a file: {shown}"
     if not stat.S_ISREG(mode):
-        return f"not a regular file (a device, a pipe or a socket): {path}"
+        return f"not a regular file (a device, a pipe or a socket): {shown}"
     return None
 
 

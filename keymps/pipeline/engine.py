@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import os
 import re
+import signal
+import threading
 import time
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -240,6 +243,25 @@ class _Pipeline:
             raise StageError("execute", report.message or f"executor {report.executor} failed")
 
 
+@contextmanager
+def _interrupts_deferred() -> Iterator[None]:
+    """Ctrl-C during the block takes effect when it ends (Python handles signals only in the
+    main thread: elsewhere this does nothing)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    pressed: list[int] = []
+    previous = signal.signal(signal.SIGINT, lambda number, _frame: pressed.append(number))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if pressed and previous is signal.default_int_handler:
+        raise KeyboardInterrupt
+    if pressed and callable(previous):
+        previous(signal.SIGINT, None)
+
+
 def _write_file(write: Callable[[], Any]) -> None:
     """A run-folder file written between stages: an OSError becomes one line naming it."""
     try:
@@ -324,11 +346,18 @@ def run_task(
         error = caught
         raise
     finally:
+        late: KeyboardInterrupt | None = None
         try:
-            pipeline.announce("finished", error)
-            problem = _write_record(run, error, pipeline)
+            try:
+                pipeline.announce("finished", error)
+            except KeyboardInterrupt as caught:  # Ctrl-C while the recording closes
+                late = caught
+            with _interrupts_deferred():  # run.json is written, whatever the user presses
+                problem = _write_record(run, error or late, pipeline)
         finally:
             lock.release()
+        if late is not None:
+            raise late
         if problem and error is not None:  # the run's own error is the one reported
             warnings.warn(f"run.json not written: {problem}", RuntimeWarning, stacklevel=2)
     if problem:
