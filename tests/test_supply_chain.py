@@ -2,7 +2,7 @@
 
 litellm 1.82.7 and 1.82.8 on PyPI carried a credential stealer (BerriAI/litellm issues 24512
 and 24521). requirements/lock.txt pins every package `.ci/run` installs, each with its sha256
-hashes (docs/safety.md, Supply chain).
+hashes (docs/security.md, Supply chain).
 """
 
 from __future__ import annotations
