@@ -283,6 +283,8 @@ class Trajectory:
     """(n,) 'work' or 'travel'."""
     joint_names: tuple[str, ...]
     rate_hz: float
+    warnings: tuple[str, ...] = ()
+    """What the timing noticed, e.g. a work piece the joints slowed far below work_speed."""
 
     @property
     def duration_s(self) -> float:

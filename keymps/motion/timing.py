@@ -9,6 +9,7 @@ checked on a 1 kHz sampling and a stroke that breaks a limit is slowed down and 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -24,8 +25,11 @@ if TYPE_CHECKING:
 
 CORNER_ANGLE_RAD = math.radians(30.0)
 """A turn sharper than this between path segments stops the tool (a stroke ends there)."""
-MIN_STEP_M = 2e-5
-"""Path points closer than this to the previous one are dropped (dwell jitter)."""
+MIN_STEP_M = 3e-4
+"""Path points closer than this to the previous one kept are dropped. A rollout that dwells (a
+pause in a learned demonstration, the bottom of an icing dot) wanders back and forth by up to
+about 0.2 mm; each wiggle is a reversal too short for the corner test, and one such cusp in
+q(s) used to slow a whole 10 cm stroke to 1 mm/s."""
 CORNER_CHORD_M = 0.0005
 """Path directions at a point are measured over chords at least this long."""
 YAW_RADIUS_M = 0.05
@@ -36,6 +40,15 @@ CHECK_RATE_HZ = 1000.0
 LIMIT_MARGIN = 0.98
 """Slowed-down strokes aim this far inside the violated limit."""
 MAX_RETIMES = 12
+STOP_SLOWDOWN = 1.5
+"""A stroke the joint limits slow down this much is tried with a stop where it breaks them."""
+MAX_STOP_DEPTH = 4
+"""At most this many nested stops per stroke (up to 2**4 parts)."""
+MIN_STOP_GAP_M = 0.001
+"""No stop closer than this to either end of a stroke (its ends are rests already)."""
+SLOW_PIECE_FACTOR = 2.0
+"""A work piece the joint limits make this many times slower than the tool limits alone
+(motion.work_speed, the tool's acceleration and jerk) gets a run warning."""
 
 
 @dataclass(frozen=True)
@@ -77,6 +90,11 @@ class TimedStroke:
     limits: Limits
     slowdown: float
     """Duration relative to the profile with the tool limits alone (1.0: no joint limit hit)."""
+    worst_s: float = 0.0
+    """Where (arc parameter) the profile at the tool limits broke the joint limits most."""
+    nominal: float = 0.0
+    """This stroke's share of the time the stroke it was split from takes at the tool limits
+    alone (set by time_strokes)."""
 
 
 def _parameter_steps(points: np.ndarray, yaw: np.ndarray) -> np.ndarray:
@@ -211,9 +229,9 @@ def _densify_iterative(
 def _significant_points(points: np.ndarray, yaw: np.ndarray) -> np.ndarray:
     """Indexes of the points that move at least MIN_STEP_M from the last one kept.
 
-    A rollout that dwells (the bottom of an icing dot) jitters by micrometres; every such
-    wiggle would be a direction reversal of the path, a cusp the joints cannot follow at speed.
-    Dropping those points moves the path by less than MIN_STEP_M.
+    A rollout that dwells jitters; every wiggle would be a direction reversal of the path, a
+    cusp the joints cannot follow at speed. Dropping those points moves the path by less than
+    MIN_STEP_M.
     """
     geometry = np.column_stack([points, YAW_RADIUS_M * yaw])
     kept = [0]
@@ -352,6 +370,18 @@ def _limit_ratios(
     return velocity, acceleration, float((np.abs(jerk) / model.jerk_limits).max())
 
 
+def _worst_place(
+    model: RobotModel, s: np.ndarray, qd: np.ndarray, qdd: np.ndarray, period: float
+) -> float:
+    """The arc parameter where a profile breaks a joint limit by the largest factor."""
+    velocity = (np.abs(qd) / model.velocity_limits).max(axis=1)
+    acceleration = np.sqrt((np.abs(qdd) / model.acceleration_limits).max(axis=1))
+    jerk = np.zeros(len(s))
+    if len(s) > 1:
+        jerk[1:] = np.cbrt((np.abs(np.diff(qdd, axis=0)) / period / model.jerk_limits).max(axis=1))
+    return float(s[int(np.argmax(np.maximum(np.maximum(velocity, acceleration), jerk)))])
+
+
 def time_stroke(
     model: RobotModel, stroke: Stroke, tool_limits: Limits, period: float
 ) -> TimedStroke:
@@ -359,16 +389,21 @@ def time_stroke(
     limits = Limits(min(stroke.speed, tool_limits.velocity), *_tail(tool_limits))
     check_period = min(period, 1.0 / CHECK_RATE_HZ)
     first_duration = None
+    worst_s = 0.0
     for attempt in range(MAX_RETIMES):
         profile, duration = _profile(stroke.length, limits, period)
-        first_duration = first_duration or duration
         times = np.arange(0.0, duration + 0.5 * check_period, check_period)
         times[-1] = min(times[-1], duration)
         s, sd, sdd = _sample_profile(profile, times)
         _, qd, qdd = _joint_motion(stroke, s, sd, sdd)
+        if first_duration is None:
+            first_duration = duration
+            worst_s = _worst_place(model, s, qd, qdd, check_period)
         rv, ra, rj = _limit_ratios(model, qd, qdd, check_period)
         if max(rv, ra, rj) <= 1.0:
-            return TimedStroke(stroke, profile, duration, limits, duration / first_duration)
+            return TimedStroke(
+                stroke, profile, duration, limits, duration / first_duration, worst_s
+            )
         if attempt < MAX_RETIMES // 2:
             # lower only what is violated: keeps the profile fast where it can be
             limits = Limits(
@@ -397,7 +432,35 @@ def time_trajectory(
     timed = time_strokes(model, tool_path, joint_path, task)
     check_timed_duration(sum(item.duration for item in timed), task)  # before sampling it
     rate = float(task.robot.rate_hz or model.rate_hz)
-    return sample_trajectory(model, tool_path, timed, rate)
+    trajectory = sample_trajectory(model, tool_path, timed, rate)
+    slow = slow_piece_warnings(tool_path, timed, task.motion.work_speed)
+    return dataclasses.replace(trajectory, warnings=tuple(slow)) if slow else trajectory
+
+
+def slow_piece_warnings(
+    tool_path: ToolPath, timed: list[TimedStroke], work_speed: float
+) -> list[str]:
+    """One line per work piece the joint limits slow SLOW_PIECE_FACTOR times or more."""
+    lines = []
+    for index, piece in enumerate(tool_path.pieces):
+        if piece.kind != "work":
+            continue
+        mine = [item for item in timed if item.stroke.piece_index == index]
+        duration = sum(item.duration for item in mine)
+        at_tool_limits = sum(item.nominal for item in mine)
+        if not mine or duration < SLOW_PIECE_FACTOR * at_tool_limits:
+            continue
+        length = sum(item.stroke.length for item in mine)
+        worst = max(mine, key=lambda item: item.slowdown)
+        where = ", ".join(f"{v:.3f}" for v in worst.stroke.points[len(worst.stroke.points) // 2])
+        lines.append(
+            f"work piece {piece.pair_index + 1} takes {duration:.1f} s, "
+            f"{duration / at_tool_limits:.0f}x longer than at motion.work_speed "
+            f"{work_speed:g} m/s (on average {1000 * length / duration:.1f} mm/s): the joints "
+            f"cannot follow its path that fast near ({where}) m; a path with a sharp wiggle "
+            "(a noisy demonstration: try --smooth) or near a singularity (move robot.base)"
+        )
+    return lines
 
 
 def time_strokes(
@@ -406,8 +469,69 @@ def time_strokes(
     """Each stroke timed on its own (they start and end at rest)."""
     rate = float(task.robot.rate_hz or model.rate_hz)
     tool_limits = Limits(math.inf, task.robot.max_tool_acceleration, task.robot.max_tool_jerk)
-    strokes = split_strokes(model, tool_path, joint_path)
-    return [time_stroke(model, stroke, tool_limits, 1.0 / rate) for stroke in strokes]
+    timed = []
+    for stroke in split_strokes(model, tool_path, joint_path):
+        whole = time_stroke(model, stroke, tool_limits, 1.0 / rate)
+        nominal = whole.duration / whole.slowdown
+        parts = _with_stops(model, whole, tool_limits, 1.0 / rate, MAX_STOP_DEPTH)
+        for part in parts:
+            part.nominal = nominal * part.stroke.length / stroke.length
+        timed.extend(parts)
+    return timed
+
+
+def _with_stops(
+    model: RobotModel, whole: TimedStroke, tool_limits: Limits, period: float, depth: int
+) -> list[TimedStroke]:
+    """The stroke as timed whole or, when one place in it makes the joints slow all of it
+    down, stopped at that place with each side timed on its own (whichever is faster)."""
+    if whole.slowdown < STOP_SLOWDOWN or depth == 0:
+        return [whole]
+    halves = _split_stroke(whole.stroke, whole.worst_s)
+    if halves is None:
+        return [whole]
+    parts = []
+    for half in halves:
+        timed = time_stroke(model, half, tool_limits, period)
+        parts.extend(_with_stops(model, timed, tool_limits, period, depth - 1))
+    return parts if sum(p.duration for p in parts) < whole.duration else [whole]
+
+
+def _split_stroke(stroke: Stroke, at_s: float) -> tuple[Stroke, Stroke] | None:
+    """The stroke cut at its plan point nearest to `at_s`; None when that is at an end."""
+    index = int(np.argmin(np.abs(stroke.s - at_s)))
+    if not 0 < index < len(stroke.s) - 1:
+        return None
+    offset = float(stroke.s[index])
+    if min(offset, stroke.length - offset) < MIN_STOP_GAP_M:
+        return None
+    before = Stroke(
+        stroke.piece_index,
+        stroke.kind,
+        stroke.s[: index + 1].copy(),
+        stroke.points[: index + 1],
+        stroke.q_of_s,
+        stroke.speed,
+    )
+    after = Stroke(
+        stroke.piece_index,
+        stroke.kind,
+        stroke.s[index:] - offset,
+        stroke.points[index:],
+        _Shifted(stroke.q_of_s, offset),
+        stroke.speed,
+    )
+    return before, after
+
+
+class _Shifted:
+    """q(s + offset): the second part of a split stroke reuses its parent's spline."""
+
+    def __init__(self, q_of_s: Any, offset: float):
+        self.q_of_s, self.offset = q_of_s, offset
+
+    def __call__(self, s: np.ndarray, nu: int = 0) -> np.ndarray:
+        return self.q_of_s(np.asarray(s) + self.offset, nu)
 
 
 def sample_trajectory(

@@ -232,6 +232,7 @@ class _Pipeline:
             "time",
             lambda: check_duration(time_trajectory(robot, tool_path, joint_path, task), task),
         )
+        run.warnings.extend(trajectory.warnings)
         outline = run.outline_m
         assert outline is not None  # set by the detect stage
         validated = self.stage(
