@@ -11,8 +11,11 @@ faults go through `keymps.run_task`, alone and in random sequences (hypothesis).
 from __future__ import annotations
 
 import json
+import os
 import socket
+import threading
 import time
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Any
 
@@ -94,20 +97,104 @@ def worst_case_s(faults: int) -> float:
     return 2 * (RETRIES + 1) * TIMEOUT_S + waits + 0.6 * faults + 5.0
 
 
-def test_connection_refused_is_retried_then_a_clean_error(task: Any, tmp_path: Path) -> None:
-    with socket.socket() as probe:  # a port nobody listens on
+def closed_port_url() -> tuple[str, str]:
+    """An OpenAI-style base URL on a local port nobody listens on, and its HOST:PORT."""
+    with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))
-        closed = f"http://127.0.0.1:{probe.getsockname()[1]}/v1"
+        port = probe.getsockname()[1]
+    return f"http://127.0.0.1:{port}/v1", f"127.0.0.1:{port}"
+
+
+def test_connection_refused_says_so_after_one_quick_retry(task: Any, tmp_path: Path) -> None:
+    closed, host_port = closed_port_url()
     started = time.perf_counter()
     with pytest.raises(KeympsError) as caught:
-        run_with(task, closed, tmp_path / "run")
-    assert time.perf_counter() - started < worst_case_s(0)
+        run_with(task, closed, tmp_path / "run", backend="litellm")  # the default backoff
+    # one retry after 0.5 s, not 4 tries over 1 + 2 + 4 s of backoff
+    assert time.perf_counter() - started < 3.0
     assert_clean_error(caught.value)
-    assert "failed after 4 tries" in str(caught.value) and "plan:" in str(caught.value)
+    message = str(caught.value)
+    assert f"cannot connect to {host_port} (connection refused) after 2 tries" in message
+    assert "HTTP 500" not in message and "InternalServerError" not in message
+    assert message.count("openai/test-vlm") == 1
     records = vlm_records(tmp_path / "run")
-    assert (
-        records and not records[-1]["valid"] and "failed after 4 tries" in records[-1]["errors"][0]
-    )
+    assert records and not records[-1]["valid"]
+    assert f"cannot connect to {host_port}" in records[-1]["errors"][0]
+    assert RecordingExecutor.calls == []
+
+
+class _HtmlPage(BaseHTTPRequestHandler):
+    """A web server where the API should be: every POST gets a 200 with an HTML page."""
+
+    requests = 0
+
+    def do_POST(self) -> None:  # noqa: N802 (http.server's naming)
+        type(self).requests += 1
+        self.rfile.read(int(self.headers.get("content-length", 0)))
+        body = b"<!doctype html><html><body><h1>Welcome to nginx!</h1></body></html>"
+        self.send_response(200)
+        self.send_header("content-type", "text/html")
+        self.send_header("content-length", str(len(body)))
+        self.end_headers()
+        self.wfile.write(body)
+
+    def log_message(self, *_: Any) -> None:
+        pass
+
+
+def test_an_html_page_is_not_json_and_not_retried(task: Any, tmp_path: Path) -> None:
+    page = ThreadingHTTPServer(("127.0.0.1", 0), _HtmlPage)
+    thread = threading.Thread(target=page.serve_forever, daemon=True)
+    thread.start()
+    try:
+        port = page.server_address[1]
+        with pytest.raises(KeympsError) as caught:
+            run_with(task, f"http://127.0.0.1:{port}/v1", tmp_path / "run", backend="litellm")
+    finally:
+        page.shutdown()
+        page.server_close()
+    assert_clean_error(caught.value)
+    message = str(caught.value)
+    assert f"127.0.0.1:{port} answered with an HTML page, not JSON" in message
+    assert "planner.api_base" in message and "HTTP 500" not in message
+    assert _HtmlPage.requests == 1  # a web page will not turn into an API by asking again
+
+
+def test_a_server_that_resets_every_connection_is_named(
+    task: Any, server: Any, tmp_path: Path
+) -> None:
+    server.script(*[Reply.reset()] * (RETRIES + 1))
+    with pytest.raises(KeympsError) as caught:
+        run_with(task, server.openai_base, tmp_path / "run")
+    assert_clean_error(caught.value)
+    host_port = server.openai_base.split("//")[1].split("/")[0]
+    message = str(caught.value)
+    assert f"failed after 4 tries: connection reset by {host_port} before any answer" in message
+    assert "HTTP 500" not in message
+
+
+def test_missing_credentials_are_not_retried(
+    task: Any, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # no api_base: litellm would call OpenAI itself, but refuses before any network without a key
+    for name in [n for n in os.environ if n.endswith("_API_KEY")]:
+        monkeypatch.delenv(name)
+    started = time.perf_counter()
+    with pytest.raises(KeympsError) as caught:
+        keymps.run_task(
+            task,
+            backend="litellm",
+            model="openai/gpt-4o",
+            executor="recording",
+            out=tmp_path / "run",
+            rerun="off",
+        )
+    assert time.perf_counter() - started < 2.0  # one try, no backoff (was 4 tries, 18.7 s)
+    assert_clean_error(caught.value)
+    message = str(caught.value)
+    assert "no API key: set OPENAI_API_KEY" in message
+    assert message.count("openai/gpt-4o") == 1, message
+    assert len(vlm_records(tmp_path / "run")) == 1
     assert RecordingExecutor.calls == []
 
 
@@ -150,7 +237,7 @@ def test_a_fault_then_a_good_answer_succeeds(
     ("faults", "expected"),
     [
         ([Reply.error(500)] * 4, "failed after 4 tries"),
-        ([Reply.reset()] * 4, "failed after 4 tries"),
+        ([Reply.reset()] * 4, "failed after 4 tries: connection reset by 127.0.0.1:"),
         ([Reply.text_answer(json.dumps(DOT), delay_s=2.0)], "no answer within 0.6 s"),
         ([Reply.error(401, message="bad key")], "rejected the credentials"),
         ([Reply.error(404, message="no such model")], "not found"),

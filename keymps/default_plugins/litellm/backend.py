@@ -235,7 +235,7 @@ class LitellmBackend:
             retries=self.options.retries,
             backoff_s=self.options.backoff_s,
             timeout_s=self.options.timeout_s,
-            where=self.options.api_base or call.model,
+            where=self.options.api_base,
         )
 
     @staticmethod

@@ -3,7 +3,9 @@
 Rate limits (429), server errors (5xx) and lost connections are retried a bounded number of
 times: after the server's Retry-After (seconds, milliseconds or an HTTP date) when it sends one,
 else after an exponential backoff with jitter, so that many runs told to wait do not all come
-back at the same instant. Every other failure, and the last retryable one, becomes one line.
+back at the same instant. A refused connection is retried once, quickly (nobody is listening:
+waiting seconds will not change that); missing credentials and an HTML page are not retried.
+Every other failure, and the last retryable one, becomes one line saying what happened.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
+from keymps.default_plugins.litellm.failures import classify
 from keymps.errors import KeympsError
 from keymps.planning.redaction import known_secrets, redact_text, remember
 
@@ -21,6 +24,10 @@ MAX_WAIT_S = 30.0
 """No single wait is longer, whatever the server asks."""
 JITTER = 0.5
 """A backoff wait is stretched by a random fraction of itself, up to this much."""
+REFUSED_RETRIES = 1
+"""Further tries after a refused connection (a local server that is just starting)."""
+REFUSED_WAIT_S = 0.5
+"""The wait before that one retry."""
 
 
 def retry_after_s(error: Exception, now: float | None = None) -> float | None:
@@ -73,7 +80,8 @@ class Retrying:
     retries: int
     backoff_s: float
     timeout_s: float
-    where: str
+    where: str | None
+    """The api_base the user gave, if any (the provider's own endpoint otherwise)."""
     notes: list[str] = field(default_factory=list)
     """One line per failed try that was retried (the run's vlm/ records show them)."""
 
@@ -81,14 +89,17 @@ class Retrying:
         self.secrets = secret_values(self.arguments)
         self.wait = self.backoff_s
 
+    def label(self) -> str:
+        model = self.arguments["model"]
+        return f"the VLM ({model} at {self.where})" if self.where else f"the VLM ({model})"
+
     def pause_after(self, error: Exception, attempt: int) -> float | None:
         """Seconds to wait before the next try; None for an error that is not litellm's; a
         KeympsError (one line) when the call has failed for good."""
         litellm, model = self.litellm, self.arguments["model"]
         if isinstance(error, litellm.Timeout):
             raise KeympsError(
-                f"the VLM ({model} at {self.where}) gave no answer within {self.timeout_s:g} s "
-                "(planner.timeout_s)"
+                f"{self.label()} gave no answer within {self.timeout_s:g} s (planner.timeout_s)"
             )
         if isinstance(error, litellm.AuthenticationError):
             raise KeympsError(
@@ -96,7 +107,8 @@ class Retrying:
                 "variable (keys are never read from files)"
             )
         if isinstance(error, litellm.NotFoundError):
-            raise KeympsError(f"model {model} not found at {self.where}; check planner.model")
+            at = f" at {self.where}" if self.where else ""
+            raise KeympsError(f"model {model} not found{at}; check planner.model")
         retryable = (
             litellm.RateLimitError,
             litellm.InternalServerError,
@@ -104,26 +116,32 @@ class Retrying:
             litellm.APIConnectionError,
             litellm.BadGatewayError,
         )
+        if not isinstance(error, (*retryable, litellm.BadRequestError, litellm.APIError)):
+            return None
+        failure = classify(error, self.where)
+        what = failure.text if failure else short(error, self.secrets)
+        tries = f"{attempt + 1} tries" if attempt else "1 try"
+        if failure is not None and failure.retry == "no":
+            raise KeympsError(f"{self.label()}: {what}")
+        if failure is not None and failure.retry == "briefly":
+            if attempt >= min(self.retries, REFUSED_RETRIES):
+                raise KeympsError(f"{self.label()}: {what} after {tries}; is the server running?")
+            return self._note(attempt, what, REFUSED_WAIT_S)
         if isinstance(error, retryable):
             if attempt >= self.retries:
                 status = getattr(error, "status_code", None)
-                last = f" (the last one: HTTP {status})" if isinstance(status, int) else ""
-                raise KeympsError(
-                    f"the VLM ({model} at {self.where}) failed after {attempt + 1} tries{last}: "
-                    f"{short(error, self.secrets)}"
-                )
+                # litellm says 500 for failures that never got an HTTP answer: name real ones only
+                real = failure is None and isinstance(status, int)
+                last = f" (the last one: HTTP {status})" if real else ""
+                raise KeympsError(f"{self.label()} failed after {tries}{last}: {what}")
             told = retry_after_s(error)
             pause = told if told is not None else self.wait * (1 + JITTER * random.random())
-            pause = min(pause, MAX_WAIT_S)
-            self.notes.append(
-                f"try {attempt + 1}: {short(error, self.secrets)}; retried after {pause:.3g} s"
-            )
             self.wait *= 2
-            return pause
+            return self._note(attempt, what, min(pause, MAX_WAIT_S))
         if isinstance(error, litellm.BadRequestError):
-            raise KeympsError(
-                f"the VLM ({model}) refused the request: {short(error, self.secrets)}"
-            )
-        if isinstance(error, litellm.APIError):
-            raise KeympsError(f"the VLM ({model}) failed: {short(error, self.secrets)}")
-        return None
+            raise KeympsError(f"the VLM ({model}) refused the request: {what}")
+        raise KeympsError(f"{self.label()} failed: {what}")
+
+    def _note(self, attempt: int, what: str, pause: float) -> float:
+        self.notes.append(f"try {attempt + 1}: {what}; retried after {pause:.3g} s")
+        return pause

@@ -1,0 +1,113 @@
+"""What went wrong with a VLM call that got no usable answer, told from litellm's exception.
+
+litellm wraps a refused connection, a reset, an HTML page and missing credentials alike in an
+InternalServerError with a made-up status 500; the real cause is further down the exception's
+chain (httpx, httpcore, h11, the socket). `classify` walks that chain and says, in words a user
+acts on, what happened and whether another try can help.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from dataclasses import dataclass
+from typing import Literal
+from urllib.parse import urlparse
+
+Kind = Literal[
+    "refused", "unresolved", "reset", "closed", "not_http", "html", "bad_json", "credentials"
+]
+
+
+@dataclass(frozen=True)
+class Failure:
+    kind: Kind
+    text: str
+    """One phrase, e.g. 'cannot connect to 127.0.0.1:8000 (connection refused)'."""
+    retry: Literal["no", "briefly", "yes"]
+    """'briefly': one quick retry at most (a server that is just starting)."""
+    http: bool = False
+    """True when the server answered HTTP at all (its status then means something)."""
+
+
+_KEY_VARIABLE = re.compile(r"\b([A-Z][A-Z0-9_]*_API_KEY)\b")
+_CREDENTIALS = re.compile(
+    r"missing credentials|api[_ ]key (?:is )?(?:missing|not set|required)|"
+    r"set the `?[A-Z0-9_]+_API_KEY",
+    re.IGNORECASE,
+)
+
+
+def chain(error: BaseException) -> list[BaseException]:
+    """The error and every cause or context below it, outermost first (cycles cut)."""
+    seen: list[BaseException] = []
+    current: BaseException | None = error
+    while current is not None and all(current is not e for e in seen):
+        seen.append(current)
+        current = current.__cause__ or current.__context__
+    return seen
+
+
+def endpoint(errors: list[BaseException], api_base: str | None) -> str:
+    """HOST:PORT the call went to: from the HTTP library's request, else from api_base."""
+    for error in reversed(errors):
+        if not type(error).__module__.startswith(("httpx", "httpcore")):
+            continue
+        try:
+            url = error.request.url  # type: ignore[attr-defined]
+        except (AttributeError, RuntimeError):  # httpx raises RuntimeError when unset
+            continue
+        return _host_port(str(url))
+    return _host_port(api_base) if api_base else "the provider's endpoint"
+
+
+def _host_port(url: str) -> str:
+    parsed = urlparse(url if "//" in url else f"//{url}")
+    host = parsed.hostname or url
+    host = f"[{host}]" if ":" in host else host
+    port = parsed.port or {"https": 443, "http": 80}.get(parsed.scheme)
+    return f"{host}:{port}" if port else host
+
+
+def classify(error: BaseException, api_base: str | None) -> Failure | None:
+    """The failure in words, or None when the chain holds nothing more specific than litellm's
+    own class (an HTTP status from a real answer, a timeout ...)."""
+    errors = chain(error)
+    where = endpoint(errors, api_base)
+    messages = " | ".join(str(e) for e in errors)
+    if (
+        any(isinstance(e, ConnectionRefusedError) for e in errors)
+        or "Connection refused" in messages
+    ):
+        return Failure("refused", f"cannot connect to {where} (connection refused)", "briefly")
+    if "Name or service not known" in messages or "nodename nor servname" in messages:
+        return Failure("unresolved", f"cannot resolve the host of {where}", "no")
+    for e in errors:
+        text = str(e)
+        name = type(e).__name__
+        if isinstance(e, ConnectionResetError) or "disconnected without sending" in text:
+            return Failure("reset", f"connection reset by {where} before any answer", "yes")
+        if name == "RemoteProtocolError" and "peer closed connection" in text:
+            return Failure("closed", f"{where} closed the connection mid-answer", "yes")
+        if name == "RemoteProtocolError" and "illegal status line" in text:
+            return Failure("not_http", f"{where} did not answer in HTTP", "yes", http=False)
+    received = re.search(r"Received:? '?\s*(<)", messages)
+    if received or re.search(r"<!doctype html|<html", messages, re.IGNORECASE):
+        return Failure(
+            "html",
+            f"{where} answered with an HTML page, not JSON: is planner.api_base the API's URL "
+            "(OpenAI-compatible servers usually end in /v1)?",
+            "no",
+            http=True,
+        )
+    if any(isinstance(e, json.JSONDecodeError) for e in errors):
+        return Failure("bad_json", f"{where} answered with broken JSON", "yes", http=True)
+    if _CREDENTIALS.search(messages):
+        variable = _KEY_VARIABLE.search(messages)
+        how = f"set {variable.group(1)}" if variable else "set the provider's API key variable"
+        return Failure(
+            "credentials",
+            f"no API key: {how} (or name another variable in planner.api_key_env)",
+            "no",
+        )
+    return None
