@@ -15,7 +15,7 @@ from typing import Any
 
 from keymps.config.overrides import apply_overrides
 from keymps.config.task import Task, load_task
-from keymps.errors import KeympsError, RunInterrupted, StageError, os_error_message
+from keymps.errors import KeympsError, RunInterrupted, StageError, TaskFileError, os_error_message
 from keymps.plugin.manager import create_component, get_manager
 from keymps.run import IMAGE_FORMATS, STAGES, Run, RunOptions
 from keymps.types import Detection, SceneImage
@@ -28,35 +28,84 @@ class Components:
     """Everything a run needs, built before the first stage so configuration errors cost nothing.
 
     A run that stops after planning (`through="ground"`) builds no executor and no robot.
+    Every part is built even when another fails: the TaskFileError raised lists them all.
+    Parts named in `skip` (task fields already known to be wrong) are left as None.
     """
 
-    def __init__(self, task: Task, backend: str, through: str = "execute"):
+    def __init__(
+        self,
+        task: Task,
+        backend: str,
+        through: str = "execute",
+        skip: frozenset[str] = frozenset(),
+    ):
         from keymps.primitives.dictionary import default_search_dirs, load_primitives
         from keymps.robot.model import RobotModel
 
         executes = STAGES.index(through) > STAGES.index("ground")
-        self.image_source = _create(
-            task, "image_source", task.scene.source, task.scene.source_options, ("scene", "source")
+        problems: list[str] = []
+
+        def build(field: str, make: Callable[[], Any]) -> Any:
+            if field in skip:
+                return None
+            try:
+                return make()
+            except TaskFileError as error:
+                problems.extend(error.problems)
+            except KeympsError as error:
+                problems.append(str(error))
+            return None
+
+        self.image_source = build(
+            "scene",
+            lambda: _create(
+                task,
+                "image_source",
+                task.scene.source,
+                task.scene.source_options,
+                ("scene", "source"),
+            ),
         )
-        self.detector = _create(
-            task, "detector", task.detector.name, task.detector.options, ("detector",)
+        self.detector = build(
+            "detector",
+            lambda: _create(
+                task, "detector", task.detector.name, task.detector.options, ("detector",)
+            ),
         )
         self.executor = (
-            _create(task, "executor", task.executor.name, task.executor.options, ("executor",))
+            build(
+                "executor",
+                lambda: _create(
+                    task, "executor", task.executor.name, task.executor.options, ("executor",)
+                ),
+            )
             if executes
             else None
         )
-        try:
-            self.primitives = load_primitives(task.primitives, default_search_dirs(task.folder))
-        except KeympsError as error:
-            raise KeympsError(f"{task.where('primitives')}: primitives: {error}") from None
-        self.robot: RobotModel | None = None
-        if executes:
-            try:
-                self.robot = RobotModel.from_task(task)
-            except KeympsError as error:
-                raise _located(task, error) from None
+        self.primitives = build(
+            "primitives",
+            lambda: _primitives(task, load_primitives, default_search_dirs(task.folder)),
+        )
+        self.robot: RobotModel | None = (
+            build("robot", lambda: _robot(task, RobotModel)) if executes else None
+        )
         self.backend = backend
+        if problems:
+            raise TaskFileError(problems)
+
+
+def _primitives(task: Task, load: Callable[..., Any], search: Any) -> Any:
+    try:
+        return load(task.primitives, search)
+    except KeympsError as error:
+        raise KeympsError(f"{task.where('primitives')}: primitives: {error}") from None
+
+
+def _robot(task: Task, model: Any) -> Any:
+    try:
+        return model.from_task(task)
+    except KeympsError as error:
+        raise _located(task, error) from None
 
 
 _FIELD_PREFIX = re.compile(r"^([a-z_]+(?:\.[a-z_]+)+): ")
