@@ -11,6 +11,9 @@ _MAX_LISTED = 12
 class KeympsError(Exception):
     """A user-facing problem; str(error) is a complete, one-line message."""
 
+    run: object = None
+    """The Run a failed `run_task` leaves behind (its folder and warnings explain the error)."""
+
 
 class TaskFileError(KeympsError):
     """A task file (or an input it names) is invalid; one message per problem."""

@@ -73,19 +73,26 @@ def cli() -> None:
 def run(task_file: Path, rerun_mode: str, rerun_url: str | None, quiet: bool, **given: Any) -> None:
     """Run TASK (a task file) end to end: detect, plan, ground, compose, solve, time, check, execute."""
     from keymps.cli.output import RunPrinter
+    from keymps.errors import KeympsError
     from keymps.pipeline.engine import run_task
+    from keymps.run import Run
 
     if rerun_mode == "connect" and not rerun_url:
         raise click.UsageError("--rerun connect needs --rerun-url")
     printer = RunPrinter(quiet=quiet)
-    finished = run_task(
-        task_file,
-        on_stage=printer.stage_done,
-        rerun=rerun_mode,
-        rerun_url=rerun_url,
-        quiet=quiet,
-        **given,
-    )
+    try:
+        finished = run_task(
+            task_file,
+            on_stage=printer.stage_done,
+            rerun=rerun_mode,
+            rerun_url=rerun_url,
+            quiet=quiet,
+            **given,
+        )
+    except KeympsError as error:
+        if isinstance(error.run, Run):
+            printer.failed(error.run)  # its warnings and folder explain the error line after
+        raise
     printer.summary(finished)
     global _finished_cleanly
     # The run folder's files are written and closed, the recording (saved or off) flushed and

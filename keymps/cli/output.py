@@ -52,7 +52,8 @@ class RunPrinter:
         from rich.console import Console
 
         self.quiet = quiet
-        self.console = Console(stderr=True, highlight=False)
+        # soft_wrap: a long line is the terminal's to wrap, not cut by rich at 80 columns
+        self.console = Console(stderr=True, highlight=False, soft_wrap=True)
 
     def stage_done(self, stage: str, seconds: float, result: Any) -> None:
         if self.quiet:
@@ -83,6 +84,15 @@ class RunPrinter:
         for warning in run.warnings:
             lines.append(f"warning     {warning}")
         click.echo(redact_text("\n".join(lines)))
+
+    def failed(self, run: Run) -> None:
+        """After a failed run: its warnings and folder (the error line follows on stderr)."""
+        if self.quiet:
+            click.echo(str(run.folder))
+            return
+        lines = [f"warning     {warning}" for warning in run.warnings]
+        lines.append(f"run folder  {run.folder}")
+        click.echo("\n".join(lines), err=True)
 
 
 def print_plugins(as_json: bool) -> None:

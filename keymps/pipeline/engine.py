@@ -394,6 +394,8 @@ def run_task(
         pipeline.execute_all()
     except BaseException as caught:
         error = caught
+        if isinstance(caught, KeympsError):
+            caught.run = run
         raise
     finally:
         late: KeyboardInterrupt | None = None

@@ -325,13 +325,23 @@ class SimExecutor:
                 f"tracking error {figures['max_tracking_error_mm']:.2f} mm exceeds "
                 f"{TRACKING_LIMIT_M * 1000:.1f} mm"
             )
+        counts = [
+            _count(len(found.cuts), "cut"),
+            _count(len(found.strokes), "icing stroke"),
+            _count(len(found.dots), "dot"),
+        ]
+        made = ", ".join(c for c in counts if not c.startswith("0 ")) or "no cut, stroke or dot"
         summary = (
-            f"simulated {trajectory.duration_s:.1f} s: {len(found.cuts)} cuts, "
-            f"{len(found.strokes)} icing strokes, {len(found.dots)} dots; max tracking error "
+            f"simulated {trajectory.duration_s:.1f} s: {made}; max tracking error "
             f"{figures['max_tracking_error_mm']:.3f} mm"
         )
         message = "; ".join(problems) if problems else summary
         return ExecutionReport(self.name, not problems, message, tuple(files), figures)
+
+
+def _count(number: int, noun: str) -> str:
+    """'1 cut', '3 cuts'."""
+    return f"{number} {noun}" if number == 1 else f"{number} {noun}s"
 
 
 def _footprint(run: Run) -> np.ndarray | None:
