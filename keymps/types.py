@@ -317,6 +317,9 @@ class ExecutionReport:
     message: str = ""
     files: tuple[str, ...] = ()
     figures: dict[str, float] = field(default_factory=dict)
+    dry_run: bool | None = None
+    """For an executor that drives a real robot: True when it only checked (no --confirm),
+    False when it was allowed to move; None for the others (simulation, file export)."""
 
 
 STAGES: tuple[str, ...] = (

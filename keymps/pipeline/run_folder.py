@@ -144,6 +144,7 @@ def run_record(run: Run, error: BaseException | None) -> dict[str, Any]:
         else {
             "executor": executed.executor,
             "ok": executed.ok,
+            "dry_run": executed.dry_run,
             "message": executed.message,
             "files": list(executed.files),
             "figures": {k: _rounded(float(v)) for k, v in executed.figures.items()},

@@ -1,19 +1,27 @@
 """The `ur-rtde` executor: streams a validated keymps trajectory to a real UR arm over RTDE.
 
-Sequence: connect the receive interface, check the arm is powered, running and in normal
-safety mode, check the trajectory starts near the arm's current joints; then (only with
---confirm) connect the control interface, moveJ slowly to the first point, and stream every
-sample with servoJ at the controller rate, watching the safety mode and the following error
-at every sample. Any error, safety stop or Ctrl-C stops the arm (servoStop, stopScript) and
-disconnects. Without --confirm it is a dry run: the checks run, nothing moves.
+Sequence: connect the receive interface, check that it is connected and its timestamp
+advances, that the arm is powered, running and in normal safety mode, that the trajectory starts
+near the arm's current joints, and that the moveJ from there to the first sample passes the
+same safety check as the trajectory; then (only with --confirm) connect the control interface,
+moveJ slowly to the first point, and stream every sample with servoJ at the controller rate,
+watching the receive interface, the safety mode and the following error at every sample. Any
+error, safety stop, stale state or Ctrl-C stops the arm (servoStop, stopScript) and disconnects.
+Without --confirm it is a dry run: the checks run, nothing moves. What ur_rtde's C++ code
+prints itself goes to ur_rtde.log in the run folder, not to the console.
 """
 
 from __future__ import annotations
 
 import contextlib
 import math
+import os
+import socket
+import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from dataclasses import replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -55,6 +63,12 @@ SAFETY_MODES = {
 RUNNING = 7
 SAFE_MODES = {1, 2}  # NORMAL and REDUCED allow motion
 RECEIVE_VARIABLES = ["timestamp", "actual_q", "robot_mode", "safety_mode", "runtime_state"]
+RTDE_PORT = 30004
+CONNECT_TIMEOUT_S = 2.0
+"""How long the TCP probe of the RTDE port waits for an arm that does not answer."""
+STALE_S = 0.1
+"""The receive interface's timestamp must advance at least this often (12 periods at 125 Hz)."""
+LOG_NAME = "ur_rtde.log"
 
 
 class UrRtdeOptions(BaseModel):
@@ -81,7 +95,59 @@ class UrRtdeOptions(BaseModel):
 def _connect_receive(host: str, frequency: float) -> Any:
     import rtde_receive
 
+    _probe(host, RTDE_PORT)
     return rtde_receive.RTDEReceiveInterface(host, frequency, RECEIVE_VARIABLES)
+
+
+def _probe(host: str, port: int) -> None:
+    """Fail fast, in words, when nothing answers on host:port (before ur_rtde tries)."""
+    try:
+        with socket.create_connection((host, port), timeout=CONNECT_TIMEOUT_S):
+            pass
+    except ConnectionRefusedError:
+        raise KeympsError(
+            f"executor ur-rtde: cannot connect to the arm at {host} (RTDE port {port}): "
+            "connection refused; is the arm (or URSim) on and is executor.host its address?"
+        ) from None
+    except TimeoutError:
+        raise KeympsError(
+            f"executor ur-rtde: no answer from {host} (RTDE port {port}) within "
+            f"{CONNECT_TIMEOUT_S:g} s; check the network and executor.host"
+        ) from None
+    except OSError as error:
+        raise KeympsError(
+            f"executor ur-rtde: cannot connect to the arm at {host} (RTDE port {port}): "
+            f"{error.strerror or error}"
+        ) from None
+
+
+@contextlib.contextmanager
+def native_output(log: Path) -> Iterator[None]:
+    """File descriptors 1 and 2 go to `log` meanwhile: ur_rtde's C++ code prints there
+    ("connect: Connection refused") instead of on the console."""
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    saved = []
+    try:
+        with open(log, "ab") as sink:
+            for fd in (1, 2):
+                saved.append((fd, os.dup(fd)))
+                os.dup2(sink.fileno(), fd)
+            try:
+                yield
+            finally:
+                for stream in (sys.stdout, sys.stderr):
+                    with contextlib.suppress(Exception):
+                        stream.flush()
+                for fd, copy in saved:
+                    os.dup2(copy, fd)
+                    os.close(copy)
+                saved.clear()
+    finally:
+        for fd, copy in saved:  # the log could not be opened half-way: restore what moved
+            os.dup2(copy, fd)
+            os.close(copy)
 
 
 def _connect_control(host: str, frequency: float) -> Any:
@@ -113,10 +179,27 @@ class UrRtdeExecutor:
     def execute(self, validated: Any, run: Any) -> ExecutionReport:
 
         trajectory = require_validated(validated, self.name)
+        confirm = bool(getattr(run.options, "confirm", False))
+        mode = "--confirm" if confirm else "dry run"
+        log = run.path(LOG_NAME)
+        try:
+            with native_output(log):
+                report = self._checked_execute(trajectory, run, confirm)
+        except KeympsError as error:
+            message = str(error).replace(f"executor {NAME}: ", f"executor {NAME} ({mode}): ", 1)
+            report = ExecutionReport(self.name, False, message)
+        files = (str(log),) if log.stat().st_size else ()
+        if not files:
+            log.unlink()
+        return replace(report, files=report.files + files, dry_run=not confirm)
+
+    def _checked_execute(self, trajectory: Any, run: Any, confirm: bool) -> ExecutionReport:
         rate = float(trajectory.rate_hz)
         host = self.options.host
         try:
             receive = self.connect_receive(host, rate)
+        except KeympsError:
+            raise
         except Exception as error:  # ur_rtde raises RuntimeError or boost errors
             raise KeympsError(
                 f"executor ur-rtde: cannot connect to the arm at {host} (RTDE port 30004): {error}"
@@ -124,6 +207,7 @@ class UrRtdeExecutor:
         try:
             try:
                 offset = self._preflight(receive, trajectory)
+                approach = self._check_approach(receive, trajectory, run)
             except KeympsError:
                 raise
             except Exception as error:  # the receive interface failed; nothing has moved
@@ -134,8 +218,9 @@ class UrRtdeExecutor:
                 "duration_s": trajectory.duration_s,
                 "samples": float(trajectory.samples),
                 "start_offset_rad": offset,
+                "approach_s": approach,
             }
-            if not getattr(run.options, "confirm", False):
+            if not confirm:
                 return ExecutionReport(
                     self.name,
                     True,
@@ -149,9 +234,37 @@ class UrRtdeExecutor:
         finally:
             _quietly(receive.disconnect)
 
+    def _check_approach(self, receive: Any, trajectory: Any, run: Any) -> float:
+        """The moveJ to the first sample, checked by keymps' safety validator; its seconds."""
+        from keymps.robot.model import RobotModel
+        from keymps.robot.safety import SafetyError, check_approach
+
+        options = self.options
+        actual = np.asarray(receive.getActualQ(), dtype=float)
+        try:
+            report = check_approach(
+                RobotModel.from_task(run.task),
+                actual,
+                np.asarray(trajectory.q[0], dtype=float),
+                run.task,
+                speed=options.approach_speed,
+                acceleration=options.approach_acceleration,
+                rate_hz=float(trajectory.rate_hz),
+            )
+        except SafetyError as error:
+            raise KeympsError(
+                f"executor ur-rtde: refused before moving: {error}; jog the arm to "
+                f"[{', '.join(f'{v:.3f}' for v in trajectory.q[0])}] rad first"
+            ) from None
+        return float(report.figures["duration_s"])
+
     def _preflight(self, receive: Any, trajectory: Any) -> float:
-        """Refuse unless the arm is running, safe, and near the trajectory's first point."""
+        """Refuse unless the state is live, the arm running, safe, and near the first point."""
         host = self.options.host
+        self._fresh = _Freshness(receive)
+        problem = self._fresh.wait_for_news()
+        if problem:
+            raise KeympsError(f"executor ur-rtde: the arm at {host}: {problem}; nothing moved")
         mode = int(receive.getRobotMode())
         if mode != RUNNING:
             raise KeympsError(
@@ -210,8 +323,8 @@ class UrRtdeExecutor:
         return ExecutionReport(
             self.name,
             True,
-            f"executed {trajectory.duration_s:.1f} s ({sent} samples at {rate:g} Hz) on "
-            f"{options.host}",
+            f"--confirm: executed {trajectory.duration_s:.1f} s ({sent} samples at {rate:g} Hz) "
+            f"on {options.host}",
             (),
             figures,
         )
@@ -261,8 +374,10 @@ class UrRtdeExecutor:
                 )
             control.waitPeriod(cycle)
 
-    @staticmethod
-    def _check_safety(receive: Any, when: str) -> None:
+    def _check_safety(self, receive: Any, when: str) -> None:
+        problem = self._fresh.problem()
+        if problem:
+            raise StreamStopped(f"{problem} {when}")
         safety = int(receive.getSafetyMode())
         if safety not in SAFE_MODES:
             raise StreamStopped(f"safety mode {SAFETY_MODES.get(safety, safety)} {when}")
@@ -285,6 +400,40 @@ class UrRtdeExecutor:
             (),
             figures,
         )
+
+
+class _Freshness:
+    """Whether the receive interface is connected and its state still new (timestamp moving)."""
+
+    def __init__(self, receive: Any):
+        self.receive = receive
+        self.last = float(receive.getTimestamp())
+        self.changed = time.monotonic()
+
+    def problem(self) -> str | None:
+        if not self.receive.isConnected():
+            return "the RTDE receive interface is disconnected"
+        now = float(self.receive.getTimestamp())
+        if now != self.last:
+            self.last, self.changed = now, time.monotonic()
+        elif time.monotonic() - self.changed > STALE_S:
+            return (
+                f"the arm's state stopped updating (timestamp {now:.3f} s for over {STALE_S:g} s)"
+            )
+        return None
+
+    def wait_for_news(self) -> str | None:
+        """None as soon as the timestamp advances; else why not, after STALE_S at most."""
+        first = self.last
+        deadline = time.monotonic() + STALE_S
+        while time.monotonic() < deadline:
+            if not self.receive.isConnected():
+                return "the RTDE receive interface is disconnected"
+            if float(self.receive.getTimestamp()) != first:
+                self.problem()  # records the new timestamp
+                return None
+            time.sleep(0.002)
+        return f"the arm's state does not update (timestamp stuck at {first:.3f} s)"
 
 
 def _stop(control: Any) -> None:

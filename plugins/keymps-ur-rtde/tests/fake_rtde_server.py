@@ -8,6 +8,7 @@ memory, so a test can change what the "arm" reports while a client is connected.
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import socket
 import struct
@@ -41,6 +42,10 @@ class ArmState:
         self.safety_mode = context.Value("i", 1)  # NORMAL
         self.connections = context.Value("i", 0)
         self.recipes = context.Value("i", 0)
+        self.frozen = context.Value("i", 0)
+        """1: the data packages keep coming with the same timestamp (a controller that hangs)."""
+        self.drop = context.Value("i", 0)
+        """1: every client connection is closed (the cable pulled)."""
 
 
 def _read_exactly(connection: socket.socket, size: int) -> bytes:
@@ -58,9 +63,11 @@ def _send(connection: socket.socket, lock: threading.Lock, kind: str, payload: b
         connection.sendall(struct.pack(">HB", len(payload) + 3, ord(kind)) + payload)
 
 
-def _values(names: list[str], state: ArmState, started: float) -> bytes:
+def _values(names: list[str], state: ArmState, started: float, clock: list[float]) -> bytes:
+    if not state.frozen.value:
+        clock[0] = time.monotonic() - started
     values: dict[str, Any] = {
-        "timestamp": time.monotonic() - started,
+        "timestamp": clock[0],
         "actual_q": list(state.q),
         "actual_qd": [0.0] * 6,
         "target_q": list(state.q),
@@ -86,12 +93,17 @@ def _serve_client(connection: socket.socket, state: ArmState) -> None:
     names: list[str] = []
     frequency = 125.0
     started = time.monotonic()
+    clock = [0.0]
 
     def stream() -> None:
         while True:
             streaming.wait()
+            if state.drop.value:
+                with contextlib.suppress(OSError):
+                    connection.shutdown(socket.SHUT_RDWR)
+                return
             try:
-                _send(connection, lock, "U", bytes([1]) + _values(names, state, started))
+                _send(connection, lock, "U", bytes([1]) + _values(names, state, started, clock))
             except OSError:
                 return
             time.sleep(1.0 / frequency)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 import random
+import re
 import time
 from collections.abc import Iterator
 from datetime import timedelta
@@ -163,8 +164,9 @@ def test_refuses_a_trajectory_far_from_the_arm(
 ) -> None:
     at_start.q[2] = float(validated.trajectory.q[0][2] + 1.0)
     time.sleep(0.02)
-    with pytest.raises(KeympsError, match=r"starts 1\.00 rad away from the arm's elbow_joint"):
-        executor(fake_control(at_start)).execute(validated, make_run(tmp_path, confirm=True))
+    report = executor().execute(validated, make_run(tmp_path, confirm=True))
+    assert not report.ok and report.dry_run is False
+    assert re.search(r"starts 1\.00 rad away from the arm's elbow_joint", report.message)
 
 
 def test_refuses_an_arm_that_is_not_running_or_not_safe(
@@ -172,13 +174,13 @@ def test_refuses_an_arm_that_is_not_running_or_not_safe(
 ) -> None:
     at_start.robot_mode.value = 5
     time.sleep(0.02)
-    with pytest.raises(KeympsError, match="is IDLE, not RUNNING"):
-        executor().execute(validated, make_run(tmp_path, confirm=False))
+    report = executor().execute(validated, make_run(tmp_path, confirm=False))
+    assert not report.ok and "is IDLE, not RUNNING" in report.message
     at_start.robot_mode.value = 7
     at_start.safety_mode.value = 3
     time.sleep(0.02)
-    with pytest.raises(KeympsError, match="safety mode PROTECTIVE_STOP"):
-        executor().execute(validated, make_run(tmp_path, confirm=False))
+    report = executor().execute(validated, make_run(tmp_path, confirm=False))
+    assert not report.ok and "safety mode PROTECTIVE_STOP" in report.message
 
 
 def test_a_protective_stop_while_streaming_stops_the_arm(
@@ -242,16 +244,122 @@ def test_an_arm_that_does_not_follow_is_stopped(
     assert not report.ok and "lags the command by" in report.message
 
 
-def test_no_arm_at_the_address_is_a_clear_error(
-    validated: ValidatedTrajectory, tmp_path: Path
+@pytest.mark.parametrize("confirm", [False, True])
+def test_no_arm_at_the_address_is_one_quick_clear_line_and_nothing_native_on_the_console(
+    confirm: bool, validated: ValidatedTrajectory, tmp_path: Path, capfd: pytest.CaptureFixture[str]
 ) -> None:
     from keymps_ur_rtde.executor import UrRtdeExecutor, UrRtdeOptions
 
     nobody = "127.0.0.2" if HOST != "127.0.0.2" else "127.0.0.3"
-    with pytest.raises(KeympsError, match=f"cannot connect to the arm at {nobody}"):
-        UrRtdeExecutor(UrRtdeOptions(host=nobody)).execute(
-            validated, make_run(tmp_path, confirm=False)
-        )
+    started = time.perf_counter()
+    report = UrRtdeExecutor(UrRtdeOptions(host=nobody)).execute(
+        validated, make_run(tmp_path, confirm=confirm)
+    )
+    assert time.perf_counter() - started < 0.5
+    assert not report.ok and report.dry_run is (not confirm)
+    mode = "--confirm" if confirm else "dry run"
+    assert report.message.startswith(f"executor ur-rtde ({mode}): cannot connect to the arm at")
+    assert "connection refused" in report.message
+    printed = capfd.readouterr()
+    assert printed.out == "" and printed.err == ""
+
+
+def test_the_native_librarys_prints_go_to_the_run_folder(
+    tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    import rtde_receive
+    from keymps_ur_rtde.executor import native_output
+
+    log = tmp_path / "ur_rtde.log"
+    with native_output(log), pytest.raises(RuntimeError):
+        # ur_rtde's C++ code itself prints "connect: Connection refused" on a closed port
+        rtde_receive.RTDEReceiveInterface("127.0.0.2", 125.0, ["timestamp"])
+    printed = capfd.readouterr()
+    assert printed.out == "" and printed.err == ""
+    assert "Connection refused" in log.read_text()
+    print("the console is back")
+    assert capfd.readouterr().out == "the console is back\n"
+
+
+def test_dry_run_or_not_is_in_the_report_and_run_json(
+    at_start: Any, validated: ValidatedTrajectory, tmp_path: Path
+) -> None:
+    from keymps.pipeline.run_folder import run_record
+
+    run = make_run(tmp_path, confirm=False)
+    run.results["execute"] = executor().execute(validated, run)
+    assert run.results["execute"].dry_run is True
+    assert run_record(run, None)["execution"]["dry_run"] is True
+    confirmed = make_run(tmp_path / "c", confirm=True)
+    confirmed.results["execute"] = executor(fake_control(at_start)).execute(validated, confirmed)
+    assert confirmed.results["execute"].ok, confirmed.results["execute"].message
+    assert confirmed.results["execute"].message.startswith("--confirm: executed")
+    assert run_record(confirmed, None)["execution"]["dry_run"] is False
+
+
+def test_the_approach_move_is_checked_like_the_trajectory(
+    at_start: Any, validated: ValidatedTrajectory, tmp_path: Path
+) -> None:
+    # the arm's shoulder 0.6 rad down from the first sample: the moveJ from there would drive
+    # the tool through the board; refused before the control interface is touched
+    first = validated.trajectory.q[0]
+    at_start.q[:] = list(first + np.array([0.0, 0.6, 0.0, 0.0, 0.0, 0.0]))
+    time.sleep(0.02)
+    report = executor(max_start_offset=1.0).execute(validated, make_run(tmp_path, confirm=True))
+    assert not report.ok
+    assert "refused before moving: safety: the move to the first sample:" in report.message
+    assert "below the board" in report.message or "of the board surface" in report.message
+
+
+def test_the_approach_check_passes_a_safe_start(
+    at_start: Any, validated: ValidatedTrajectory, tmp_path: Path
+) -> None:
+    report = executor().execute(validated, make_run(tmp_path, confirm=False))
+    assert report.ok and report.figures["approach_s"] > 0
+
+
+@pytest.mark.parametrize("fault", ["frozen", "drop"])
+def test_refuses_to_start_on_stale_or_lost_state(
+    fault: str, at_start: Any, validated: ValidatedTrajectory, tmp_path: Path
+) -> None:
+    getattr(at_start, fault).value = 1
+    try:
+        time.sleep(0.05)
+        report = executor().execute(validated, make_run(tmp_path, confirm=True))
+    finally:
+        getattr(at_start, fault).value = 0
+    assert not report.ok
+    assert (
+        "does not update" in report.message
+        or "disconnected" in report.message
+        or ("cannot connect" in report.message or "lost the arm" in report.message)
+    ), report.message
+
+
+@pytest.mark.parametrize("fault", ["frozen", "drop"])
+def test_stops_while_streaming_when_the_state_goes_stale_or_is_lost(
+    fault: str, at_start: Any, validated: ValidatedTrajectory, tmp_path: Path
+) -> None:
+    control = fake_control(at_start)
+    follow = control.servoJ.side_effect
+
+    def servo(q: list[float], *args: Any) -> bool:
+        if control.servoJ.call_count == 10:
+            getattr(at_start, fault).value = 1
+        return bool(follow(q, *args))
+
+    control.servoJ.side_effect = servo
+    try:
+        report = executor(control).execute(validated, make_run(tmp_path, confirm=True))
+    finally:
+        getattr(at_start, fault).value = 0
+    assert not report.ok, report.message
+    expected = "stopped updating" if fault == "frozen" else "disconnected"
+    assert expected in report.message, report.message
+    # stale for 0.1 s at most: about 12 samples at 125 Hz after the fault, not the whole run
+    assert control.servoJ.call_count < 10 + 30
+    control.servoStop.assert_called_once()
+    control.stopScript.assert_called_once()
 
 
 def test_refuses_an_unvalidated_trajectory(validated: ValidatedTrajectory, tmp_path: Path) -> None:
