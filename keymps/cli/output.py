@@ -103,9 +103,13 @@ def print_plugins(as_json: bool) -> None:
         click.echo(json.dumps([info.__dict__ for info in infos], indent=2, default=list))
         return
     from rich.console import Console
+    from rich.markup import escape
     from rich.table import Table
 
     table = Table("plugin", "provides", "distribution", "version")
     for info in infos:
-        table.add_row(info.name, ", ".join(info.provides), info.distribution, info.version)
+        provides = ", ".join(info.provides)
+        if info.error is not None:
+            provides = f"[red]failed to load:[/] {escape(info.error)}"
+        table.add_row(info.name, provides, info.distribution, info.version)
     Console().print(table)

@@ -51,6 +51,8 @@ class PluginInfo:
     distribution: str
     version: str
     hooks: tuple[str, ...]
+    error: str | None = None
+    """Why the plugin failed to load (it provides nothing then); None when it loaded."""
 
 
 def _selected(name: str, dist: str | None) -> bool:
@@ -77,11 +79,12 @@ def _trace_hook_calls(manager: pluggy.PluginManager) -> None:
     manager.add_hookcall_monitoring(before, after)
 
 
-def _warn_broken(name: str, error: BaseException) -> None:
-    message = (
-        f"keymps: plugin {name!r} failed to load and was skipped: {type(error).__name__}: {error}"
-    )
+def _warn_broken(name: str, error: BaseException) -> str:
+    """Warn about a plugin that failed to load; returns the error as one line."""
+    detail = " ".join(f"{type(error).__name__}: {error}".split())
+    message = f"keymps: plugin {name!r} failed to load and was skipped: {detail}"
     warnings.warn(message, PluginLoadWarning, stacklevel=3)
+    return detail
 
 
 class KeympsPluginManager(pluggy.PluginManager):
@@ -91,6 +94,8 @@ class KeympsPluginManager(pluggy.PluginManager):
         super().__init__("keymps")
         self.distributions: dict[str, tuple[str, str]] = {}
         """Plugin name -> (distribution name, version) for entry-point plugins."""
+        self.failures: dict[str, str] = {}
+        """Plugin name -> the error that kept it from loading (`keymps plugins` lists them)."""
 
 
 def build_manager() -> KeympsPluginManager:
@@ -103,21 +108,20 @@ def build_manager() -> KeympsPluginManager:
         try:
             manager.register(importlib.import_module(module_name), name=name)
         except Exception as error:  # a broken plugin must not break unrelated commands
-            _warn_broken(name, error)
+            manager.failures[name] = _warn_broken(name, error)
     for entry_point in metadata.entry_points(group=ENTRY_POINT_GROUP):
         dist = entry_point.dist.name if entry_point.dist else None
         if not _selected(entry_point.name, dist) or manager.has_plugin(entry_point.name):
-            continue
-        try:
-            manager.register(entry_point.load(), name=entry_point.name)
-        except Exception as error:
-            _warn_broken(entry_point.name, error)
             continue
         if entry_point.dist is not None:
             manager.distributions[entry_point.name] = (
                 entry_point.dist.name,
                 entry_point.dist.version,
             )
+        try:
+            manager.register(entry_point.load(), name=entry_point.name)
+        except Exception as error:
+            manager.failures[entry_point.name] = _warn_broken(entry_point.name, error)
     if os.environ.get("KEYMPS_TRACE_PLUGINS"):
         _trace_hook_calls(manager)
     return manager
@@ -203,4 +207,9 @@ def plugin_infos(manager: pluggy.PluginManager | None = None) -> list[PluginInfo
         else:
             dist, version = known.get(name, ("(registered in code)", ""))
         infos.append(PluginInfo(name, _provides(plugin), dist, version, hooks))
+    for name, error in getattr(manager, "failures", {}).items():
+        dist, version = known.get(
+            name, ("keymps", __version__) if name in DEFAULT_PLUGINS else ("?", "")
+        )
+        infos.append(PluginInfo(name, (), dist, version, (), error))
     return infos

@@ -23,6 +23,11 @@ class PluginHarness:
         self.manager = plugins.build_manager()
 
     def register(self, plugin: object, name: str | None = None) -> None:
+        """Add a plugin (a module or an object with hook implementations). One the manager
+        already loaded, e.g. the package under test installed with its entry point, is kept
+        as it is: registering it again would be a pluggy error."""
+        if self.manager.is_registered(plugin):
+            return
         self.manager.register(plugin, name=name)
 
     def create(self, kind: str, name: str, options: dict[str, Any] | None = None) -> Any:
