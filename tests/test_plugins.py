@@ -159,7 +159,9 @@ def test_entry_point_plugin_is_listed_and_a_broken_one_only_warns(
     assert listed["keymps_hello"]["version"] == "0.3.1"
     assert listed["keymps_hello"]["provides"] == ["executor hello"]
     assert "threshold_detector" in listed
-    assert "keymps_broken" not in listed
+    # listed with its error, providing nothing
+    assert listed["keymps_broken"]["provides"] == []
+    assert listed["keymps_broken"]["error"] == "RuntimeError: this plugin is broken on purpose"
     warning = [line for line in result.stderr.splitlines() if "keymps_broken" in line]
     assert warning == [
         "warning: keymps: plugin 'keymps_broken' failed to load and was skipped: "
