@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import keymps.motion.strokes as strokes
 import keymps.motion.timing as timing
 from keymps.config.task import Task
 from keymps.motion.compose import compose_tool_path
@@ -131,7 +132,7 @@ def test_a_work_piece_the_joints_slow_far_below_work_speed_is_a_warning(
 ) -> None:
     # The old timing (keeping the dwell's wiggles, no stop at them) makes the stroke crawl:
     # the warning must say so, with the speed it actually got.
-    monkeypatch.setattr(timing, "MIN_STEP_M", 2e-5)
+    monkeypatch.setattr(strokes, "MIN_STEP_M", 2e-5)
     monkeypatch.setattr(timing, "MAX_STOP_DEPTH", 0)
     paused = learn(tmp_path, "paused", *rocking_log(np.random.default_rng(1), 0.3, **USER_LOG))
     slow = cut(paused, np.random.default_rng(101))

@@ -1,0 +1,289 @@
+"""Cutting a tool path into strokes: the rest-to-rest parts the timing profiles one by one.
+
+A piece is cut at its sharp corners; points of a dwell are dropped first; every stroke gets its
+arc parameter s and a cubic spline q(s) through IK solutions at most MAX_KNOT_SPACING apart.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from keymps.errors import KeympsError
+from keymps.types import JointPath, Piece, ToolPath
+
+if TYPE_CHECKING:
+    from keymps.robot.model import RobotModel
+
+CORNER_ANGLE_RAD = math.radians(30.0)
+"""A turn sharper than this between path segments stops the tool (a stroke ends there)."""
+MIN_STEP_M = 3e-4
+"""Path points closer than this to the previous one kept are dropped. A rollout that dwells (a
+pause in a learned demonstration, the bottom of an icing dot) wanders back and forth by up to
+about 0.2 mm; each wiggle is a reversal too short for the corner test, and one such cusp in
+q(s) used to slow a whole 10 cm stroke to 1 mm/s."""
+CORNER_CHORD_M = 0.0005
+"""Path directions at a point are measured over chords at least this long."""
+YAW_RADIUS_M = 0.05
+"""Turning the tool by 1 rad counts like moving it 5 cm along the path parameter."""
+MAX_KNOT_SPACING = 0.002
+"""IK points are added wherever the tool path's points are further apart than this."""
+MIN_STOP_GAP_M = 0.001
+"""No stop closer than this to either end of a stroke (its ends are rests already)."""
+
+
+@dataclass
+class Stroke:
+    """A rest-to-rest part of one piece: the polyline, its arc parameter, q(s)."""
+
+    piece_index: int
+    kind: str
+    s: np.ndarray
+    points: np.ndarray
+    q_of_s: Any
+    """keymps.motion.spline.CubicSpline: (m,) s -> (m, 6) joints, with derivatives."""
+    speed: float
+
+    @property
+    def length(self) -> float:
+        return float(self.s[-1])
+
+
+def _parameter_steps(points: np.ndarray, yaw: np.ndarray) -> np.ndarray:
+    """(n-1, 4) steps in (x, y, z, YAW_RADIUS * yaw): the path parameter's geometry."""
+    return np.column_stack([np.diff(points, axis=0), YAW_RADIUS_M * np.diff(yaw)])
+
+
+def _corner_indexes(points: np.ndarray, yaw: np.ndarray) -> list[int]:
+    """Point indexes where the path turns sharper than CORNER_ANGLE_RAD.
+
+    Directions are chords of at least CORNER_CHORD_M on each side of a point, so that the
+    sub-millimetre jitter of a rollout turning round (the bottom of a dot) makes one corner,
+    not many; of a run of neighbouring corner points the middle one is kept.
+    """
+    geometry = np.column_stack([points, YAW_RADIUS_M * yaw])
+    steps = np.linalg.norm(np.diff(geometry, axis=0), axis=1)
+    arc = np.concatenate([[0.0], np.cumsum(steps)])
+    n = len(points)
+    if n < 3 or arc[-1] <= 0:
+        return []
+    before = np.searchsorted(arc, arc - CORNER_CHORD_M, side="right") - 1
+    after = np.searchsorted(arc, arc + CORNER_CHORD_M, side="left")
+    before, after = np.clip(before, 0, n - 1), np.clip(after, 0, n - 1)
+    incoming = geometry - geometry[before]
+    outgoing = geometry[after] - geometry
+    norms = np.linalg.norm(incoming, axis=1) * np.linalg.norm(outgoing, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cosine = np.where(norms > 1e-18, (incoming * outgoing).sum(axis=1) / norms, 1.0)
+    sharp = cosine < math.cos(CORNER_ANGLE_RAD)
+    sharp[[0, -1]] = False
+    corners = []
+    index = 0
+    while index < n:
+        if not sharp[index]:
+            index += 1
+            continue
+        end = index
+        while end + 1 < n and sharp[end + 1] and arc[end + 1] - arc[index] <= 2 * CORNER_CHORD_M:
+            end += 1
+        middle = (arc[index] + arc[end]) / 2  # a reversal's cluster is centred on its tip
+        corners.append(index + int(np.argmin(np.abs(arc[index : end + 1] - middle))))
+        index = end + 1
+    return corners
+
+
+def _dense_points(points: np.ndarray, yaw: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Points and yaws with evenly spaced points inserted wherever consecutive points are more
+    than MAX_KNOT_SPACING apart, and the indexes of the original points among them."""
+    gaps = np.hypot(np.linalg.norm(np.diff(points, axis=0), axis=1), YAW_RADIUS_M * np.diff(yaw))
+    extra = np.maximum(np.ceil(gaps / MAX_KNOT_SPACING).astype(int) - 1, 0)
+    if not extra.any():
+        return points, yaw, np.arange(len(points))
+    # Every gap g contributes its start and `extra[g]` evenly spaced inner points.
+    per_gap = extra + 1
+    gap_of = np.repeat(np.arange(len(gaps)), per_gap)
+    starts = np.cumsum(per_gap) - per_gap
+    fraction = (np.arange(len(gap_of)) - starts[gap_of]) / per_gap[gap_of]
+    dense_p = np.vstack(
+        [points[gap_of] + fraction[:, None] * (points[gap_of + 1] - points[gap_of]), points[-1:]]
+    )
+    dense_y = np.append(yaw[gap_of] + fraction * (yaw[gap_of + 1] - yaw[gap_of]), yaw[-1])
+    return dense_p, dense_y, np.append(starts, len(dense_p) - 1)
+
+
+def _densify_all(
+    model: RobotModel, parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]]
+) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """`_densify` of every (points, yaw, q) part; with the closed form, all the inserted points
+    of the path in one solve (consecutive parts join up, so one branch runs through them)."""
+    dense = [_dense_points(points, yaw) for points, yaw, _ in parts]
+    if model.closed_form is not None and parts:
+        all_p = np.concatenate([p for p, _, _ in dense])
+        all_y = np.concatenate([y for _, y, _ in dense])
+        solved = model._solve_closed_form(all_p, all_y, parts[0][2][0])
+        if solved is not None:
+            ends = np.cumsum([len(p) for p, _, _ in dense])[:-1]
+            out = []
+            for (p, y, original), (_, _, q), dense_q in zip(
+                dense, parts, np.split(solved[0], ends), strict=True
+            ):
+                if np.abs(dense_q[original] - q).max() >= 1e-6:  # not the path's branch
+                    break
+                dense_q[original] = q
+                out.append((p, y, dense_q))
+            else:
+                return out
+    return [_densify(model, points, yaw, q) for points, yaw, q in parts]
+
+
+def _densify(
+    model: RobotModel, points: np.ndarray, yaw: np.ndarray, q: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Insert IK-solved points where consecutive points are more than MAX_KNOT_SPACING apart."""
+    dense_p, dense_y, original = _dense_points(points, yaw)
+    if len(dense_p) == len(points):
+        return points, yaw, q
+    if model.closed_form is not None:
+        dense_q, _, _ = model.solve_points(dense_p, dense_y, q[0], where="timing")
+        if np.abs(dense_q[original] - q).max() < 1e-6:  # the same branch as the path's IK
+            dense_q[original] = q
+            return dense_p, dense_y, dense_q
+    return _densify_iterative(model, points, yaw, q)
+
+
+def _densify_iterative(
+    model: RobotModel, points: np.ndarray, yaw: np.ndarray, q: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`_densify` gap by gap, each gap's inner points solved from the IK at its start."""
+    out_p, out_y, out_q = [points[:1]], [yaw[:1]], [q[:1]]
+    for i in range(1, len(points)):
+        gap = math.hypot(
+            float(np.linalg.norm(points[i] - points[i - 1])),
+            YAW_RADIUS_M * float(yaw[i] - yaw[i - 1]),
+        )
+        extra = math.ceil(gap / MAX_KNOT_SPACING) - 1
+        if extra > 0:
+            fractions = np.linspace(0, 1, extra + 2)[1:-1]
+            inner_p = points[i - 1] + fractions[:, None] * (points[i] - points[i - 1])
+            inner_y = yaw[i - 1] + fractions * (yaw[i] - yaw[i - 1])
+            inner_q, _, _ = model.solve_points(
+                inner_p, inner_y, q[i - 1], where="timing", method="iterative"
+            )
+            out_p.append(inner_p)
+            out_y.append(inner_y)
+            out_q.append(inner_q)
+        out_p.append(points[i : i + 1])
+        out_y.append(yaw[i : i + 1])
+        out_q.append(q[i : i + 1])
+    return np.concatenate(out_p), np.concatenate(out_y), np.concatenate(out_q)
+
+
+def _significant_points(points: np.ndarray, yaw: np.ndarray) -> np.ndarray:
+    """Indexes of the points that move at least MIN_STEP_M from the last one kept.
+
+    A rollout that dwells jitters; every wiggle would be a direction reversal of the path, a
+    cusp the joints cannot follow at speed. Dropping those points moves the path by less than
+    MIN_STEP_M.
+    """
+    geometry = np.column_stack([points, YAW_RADIUS_M * yaw])
+    kept = [0]
+    for i in range(1, len(points)):
+        if np.linalg.norm(geometry[i] - geometry[kept[-1]]) >= MIN_STEP_M:
+            kept.append(i)
+    if len(kept) == 1:
+        return np.array(kept)  # a pure dwell: nothing for the timing to move along
+    kept[-1] = len(points) - 1
+    return np.array(kept)
+
+
+def split_strokes(model: RobotModel, tool_path: ToolPath, joint_path: JointPath) -> list[Stroke]:
+    """Every piece cut at its sharp corners; parts that do not move are dropped."""
+    from keymps.motion.spline import CubicSpline
+
+    if len(joint_path.pieces) != len(tool_path.pieces):
+        raise KeympsError(
+            f"timing: the joint path has {len(joint_path.pieces)} pieces but the tool path "
+            f"has {len(tool_path.pieces)}"
+        )
+    parts: list[tuple[int, Piece, np.ndarray, np.ndarray, np.ndarray]] = []
+    for index, (piece, q_all) in enumerate(zip(tool_path.pieces, joint_path.pieces, strict=True)):
+        if len(q_all) != len(piece.points):
+            raise KeympsError(
+                f"timing: piece {index} has {len(piece.points)} points but {len(q_all)} joint "
+                "vectors"
+            )
+        kept = _significant_points(piece.points, piece.yaw)
+        if len(kept) < 2:
+            continue
+        points, yaw, q = piece.points[kept], piece.yaw[kept], q_all[kept]
+        cuts = [0, *_corner_indexes(points, yaw), len(points) - 1]
+        for start, end in zip(cuts[:-1], cuts[1:], strict=True):
+            part = slice(start, end + 1)
+            parts.append((index, piece, points[part], yaw[part], q[part]))
+    dense = _densify_all(model, [(p, y, q) for _, _, p, y, q in parts])
+    strokes = []
+    for (index, piece, points, yaw, _), (dense_p, dense_yaw, dense_q) in zip(
+        parts, dense, strict=True
+    ):
+        s_dense = np.concatenate(
+            [[0.0], np.cumsum(np.linalg.norm(_parameter_steps(dense_p, dense_yaw), axis=1))]
+        )
+        s_plan = np.concatenate(
+            [[0.0], np.cumsum(np.linalg.norm(_parameter_steps(points, yaw), axis=1))]
+        )
+        strokes.append(
+            Stroke(
+                index,
+                piece.kind,
+                s_plan,
+                points,
+                CubicSpline(s_dense, dense_q),
+                float(piece.speed),
+            )
+        )
+    if not strokes:
+        raise KeympsError("timing: the tool path does not move")
+    return strokes
+
+
+def split_stroke(stroke: Stroke, at_s: float) -> tuple[Stroke, Stroke] | None:
+    """The stroke cut at its plan point nearest to `at_s`; None when that is at an end."""
+    index = int(np.argmin(np.abs(stroke.s - at_s)))
+    if not 0 < index < len(stroke.s) - 1:
+        return None
+    offset = float(stroke.s[index])
+    if min(offset, stroke.length - offset) < MIN_STOP_GAP_M:
+        return None
+    before = Stroke(
+        stroke.piece_index,
+        stroke.kind,
+        stroke.s[: index + 1].copy(),
+        stroke.points[: index + 1],
+        stroke.q_of_s,
+        stroke.speed,
+    )
+    after = Stroke(
+        stroke.piece_index,
+        stroke.kind,
+        stroke.s[index:] - offset,
+        stroke.points[index:],
+        _Shifted(stroke.q_of_s, offset),
+        stroke.speed,
+    )
+    return before, after
+
+
+class _Shifted:
+    """q(s + offset): the second part of a split stroke reuses its parent's spline."""
+
+    def __init__(self, q_of_s: Any, offset: float):
+        self.q_of_s, self.offset = q_of_s, offset
+
+    def __call__(self, s: np.ndarray, nu: int = 0) -> np.ndarray:
+        return self.q_of_s(np.asarray(s) + self.offset, nu)
+
+    def with_derivatives(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return self.q_of_s.with_derivatives(np.asarray(s) + self.offset)
