@@ -98,6 +98,9 @@ def show(name: str, dirs: tuple[Path, ...]) -> None:
             lines.append(f"demo:          {p.demo} (missing)")
     if p.source:
         lines.append(f"learned from:  {p.source}")
+    if p.source_preprocessing:
+        applied = ", ".join(f"{k} {v}" for k, v in p.source_preprocessing.to_dict().items())
+        lines.append(f"cleaned with:  {applied}")
     click.echo("\n".join(lines))
 
 
@@ -253,10 +256,16 @@ def plot(
     origin = np.array(_point(start)) if start else dmp.demo_start
     if targets:
         goals = [np.array(_point(text)) for text in targets]
+        labels = [f"to ({', '.join(f'{v:g}' for v in goal)})" for goal in goals]
     else:
         c, s = 0.0, 1.0
         turned = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]) @ dmp.demo_delta
         goals = [origin + dmp.demo_delta, origin + turned, origin + 1.5 * dmp.demo_delta]
+        labels = [
+            "fit: the demonstration's own goal",
+            "goal turned 90 degrees about z",
+            "1.5 times longer",
+        ]
     figure = plt.figure(figsize=(7, 6))
     axes = figure.add_subplot(projection="3d")
     if p.demo is not None and p.demo.is_file():
@@ -266,13 +275,17 @@ def plot(
     from mpl_toolkits.mplot3d.art3d import Line3DCollection
 
     colors = _time_colors(np)
-    for goal in goals:
+    markers = "x^sdvP*"
+    for number, (goal, label) in enumerate(zip(goals, labels, strict=True), start=1):
         y = p.rollout(origin, goal, mode=mode, spacing=0.0005).y
         pieces = np.stack([y[:-1], y[1:]], axis=1)
         axes.add_collection(
             Line3DCollection(pieces, colors=colors(np.linspace(0, 1, len(pieces))), linewidth=2)
         )
-        axes.scatter(*goal, marker="x", color="k", s=30)
+        # the rollouts share the time colours: each goal's marker and number tell them apart
+        marker = markers[(number - 1) % len(markers)]
+        axes.scatter(*goal, marker=marker, color="k", s=40, label=f"{number}: {label}")
+        axes.text(*goal, f" {number}", color="k")
     axes.scatter(*origin, marker="o", color="k", s=20, label="start")
     axes.set_xlabel("x [m]")
     axes.set_ylabel("y [m]")

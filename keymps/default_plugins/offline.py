@@ -53,11 +53,14 @@ def _named_objects(description: str) -> set[str]:
     return set().union(*(_words(group) for group in re.findall(r"\(([^)]*)\)", description)))
 
 
-def choose_primitive(family: str, primitives: Mapping[str, str], context: str) -> tuple[str, str]:
+def choose_primitive(
+    family: str, primitives: Mapping[str, str], sentence: str, task_name: str = ""
+) -> tuple[str, str]:
     """(name, why) of the primitive for this design, from names and descriptions.
 
-    A primitive of the design's family named in the sentence ("with a rocking cut") is taken
-    first. Otherwise icing designs take the icing primitive, and cuts the one primitive whose
+    A primitive of the design's family named in the sentence ("with a rocking cut") or in the
+    task's name ("rocking-eggplant") is taken first; `why` says which of the two named it.
+    Otherwise icing designs take the icing primitive, and cuts the one primitive whose
     description names the object (from the sentence or the task name), else a hard-object
     primitive for a hard or crusty object, else a soft-object one.
     """
@@ -66,11 +69,16 @@ def choose_primitive(family: str, primitives: Mapping[str, str], context: str) -
     if len(names) == 1 and (names[0] in icing) == (family == "icing"):
         return names[0], "the only primitive"
     cutting = [n for n in names if n not in icing]
+    named_by = _words(task_name.replace("-", " ").replace("_", " "))
+    context = f"{sentence} {task_name.replace('-', ' ').replace('_', ' ')}"
     mentioned = _words(context)
     family_names = icing if family == "icing" else cutting
     asked = [n for n in family_names if (words := _words(n)) and words <= mentioned]
     if len(asked) == 1:
-        return asked[0], "the sentence names it"
+        in_sentence = _words(asked[0]) <= _words(sentence)
+        if in_sentence or not _words(asked[0]) <= named_by:
+            return asked[0], "the sentence names it"
+        return asked[0], f"the task's name ({task_name}) names it"
     if family == "icing":
         if icing:
             return icing[0], "its description is for icing"
@@ -119,8 +127,9 @@ class OfflineBackend:
 
         started = time.perf_counter()
         intent = read_instruction(request.instruction)
-        context = f"{request.instruction} {request.task_name.replace('-', ' ').replace('_', ' ')}"
-        keyword, why = choose_primitive(intent.family, request.primitives, context)
+        keyword, why = choose_primitive(
+            intent.family, request.primitives, request.instruction, request.task_name
+        )
         answer: dict[str, Any] = {}
         if request.step in ("combined", "keyword"):
             answer["keyword"] = keyword

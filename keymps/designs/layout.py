@@ -53,8 +53,9 @@ def design(intent: Intent, shape: CropShape, max_pairs: int) -> tuple[np.ndarray
         _check_piece_shape(intent, shape)
         if o.kind == "round":
             return patterns.radial_slices(o, intent.count, overshoot=over), (
-                f"{what}: {intent.count} equal wedges, cuts through the centre at "
-                f"{360 / intent.count:g} degree steps"
+                f"{what}: {intent.count} equal wedges, "
+                + ("cuts through the centre" if intent.count % 2 == 0 else "rays from the centre")
+                + f" at {360 / intent.count:g} degree steps"
             )
         if o.kind == "square":
             rows, cols = patterns.grid_shape(intent.count, o.length / o.width)

@@ -58,8 +58,11 @@ class Primitive:
     fit_rmse: float = 0.0
     """Root-mean-square distance between the fitted rollout and the demonstration, metres."""
     preprocessing: Preprocessing = field(default_factory=Preprocessing)
+    """What refitting applies to `demo` (a learned demo is saved prepared: nothing more)."""
     source: str | None = None
     """Where the demonstration came from before preprocessing (free text, e.g. a log file)."""
+    source_preprocessing: Preprocessing | None = None
+    """How `source` was cleaned into `demo` when the primitive was learned."""
     path: Path | None = field(default=None, compare=False)
     """The YAML file this primitive was loaded from."""
 
@@ -156,10 +159,13 @@ def learn_primitive(
     demo_out = out_dir / f"{name}.csv"
     if demo_out.resolve() != demo.resolve():
         write_demo_csv(demo_out, t, y)
-        applied = ", ".join(f"{k}={v}" for k, v in settings.to_dict().items())
-        source = f"{demo} ({applied})"
         # The saved demo is already prepared: refitting it needs no further preprocessing.
-        primitive = replace(primitive, preprocessing=Preprocessing(trim_mm=0.0), source=source)
+        primitive = replace(
+            primitive,
+            preprocessing=Preprocessing(trim_mm=0.0),
+            source=str(demo),
+            source_preprocessing=settings,
+        )
     primitive = replace(primitive, demo=demo_out)
     save_primitive(primitive, out_dir / f"{name}.yaml")
     return replace(primitive, path=out_dir / f"{name}.yaml")
@@ -186,6 +192,9 @@ def primitive_to_dict(primitive: Primitive, relative_to: Path | None = None) -> 
         "nominal_speed": primitive.nominal_speed,
         "demo": demo,
         "source": primitive.source,
+        "source_preprocessing": primitive.source_preprocessing.to_dict()
+        if primitive.source_preprocessing
+        else None,
         "fit_rmse_m": primitive.fit_rmse,
         "preprocessing": primitive.preprocessing.to_dict(),
         "dmp": primitive.dmp.to_dict(),
@@ -262,7 +271,7 @@ def _read_primitive(path: Path) -> Primitive:
         raise PrimitiveError(f"{where}: expected a mapping of primitive fields")
     known = {
         "format", "name", "description", "family", "mode", "nominal_speed", "demo", "source",
-        "fit_rmse_m", "preprocessing", "dmp",
+        "source_preprocessing", "fit_rmse_m", "preprocessing", "dmp",
     }  # fmt: skip
     unknown = sorted(set(data) - known)
     if unknown:
@@ -301,6 +310,9 @@ def _read_primitive(path: Path) -> Primitive:
         fit_rmse=float(rmse),
         preprocessing=_preprocessing(data.get("preprocessing") or {}, where),
         source=str(source) if source is not None else None,
+        source_preprocessing=_preprocessing(data["source_preprocessing"], where)
+        if data.get("source_preprocessing") is not None
+        else None,
         path=path,
     )
 
