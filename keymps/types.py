@@ -151,6 +151,8 @@ class PlanRequest:
     temperature: float = 0.0
     timeout_s: float = 60.0
     task_name: str = ""
+    line_width_mm: float = 0.0
+    """Width of the icing line the task's tool draws (0: not an icing tool, or unknown)."""
     share_key: str | None = None
     """Set when answers may be shared (the answer cache is on): identical requests out at the
     same time then share one answer (keymps.eval.broker)."""

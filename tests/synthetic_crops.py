@@ -90,6 +90,7 @@ def make_task(instruction: str, scene: Scene, primitives: Mapping[str, str], **p
         instruction=instruction,
         scene={"source": "synthetic", "workspace": {"size": list(scene.workspace_m)}},
         primitives=list(primitives),
+        robot=planner.pop("robot", {}),
         planner=planner,
     )
 

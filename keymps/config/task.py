@@ -176,6 +176,9 @@ class ToolSpec(StrictModel):
     blade_length: Annotated[float, Field(gt=0, le=0.4, allow_inf_nan=False)] | None = None
     """A knife's straight edge, from the tip back along the cut, metres; None takes the
     built-in's (knife 0.16, piping_bag none; a custom tool has none)."""
+    line_width: Annotated[float, Field(gt=0, le=0.05, allow_inf_nan=False)] | None = None
+    """Width of the icing line the tool draws, metres; None takes the built-in's (piping_bag
+    0.004, knife none). The offline planner refuses designs whose strokes would merge."""
 
 
 class Robot(StrictModel):

@@ -147,6 +147,7 @@ class OfflineBackend:
                     request.crop_mask,
                     request.metres_per_px,
                     request.max_pairs,
+                    line_width_mm=request.line_width_mm,
                 )
             except KeympsError as error:
                 raise KeympsError(f"the offline planner {error}") from None

@@ -8,6 +8,8 @@ the object's bounding box, as the paper's lines are).
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from keymps.designs.grammar import Intent
@@ -47,8 +49,11 @@ def place_design(
     mask: np.ndarray | None,
     metres_per_px: tuple[float, float],
     max_pairs: int,
+    line_width_mm: float = 0.0,
 ) -> tuple[np.ndarray, str]:
-    """((K, 2, 2) pairs in crop pixels, a one-sentence rationale) for `intent` on this crop."""
+    """((K, 2, 2) pairs in crop pixels, a one-sentence rationale) for `intent` on this crop.
+
+    With the icing line's width, an icing design whose lines would merge is refused."""
     from keymps.designs.crop_shape import measure
     from keymps.designs.layout import design
 
@@ -60,6 +65,8 @@ def place_design(
         raise KeympsError(
             f"cannot lay out {intent.describe()} on the {shape.describe()}: {error}"
         ) from None
+    if intent.family == "icing" and line_width_mm > 0:
+        refuse_merging(pairs_mm, line_width_mm, intent.describe(), shape)
     height, width = crop.shape[:2]
     pairs_px = clip_to_image(shape.to_pixels(pairs_mm), width - 1, height - 1)
     if intent.family == "cut":
@@ -74,3 +81,41 @@ def place_design(
     if len(pairs_px) == 0:
         raise KeympsError(f"found no place for {intent.describe()} on the {shape.describe()}")
     return pairs_px, layout
+
+
+def smallest_scale(pairs_mm: np.ndarray, line_width_mm: float, centre: np.ndarray) -> float:
+    """How many times larger (about `centre`) a drawing must be for its strokes not to merge."""
+    from keymps.designs.patterns import merging_strokes
+
+    low, high = 1.0, 2.0
+    while merging_strokes(centre + high * (pairs_mm - centre), line_width_mm) and high < 64:
+        low, high = high, 2 * high
+    for _ in range(12):
+        middle = (low + high) / 2
+        if merging_strokes(centre + middle * (pairs_mm - centre), line_width_mm):
+            low = middle
+        else:
+            high = middle
+    return high
+
+
+def refuse_merging(pairs_mm: np.ndarray, line_width_mm: float, what: str, shape: Any) -> None:
+    """Refuse a design whose icing lines would run into each other, saying what size works."""
+    from keymps.designs.patterns import merging_strokes
+
+    merge = merging_strokes(pairs_mm, line_width_mm)
+    if merge is None:
+        return
+    gap, _ = merge
+    o = shape.outline
+    factor = smallest_scale(pairs_mm, line_width_mm, np.asarray(o.centre, float))
+    if o.kind == "round":
+        needed = f"{2 * o.radius * factor / 10:.1f} cm across"
+    else:
+        needed = f"{o.length * factor / 10:.1f} x {o.width * factor / 10:.1f} cm"
+    raise KeympsError(
+        f"refuses {what} on the {shape.describe()}: its lines would come {gap:.1f} mm apart "
+        f"and merge with a {line_width_mm:g} mm icing line (robot.tool.line_width); it needs "
+        f"an object at least {needed} ({factor:.2f} times larger), a thinner line, or a "
+        "simpler design"
+    )

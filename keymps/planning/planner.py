@@ -82,6 +82,15 @@ def crop_mask(detection: Detection, scene: SceneImage) -> np.ndarray | None:
     return None
 
 
+def _line_width_mm(task: Task) -> float:
+    from keymps.robot.description import tool_from_task
+
+    try:
+        return 1000.0 * tool_from_task(task).line_width
+    except KeympsError:  # an unknown tool is reported by the robot model, not here
+        return 0.0
+
+
 def make_plan(
     task: Task,
     detection: Detection,
@@ -143,6 +152,7 @@ def make_plan(
         temperature=planner.temperature,
         timeout_s=planner.timeout_s,
         task_name=task.name,
+        line_width_mm=_line_width_mm(task),
     )
     family = prompt_family(primitives)
     session = PlanSession(
@@ -171,7 +181,14 @@ def make_plan(
     check_plan(task, keyword, families)
     if placed.design is not None:
         pairs_crop, layout = _lay_out(
-            placed.design, keyword, families, detection, mask, metres_per_px, planner.max_pairs
+            placed.design,
+            keyword,
+            families,
+            detection,
+            mask,
+            metres_per_px,
+            planner.max_pairs,
+            _line_width_mm(task),
         )
         rationale = f"{rationale} [named design laid out by keymps: {layout}]".strip()
     else:
@@ -220,6 +237,7 @@ def _lay_out(
     mask: np.ndarray | None,
     metres_per_px: tuple[float, float],
     max_pairs: int,
+    line_width_mm: float = 0.0,
 ) -> tuple[np.ndarray, str]:
     """A named design's exact pairs in crop pixels, on the full-resolution crop."""
     from keymps.designs.place import place_design
@@ -234,7 +252,9 @@ def _lay_out(
             f"the plan names the {needed} design {answer.name!r} with the "
             f"{families[keyword]} primitive {keyword!r}"
         )
-    return place_design(intent, detection.crop, mask, metres_per_px, max_pairs)
+    return place_design(
+        intent, detection.crop, mask, metres_per_px, max_pairs, line_width_mm=line_width_mm
+    )
 
 
 def _read_prompt(path: Path) -> str:

@@ -71,11 +71,13 @@ class Tool:
     blade_length: float = 0.0
     """A straight horizontal edge along the tool x axis, from the tip back against the direction
     of travel, metres (0: no blade). The sim executor cuts with the whole edge."""
+    line_width: float = 0.0
+    """Width of the line an icing tool draws, metres (0: not an icing tool)."""
 
 
 BUILTIN_TOOLS: dict[str, Tool] = {
     "knife": Tool("knife", (0.0, 0.0, 0.10), "follow", blade_length=0.16),  # a chef's knife
-    "piping_bag": Tool("piping_bag", (0.0, 0.0, 0.15), "fixed", blade_length=0.0),
+    "piping_bag": Tool("piping_bag", (0.0, 0.0, 0.15), "fixed", blade_length=0.0, line_width=0.004),
 }
 
 
@@ -94,7 +96,10 @@ def tool_from_task(task: Task) -> Tool:
     blade = spec.blade_length
     if blade is None:
         blade = builtin.blade_length if builtin else 0.0
-    return Tool(spec.name, (tcp[0], tcp[1], tcp[2]), yaw, float(blade))
+    line = spec.line_width
+    if line is None:
+        line = builtin.line_width if builtin else 0.0
+    return Tool(spec.name, (tcp[0], tcp[1], tcp[2]), yaw, float(blade), float(line))
 
 
 def ur_urdf_path() -> Path:
