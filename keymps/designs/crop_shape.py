@@ -69,6 +69,10 @@ def _largest_contour(mask: np.ndarray) -> np.ndarray | None:
     return np.asarray(largest.reshape(-1, 2), dtype=float)
 
 
+SQUARE_SNAP_DEG = 0.5
+"""A square footprint measured within this of the image axes is taken as aligned with them."""
+
+
 def classify(polygon_mm: np.ndarray) -> tuple[ShapeKind, float]:
     """(kind, long-axis angle) of a footprint polygon in metric units."""
     import cv2
@@ -90,9 +94,13 @@ def classify(polygon_mm: np.ndarray) -> tuple[ShapeKind, float]:
         kind = "square"
     else:
         kind = "round"
-    if kind != "elongated" and abs(abs(angle) - math.pi / 2) < math.radians(10):
-        angle = 0.0  # compact objects: keep the image axes when the sides nearly align with them
-    if kind != "elongated" and abs(angle) < math.radians(10):
+    # Keep the image axes when the sides nearly align with them: for a round object within 10
+    # degrees (its rectangle's angle means little), for a square one within measurement noise
+    # only (a cake turned 3 degrees must get a turned grid, or its pieces are 5 % unequal).
+    snap = math.radians(10.0 if kind == "round" else SQUARE_SNAP_DEG)
+    if kind != "elongated" and abs(abs(angle) - math.pi / 2) < snap:
+        angle = 0.0
+    if kind != "elongated" and abs(angle) < snap:
         angle = 0.0
     return kind, angle
 
