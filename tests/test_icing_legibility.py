@@ -11,6 +11,7 @@ import pytest
 from synthetic_crops import ICING, make_scene, plan_for
 
 from keymps.designs import patterns
+from keymps.designs.legibility import merging_strokes
 from keymps.errors import KeympsError
 
 
@@ -39,7 +40,7 @@ def test_seven_segment_text_merges_exactly_when_its_lines_come_closer_than_the_l
     text = "".join(rng.choice("0123456789") for _ in range(rng.randint(2, 5)))
     width = rng.uniform(1.0, 6.0)
     height = rng.uniform(5.0, 40.0)
-    merge = patterns.merging_strokes(patterns.seven_segment(text, (0, 0), height), width)
+    merge = merging_strokes(patterns.seven_segment(text, (0, 0), height), width)
     # within a character parallel segments are half a height apart (b-f, a-g, g-d)
     parallel = 0.5 * height if any(ch in "0234568 9" for ch in text) else np.inf
     gap = min(_gap_between_characters(text, height), parallel)
@@ -48,20 +49,20 @@ def test_seven_segment_text_merges_exactly_when_its_lines_come_closer_than_the_l
     if merge is not None:
         assert merge[0] == pytest.approx(min(gap, merge[0]), abs=0.02 * height)
     # a drawing and its line scaled together merge alike
-    scaled = patterns.merging_strokes(patterns.seven_segment(text, (0, 0), 3 * height), 3 * width)
+    scaled = merging_strokes(patterns.seven_segment(text, (0, 0), 3 * height), 3 * width)
     assert (scaled is None) == (merge is None)
 
 
 def test_crossing_lines_corners_and_star_tips_do_not_count_as_merging() -> None:
-    assert patterns.merging_strokes(patterns.star((0, 0), 40, 5), 4.0) is None
+    assert merging_strokes(patterns.star((0, 0), 40, 5), 4.0) is None
     square = np.array(
         [[[0, 0], [30, 0]], [[30, 0], [30, 30]], [[30, 30], [0, 30]], [[0, 30], [0, 0]]]
     )
-    assert patterns.merging_strokes(square, 4.0) is None
+    assert merging_strokes(square, 4.0) is None
     cross = np.array([[[0, 0], [30, 30]], [[0, 30], [30, 0]]])
-    assert patterns.merging_strokes(cross, 4.0) is None
+    assert merging_strokes(cross, 4.0) is None
     two_dots = np.array([[[0, 0], [0, 0]], [[3, 0], [3, 0]]])
-    assert patterns.merging_strokes(two_dots, 4.0) == (3.0, pytest.approx(np.array([1.5, 0])))
+    assert merging_strokes(two_dots, 4.0) == (3.0, pytest.approx(np.array([1.5, 0])))
 
 
 def test_2026_on_a_4_5_cm_cake_is_refused_with_the_size_that_works() -> None:

@@ -85,7 +85,7 @@ def place_design(
 
 def smallest_scale(pairs_mm: np.ndarray, line_width_mm: float, centre: np.ndarray) -> float:
     """How many times larger (about `centre`) a drawing must be for its strokes not to merge."""
-    from keymps.designs.patterns import merging_strokes
+    from keymps.designs.legibility import merging_strokes
 
     low, high = 1.0, 2.0
     while merging_strokes(centre + high * (pairs_mm - centre), line_width_mm) and high < 64:
@@ -101,7 +101,7 @@ def smallest_scale(pairs_mm: np.ndarray, line_width_mm: float, centre: np.ndarra
 
 def refuse_merging(pairs_mm: np.ndarray, line_width_mm: float, what: str, shape: Any) -> None:
     """Refuse a design whose icing lines would run into each other, saying what size works."""
-    from keymps.designs.patterns import merging_strokes
+    from keymps.designs.legibility import merging_strokes
 
     merge = merging_strokes(pairs_mm, line_width_mm)
     if merge is None:

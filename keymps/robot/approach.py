@@ -9,7 +9,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from keymps.robot.safety import SafetyError, _check_board, _check_joints, _check_workspace
+from keymps.errors import SafetyError
+from keymps.robot.safety import _check_board, _check_joints, _check_workspace
 from keymps.types import Piece, ToolPath, Trajectory, ValidationReport
 
 if TYPE_CHECKING:

@@ -236,9 +236,9 @@ class UrRtdeExecutor:
 
     def _check_approach(self, receive: Any, trajectory: Any, run: Any) -> float:
         """The moveJ to the first sample, checked by keymps' safety validator; its seconds."""
+        from keymps.plugin import SafetyError
         from keymps.robot.approach import check_approach
         from keymps.robot.model import RobotModel
-        from keymps.robot.safety import SafetyError
 
         options = self.options
         actual = np.asarray(receive.getActualQ(), dtype=float)
