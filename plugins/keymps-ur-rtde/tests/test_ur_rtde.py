@@ -287,13 +287,14 @@ def test_dry_run_or_not_is_in_the_report_and_run_json(
     from keymps.pipeline.run_folder import run_record
 
     run = make_run(tmp_path, confirm=False)
-    run.results["execute"] = executor().execute(validated, run)
-    assert run.results["execute"].dry_run is True
+    run.stages.record("execute", executor().execute(validated, run))
+    assert run.stages.execute is not None and run.stages.execute.dry_run is True
     assert run_record(run, None)["execution"]["dry_run"] is True
     confirmed = make_run(tmp_path / "c", confirm=True)
-    confirmed.results["execute"] = executor(fake_control(at_start)).execute(validated, confirmed)
-    assert confirmed.results["execute"].ok, confirmed.results["execute"].message
-    assert confirmed.results["execute"].message.startswith("--confirm: executed")
+    report = executor(fake_control(at_start)).execute(validated, confirmed)
+    confirmed.stages.record("execute", report)
+    assert report.ok, report.message
+    assert report.message.startswith("--confirm: executed")
     assert run_record(confirmed, None)["execution"]["dry_run"] is False
 
 
