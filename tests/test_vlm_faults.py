@@ -105,7 +105,23 @@ def closed_port_url() -> tuple[str, str]:
     return f"http://127.0.0.1:{port}/v1", f"127.0.0.1:{port}"
 
 
-def test_connection_refused_says_so_after_one_quick_retry(task: Any, tmp_path: Path) -> None:
+@pytest.fixture(scope="module")
+def warm(server: Any) -> None:
+    """litellm's first completion in a process imports for seconds, past TIMEOUT_S: one call
+    outside any bound first (the tests below time what keymps does, not litellm's imports)."""
+    from keymps.default_plugins.litellm.backend import import_litellm
+
+    import_litellm().completion(
+        model="openai/test-vlm",
+        api_base=server.openai_base,
+        api_key="no-key-needed",
+        messages=[{"role": "user", "content": "warm up"}],
+    )
+
+
+def test_connection_refused_says_so_after_one_quick_retry(
+    task: Any, warm: None, tmp_path: Path
+) -> None:
     closed, host_port = closed_port_url()
     started = time.perf_counter()
     with pytest.raises(KeympsError) as caught:
@@ -142,7 +158,7 @@ class _HtmlPage(BaseHTTPRequestHandler):
         pass
 
 
-def test_an_html_page_is_not_json_and_not_retried(task: Any, tmp_path: Path) -> None:
+def test_an_html_page_is_not_json_and_not_retried(task: Any, warm: None, tmp_path: Path) -> None:
     page = ThreadingHTTPServer(("127.0.0.1", 0), _HtmlPage)
     thread = threading.Thread(target=page.serve_forever, daemon=True)
     thread.start()
@@ -161,7 +177,7 @@ def test_an_html_page_is_not_json_and_not_retried(task: Any, tmp_path: Path) -> 
 
 
 def test_a_server_that_resets_every_connection_is_named(
-    task: Any, server: Any, tmp_path: Path
+    task: Any, server: Any, warm: None, tmp_path: Path
 ) -> None:
     server.script(*[Reply.reset()] * (RETRIES + 1))
     with pytest.raises(KeympsError) as caught:
@@ -174,7 +190,7 @@ def test_a_server_that_resets_every_connection_is_named(
 
 
 def test_missing_credentials_are_not_retried(
-    task: Any, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    task: Any, warm: None, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     # no api_base: litellm would call OpenAI itself, but refuses before any network without a key
     for name in [n for n in os.environ if n.endswith("_API_KEY")]:

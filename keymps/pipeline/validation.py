@@ -30,9 +30,10 @@ def validate_task_file(path: Path, notes: list[str] | None = None) -> list[str]:
         if salvaged is None:
             return problems
         task, broken, missing = salvaged
-        extra = [*missing, *component_problems(task, broken)]
-        problems += [line for line in extra if line not in problems]
-        return sorted(problems, key=_line_and_column)
+        if any(": planner.prompt: " in line for line in missing):
+            broken |= {"planner"}  # the prompt check would say it again
+        problems += [*missing, *component_problems(task, broken)]
+        return sorted(dict.fromkeys(problems), key=_line_and_column)
     except KeympsError as error:
         return [str(error)]
     return sorted(component_problems(task, notes=notes), key=_line_and_column)
