@@ -20,7 +20,8 @@ if TYPE_CHECKING:
 def validate_task_file(path: Path, notes: list[str] | None = None) -> list[str]:
     """Problems with a task file, one line each (empty when the file is ready to run); what a
     run would warn about is appended to `notes` (e.g. that no key goes to its api_base)."""
-    from keymps.config.task import load_task, salvage_task
+    from keymps.config.salvage import salvage_task
+    from keymps.config.task import load_task
 
     try:
         task = load_task(path)

@@ -1,0 +1,57 @@
+"""What `keymps validate` can still check in a task file that breaks the schema: the file with
+every broken top-level field set aside."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from pydantic import ValidationError
+
+from keymps.config.task import Task, _check_referenced_files, _display_path
+from keymps.config.yaml_positions import YamlSyntaxError, load_yaml_with_positions
+
+_STAND_INS: dict[str, Any] = {
+    "name": "stand-in",
+    "instruction": "stand-in",
+    "scene": {"image": "stand-in.png"},
+    "primitives": ["line"],
+}
+"""Placeholders for required fields with a problem, so that the rest can still be checked."""
+
+
+def salvage_task(path: str | Path) -> tuple[Task, frozenset[str], list[str]] | None:
+    """For a task file with schema problems: the task with every top-level field that has one
+    replaced (by its default or a stand-in), the names replaced, and the missing-file problems
+    of the fields kept. `keymps validate` checks the rest of the file with it in the same run.
+    None when the file cannot be read or parsed as YAML at all."""
+    path = Path(path)
+    try:
+        parsed = load_yaml_with_positions(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, YamlSyntaxError):
+        return None
+    if not isinstance(parsed.data, dict):
+        return None
+    data = {k: v for k, v in parsed.data.items() if k != "path"}
+    try:
+        Task.model_validate({**data, "path": path.resolve()})
+        broken: set[str] = set()
+    except ValidationError as error:
+        broken = {str(e["loc"][0]) for e in error.errors() if e["loc"]}
+    for key in broken:
+        data.pop(key, None)
+        if key in _STAND_INS:
+            data[key] = _STAND_INS[key]
+    try:
+        task = Task.model_validate({**data, "path": path.resolve()})
+    except ValidationError:
+        return None
+    source = _display_path(path)
+    task._source = source
+    task._yaml = parsed
+    problems = [
+        problem
+        for problem in _check_referenced_files(task, source, parsed)
+        if problem.split(": ", 2)[1].split(".")[0] not in broken
+    ]
+    return task, frozenset(broken), problems
