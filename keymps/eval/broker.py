@@ -27,12 +27,13 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from keymps.errors import KeympsError
+from keymps.planning.backend_choice import AUTO_VLM
 
 if TYPE_CHECKING:
     from keymps.eval.turn import CpuTurn
     from keymps.types import BackendAnswer, PlanRequest
 
-BROKERED_BACKEND = "litellm"
+BROKERED_BACKEND = AUTO_VLM
 """The planner backend whose calls a broker makes (other backends call out themselves)."""
 _LOOP: asyncio.AbstractEventLoop | None = None
 _LOOP_LOCK = threading.Lock()

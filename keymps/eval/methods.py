@@ -26,6 +26,7 @@ import numpy as np
 
 from keymps.errors import KeympsError
 from keymps.eval.context import MethodContext, MethodOutput
+from keymps.planning.backend_choice import NO_SERVER
 from keymps.run import StageResults
 
 MethodRunner = Callable[[MethodContext], MethodOutput]
@@ -209,7 +210,7 @@ def get_method(name: str) -> Method:
 
 def check_runnable(method: Method, backend: str) -> None:
     """A one-line error when a VLM-only method is asked to run on the offline planner."""
-    if method.needs_vlm and backend == "offline":
+    if method.needs_vlm and backend in NO_SERVER:
         raise MethodNeedsVlm(
             f"method {method.name} needs a VLM ({method.summary}); the offline planner cannot "
             "answer its prompt: pass --model (e.g. openai/gpt-4o) or --api-base URL --model NAME"

@@ -120,13 +120,14 @@ def _offline_design(task: Any, detection: Detection, scene: SceneImage) -> Plan:
     import tempfile
     from pathlib import Path
 
+    from keymps.planning.backend_choice import AUTO_OFFLINE
     from keymps.planning.planner import make_plan
     from keymps.run import Run
 
     primitives = {"line": "icing: descend to the surface, then move laterally"}
     with tempfile.TemporaryDirectory(prefix="keymps-perception-") as folder:
         run = Run(task=task, folder=Path(folder))
-        return make_plan(task, detection, scene, primitives, run, "offline")
+        return make_plan(task, detection, scene, primitives, run, AUTO_OFFLINE)
 
 
 def _design_m(task: Any, detection: Detection, scene: SceneImage) -> np.ndarray:

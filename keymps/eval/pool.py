@@ -36,6 +36,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from keymps.errors import KeympsError
+from keymps.planning.backend_choice import NO_SERVER
 
 if TYPE_CHECKING:
     from keymps.eval.broker import VlmBroker
@@ -50,7 +51,7 @@ MIN_JOBS_PER_PROCESS = 8
 POLL_S = 0.5
 
 
-OFFLINE_BACKENDS = ("offline", "replay")
+OFFLINE_BACKENDS = NO_SERVER
 """Planner backends that never call a VLM: `concurrency` does not bound their runs."""
 
 

@@ -30,6 +30,7 @@ import numpy as np
 
 from keymps.errors import KeympsError
 from keymps.eval.suites import Suite
+from keymps.planning.backend_choice import AUTO_OFFLINE, AUTO_VLM
 from keymps.planning.redaction import redact
 
 if TYPE_CHECKING:
@@ -79,7 +80,7 @@ class Job:
 def resolve_backend(options: EvalOptions) -> str:
     if options.backend:
         return options.backend
-    return "litellm" if (options.model or options.api_base) else "offline"
+    return AUTO_VLM if (options.model or options.api_base) else AUTO_OFFLINE
 
 
 def plan_jobs(suite: Suite, options: EvalOptions) -> list[Job]:

@@ -16,6 +16,7 @@ from typing import Any
 from keymps.config.overrides import apply_overrides
 from keymps.config.task import Task, load_task
 from keymps.errors import KeympsError, RunInterrupted, StageError, TaskFileError, os_error_message
+from keymps.planning.backend_choice import NO_SERVER
 from keymps.plugin.manager import create_component, get_manager
 from keymps.run import IMAGE_FORMATS, STAGES, Run, RunOptions
 from keymps.types import Detection, SceneImage
@@ -383,7 +384,7 @@ def run_task(
     lock = FolderLock(folder).acquire()  # a second run into this folder refuses here
     run = Run(task=task, folder=folder, options=options)
     run.backend, run.backend_reason, run.robot = backend, reason, parts.robot
-    keyless = untrusted_api_base_warning(task) if backend not in ("offline", "replay") else None
+    keyless = untrusted_api_base_warning(task) if backend not in NO_SERVER else None
     if keyless:
         run.warnings.append(keyless)
         warnings.warn(keyless, UserWarning, stacklevel=2)

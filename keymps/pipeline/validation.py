@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from keymps.errors import KeympsError, TaskFileError
+from keymps.planning.backend_choice import NO_SERVER
 
 if TYPE_CHECKING:
     from keymps.config.task import Task
@@ -65,7 +66,7 @@ def component_problems(
                 _check_prompt(task, descriptions)
             except KeympsError as error:
                 problems.append(str(error))
-    if parts is not None and notes is not None and backend not in ("offline", "replay"):
+    if parts is not None and notes is not None and backend not in NO_SERVER:
         keyless = untrusted_api_base_warning(task)
         if keyless:
             notes.append(keyless)

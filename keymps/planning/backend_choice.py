@@ -33,7 +33,13 @@ PROVIDER_KEYS: dict[str, tuple[str, ...]] = {
 """litellm provider prefix -> environment variables that configure it (any one suffices)."""
 
 
-MODEL_FREE = ("offline",)
+AUTO_VLM = "litellm"
+"""The backend `auto` chooses when a model is configured (any registered backend may be named)."""
+AUTO_OFFLINE = "offline"
+"""The backend `auto` chooses when none is."""
+NO_SERVER = ("offline", "replay")
+"""Built-in backends that call no server (no key can leave with their requests)."""
+MODEL_FREE = (AUTO_OFFLINE,)
 """Backends that ask no model: --model or --api-base on the command line replaces them
 (replay keeps answering from its cassette)."""
 
@@ -133,12 +139,15 @@ def choose_backend(
                 f"--api-base {api_base}: no model to ask; pass --model too (e.g. "
                 "openai/Qwen/Qwen2.5-VL-7B-Instruct)"
             )
-        return "offline", "no VLM model is configured (planner.model or --model): offline planner"
+        return (
+            AUTO_OFFLINE,
+            "no VLM model is configured (planner.model or --model): offline planner",
+        )
     if api_base:
-        return "litellm", f"model {model} is served at {api_base}{overridden}"
+        return AUTO_VLM, f"model {model} is served at {api_base}{overridden}"
     source = credential_source(task, model)
     if source:
-        return "litellm", f"model {model} with credentials from ${source}{overridden}"
+        return AUTO_VLM, f"model {model} with credentials from ${source}{overridden}"
     wanted = ((task.planner.api_key_env,) if task.planner.api_key_env else ()) + PROVIDER_KEYS.get(
         model_provider(model), ()
     )
@@ -146,13 +155,13 @@ def choose_backend(
     if model_override:
         # a model asked for on the command line is meant: never fall back silently
         if model_provider(model) in ("ollama", "ollama_chat"):
-            return "litellm", f"model {model} from Ollama at its default address{overridden}"
+            return AUTO_VLM, f"model {model} from Ollama at its default address{overridden}"
         raise KeympsError(
             f"--model {model}: no credentials ({need} unset, no --api-base); set the key's "
             "environment variable, or drop --model to plan offline"
         )
     return (
-        "offline",
+        AUTO_OFFLINE,
         f"model {model} has no credentials ({need} unset, no api_base): offline planner",
     )
 
@@ -165,7 +174,7 @@ def _check_backend(task: Task, backend: str, model: str | None) -> None:
     if backend not in available:
         choices = ", ".join(["auto", *sorted(available)])
         raise KeympsError(f"unknown planner backend {backend!r} (available: {choices})")
-    if backend == "litellm" and not model:
+    if backend == AUTO_VLM and not model:
         raise KeympsError(
             "the litellm backend needs a model: set planner.model or pass --model "
             "(e.g. openai/gpt-4o; see docs/vlm.md)"

@@ -126,7 +126,7 @@ def make_plan(
         where=f"{task.where('planner', 'prompt')}: planner.prompt",
     )
     asks_model = bool(getattr(backend_object, "asks_model", True))
-    model = planner.model if backend != "offline" else None
+    model = planner.model if asks_model else None
     # a backend that asks no model answers in pixels of the full crop
     convention = resolve_convention(planner.coordinates, model) if asks_model else "pixels"
     answer_mode = planner.answer
