@@ -196,6 +196,12 @@ def _by_number(text: str, targets: list[Target]) -> list[_Mention]:
     return found
 
 
+NOT_NOUNS = frozenset(
+    "of and or side sides edge edges half into in with to on at for then but from by as is "
+    "it its them this that".split()
+)
+"""Words after a place word that make it no object phrase ("the left side", "left into")."""
+
 PLACES = {
     "left": (0, min), "leftmost": (0, min), "right": (0, max), "rightmost": (0, max),
     "top": (1, min), "topmost": (1, min), "upper": (1, min), "uppermost": (1, min),
@@ -205,26 +211,22 @@ PLACES = {
 
 def _by_place(text: str, targets: list[Target]) -> list[_Mention]:
     words = "|".join(sorted([*PLACES, "middle", "centre", "center"], key=len, reverse=True))
-    patterns = [
-        rf"\b(?:the\s+)?({words})\s+(\w+)\b",
+    patterns = [  # "the one on the right" first: its "the right" is not "the right <noun>"
         rf"\bthe\s+(\w+)\s+(?:on|at|to)\s+the\s+({words})\b",
+        rf"\b(?:the\s+)?({words})\s+(\w+)\b",
     ]
-    found = []
+    found: list[_Mention] = []
     for number, pattern in enumerate(patterns):
         for match in re.finditer(pattern, text):
             place, noun = (match.group(1), match.group(2))
-            if number == 1:
+            if number == 0:
                 place, noun = noun, place
-            if not re.fullmatch(rf"{ONE}|\w+", noun) or noun in (
-                "of",
-                "and",
-                "side",
-                "edge",
-                "half",
+            if noun in NOT_NOUNS or any(
+                m.start < match.end() and match.start() < m.end for m in found
             ):
                 continue
             if (
-                number == 0
+                number == 1
                 and not match.group(0).startswith("the")
                 and not _is_object_noun(noun, targets)
             ):

@@ -76,7 +76,9 @@ def compose_tool_path(
     ]
     outlines = {o.id: np.asarray(o.outline_m, dtype=float).reshape(-1, 2) for o in objects}
     if footprint is not None or outlines:
-        single = np.asarray(footprint, dtype=float).reshape(-1, 2) if footprint is not None else None
+        single = (
+            np.asarray(footprint, dtype=float).reshape(-1, 2) if footprint is not None else None
+        )
         work_paths = [
             keep_strokes_near(
                 points,
@@ -159,6 +161,7 @@ def _soft_limit(distance: np.ndarray, reach: float) -> np.ndarray:
     if reach <= 0.0:
         return np.zeros_like(distance)
     return reach * np.tanh(distance / reach)
+
 
 def _crosses(a: np.ndarray, b: np.ndarray, outline: np.ndarray) -> bool:
     """Whether the straight line a-b (board xy) passes over the polygon (or within the

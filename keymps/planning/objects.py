@@ -73,7 +73,9 @@ def scaled_objects(
         if len(objects) == 1:
             mask = single_mask
         elif o.mask is not None:
-            small = cv2.resize(o.mask.astype(np.uint8), sent_size_px, interpolation=cv2.INTER_NEAREST)
+            small = cv2.resize(
+                o.mask.astype(np.uint8), sent_size_px, interpolation=cv2.INTER_NEAREST
+            )
             mask = small > 0
         else:
             mask = None
