@@ -11,7 +11,8 @@ to: "cut the left one in half and the right one into 4" gives ("cut it in half",
 - by name (scene.objects): the banana, the cakes, both cakes, the left cake;
 - by number: object 2, #2, the 2nd one; "the other one(s)": those no earlier clause took.
 
-A sentence that names no object applies to the only object, or to the largest when every other
+With one object the sentence is its clause, word for word (single-object planning is exactly
+what it always was). A sentence that names no object applies to the largest object when every other
 is under half its area (crumbs, a garnish); with several objects of comparable size it is
 refused, since guessing which one is meant is worse than asking.
 """
@@ -86,6 +87,8 @@ def split_by_object(sentence: str, targets: list[Target]) -> list[Clause]:
     """The sentence's clauses, each with the objects it applies to; AddressingError if unclear."""
     if not targets:
         raise AddressingError("there is no object to plan on")
+    if len(targets) == 1:  # one object: the sentence is about it, word for word as always
+        return [Clause(sentence, (targets[0].id,))]
     text = words_to_digits(sentence.lower().replace("’", "'"))
     mentions = _mentions(text, targets)
     if not mentions:
@@ -353,6 +356,8 @@ def _groups(text: str, targets: list[Target]) -> list[_Mention]:
         for match in re.finditer(pattern, text):
             if _GROUP_EXCLUDED.match(text, match.start() + len(match.group(0).split()[0])):
                 continue
+            if re.search(r"\b(?:for|per)\s+$", text[: match.start()]):
+                continue  # "1 slice for each": each guest, not each object
             phrase = match.group(0)
             last = phrase.split()[-1]
             if pattern == patterns[1] and last in ("into", "in", "with", "of", "the", "and", "to"):
