@@ -107,3 +107,28 @@ def test_a_spanning_pair_is_repaired_by_the_model(
         "Cut each of them in half", then={"keyword": "straight", "pairs": fixed, "rationale": "y"},
     )  # fmt: skip
     assert list(run.stages.plan.pair_objects) == [1, 2] and run.stages.check.report.ok
+
+
+def test_a_named_design_is_laid_out_on_the_object_it_names(
+    server: VlmServer, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("KEYMPS_TEST_VLM_KEY", "sk-test")
+    design = {"name": "equal", "count": 3, "object": 2}
+    answer = {"keyword": "straight", "pairs": None, "design": design, "rationale": "x"}
+    run, truth = _vlm_run(server, tmp_path, answer, "Cut the right one into 3")
+    plan = run.stages.plan
+    assert list(plan.pair_objects) == [2, 2] and plan.design is not None
+    right = sorted(truth["objects"], key=lambda o: o["bbox_m"][0])[1]
+    x0, _, x1, _ = right["bbox_m"]
+    for segment in run.stages.ground.segments_m:
+        assert x0 - 0.002 <= segment[:, 0].min() and segment[:, 0].max() <= x1 + 0.002
+    assert run.stages.check.report.ok
+
+
+def test_a_named_design_without_its_object_is_refused(
+    server: VlmServer, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("KEYMPS_TEST_VLM_KEY", "sk-test")
+    answer = {"keyword": "straight", "pairs": None, "design": {"name": "equal", "count": 3}}
+    with pytest.raises(StageError, match=r"does not say which of the 2 objects it is for"):
+        _vlm_run(server, tmp_path, answer, "Cut the right one into 3")
