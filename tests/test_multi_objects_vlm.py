@@ -33,14 +33,20 @@ def _vlm_run(
     path.write_text(
         task_text(png, instruction, KNIFE).replace(
             "backend: offline",
-            "backend: litellm, model: openai/test-vlm, api_base: "
-            + server.openai_base
-            + ", api_key_env: KEYMPS_TEST_VLM_KEY, cache: false",
+            "backend: litellm, model: openai/test-vlm, api_key_env: MULTI_TEST_API_KEY, "
+            "cache: false",
         )
     )
     server.reset()
     server.script(Reply.json_answer(answer), *([Reply.json_answer(then)] if then else []))
-    return run_task(load_task(path), out=tmp_path / "run", rerun="off", no_cache=True), truth
+    run = run_task(
+        load_task(path),
+        api_base=server.openai_base,  # given by the user (as --api-base): the key may go there
+        out=tmp_path / "run",
+        rerun="off",
+        no_cache=True,
+    )
+    return run, truth
 
 
 def _crop_px(truth: dict, index: int, fx: float, fy: float, origin: tuple[int, int]) -> list[float]:
@@ -52,7 +58,7 @@ def _crop_px(truth: dict, index: int, fx: float, fy: float, origin: tuple[int, i
 def test_scripted_vlm_pairs_are_assigned_to_the_objects_they_lie_on(
     server: VlmServer, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    monkeypatch.setenv("KEYMPS_TEST_VLM_KEY", "sk-test")
+    monkeypatch.setenv("MULTI_TEST_API_KEY", "sk-test")
     png, truth = scene_file(tmp_path, loaves(4))
     origin = ThresholdDetector().detect(__import__("cv2").imread(str(png))).crop_origin_px
     # one cut across the right loaf, then two across the left one
@@ -66,6 +72,7 @@ def test_scripted_vlm_pairs_are_assigned_to_the_objects_they_lie_on(
         server, tmp_path, answer, "Cut the left one into 3 and the right one in half"
     )
     (request,) = server.chat_requests
+    assert request.headers["authorization"] == "Bearer sk-test"
     text = json.dumps(request.body["messages"])
     assert "The image shows 2 objects" in text and "object 1:" in text and "object 2:" in text
     plan = run.stages.plan
@@ -78,7 +85,7 @@ def test_scripted_vlm_pairs_are_assigned_to_the_objects_they_lie_on(
 def test_a_vlm_cut_spanning_two_objects_is_refused_naming_both(
     server: VlmServer, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    monkeypatch.setenv("KEYMPS_TEST_VLM_KEY", "sk-test")
+    monkeypatch.setenv("MULTI_TEST_API_KEY", "sk-test")
     png, truth = scene_file(tmp_path, loaves(4))
     origin = ThresholdDetector().detect(__import__("cv2").imread(str(png))).crop_origin_px
     across = [[_crop_px(truth, 0, 0.2, 0.5, origin), _crop_px(truth, 1, 0.8, 0.5, origin)]]
@@ -94,7 +101,7 @@ def test_a_vlm_cut_spanning_two_objects_is_refused_naming_both(
 def test_a_spanning_pair_is_repaired_by_the_model(
     server: VlmServer, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    monkeypatch.setenv("KEYMPS_TEST_VLM_KEY", "sk-test")
+    monkeypatch.setenv("MULTI_TEST_API_KEY", "sk-test")
     png, truth = scene_file(tmp_path, loaves(4))
     origin = ThresholdDetector().detect(__import__("cv2").imread(str(png))).crop_origin_px
     across = [[_crop_px(truth, 0, 0.2, 0.5, origin), _crop_px(truth, 1, 0.8, 0.5, origin)]]
@@ -112,7 +119,7 @@ def test_a_spanning_pair_is_repaired_by_the_model(
 def test_a_named_design_is_laid_out_on_the_object_it_names(
     server: VlmServer, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    monkeypatch.setenv("KEYMPS_TEST_VLM_KEY", "sk-test")
+    monkeypatch.setenv("MULTI_TEST_API_KEY", "sk-test")
     design = {"name": "equal", "count": 3, "object": 2}
     answer = {"keyword": "straight", "pairs": None, "design": design, "rationale": "x"}
     run, truth = _vlm_run(server, tmp_path, answer, "Cut the right one into 3")
@@ -128,7 +135,7 @@ def test_a_named_design_is_laid_out_on_the_object_it_names(
 def test_a_named_design_without_its_object_is_refused(
     server: VlmServer, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    monkeypatch.setenv("KEYMPS_TEST_VLM_KEY", "sk-test")
+    monkeypatch.setenv("MULTI_TEST_API_KEY", "sk-test")
     answer = {"keyword": "straight", "pairs": None, "design": {"name": "equal", "count": 3}}
     with pytest.raises(StageError, match=r"does not say which of the 2 objects it is for"):
         _vlm_run(server, tmp_path, answer, "Cut the right one into 3")

@@ -200,8 +200,34 @@ def _by_number(text: str, targets: list[Target]) -> list[_Mention]:
 
 
 NOT_NOUNS = frozenset(
-    "of and or side sides edge edges half into in with to on at for then but from by as is "
-    "it its them this that".split()
+    {
+        "of",
+        "and",
+        "or",
+        "side",
+        "sides",
+        "edge",
+        "edges",
+        "half",
+        "into",
+        "in",
+        "with",
+        "to",
+        "on",
+        "at",
+        "for",
+        "then",
+        "but",
+        "from",
+        "by",
+        "as",
+        "is",
+        "it",
+        "its",
+        "them",
+        "this",
+        "that",
+    }
 )
 """Words after a place word that make it no object phrase ("the left side", "left into")."""
 
