@@ -238,9 +238,7 @@ class _Pipeline:
         found: dict[str, Any] = {}
 
         def detect() -> Detection:
-            detection = top_surface(
-                refuse_the_board(parts.detector.detect(scene), size), scene
-            )
+            detection = top_surface(refuse_the_board(parts.detector.detect(scene), size), scene)
             frame = geometry.ImageFrame.for_scene(task, scene)
             objects = scene_objects(detection, task, frame)  # a count mismatch stops here
             found["objects"] = objects
