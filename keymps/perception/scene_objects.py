@@ -56,6 +56,32 @@ def detected_objects(detection: Detection) -> tuple[DetectedObject, ...]:
     return (DetectedObject(1, detection.bbox_px, contour, area, detection.mask),)
 
 
+def crop_covering_objects(detection: Detection, image: np.ndarray) -> Detection:
+    """The detection with a crop around every object (a detector may crop its chosen object
+    only), padded as the detector padded its own crop; unchanged with one object."""
+    from dataclasses import replace
+
+    objects = detection.objects
+    if len(objects) < 2:
+        return detection
+    x0 = min(o.bbox_px[0] for o in objects)
+    y0 = min(o.bbox_px[1] for o in objects)
+    x1 = max(o.bbox_px[2] for o in objects)
+    y1 = max(o.bbox_px[3] for o in objects)
+    ox, oy = detection.crop_origin_px
+    width, height = detection.crop_size_px
+    if x0 >= ox and y0 >= oy and x1 <= ox + width and y1 <= oy + height:
+        return detection
+    bx0, by0, bx1, by1 = detection.bbox_px
+    pad = max(0, bx0 - ox, by0 - oy, ox + width - bx1, oy + height - by1)
+    image_h, image_w = image.shape[:2]
+    cx0, cy0 = max(0, min(ox, x0 - pad)), max(0, min(oy, y0 - pad))
+    cx1 = min(image_w, max(ox + width, x1 + pad))
+    cy1 = min(image_h, max(oy + height, y1 + pad))
+    crop = np.ascontiguousarray(image[cy0:cy1, cx0:cx1])
+    return replace(detection, crop=crop, crop_origin_px=(int(cx0), int(cy0)))
+
+
 def object_mask(obj: DetectedObject, image_shape: tuple[int, ...]) -> np.ndarray:
     """The object's pixels (bool, full image): its mask, else its filled contour, else its box."""
     import cv2

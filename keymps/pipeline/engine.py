@@ -218,7 +218,11 @@ class _Pipeline:
         from keymps.motion.trajectory_io import write_trajectory_csv
         from keymps.perception import frames as geometry
         from keymps.perception.rectify import rectify_scene, top_surface
-        from keymps.perception.scene_objects import grounded_objects, scene_objects
+        from keymps.perception.scene_objects import (
+            crop_covering_objects,
+            grounded_objects,
+            scene_objects,
+        )
         from keymps.perception.search_area import refuse_the_board
         from keymps.pipeline.overlay import draw_plan, draw_plan_on_photo
         from keymps.planning import planner as planning
@@ -239,6 +243,7 @@ class _Pipeline:
 
         def detect() -> Detection:
             detection = top_surface(refuse_the_board(parts.detector.detect(scene), size), scene)
+            detection = crop_covering_objects(detection, scene.image)
             frame = geometry.ImageFrame.for_scene(task, scene)
             objects = scene_objects(detection, task, frame)  # a count mismatch stops here
             found["objects"] = objects
