@@ -20,6 +20,7 @@ if TYPE_CHECKING:
     from keymps.types import (
         Detection,
         ExecutionReport,
+        GroundedObject,
         Grounding,
         JointPath,
         Plan,
@@ -91,6 +92,8 @@ class Run:
     """The arm the run plans for (base placed on the board, the task's tool)."""
     outline_m: np.ndarray | None = None
     """(N, 2) the object's footprint in board metres, once detected and grounded."""
+    objects: tuple[GroundedObject, ...] = ()
+    """Every object found (id, name, height, footprint in board metres), once detected."""
     backend: str | None = None
     backend_reason: str | None = None
     """Which planner backend the run uses, and why (`auto` explains its choice)."""

@@ -123,6 +123,38 @@ class VlmCall:
 
 
 @dataclass(frozen=True)
+class PlanObject:
+    """One object in the crop sent to the planner."""
+
+    id: int
+    name: str | None
+    height: float
+    """Top surface above the board, metres."""
+    bbox_px: tuple[int, int, int, int]
+    """[x0, y0, x1, y1] in crop pixels (exclusive ends)."""
+    mask: np.ndarray | None
+    """Its pixels in the crop (bool), when known."""
+    size_m: tuple[float, float]
+    """Width and height of its box on the board, metres."""
+
+    @property
+    def label(self) -> str:
+        return f"#{self.id} {self.name}" if self.name else f"#{self.id}"
+
+    @property
+    def centre_px(self) -> tuple[float, float]:
+        x0, y0, x1, y1 = self.bbox_px
+        return (x0 + x1) / 2, (y0 + y1) / 2
+
+    @property
+    def area_px(self) -> float:
+        if self.mask is not None:
+            return float(self.mask.sum())
+        x0, y0, x1, y1 = self.bbox_px
+        return float((x1 - x0) * (y1 - y0))
+
+
+@dataclass(frozen=True)
 class PlanRequest:
     """Everything a backend may use to answer one planning call."""
 
@@ -156,6 +188,8 @@ class PlanRequest:
     share_key: str | None = None
     """Set when answers may be shared (the answer cache is on): identical requests out at the
     same time then share one answer (keymps.eval.broker)."""
+    objects: tuple[PlanObject, ...] = ()
+    """Every object in the crop, in id order (empty: the crop holds one object, crop_mask)."""
 
     @property
     def crop_size_px(self) -> tuple[int, int]:
@@ -199,6 +233,8 @@ class Plan:
     """The named design the backend answered with (keymps laid it out), else None."""
     image_sent_px: tuple[int, int] | None = None
     """(width, height) of the image sent when the crop was downscaled for the provider."""
+    pair_objects: tuple[int, ...] = ()
+    """Per pair, the id of the object it lies on (empty: every pair on the one object)."""
 
     @property
     def num_pairs(self) -> int:
@@ -213,13 +249,35 @@ class Segment:
     goal: np.ndarray
     start_px: tuple[float, float]
     goal_px: tuple[float, float]
+    object_id: int = 1
+    """The object this pair works on (DetectedObject.id)."""
+
+
+@dataclass(frozen=True)
+class GroundedObject:
+    """One object on the board in metres: what the motion must clear and the work stay on."""
+
+    id: int
+    name: str | None
+    height: float
+    """Its top surface above the board, metres."""
+    outline_m: np.ndarray
+    """(N, 2) footprint polygon in the board frame, counter-clockwise."""
+
+    @property
+    def label(self) -> str:
+        """'#2 banana' (or '#2' without a name)."""
+        return f"#{self.id} {self.name}" if self.name else f"#{self.id}"
 
 
 @dataclass(frozen=True)
 class Grounding:
     segments: tuple[Segment, ...]
     object_height: float
+    """The tallest object's height (every object's, with one object), metres."""
     workspace_size: tuple[float, float]
+    objects: tuple[GroundedObject, ...] = ()
+    """Every object on the board (the ones without work too), in id order."""
 
     @property
     def segments_m(self) -> np.ndarray:
@@ -240,6 +298,8 @@ class Piece:
     """(n,) tool yaw about the board's z axis, radians."""
     speed: float
     """Requested tool speed along the path, m/s."""
+    object_id: int = 1
+    """The object of the pair this piece belongs to."""
 
     @property
     def length_m(self) -> float:

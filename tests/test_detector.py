@@ -104,23 +104,34 @@ def two_object_scene() -> tuple[np.ndarray, list[list[int]]]:
     return scene.image, [obj["bbox_px"] for obj in scene.truth["objects"]]
 
 
-def test_a_second_object_of_comparable_size_is_named_and_pick_chooses() -> None:
+def test_every_object_is_listed_and_pick_keeps_one_naming_the_other() -> None:
     image, boxes = two_object_scene()
     first = ThresholdDetector().detect(image)
     assert np.abs(np.subtract(first.bbox_px, boxes[0])).max() <= 2
     assert len(first.others_px) == 1
     assert np.abs(np.subtract(first.others_px[0], boxes[1])).max() <= 2
-    (warning,) = first.warnings
+    # both are objects (numbered left to right), the crop covers both, nothing to warn about
+    assert [o.id for o in first.objects] == [1, 2] and first.warnings == ()
+    for obj, box in zip(first.objects, boxes, strict=True):
+        assert np.abs(np.subtract(obj.bbox_px, box)).max() <= 2
+        assert obj.mask is not None and obj.mask.sum() == pytest.approx(obj.area_px, rel=0.05)
+    x0, y0 = first.crop_origin_px
+    width, height = first.crop_size_px
+    assert x0 <= boxes[0][0] and x0 + width >= boxes[1][2]
+
+    picked = ThresholdDetector(ThresholdOptions(pick=0)).detect(image)
+    (warning,) = picked.warnings
     assert "two objects of comparable size" in warning
-    assert str(list(first.bbox_px)) in warning and str(list(first.others_px[0])) in warning
+    assert str(list(picked.bbox_px)) in warning and str(list(picked.others_px[0])) in warning
     assert "detector.pick to 1" in warning
+    assert len(picked.objects) == 1
 
     second = ThresholdDetector(ThresholdOptions(pick=1)).detect(image)
     assert np.abs(np.subtract(second.bbox_px, boxes[1])).max() <= 2
     with pytest.raises(KeympsError, match=r"detector.pick is 2 but only 2 region\(s\)"):
         ThresholdDetector(ThresholdOptions(pick=2)).detect(image)
     # A small second object is listed but not warned about.
-    quiet = ThresholdDetector(ThresholdOptions(comparable=1.0)).detect(image)
+    quiet = ThresholdDetector(ThresholdOptions(comparable=1.0, pick=0)).detect(image)
     assert quiet.warnings == () and len(quiet.others_px) == 1
 
 

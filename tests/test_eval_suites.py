@@ -19,7 +19,8 @@ SUITES = Path(__file__).resolve().parent.parent / "benchmarks" / "suites"
 
 @pytest.mark.parametrize(
     "name, kind, count", [("cutting_sim", "metric", 15), ("icing", "gallery", 8),
-                          ("cake_six", "equal_parts", 2), ("real_cutting", "metric", 10)],
+                          ("cake_six", "equal_parts", 2), ("real_cutting", "metric", 10),
+                          ("multi_object", "metric", 6)],
 )  # fmt: skip
 def test_shipped_suites_load(name: str, kind: str, count: int) -> None:
     suite = load_suite(SUITES / f"{name}.yaml")

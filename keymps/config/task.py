@@ -102,6 +102,18 @@ class Camera(StrictModel):
     """With board corners: undistort, find the camera's pose, ground on the object's top."""
 
 
+class SceneObjectSpec(StrictModel):
+    """One object the task describes (scene.objects), matched to a detected object."""
+
+    name: str = Field(min_length=1, max_length=60, pattern=r"^[A-Za-z][A-Za-z0-9 _-]*$")
+    """What it is ("banana"); the offline planner reads it ("cut the banana in half")."""
+    height: Annotated[float, Field(ge=0, le=1.0, allow_inf_nan=False)] | None = None
+    """Its top surface above the board, metres; scene.object_height when omitted."""
+    at: Point2 | None = None
+    """A board point (metres) on or near it: pins it to the detected object nearest there
+    instead of matching left to right."""
+
+
 class Scene(StrictModel):
     image: Path | None = None
     source: str = "file"
@@ -109,6 +121,9 @@ class Scene(StrictModel):
     source_options: dict[str, Any] = Field(default_factory=dict)
     workspace: Workspace = Workspace()
     object_height: Annotated[float, Field(ge=0, le=1.0, allow_inf_nan=False)] = 0.05
+    objects: list[SceneObjectSpec] | None = Field(default=None, min_length=1, max_length=32)
+    """The objects on the board, left to right (keymps.perception.scene_objects matches them
+    to the detected ones); without it every object has object_height."""
     camera: Camera = Camera()
     max_image_pixels: Annotated[int, Field(ge=1, le=MAX_IMAGE_PIXELS_LIMIT)] = 64_000_000
     """Larger images are refused from their header, before decoding (keymps.config.limits)."""
@@ -118,6 +133,13 @@ class Scene(StrictModel):
         if self.source == "file" and self.image is None:
             raise ValueError("scene.image is required when scene.source is 'file'")
         return self
+
+    @property
+    def tallest_object_height(self) -> float:
+        """The highest top surface of any object on the board, metres."""
+        declared = [o.height for o in self.objects or () if o.height is not None]
+        defaulted = any(o.height is None for o in self.objects) if self.objects else True
+        return max([*declared, *([self.object_height] if defaulted else [])])
 
 
 class Planner(StrictModel):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -80,6 +81,16 @@ class SyntheticSource:
             board_size=tuple(task.scene.workspace.size),
             px_per_m=options.px_per_m,
         )
+        declared = task.scene.objects or []
+        if options.height is None and len(declared) == len(spec.objects):
+            # several objects of their own heights: the ones scene.objects gives, left to right
+            spec = replace(
+                spec,
+                objects=tuple(
+                    replace(o, height=d.height) if d.height is not None else o
+                    for o, d in zip(spec.objects, declared, strict=True)
+                ),
+            )
         size_px = spec.image_size_px
         try:
             check_image_pixels(size_px, task.scene.max_image_pixels, "the synthetic scene")

@@ -19,7 +19,9 @@ from keymps.errors import KeympsError
 from keymps.plugin import RegisterVlmBackend, hookimpl
 
 if TYPE_CHECKING:
-    from keymps.types import BackendAnswer, PlanRequest
+    from keymps.designs.addressing import Clause
+    from keymps.designs.grammar import Intent
+    from keymps.types import BackendAnswer, PlanObject, PlanRequest
 
 HARD_OBJECTS = re.compile(
     r"\b(hard|crusty|crust|bread|baguette|sourdough|pumpkin|squash|potato(?:es)?|carrots?|"
@@ -121,45 +123,135 @@ class OfflineBackend:
 
     def complete(self, request: PlanRequest) -> BackendAnswer:
         from keymps.designs.grammar import read_instruction
-        from keymps.designs.place import place_design
         from keymps.planning.named_design import design_answer
         from keymps.types import BackendAnswer
 
         started = time.perf_counter()
-        intent = read_instruction(request.instruction)
+        objects = _objects(request)
+        clauses = _clauses(request.instruction, objects)
+        intents = [(read_clause(clause, read_instruction), clause) for clause in clauses]
+        families = {intent.family for intent, _ in intents}
+        if len(families) > 1:
+            raise KeympsError(
+                "the offline planner makes one plan with one primitive, but the sentence asks "
+                + " and ".join(
+                    f"{intent.family} on {_labels(clause.objects, objects)}"
+                    for intent, clause in intents
+                )
+            )
+        family = intents[0][0].family
         keyword, why = choose_primitive(
-            intent.family, request.primitives, request.instruction, request.task_name
+            family, request.primitives, request.instruction, request.task_name
         )
         answer: dict[str, Any] = {}
         if request.step in ("combined", "keyword"):
             answer["keyword"] = keyword
         rationale = f"primitive {keyword}: {why}"
         properties = request.schema.get("schema", {}).get("properties", {})
+        jobs = [(intent, objects[i]) for intent, clause in intents for i in clause.objects]
         if request.step in ("combined", "pairs") and "pairs" not in properties:
             # planner.answer: design: the intent itself, laid out by keymps like any design
-            answer["design"] = design_answer(intent)
+            if len(jobs) > 1:
+                raise KeympsError(
+                    f"the offline planner reads {len(jobs)} designs ("
+                    + "; ".join(f"{i.describe()} on {o.label}" for i, o in jobs)
+                    + "), but planner.answer: design names one: use planner.answer: either"
+                )
+            intent, obj = jobs[0]
+            answer["design"] = design_answer(intent) | (
+                {"object": obj.id} if len(objects) > 1 else {}
+            )
             rationale = f"named design {intent.design}; {rationale}"
         elif request.step in ("combined", "pairs"):
-            try:
-                pairs_px, layout = place_design(
-                    intent,
-                    request.crop,
-                    request.crop_mask,
-                    request.metres_per_px,
-                    request.max_pairs,
-                    line_width_mm=request.line_width_mm,
+            budget = max(1, request.max_pairs // len(jobs))
+            laid = [_lay_out(intent, obj, request, budget) for intent, obj in jobs]
+            pairs_px = np.concatenate([pairs for pairs, _ in laid], axis=0)
+            if len(pairs_px) > request.max_pairs:
+                raise KeympsError(
+                    f"the offline design needs {len(pairs_px)} keypoint pairs, more than "
+                    f"planner.max_pairs = {request.max_pairs}"
                 )
-            except KeympsError as error:
-                raise KeympsError(f"the offline planner {error}") from None
             answer["pairs"] = np.round(pairs_px, 3).tolist()
+            if len(jobs) == 1:
+                layout = laid[0][1]
+            else:
+                layout = "; ".join(
+                    f"{obj.label}: {text}" for (_, obj), (_, text) in zip(jobs, laid, strict=True)
+                )
             rationale = f"{layout}; {rationale}"
-        answer["rationale"] = f"offline planner ({intent.describe()}): {rationale}"
+        described = "; ".join(
+            intent.describe()
+            + ("" if len(objects) == 1 else f" on {_labels(clause.objects, objects)}")
+            for intent, clause in intents
+        )
+        answer["rationale"] = f"offline planner ({described}): {rationale}"
         return BackendAnswer(
             text=json.dumps(answer),
             latency_s=time.perf_counter() - started,
             cost_usd=0.0,
             model=None,
         )
+
+
+def _objects(request: PlanRequest) -> dict[int, PlanObject]:
+    """The request's objects by id; a request without them is one object filling the crop."""
+    from keymps.types import PlanObject
+
+    if request.objects:
+        return {o.id: o for o in request.objects}
+    width, height = request.crop_size_px
+    size = (width * request.metres_per_px[0], height * request.metres_per_px[1])
+    whole = PlanObject(
+        1, None, request.object_height, (0, 0, width, height), request.crop_mask, size
+    )
+    return {1: whole}
+
+
+def _clauses(sentence: str, objects: dict[int, PlanObject]) -> list[Clause]:
+    from keymps.designs.addressing import Target, split_by_object
+
+    targets = [Target(o.id, o.name, o.centre_px, _box_size(o), o.area_px) for o in objects.values()]
+    return split_by_object(sentence, targets)
+
+
+def read_clause(clause: Clause, read: Any) -> Intent:
+    """The clause's design; a clause the grammar cannot read alone names its object."""
+    from keymps.designs.grammar import UnreadableInstruction
+
+    if not clause.reference:
+        return read(clause.text)  # type: ignore[no-any-return]
+    try:
+        return read(clause.text)  # type: ignore[no-any-return]
+    except UnreadableInstruction as error:
+        raise UnreadableInstruction(f"for {clause.reference!r}: {error}") from None
+
+
+def _box_size(obj: PlanObject) -> tuple[float, float]:
+    x0, y0, x1, y1 = obj.bbox_px
+    return float(x1 - x0), float(y1 - y0)
+
+
+def _labels(ids: tuple[int, ...], objects: dict[int, PlanObject]) -> str:
+    return " and ".join(objects[i].label for i in ids)
+
+
+def _lay_out(
+    intent: Intent, obj: PlanObject, request: PlanRequest, max_pairs: int
+) -> tuple[np.ndarray, str]:
+    """The design on one object, in crop pixels (keymps.designs.place: cuts end at its box)."""
+    from keymps.designs.place import place_design
+
+    try:
+        return place_design(
+            intent,
+            request.crop,
+            obj.mask,
+            request.metres_per_px,
+            max_pairs,
+            line_width_mm=request.line_width_mm,
+        )
+    except KeympsError as error:
+        raise KeympsError(f"the offline planner {error}") from None
 
 
 def _factory(options: dict[str, Any]) -> OfflineBackend:

@@ -1,7 +1,9 @@
 """The paper's Appendix A detector: the object is what differs from the most common intensity.
 
 Grayscale, Gaussian blur, background = the most common intensity, mask = |I - bg| > threshold,
-external contours, the largest one (or the one `pick` names), its bounding box.
+external contours. Every region of at least `min_area` pixels is an object (Detection.objects,
+numbered left to right, then top to bottom); the crop covers all of them. `pick` keeps one
+region only (the paper's single object).
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 from keymps.errors import DetectionError
 from keymps.plugin import RegisterDetector, hookimpl
 from keymps.plugin import parse_options as plugin_options
-from keymps.types import Detection, SceneImage
+from keymps.types import DetectedObject, Detection, SceneImage
 
 
 class ThresholdOptions(BaseModel):
@@ -33,8 +35,9 @@ class ThresholdOptions(BaseModel):
     """Regions smaller than this many pixels are ignored (noise, crumbs)."""
     comparable: float = Field(default=0.5, gt=0, le=1)
     """A second region at least this fraction of the chosen one's area triggers a warning."""
-    pick: int = Field(default=0, ge=0)
-    """Which region to use, by index in order of decreasing area (0 = the largest)."""
+    pick: int | None = Field(default=None, ge=0)
+    """Keep only this region, by index in order of decreasing area (0 = the largest); by
+    default every region is an object."""
     background: int | None = Field(default=None, ge=0, le=255)
     """Fixed background intensity instead of the most common one."""
     roi: list[tuple[float, float]] | None = None
@@ -156,7 +159,6 @@ class ThresholdDetector:
         return found
 
     def detect(self, scene: SceneImage | np.ndarray) -> Detection:
-        import cv2
 
         image = scene.image if isinstance(scene, SceneImage) else np.asarray(scene)
         if image.size == 0 or image.ndim not in (2, 3):
@@ -170,33 +172,71 @@ class ThresholdDetector:
                 f"{self.options.threshold}; lower detector.threshold or check the image"
             )
         pick = self.options.pick
-        if pick >= len(regions):
+        if pick is not None and pick >= len(regions):
             raise DetectionError(
                 f"detector.pick is {pick} but only {len(regions)} region(s) were found "
                 f"(largest first: {_describe(regions)})"
             )
-        chosen = regions[pick]
-        others = [region for i, region in enumerate(regions) if i != pick]
+        chosen = regions[pick or 0]
+        kept = [chosen] if pick is not None else regions
+        others = [region for region in regions if region is not chosen]
         height_px, width_px = image.shape[:2]
         searched = self.search_area(width_px, height_px)
         warnings = _warnings(chosen, pick, regions, searched, self.options)
 
-        filled = np.zeros_like(mask)
-        cv2.drawContours(filled, [chosen.contour.reshape(-1, 1, 2)], -1, 255, cv2.FILLED)
-        x0, y0, x1, y1 = chosen.bbox
+        objects = _numbered(kept, mask.shape)
+        x0 = min(region.bbox[0] for region in kept)
+        y0 = min(region.bbox[1] for region in kept)
+        x1 = max(region.bbox[2] for region in kept)
+        y1 = max(region.bbox[3] for region in kept)
         pad = self.options.padding
         cx0, cy0 = max(0, x0 - pad), max(0, y0 - pad)
         cx1, cy1 = min(width_px, x1 + pad), min(height_px, y1 + pad)
         crop = np.ascontiguousarray(image[cy0:cy1, cx0:cx1])
+        primary = next(o for o in objects if o.bbox_px == chosen.bbox)
         return Detection(
             bbox_px=chosen.bbox,
             crop=crop,
             crop_origin_px=(cx0, cy0),
             contour_px=chosen.contour.astype(float),
-            mask=filled > 0,
+            mask=primary.mask,
             others_px=tuple(region.bbox for region in others),
             warnings=tuple(warnings),
+            objects=objects,
+            report={
+                "detector": "threshold",
+                "background": background,
+                "threshold": self.options.threshold,
+                "regions": [
+                    {"bbox_px": list(r.bbox), "area_px": round(r.area, 1)} for r in regions
+                ],
+                "pick": pick,
+            },
         )
+
+
+def _numbered(regions: list[Region], shape: tuple[int, ...]) -> tuple[DetectedObject, ...]:
+    """The regions as objects, ids 1.. left to right, then top to bottom (by box centre)."""
+    import cv2
+
+    def key(region: Region) -> tuple[float, float]:
+        x0, y0, x1, y1 = region.bbox
+        return (x0 + x1) / 2, (y0 + y1) / 2
+
+    objects = []
+    for number, region in enumerate(sorted(regions, key=key), start=1):
+        filled = np.zeros(shape[:2], np.uint8)
+        cv2.drawContours(filled, [region.contour.reshape(-1, 1, 2)], -1, 255, cv2.FILLED)
+        objects.append(
+            DetectedObject(
+                id=number,
+                bbox_px=region.bbox,
+                contour_px=region.contour.astype(float),
+                area_px=region.area,
+                mask=filled > 0,
+            )
+        )
+    return tuple(objects)
 
 
 def _describe(regions: list[Region]) -> str:
@@ -207,7 +247,7 @@ def _describe(regions: list[Region]) -> str:
 
 def _warnings(
     chosen: Region,
-    pick: int,
+    pick: int | None,
     regions: list[Region],
     searched: np.ndarray,
     options: ThresholdOptions,
@@ -238,13 +278,14 @@ def _warnings(
                 f"detect: the object (box {list(chosen.bbox)}) touches the border of "
                 "detector.roi: it may be cut off, and its box smaller than the object"
             )
-    for index, region in enumerate(regions):
-        if index != pick and region.area >= options.comparable * chosen.area:
-            found.append(
-                f"detect: two objects of comparable size: #{pick} box {list(chosen.bbox)} "
-                f"({chosen.area:.0f} px, used) and #{index} box {list(region.bbox)} "
-                f"({region.area:.0f} px); set detector.pick to {index} to use the other"
-            )
+    if pick is not None:  # one object kept: name the others it might have meant
+        for index, region in enumerate(regions):
+            if index != pick and region.area >= options.comparable * chosen.area:
+                found.append(
+                    f"detect: two objects of comparable size: #{pick} box {list(chosen.bbox)} "
+                    f"({chosen.area:.0f} px, used) and #{index} box {list(region.bbox)} "
+                    f"({region.area:.0f} px); set detector.pick to {index} to use the other"
+                )
     return found
 
 

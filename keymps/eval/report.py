@@ -33,6 +33,22 @@ class Row:
     vlm_calls: int
     cost_usd: float | None
     errors: tuple[str, ...]
+    d_objects_mm: tuple[tuple[float | None, ...], ...] = ()
+    """Several objects: per run, D of each object left to right (None: no work expected or
+    none done there)."""
+    right_objects: int | None = None
+    """Several objects: runs whose work landed on exactly the objects meant."""
+
+    @property
+    def d_per_object(self) -> tuple[float | None, ...]:
+        """Mean D of each object over the runs (None where no run has one)."""
+        if not self.d_objects_mm:
+            return ()
+        columns = zip(*self.d_objects_mm, strict=False)
+        return tuple(
+            statistics.fmean(found) if (found := [d for d in column if d is not None]) else None
+            for column in columns
+        )
 
     @staticmethod
     def _stats(values: Sequence[float]) -> tuple[float, float, float] | None:
@@ -89,6 +105,14 @@ def summarize(records: list[dict[str, Any]], suite: Suite) -> list[Row]:
                 vlm_calls=sum(int(r.get("vlm_calls") or 0) for r in runs),
                 cost_usd=sum(costs) if costs else None,
                 errors=tuple(sorted({r["error"] for r in runs if r.get("error")})),
+                d_objects_mm=tuple(
+                    tuple(r["d_objects_mm"]) for r in runs if r.get("d_objects_mm") is not None
+                ),
+                right_objects=(
+                    sum(1 for r in runs if r.get("right_objects"))
+                    if any("right_objects" in r for r in runs)
+                    else None
+                ),
             )
         )
     return rows
@@ -101,10 +125,12 @@ def _fmt(value: float | None, digits: int = 1) -> str:
 def markdown_table(rows: list[Row], suite: Suite) -> str:
     """The summary table in Markdown (what `keymps eval` prints and writes to summary.md)."""
     success_header = "equal parts" if suite.kind == "equal_parts" else "ok"
+    several = any(row.right_objects is not None for row in rows)
+    extra_header = " D per object mm | right objects |" if several else ""
     lines = [
         f"| case | method | runs | {success_header} | D mm (mean +- std) | D median | "
-        "D opt. mean | primitive ok | VLM calls | cost USD |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        f"D opt. mean |{extra_header} primitive ok | VLM calls | cost USD |",
+        "|---|---|---|---|---|---|---|" + ("---|---|" if several else "") + "---|---|---|",
     ]
     for row in rows:
         stats = row.d_stats
@@ -112,10 +138,15 @@ def markdown_table(rows: list[Row], suite: Suite) -> str:
         optimal = statistics.fmean(row.d_optimal_mm) if row.d_optimal_mm else None
         count = row.successes if row.successes is not None else row.ok
         keyword = f"{row.keyword_ok}/{row.keyword_runs}" if row.keyword_ok is not None else "-"
+        extra = ""
+        if several:
+            per_object = " / ".join(_fmt(d) for d in row.d_per_object) or "-"
+            right = f"{row.right_objects}/{row.runs}" if row.right_objects is not None else "-"
+            extra = f" {per_object} | {right} |"
         lines.append(
             f"| {row.case} | {row.method} | {row.runs} | {count}/{row.runs} "
             f"({100 * row.success_rate:.0f} %) | {d_text} | {_fmt(stats[2] if stats else None)} "
-            f"| {_fmt(optimal)} | {keyword} | {row.vlm_calls} | {_fmt(row.cost_usd, 4)} |"
+            f"| {_fmt(optimal)} |{extra} {keyword} | {row.vlm_calls} | {_fmt(row.cost_usd, 4)} |"
         )
     return "\n".join(lines)
 

@@ -174,6 +174,7 @@ def prepare(suite: Suite, options: EvalOptions) -> None:
             names = sorted(
                 {p for c in suite.cases for p in (c.primitives or suite.primitives)}
                 | {c.ground_truth.primitive for c in suite.cases if c.ground_truth}
+                | {t.primitive for c in suite.cases for t in c.ground_truths or () if t}
             )
             zero_weight_primitives(
                 names,
@@ -294,14 +295,19 @@ def _score(suite: Suite, case: Any, job: Job, output: Any, n: int) -> dict[str, 
         "keyword": output.keyword,
         "pieces": len(output.work_pieces),
     }
-    if case.ground_truth is not None:
-        scored["truth_keyword"] = case.ground_truth.primitive
+    truth_primitive = case.ground_truth.primitive if case.ground_truth is not None else None
+    if case.ground_truths:
+        truth_primitive = next(t.primitive for t in case.ground_truths if t is not None)
+    if truth_primitive is not None:
+        scored["truth_keyword"] = truth_primitive
         scored["truth_pieces"] = len(truth.pieces)
         if output.work_pieces:
             scored["d_mm"] = round(1000 * metric_d(truth.pieces, output.work_pieces, n), 3)
             scored["d_optimal_mm"] = round(
                 1000 * metric_d_optimal(truth.pieces, output.work_pieces, n), 3
             )
+    if case.ground_truths:
+        scored.update(_score_objects(case, truth, output, n))
     if suite.kind == "equal_parts" and suite.parts is not None:
         from keymps.eval.parts import check_equal_parts
 
@@ -320,6 +326,42 @@ def _score(suite: Suite, case: Any, job: Job, output: Any, n: int) -> dict[str, 
         deviation = check.worst_deviation
         scored["worst_deviation"] = round(deviation, 4) if np.isfinite(deviation) else None
     return scored
+
+
+def _score_objects(case: Any, truth: Any, output: Any, n: int) -> dict[str, Any]:
+    """Several objects: D per object and over all, each generated work piece given to the true
+    object under its middle (not to the one the planner said: the eval trusts no stage)."""
+    from keymps.eval.metric import metric_d
+    from keymps.eval.truth import objects_left_to_right
+
+    objects = objects_left_to_right(truth.scene)
+    mine: list[list[np.ndarray]] = [[] for _ in objects]
+    for piece in output.work_pieces:
+        points = np.asarray(piece, dtype=float)[:, :2]
+        middle = points[len(points) // 2]
+        distances = [_outside_m(middle, np.asarray(o["outline_m"])) for o in objects]
+        mine[int(np.argmin(distances))].append(np.asarray(piece, dtype=float))
+    per_object: list[float | None] = []
+    for expected, generated in zip(truth.object_pieces, mine, strict=True):
+        if expected and generated:
+            per_object.append(round(1000 * metric_d(expected, generated, n), 3))
+        else:
+            per_object.append(None)
+    wanted = [bool(t) for t in truth.object_pieces]
+    return {
+        "objects": len(objects),
+        "d_objects_mm": per_object,
+        "truth_pieces_per_object": [len(t) for t in truth.object_pieces],
+        "pieces_per_object": [len(g) for g in mine],
+        "right_objects": wanted == [bool(g) for g in mine],
+    }
+
+
+def _outside_m(point: np.ndarray, outline: np.ndarray) -> float:
+    import cv2
+
+    contour = np.asarray(outline, dtype=np.float32).reshape(-1, 1, 2)
+    return max(0.0, -cv2.pointPolygonTest(contour, (float(point[0]), float(point[1])), True))
 
 
 ProgressCallback = Callable[[Job, dict[str, Any]], None]

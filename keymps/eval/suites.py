@@ -93,7 +93,19 @@ class RadialCuts(_Strict):
     the next ones follow counter-clockwise."""
 
 
-CutDesign = Annotated[ParallelCuts | TipCuts | RadialCuts, Field(discriminator="pattern")]
+class DotsRing(_Strict):
+    """`count` icing dots evenly spaced on a ring around a round object's centre, `fraction`
+    of its radius out, the first at `first_deg` (90: at the top of the image, 12 o'clock)."""
+
+    pattern: Literal["dots_ring"]
+    count: Annotated[int, Field(ge=1, le=200)]
+    fraction: Annotated[float, Field(gt=0, lt=1)] = 0.78
+    first_deg: Annotated[float, Field(ge=-360, le=360)] = 90.0
+
+
+CutDesign = Annotated[
+    ParallelCuts | TipCuts | RadialCuts | DotsRing, Field(discriminator="pattern")
+]
 
 
 class GroundTruth(_Strict):
@@ -113,6 +125,9 @@ class Case(_Strict):
     primitives: list[str] | None = None
     """Primitives offered to the planner (the suite's when omitted)."""
     ground_truth: GroundTruth | None = None
+    ground_truths: list[GroundTruth | None] | None = None
+    """Several objects: one ground truth per object, left to right (null: nothing is done to
+    that object). Scored with D per object and over all of them."""
     task: dict[str, Any] = Field(default_factory=dict)
     """Task-file sections merged over the suite's (e.g. height, motion, robot)."""
 
@@ -135,6 +150,23 @@ class Case(_Strict):
     @property
     def kinds(self) -> list[str]:
         return [self.object] if isinstance(self.object, str) else list(self.object)
+
+    @property
+    def has_truth(self) -> bool:
+        return self.ground_truth is not None or bool(self.ground_truths)
+
+    @model_validator(mode="after")
+    def _one_truth_per_object(self) -> Case:
+        if self.ground_truths is None:
+            return self
+        if self.ground_truth is not None:
+            raise ValueError("give ground_truth (one object) or ground_truths (several), not both")
+        if len(self.ground_truths) != len(self.kinds):
+            raise ValueError(
+                f"ground_truths has {len(self.ground_truths)} entries for "
+                f"{len(self.kinds)} objects (one per object, left to right; null for none)"
+            )
+        return self
 
 
 class Suite(_Strict):
@@ -166,7 +198,7 @@ class Suite(_Strict):
         if self.kind == "equal_parts" and self.parts is None:
             raise ValueError("an equal_parts suite needs parts")
         if self.kind == "metric":
-            missing = [c.id for c in self.cases if c.ground_truth is None]
+            missing = [c.id for c in self.cases if not c.has_truth]
             if len(missing) == len(self.cases):
                 raise ValueError("a metric suite needs a ground_truth in at least one case")
         return self
@@ -199,7 +231,8 @@ def _problems(source: str, parsed: PositionedYaml, error: ValidationError) -> li
         path = tuple(
             p
             for p in item["loc"]
-            if isinstance(p, int) or not (p in ("parallel", "tips", "radial") or "[" in p)
+            if isinstance(p, int)
+            or not (p in ("parallel", "tips", "radial", "dots_ring") or "[" in p)
         )
         if path and isinstance(path[-1], str) and path[-1] in ("str", "list"):
             path = path[:-1]

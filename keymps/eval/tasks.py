@@ -34,9 +34,18 @@ class CaseScene:
     rotation: float
     board: tuple[float, float]
     px_per_m: float
+    heights: tuple[float, ...] = ()
+    """Several objects: each one's height, left to right (sizes come from the seed)."""
 
     def source_options(self) -> dict[str, Any]:
         """scene.source_options for the `synthetic` image source (renders exactly this scene)."""
+        if self.heights:  # several objects: sizes from the seed, heights from scene.objects
+            return {
+                "object": list(self.kinds),
+                "seed": self.seed,
+                "rotation": round(self.rotation, 4),
+                "px_per_m": self.px_per_m,
+            }
         return {
             "object": list(self.kinds) if len(self.kinds) > 1 else self.kinds[0],
             "seed": self.seed,
@@ -48,9 +57,24 @@ class CaseScene:
         }
 
     def spec(self) -> SceneSpec:
+        from dataclasses import replace
+
         from keymps.scenes.render import SceneSpec
 
         options = self.source_options()
+        if self.heights:
+            spec = SceneSpec.from_kinds(
+                list(self.kinds),
+                seed=self.seed,
+                rotation=options["rotation"],
+                board_size=self.board,
+                px_per_m=self.px_per_m,
+            )
+            objects = tuple(
+                replace(o, height=round(h, 6))
+                for o, h in zip(spec.objects, self.heights, strict=True)
+            )
+            return replace(spec, objects=objects)
         return SceneSpec.from_kinds(
             list(self.kinds),
             seed=self.seed,
@@ -70,6 +94,20 @@ def case_scene(suite: Suite, case: Case, seed: int) -> CaseScene:
     kind = KINDS[case.kinds[0]]
     rng = np.random.default_rng([seed, 8])
     j = case.scene.jitter
+    if len(case.kinds) > 1:
+        return CaseScene(
+            kinds=tuple(case.kinds),
+            seed=seed,
+            length=kind.length,
+            width=kind.width,
+            height=kind.height,
+            rotation=float(case.scene.rotation if case.scene.rotation is not None else 0.0),
+            board=(float(suite.board[0]), float(suite.board[1])),
+            px_per_m=float(suite.px_per_m),
+            heights=tuple(
+                float(KINDS[k].height * rng.uniform(1.0 - j, 1.0 + j)) for k in case.kinds
+            ),
+        )
     scale = rng.uniform(1.0 - j, 1.0 + j, size=3)
     length = (case.scene.length or kind.length) * scale[0]
     width = length if kind.round else (case.scene.width or kind.width) * scale[1]
@@ -120,4 +158,10 @@ def case_task_data(
         },
         "primitives": list(primitives or case.primitives or suite.primitives),
     }
+    if scene.heights:  # the objects, left to right, with their names and heights
+        data["scene"]["object_height"] = round(max(scene.heights), 6)
+        data["scene"]["objects"] = [
+            {"name": kind.replace("_", " "), "height": round(height, 6)}
+            for kind, height in zip(scene.kinds, scene.heights, strict=True)
+        ]
     return merged(sections, data)

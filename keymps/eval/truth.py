@@ -117,6 +117,12 @@ def cut_lines(truth: GroundTruth, scene_object: dict[str, Any]) -> np.ndarray:
     """The ground-truth cuts (K, 2, 2) in board metres, from one object of a scene sidecar."""
     outline = np.asarray(scene_object["outline_m"], dtype=float)
     cuts = truth.cuts
+    if cuts.pattern == "dots_ring":
+        centre = np.asarray(scene_object["centre_m"], dtype=float)
+        radius = cuts.fraction * float(scene_object["length_m"]) / 2
+        angles = np.radians(cuts.first_deg) + 2 * np.pi * np.arange(cuts.count) / cuts.count
+        dots = centre + radius * np.column_stack([np.cos(angles), np.sin(angles)])
+        return np.stack([dots, dots], axis=1)
     if cuts.pattern == "radial":
         centre = np.asarray(scene_object["centre_m"], dtype=float)
         return radial_cut_lines(cuts, outline, centre, truth.overshoot)
@@ -133,6 +139,8 @@ class CaseTruth:
     """(K, 2, 2) ground-truth cut lines, board metres (None without a ground truth)."""
     pieces: tuple[np.ndarray, ...]
     """The ground-truth work pieces in 3D (empty without a ground truth)."""
+    object_pieces: tuple[tuple[np.ndarray, ...], ...] = ()
+    """Several objects: the pieces of each object, left to right (pieces is all of them)."""
 
 
 def height_pair(task_data: dict[str, Any], object_height: float) -> tuple[float, float]:
@@ -169,6 +177,8 @@ def case_truth(
 
     if sidecar is None:
         sidecar = render_scene_cached(case_scene(suite, case, seed).spec()).truth
+    if case.ground_truths:
+        return _objects_truth(suite, case, seed, sidecar)
     if case.ground_truth is None:
         return CaseTruth(scene=sidecar, lines_m=None, pieces=())
     scene_object = sidecar["objects"][0]
@@ -181,3 +191,40 @@ def case_truth(
         lines, case.ground_truth.primitive, z, default_search_dirs(suite.folder)
     )
     return CaseTruth(scene=sidecar, lines_m=lines, pieces=pieces)
+
+
+def objects_left_to_right(sidecar: dict[str, Any]) -> list[dict[str, Any]]:
+    """The sidecar's objects in the order keymps numbers them (left to right by box centre)."""
+    return sorted(sidecar["objects"], key=lambda o: (o["bbox_m"][0] + o["bbox_m"][2]) / 2)
+
+
+def _objects_truth(suite: Suite, case: Case, seed: int, sidecar: dict[str, Any]) -> CaseTruth:
+    """Per object, its own design on its true outline at its true height."""
+    from keymps.eval.tasks import case_task_data
+    from keymps.primitives.dictionary import default_search_dirs
+
+    assert case.ground_truths is not None
+    task_data = case_task_data(suite, case, seed)
+    lines_all: list[np.ndarray] = []
+    per_object: list[tuple[np.ndarray, ...]] = []
+    for number, (truth, scene_object) in enumerate(
+        zip(case.ground_truths, objects_left_to_right(sidecar), strict=True), start=1
+    ):
+        if truth is None:
+            per_object.append(())
+            continue
+        lines = cut_lines(truth, scene_object)
+        if len(lines) == 0:
+            raise KeympsError(f"case {case.id}: the ground truth of object {number} is empty")
+        z = height_pair(task_data, float(scene_object["height_m"]))
+        per_object.append(
+            ground_truth_pieces(lines, truth.primitive, z, default_search_dirs(suite.folder))
+        )
+        lines_all.append(lines)
+    pieces = tuple(p for mine in per_object for p in mine)
+    return CaseTruth(
+        scene=sidecar,
+        lines_m=np.concatenate(lines_all) if lines_all else None,
+        pieces=pieces,
+        object_pieces=tuple(per_object),
+    )

@@ -9,7 +9,7 @@ import numpy as np
 
 from keymps.errors import KeympsError
 from keymps.primitives.dictionary import Primitive
-from keymps.types import Piece, Segment, ToolPath
+from keymps.types import GroundedObject, Piece, Segment, ToolPath
 
 WORK_SPACING_M = 0.001
 """Work pieces are sampled at least this finely (the re-targeted rollout's points)."""
@@ -39,6 +39,7 @@ def compose_tool_path(
     home: np.ndarray,
     home_yaw: float = 0.0,
     footprint: np.ndarray | None = None,
+    objects: Sequence[GroundedObject] = (),
 ) -> ToolPath:
     """From `home`, per segment a travel piece (rise to object_top + clearance, move over,
     descend to the start) then a work piece (the primitive re-targeted to start/goal), and a
@@ -51,6 +52,9 @@ def compose_tool_path(
     `footprint` ((N, 2) board metres, the object's outline): work that would reach further
     outside it than the safety check allows (a sawing stroke overshooting a cut that ends just
     outside the object, as the prompts ask) is shortened smoothly near the cut's ends.
+    With `objects` (several objects of their own heights), each travel piece rises to
+    clearance above the tallest object its straight line passes over (the objects it leaves
+    and reaches included) instead of above object_top.
     """
     home_arr = _finite_point(home, "home")
     _check_settings(object_top, clearance, work_speed, travel_speed, yaw_mode)
@@ -70,26 +74,50 @@ def compose_tool_path(
         ).y
         for k, seg in enumerate(segments)
     ]
-    if footprint is not None and len(np.asarray(footprint).reshape(-1, 2)) >= 3:
-        outline = np.asarray(footprint, dtype=float).reshape(-1, 2)
+    outlines = {o.id: np.asarray(o.outline_m, dtype=float).reshape(-1, 2) for o in objects}
+    if footprint is not None or outlines:
+        single = (
+            np.asarray(footprint, dtype=float).reshape(-1, 2) if footprint is not None else None
+        )
         work_paths = [
             keep_strokes_near(
-                points, np.asarray(seg.start, float), np.asarray(seg.goal, float), outline
+                points,
+                np.asarray(seg.start, float),
+                np.asarray(seg.goal, float),
+                outline,  # each cut's own object's outline, with several objects
             )
+            if (outline := outlines.get(seg.object_id, single)) is not None and len(outline) >= 3
+            else points
             for points, seg in zip(work_paths, segments, strict=True)
         ]
     position, yaw = home_arr, yaws[0] if yaw_mode == "follow" else home_yaw
+    by_id = {o.id: o for o in objects}
+    here: int | None = None  # the object the tool is over (None: home)
+
+    def leg_z(a: np.ndarray, b: np.ndarray, ends: tuple[int | None, int | None]) -> float:
+        if not by_id:
+            return travel_z
+        crossed = [by_id[i].height for i in ends if i in by_id]
+        crossed += [o.height for o in objects if _crosses(a[:2], b[:2], o.outline_m)]
+        return max(crossed, default=0.0) + clearance
+
     for index, (points, work_yaw) in enumerate(zip(work_paths, yaws, strict=True)):
-        travel_points, travel_yaw = _travel(position, points[0], travel_z, yaw, work_yaw)
-        pieces.append(Piece("travel", index, travel_points, travel_yaw, float(travel_speed)))
+        owner = segments[index].object_id
+        z = leg_z(position, points[0], (here, owner))
+        travel_points, travel_yaw = _travel(position, points[0], z, yaw, work_yaw)
+        pieces.append(Piece("travel", index, travel_points, travel_yaw, float(travel_speed), owner))
         pieces.append(
-            Piece("work", index, points, np.full(len(points), work_yaw), float(work_speed))
+            Piece("work", index, points, np.full(len(points), work_yaw), float(work_speed), owner)
         )
-        position, yaw = points[-1], work_yaw
-    travel_points, travel_yaw = _travel(position, home_arr, travel_z, yaw, yaw)
+        position, yaw, here = points[-1], work_yaw, owner
+    z = leg_z(position, home_arr, (here, None))
+    travel_points, travel_yaw = _travel(position, home_arr, z, yaw, yaw)
     pieces.append(
-        Piece("travel", len(segments) - 1, travel_points, travel_yaw, float(travel_speed))
-    )
+        Piece(
+            "travel", len(segments) - 1, travel_points, travel_yaw, float(travel_speed),
+            segments[-1].object_id,
+        )
+    )  # fmt: skip
     return ToolPath(pieces=tuple(pieces), keyword=primitive.name)
 
 
@@ -133,6 +161,17 @@ def _soft_limit(distance: np.ndarray, reach: float) -> np.ndarray:
     if reach <= 0.0:
         return np.zeros_like(distance)
     return reach * np.tanh(distance / reach)
+
+
+def _crosses(a: np.ndarray, b: np.ndarray, outline: np.ndarray) -> bool:
+    """Whether the straight line a-b (board xy) passes over the polygon (or within the
+    travel spacing of it)."""
+    from keymps.robot.safety_geometry import outside_distance
+
+    length = float(np.linalg.norm(b - a))
+    count = max(2, math.ceil(length / (TRAVEL_SPACING_M / 2)) + 1)
+    points = a + np.linspace(0.0, 1.0, count)[:, None] * (b - a)
+    return bool((outside_distance(points, np.asarray(outline, float)) <= TRAVEL_SPACING_M).any())
 
 
 def _work_yaws(segments: Sequence[Segment], yaw_mode: str, home_yaw: float) -> list[float]:

@@ -26,6 +26,7 @@ from keymps.types import Detection, Grounding, Plan, SceneImage, Segment
 
 if TYPE_CHECKING:
     from keymps.config.task import Task
+    from keymps.perception.scene_objects import SceneObject
 
 FrameMode = Literal["linear", "homography", "top_plane"]
 
@@ -162,6 +163,18 @@ class ImageFrame:
         """(N, 2) board metres -> (N, 2) image pixels."""
         return _apply(self.inverse, _as_points(xy, "to_pixels"))
 
+    def footprint_m(self, contour_px: np.ndarray, bbox_px: tuple[int, int, int, int]) -> np.ndarray:
+        """A contour (pixel centres; the box's corners without one) as a counter-clockwise
+        board polygon in metres."""
+        contour = np.asarray(contour_px, dtype=float).reshape(-1, 2)
+        if len(contour) >= 3:
+            pixels = contour + 0.5
+        else:
+            x0, y0, x1, y1 = (float(v) for v in bbox_px)
+            pixels = np.array([[x0, y1], [x1, y1], [x1, y0], [x0, y0]])
+        outline = self.to_board(pixels)
+        return outline if polygon_area(outline) >= 0 else outline[::-1].copy()
+
     def metres_per_pixel(self, px: np.ndarray | None = None) -> float:
         """Mean size of one pixel on the board (at the image centre unless px is given)."""
         if px is None:
@@ -221,9 +234,11 @@ def _check_size(image_size_px: tuple[int, int]) -> tuple[int, int]:
     return width, height
 
 
-def height_pair(task: Task) -> tuple[float, float]:
-    """Appendix C: (start z, goal z) from task.height.mode, its margin and the object height."""
-    top = float(task.scene.object_height) + float(task.height.margin)
+def height_pair(task: Task, object_height: float | None = None) -> tuple[float, float]:
+    """Appendix C: (start z, goal z) from task.height.mode, its margin and the object height
+    (`object_height`, else scene.object_height)."""
+    height = task.scene.object_height if object_height is None else object_height
+    top = float(height) + float(task.height.margin)
     mode = task.height.mode
     if mode == "both":
         return top, top
@@ -253,47 +268,60 @@ def pairs_full_image_px(plan: Plan, detection: Detection) -> np.ndarray:
 
 
 def ground(
-    plan: Plan, detection: Detection, task: Task, image: SceneImage | tuple[int, int]
+    plan: Plan,
+    detection: Detection,
+    task: Task,
+    image: SceneImage | tuple[int, int],
+    objects: tuple[SceneObject, ...] | None = None,
 ) -> Grounding:
-    """Appendix B (crop pixels -> board metres) and Appendix C (heights): 3D segments.
+    """Appendix B (crop pixels -> board metres) and Appendix C (heights, per object): each
+    pair takes the height of the object it lies on (plan.pair_objects).
 
     `image` is the scene the plan was made on (or its size, for an unrectified image)."""
+    from keymps.perception.scene_objects import grounded_objects, scene_objects
+
     pairs = pairs_full_image_px(plan, detection)
     frame = ImageFrame.for_scene(task, image)
-    board = frame.to_board(pairs.reshape(-1, 2)).reshape(-1, 2, 2)
-    z_start, z_goal = height_pair(task)
-    segments = tuple(
-        Segment(
-            start=np.array([*board[k, 0], z_start]),
-            goal=np.array([*board[k, 1], z_goal]),
-            start_px=(float(pairs[k, 0, 0]), float(pairs[k, 0, 1])),
-            goal_px=(float(pairs[k, 1, 0]), float(pairs[k, 1, 1])),
+    if objects is None:
+        objects = scene_objects(detection, task, frame)
+    by_id = {o.id: o for o in objects}
+    owners = plan.pair_objects or (objects[0].id,) * len(pairs)
+    if len(owners) != len(pairs) or any(i not in by_id for i in owners):
+        raise StageError(
+            "ground",
+            f"the plan assigns its {len(pairs)} pairs to objects {list(owners)}, but the "
+            f"scene's objects are {sorted(by_id)}",
         )
-        for k in range(len(pairs))
-    )
+    board = frame.to_board(pairs.reshape(-1, 2)).reshape(-1, 2, 2)
+    segments = []
+    for k, owner in enumerate(owners):
+        z_start, z_goal = height_pair(task, by_id[owner].height)
+        segments.append(
+            Segment(
+                start=np.array([*board[k, 0], z_start]),
+                goal=np.array([*board[k, 1], z_goal]),
+                start_px=(float(pairs[k, 0, 0]), float(pairs[k, 0, 1])),
+                goal_px=(float(pairs[k, 1, 0]), float(pairs[k, 1, 1])),
+                object_id=owner,
+            )
+        )
     return Grounding(
-        segments=segments,
-        object_height=float(task.scene.object_height),
+        segments=tuple(segments),
+        object_height=max(o.height for o in objects),
         workspace_size=(float(task.scene.workspace.size[0]), float(task.scene.workspace.size[1])),
+        objects=grounded_objects(objects, frame),
     )
 
 
 def object_outline_m(
     detection: Detection, task: Task, image: SceneImage | tuple[int, int]
 ) -> np.ndarray:
-    """The object's footprint polygon (N, 2) in board metres, counter-clockwise.
+    """The (primary) object's footprint polygon (N, 2) in board metres, counter-clockwise.
 
     Uses the detected contour (pixel centres) or, without one, the bounding box's corners.
     """
     frame = ImageFrame.for_scene(task, image)
-    contour = np.asarray(detection.contour_px, dtype=float).reshape(-1, 2)
-    if len(contour) >= 3:
-        pixels = contour + 0.5
-    else:
-        x0, y0, x1, y1 = (float(v) for v in detection.bbox_px)
-        pixels = np.array([[x0, y1], [x1, y1], [x1, y0], [x0, y0]])
-    outline = frame.to_board(pixels)
-    return outline if polygon_area(outline) >= 0 else outline[::-1].copy()
+    return frame.footprint_m(detection.contour_px, detection.bbox_px)
 
 
 def polygon_area(points: np.ndarray) -> float:

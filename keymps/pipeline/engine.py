@@ -219,6 +219,11 @@ class _Pipeline:
         from keymps.motion.trajectory_io import write_trajectory_csv
         from keymps.perception import frames as geometry
         from keymps.perception.rectify import rectify_scene, top_surface
+        from keymps.perception.scene_objects import (
+            crop_covering_objects,
+            grounded_objects,
+            scene_objects,
+        )
         from keymps.perception.search_area import refuse_the_board
         from keymps.pipeline.overlay import draw_plan, draw_plan_on_photo
         from keymps.planning import planner as planning
@@ -235,26 +240,36 @@ class _Pipeline:
         if pixel_shape:
             run.warnings.append(pixel_shape)
 
+        found: dict[str, Any] = {}
+
         def detect() -> Detection:
-            found = top_surface(refuse_the_board(parts.detector.detect(scene), size), scene)
-            run.outline_m = geometry.object_outline_m(found, task, scene)
-            return found
+            detection = top_surface(refuse_the_board(parts.detector.detect(scene), size), scene)
+            detection = crop_covering_objects(detection, scene.image)
+            frame = geometry.ImageFrame.for_scene(task, scene)
+            objects = scene_objects(detection, task, frame)  # a count mismatch stops here
+            found["objects"] = objects
+            run.objects = grounded_objects(objects, frame)
+            run.outline_m = geometry.object_outline_m(detection, task, scene)
+            return detection
 
         detection = self.stage("detect", detect)
+        objects = found["objects"]
         run.warnings.extend(detection.warnings)
         descriptions = {name: p.description for name, p in parts.primitives.items()}
         families = {name: p.family for name, p in parts.primitives.items()}
         plan = self.stage(
             "plan",
             lambda: planning.make_plan(
-                task, detection, scene, descriptions, run, parts.backend, families
+                task, detection, scene, descriptions, run, parts.backend, families, objects
             ),
         )
         _write_file(lambda: run.write_image("plan", draw_plan(scene.image, detection, plan)))
         on_photo = draw_plan_on_photo(scene, detection, plan)
         if on_photo is not None:
             _write_file(lambda: run.write_image("plan_photo", on_photo))
-        grounding = self.stage("ground", lambda: geometry.ground(plan, detection, task, scene))
+        grounding = self.stage(
+            "ground", lambda: geometry.ground(plan, detection, task, scene, objects)
+        )
         if self.through == "ground":
             return
         robot, executor = parts.robot, parts.executor
@@ -266,13 +281,14 @@ class _Pipeline:
                 compose_tool_path(
                     grounding.segments,
                     parts.primitives[plan.keyword],
-                    object_top=task.scene.object_height,
+                    object_top=grounding.object_height,
                     clearance=task.motion.clearance,
                     work_speed=task.motion.work_speed,
                     travel_speed=task.motion.travel_speed,
                     yaw_mode=tool.yaw,
                     home=robot.home_tool_position(),
                     footprint=run.outline_m,
+                    objects=grounding.objects,
                 ),
                 task,
             ),
@@ -283,10 +299,8 @@ class _Pipeline:
             lambda: check_duration(time_trajectory(robot, tool_path, joint_path, task), task),
         )
         run.warnings.extend(trajectory.warnings)
-        outline = run.outline_m
-        assert outline is not None  # set by the detect stage
         validated = self.stage(
-            "check", lambda: validate(robot, trajectory, tool_path, outline, task)
+            "check", lambda: validate(robot, trajectory, tool_path, grounding.objects, task)
         )
         _write_file(lambda: write_trajectory_csv(validated.trajectory, run.path("trajectory.csv")))
         report = self.stage("execute", lambda: executor.execute(validated, run))

@@ -44,12 +44,16 @@ def draw_plan(
         canvas = cv2.resize(canvas, size, interpolation=cv2.INTER_CUBIC)
     height, width = canvas.shape[:2]
     thick = max(1, round(min(width, height) / 300))
-    for box in detection.others_px:
-        _rectangle(canvas, box, scale, OTHER_BOX, 1)
-    _rectangle(canvas, detection.bbox_px, scale, BOX, thick)
-
     font = cv2.FONT_HERSHEY_SIMPLEX
     font_scale = max(0.45, min(width, height) / 700)
+    if len(detection.objects) > 1:  # several objects: every box, each with its number
+        for obj in detection.objects:
+            _rectangle(canvas, obj.bbox_px, scale, BOX, thick)
+            _object_number(canvas, obj.id, obj.bbox_px, scale, font, font_scale, thick)
+    else:
+        for box in detection.others_px:
+            _rectangle(canvas, box, scale, OTHER_BOX, 1)
+        _rectangle(canvas, detection.bbox_px, scale, BOX, thick)
     pairs = np.asarray(plan.pairs_px, dtype=float).reshape(-1, 2, 2)
     x0, y0, x1, y1 = detection.bbox_px
     centre = np.array([(x0 + x1) / 2, (y0 + y1) / 2], dtype=float)
@@ -82,6 +86,28 @@ def draw_plan(
         cv2.putText(canvas, label, (x, y), font, font_scale, (0, 0, 0), thick + 2, cv2.LINE_AA)
         cv2.putText(canvas, label, (x, y), font, font_scale, GREEN, thick, cv2.LINE_AA)
     return canvas
+
+
+def _object_number(
+    canvas: np.ndarray,
+    number: int,
+    box: tuple[int, int, int, int],
+    scale: float,
+    font: int,
+    font_scale: float,
+    thick: int,
+) -> None:
+    """'#N' in the box colour just above (or inside, at the image's top) the box's corner."""
+    import cv2
+
+    label = f"#{number}"
+    (text_w, text_h), _ = cv2.getTextSize(label, font, font_scale, thick)
+    height, width = canvas.shape[:2]
+    x = int(np.clip(box[0] * scale, 0, max(0, width - text_w)))
+    y = int(box[1] * scale) - 4
+    y = y if y - text_h >= 0 else int(box[1] * scale) + text_h + 4
+    cv2.putText(canvas, label, (x, y), font, font_scale, (0, 0, 0), thick + 2, cv2.LINE_AA)
+    cv2.putText(canvas, label, (x, y), font, font_scale, BOX, thick, cv2.LINE_AA)
 
 
 def _rectangle(

@@ -112,19 +112,13 @@ def run_record(run: Run, error: BaseException | None) -> dict[str, Any]:
             "crop_origin_px": [int(v) for v in detection.crop_origin_px],
             "crop_size_px": list(detection.crop_size_px),
             "warnings": list(detection.warnings),
-            "objects": [
-                {
-                    "id": o.id,
-                    "bbox_px": [int(v) for v in o.bbox_px],
-                    "area_px": _rounded(o.area_px, 1),
-                }
-                for o in detection.objects
-            ],
+            "objects": _objects(run),
             "report": detection.report,
         },
         "keyword": plan.keyword if plan is not None else None,
         "rationale": plan.rationale if plan is not None else None,
         "pairs_px": _rounded(plan.pairs_px.tolist(), 2) if plan is not None else None,
+        "pair_objects": list(plan.pair_objects) if plan is not None else None,
         "pairs_crop_px": _rounded(plan.pairs_crop_px.tolist(), 2) if plan is not None else None,
         "answer": _answer_form(plan),
         "segments_m": _rounded(grounding.segments_m.tolist()) if grounding is not None else None,
@@ -151,6 +145,26 @@ def run_record(run: Run, error: BaseException | None) -> dict[str, Any]:
         },
         "warnings": list(run.warnings),
     }
+
+
+def _objects(run: Run) -> list[dict[str, Any]]:
+    """Every object found: id, name, height, box and area (the task's names and heights)."""
+    from keymps.perception.scene_objects import detected_objects
+
+    detection = run.stages.detect
+    if detection is None:
+        return []
+    boxes = {o.id: o for o in detected_objects(detection)}
+    return [
+        {
+            "id": o.id,
+            "name": o.name,
+            "height_m": _rounded(o.height),
+            "bbox_px": [int(v) for v in boxes[o.id].bbox_px] if o.id in boxes else None,
+            "area_px": _rounded(float(boxes[o.id].area_px), 1) if o.id in boxes else None,
+        }
+        for o in run.objects
+    ]
 
 
 def write_run_json(run: Run, error: BaseException | None = None) -> None:

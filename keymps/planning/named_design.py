@@ -73,6 +73,8 @@ class DesignAnswer(BaseModel):
     object_length_cm: float | None = None
     orientation: str | None = None
     text: str | None = None
+    object: int | None = Field(default=None, strict=True)
+    """With several objects: the id (as numbered on the image) of the object it is for."""
 
 
 def design_schema(family: str | None) -> dict[str, Any]:
@@ -95,8 +97,11 @@ def design_schema(family: str | None) -> dict[str, Any]:
                 "string", PARAMETERS["orientation"], enum=[*ORIENTATIONS, None]
             ),
             "text": nullable("string", PARAMETERS["text"]),
+            "object": nullable(
+                "integer", "with several objects: the id of the object it is for; else null"
+            ),
         },
-        "required": ["name", *PARAMETERS],
+        "required": ["name", *PARAMETERS, "object"],
         "additionalProperties": False,
     }
 

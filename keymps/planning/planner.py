@@ -27,10 +27,11 @@ from keymps.planning.backend_choice import (
     model_provider,
 )
 from keymps.planning.redaction import redact_text, remember
-from keymps.types import BackendAnswer, Detection, Plan, PlanRequest, SceneImage
+from keymps.types import BackendAnswer, Detection, Plan, PlanObject, PlanRequest, SceneImage
 
 if TYPE_CHECKING:
     from keymps.config.task import Task
+    from keymps.perception.scene_objects import SceneObject
     from keymps.run import Run
 
 
@@ -99,15 +100,21 @@ def make_plan(
     run: Run,
     backend: str,
     families: Mapping[str, str] | None = None,
+    objects: tuple[SceneObject, ...] | None = None,
 ) -> Plan:
     """Ask `backend` for the keyword and keypoint pairs; validated, repaired, recorded.
 
     `families`: primitive name -> family (cutting, icing); read from the descriptions when
     None. The sentence and the plan must fit the task's tool family (keymps.planning.family).
+    `objects`: the scene's objects (keymps.perception.scene_objects; from the detection when
+    None). Each pair is assigned to the object it lies on (plan.pair_objects), and the pairs are
+    ordered object by object along a short tour from the robot base.
     """
+    from keymps.perception.scene_objects import scene_objects
     from keymps.planning.coordinates import rescale, sent_size, to_pixels
     from keymps.planning.coordinates import resolve as resolve_convention
     from keymps.planning.family import check_plan, check_sentence, families_from_descriptions
+    from keymps.planning.objects import mark_objects, plan_objects, scaled_objects
     from keymps.planning.prompt import find_prompt, png_bytes, png_data_url, prompt_family
     from keymps.planning.session import PlanSession
     from keymps.plugin.manager import create_component
@@ -136,8 +143,17 @@ def make_plan(
     metres_per_px = crop_metres_per_px(task, detection, scene)
     mask = crop_mask(detection, scene)
     sent, sent_mask, sent_metres = _downscaled(crop, mask, metres_per_px, size)
-    crop_png = png_bytes(sent)  # encoded once: sent, and kept as vlm/crop.png
-    image_url = png_data_url(sent, crop_png)
+    if objects is None:
+        from keymps.perception.frames import ImageFrame
+
+        objects = scene_objects(detection, task, ImageFrame.for_scene(task, scene))
+    in_crop = plan_objects(
+        objects, detection.crop_origin_px, crop_size, scene.image.shape, metres_per_px, mask
+    )
+    in_sent = scaled_objects(in_crop, crop_size, size, sent_mask)
+    marked = mark_objects(sent, in_sent)  # several objects: their numbers on the image sent
+    crop_png = png_bytes(marked)  # encoded once: sent, and kept as vlm/crop.png
+    image_url = png_data_url(marked, crop_png)
     base = PlanRequest(
         instruction=task.instruction,
         crop=sent,
@@ -153,6 +169,7 @@ def make_plan(
         timeout_s=planner.timeout_s,
         task_name=task.name,
         line_width_mm=_line_width_mm(task),
+        objects=in_sent,
     )
     family = prompt_family(primitives)
     session = PlanSession(
@@ -180,12 +197,13 @@ def make_plan(
         rationale = " ".join(r for r in (chosen.rationale, placed.rationale) if r)
     check_plan(task, keyword, families)
     if placed.design is not None:
+        on = _design_object(placed.design, in_crop)
         pairs_crop, layout = _lay_out(
             placed.design,
             keyword,
             families,
             detection,
-            mask,
+            on.mask,
             metres_per_px,
             planner.max_pairs,
             _line_width_mm(task),
@@ -194,6 +212,7 @@ def make_plan(
     else:
         answered = np.asarray(placed.pairs, dtype=float).reshape(-1, 2, 2)
         pairs_crop = rescale(to_pixels(answered, convention, size), size, crop_size)
+    pairs_crop, owners = _by_object(pairs_crop, in_crop, task, detection, scene)
     pairs_px = pairs_crop + np.asarray(detection.crop_origin_px, dtype=float)
     return Plan(
         keyword=keyword,
@@ -206,6 +225,7 @@ def make_plan(
         coordinates=convention,
         design=placed.design.model_dump() if placed.design is not None else None,
         image_sent_px=size if size != crop_size else None,
+        pair_objects=owners,
     )
 
 
@@ -255,6 +275,44 @@ def _lay_out(
     return place_design(
         intent, detection.crop, mask, metres_per_px, max_pairs, line_width_mm=line_width_mm
     )
+
+
+def _by_object(
+    pairs_crop: np.ndarray,
+    objects: tuple[PlanObject, ...],
+    task: Task,
+    detection: Detection,
+    scene: SceneImage,
+) -> tuple[np.ndarray, tuple[int, ...]]:
+    """The pairs with the object each lies on, in visiting order (a short tour from the base)."""
+    from keymps.perception.frames import ImageFrame
+    from keymps.planning.objects import assign_pairs, visit_order
+
+    owners = assign_pairs(pairs_crop, objects)
+    frame = ImageFrame.for_scene(task, scene)
+    base_px = frame.to_pixels(np.array([task.robot.base[:2]], dtype=float))[0]
+    start = base_px - np.asarray(detection.crop_origin_px, dtype=float)
+    order = visit_order(owners, objects, (float(start[0]), float(start[1])))
+    return pairs_crop[order], tuple(owners[k] for k in order)
+
+
+def _design_object(answer: Any, objects: tuple[PlanObject, ...]) -> PlanObject:
+    """The object a named design is for: the only one, or the one its `object` id names."""
+    wanted = getattr(answer, "object", None)
+    if len(objects) == 1 and wanted in (None, objects[0].id):
+        return objects[0]
+    by_id = {o.id: o for o in objects}
+    if wanted is None:
+        raise KeympsError(
+            f"the named design {answer.name!r} does not say which of the {len(objects)} objects "
+            f"it is for (design.object: one of {sorted(by_id)})"
+        )
+    if wanted not in by_id:
+        raise KeympsError(
+            f"the named design {answer.name!r} is for object {wanted}, but the objects are "
+            f"{sorted(by_id)}"
+        )
+    return by_id[wanted]
 
 
 def _read_prompt(path: Path) -> str:

@@ -216,12 +216,22 @@ def build_messages(
     crop_size_px: tuple[int, int],
     keyword: str | None,
     history: Sequence[tuple[str, Sequence[str]]],
+    objects: str = "",
 ) -> list[dict[str, Any]]:
-    """System prompt, the user's sentence with the crop, then each invalid answer and its errors."""
-    text = (
-        f"Instruction: {instruction}\n"
-        f"The image is the object's crop, {crop_size_px[0]} x {crop_size_px[1]} pixels."
-    )
+    """System prompt, the user's sentence with the crop, then each invalid answer and its errors.
+
+    `objects` lists the objects when the crop holds several (keymps.planning.objects)."""
+    if objects:
+        text = (
+            f"Instruction: {instruction}\n"
+            f"The image is the objects' crop, {crop_size_px[0]} x {crop_size_px[1]} pixels.\n"
+            f"{objects}"
+        )
+    else:
+        text = (
+            f"Instruction: {instruction}\n"
+            f"The image is the object's crop, {crop_size_px[0]} x {crop_size_px[1]} pixels."
+        )
     if keyword is not None:
         text += f"\nThe chosen primitive is: {keyword}"
     messages: list[dict[str, Any]] = [

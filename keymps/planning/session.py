@@ -65,6 +65,7 @@ class PlanSession:
     def request_for(
         self, step: Step, keyword: str | None, history: list[tuple[str, list[str]]]
     ) -> PlanRequest:
+        from keymps.planning.objects import describe_objects
         from keymps.planning.prompt import build_messages, render_template, template_values
 
         values = template_values(
@@ -87,6 +88,7 @@ class PlanSession:
             self.base.crop_size_px,
             keyword,
             history,
+            objects=describe_objects(self.base.objects),
         )
         schema = answer_schema(
             step,
@@ -120,10 +122,8 @@ class PlanSession:
         """The validated answer to one planning step (keyword, pairs or combined)."""
         from keymps.planning.answer import parse_and_validate
 
-        return self.ask_until_valid(
-            label=f"{step} answer",
-            request_for=lambda history: self.request_for(step, keyword, history),
-            validate=lambda text: parse_and_validate(
+        def validate(text: str) -> tuple[Any, list[str]]:
+            parsed, problems = parse_and_validate(
                 text,
                 step,
                 list(self.base.primitives),
@@ -131,7 +131,13 @@ class PlanSession:
                 self.base.max_pairs,
                 self.answer_mode,  # type: ignore[arg-type]
                 self.convention,
-            ),
+            )
+            return _on_one_object_each(parsed, problems, self.base, self.convention)
+
+        return self.ask_until_valid(
+            label=f"{step} answer",
+            request_for=lambda history: self.request_for(step, keyword, history),
+            validate=validate,
         )
 
     def ask_until_valid(
@@ -281,3 +287,24 @@ class PlanSession:
                     "completion_tokens": answer.completion_tokens,
                 },
             )
+
+
+def _on_one_object_each(
+    parsed: Any, problems: list[str], base: PlanRequest, convention: Any
+) -> tuple[Any, list[str]]:
+    """A valid answer whose pairs each lie on one object (several objects); a pair spanning two
+    is a problem sent back for repair like any other."""
+    import numpy as np
+
+    from keymps.planning.coordinates import to_pixels
+    from keymps.planning.objects import assign_pairs
+
+    pairs = getattr(parsed, "pairs", None)
+    if parsed is None or pairs is None or len(base.objects) < 2:
+        return parsed, problems
+    answered = np.asarray(pairs, dtype=float).reshape(-1, 2, 2)
+    try:
+        assign_pairs(to_pixels(answered, convention, base.crop_size_px), base.objects)
+    except KeympsError as error:
+        return None, [str(error)]
+    return parsed, problems

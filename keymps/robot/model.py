@@ -126,7 +126,7 @@ class RobotModel:
             max_joint_acceleration=robot.max_joint_acceleration,
             max_joint_jerk=robot.max_joint_jerk,
             board_size=task.scene.workspace.size,
-            object_height=task.scene.object_height,
+            object_height=task.scene.tallest_object_height,
             clearance=task.motion.clearance,
         )
 

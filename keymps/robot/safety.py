@@ -10,6 +10,7 @@ else (a hand-built or modified one included).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -17,7 +18,13 @@ import numpy as np
 from keymps.errors import SafetyError
 from keymps.plugin.trajectories import issue as _issue
 from keymps.robot.safety_geometry import distance_to_polyline, outside_distance
-from keymps.types import ToolPath, Trajectory, ValidatedTrajectory, ValidationReport
+from keymps.types import (
+    GroundedObject,
+    ToolPath,
+    Trajectory,
+    ValidatedTrajectory,
+    ValidationReport,
+)
 
 if TYPE_CHECKING:
     from keymps.config.task import Task
@@ -40,10 +47,13 @@ def validate(
     model: RobotModel,
     trajectory: Trajectory,
     tool_path: ToolPath,
-    outline_m: np.ndarray,
+    outline_m: np.ndarray | Sequence[GroundedObject],
     task: Task,
 ) -> ValidatedTrajectory:
-    """Check everything that can hurt the arm, the board or the food; raise SafetyError if not."""
+    """Check everything that can hurt the arm, the board or the food; raise SafetyError if not.
+
+    `outline_m` is the object's footprint (board metres), or every object: then each work piece
+    must stay on its own object (Piece.object_id), not merely on some object."""
     problems: list[str] = []
     figures: dict[str, float] = {}
     if not _check_structure(model, trajectory, tool_path, problems):
@@ -236,29 +246,56 @@ def _check_footprint(
     trajectory: Trajectory,
     tool_path: ToolPath,
     positions: np.ndarray,
-    outline_m: np.ndarray,
+    outline_m: np.ndarray | Sequence[GroundedObject],
     problems: list[str],
     figures: dict[str, float],
 ) -> None:
-    outline = np.asarray(outline_m, dtype=float).reshape(-1, 2)
-    if len(outline) < 3:
-        problems.append(f"the object's footprint has {len(outline)} points; work cannot be checked")
-        return
-    work = np.asarray(trajectory.kind) == "work"
-    planned = [np.asarray(p.points)[:, :2] for p in tool_path.pieces if p.kind == "work"]
-    samples = np.concatenate([positions[work, :2], *planned]) if work.any() or planned else None
-    if samples is None or not len(samples):
-        figures["max_work_outside_footprint_mm"] = 0.0
-        return
-    outside = outside_distance(samples, outline)
-    figures["max_work_outside_footprint_mm"] = float(outside.max() * 1000)
-    if outside.max() > FOOTPRINT_MARGIN_M:
-        i = int(np.argmax(outside))
-        problems.append(
-            f"work leaves the object's footprint by {outside[i] * 1000:.0f} mm (at most "
-            f"{FOOTPRINT_MARGIN_M * 1000:.0f} mm) at board point ({samples[i, 0]:.3f}, "
-            f"{samples[i, 1]:.3f})"
-        )
+    footprints: dict[int | None, tuple[str, np.ndarray]]
+    if isinstance(outline_m, np.ndarray) or not all(
+        isinstance(o, GroundedObject) for o in outline_m
+    ):
+        footprints = {None: ("the object's", np.asarray(outline_m, dtype=float).reshape(-1, 2))}
+    elif len(outline_m) == 1:  # one object: the same words as with a bare footprint
+        footprints = {None: ("the object's", np.asarray(outline_m[0].outline_m, float))}
+    else:
+        footprints = {
+            o.id: (f"object {o.label}'s", np.asarray(o.outline_m, float)) for o in outline_m
+        }
+    for what, outline in footprints.values():
+        if len(outline) < 3:
+            problems.append(f"{what} footprint has {len(outline)} points; work cannot be checked")
+            return
+    piece_object = [p.object_id if p.kind == "work" else -1 for p in tool_path.pieces]
+    kind = np.asarray(trajectory.kind)
+    index = np.asarray(trajectory.piece_index, dtype=int)
+    worst = 0.0
+    for key, (what, outline) in footprints.items():
+        if key is None:
+            mine = kind == "work"
+            planned = [np.asarray(p.points)[:, :2] for p in tool_path.pieces if p.kind == "work"]
+        else:
+            owners = np.array(
+                [piece_object[i] if 0 <= i < len(piece_object) else -1 for i in index]
+            )
+            mine = (kind == "work") & (owners == key)
+            planned = [
+                np.asarray(p.points)[:, :2]
+                for p in tool_path.pieces
+                if p.kind == "work" and p.object_id == key
+            ]
+        if not mine.any() and not planned:
+            continue
+        samples = np.concatenate([positions[mine, :2], *planned])
+        outside = outside_distance(samples, outline)
+        worst = max(worst, float(outside.max()))
+        if outside.max() > FOOTPRINT_MARGIN_M:
+            i = int(np.argmax(outside))
+            problems.append(
+                f"work leaves {what} footprint by {outside[i] * 1000:.0f} mm (at most "
+                f"{FOOTPRINT_MARGIN_M * 1000:.0f} mm) at board point ({samples[i, 0]:.3f}, "
+                f"{samples[i, 1]:.3f})"
+            )
+    figures["max_work_outside_footprint_mm"] = worst * 1000
 
 
 def _check_workspace(

@@ -208,6 +208,8 @@ def _log_object(rec: Any, detection: Detection, run: Run) -> None:
             labels=["object"],
         ),
     )
+    if len(run.objects) > 1:
+        _log_objects(rec, run)
     outline = _outline_m(run, detection, scene)
     if outline is None:  # outline is a nicety; the box above already shows the object
         return
@@ -217,6 +219,22 @@ def _log_object(rec: Any, detection: Detection, run: Run) -> None:
         rec.log(
             "world/object/outline",
             rr.LineStrips3D([top], colors=[[255, 140, 0, 255]], radii=[0.001]),
+        )
+
+
+def _log_objects(rec: Any, run: Run) -> None:
+    """Several objects: one entity each, world/objects/<id>, its footprint at its own height."""
+    import rerun as rr
+
+    for obj in run.objects:
+        outline = np.asarray(obj.outline_m, dtype=float)
+        if len(outline) < 2:
+            continue
+        ring = np.vstack([outline, outline[:1]])
+        top = np.column_stack([ring, np.full(len(ring), obj.height)])
+        rec.log(
+            f"world/objects/{obj.id}",
+            rr.LineStrips3D([top], colors=[[255, 140, 0, 255]], radii=[0.001], labels=[obj.label]),
         )
 
 

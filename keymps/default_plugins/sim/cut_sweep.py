@@ -57,17 +57,21 @@ def _every(tip: np.ndarray, far: np.ndarray, step: float) -> np.ndarray:
 
 
 class Footprint:
-    """The object's footprint polygon (board metres), rasterised for fast inside tests."""
+    """The object's footprint polygon (board metres; or every object's, a list of polygons),
+    rasterised for fast inside tests."""
 
-    def __init__(self, polygon: np.ndarray):
+    def __init__(self, polygon: np.ndarray | list[np.ndarray]):
         import cv2
 
-        self.polygon = np.asarray(polygon, dtype=float).reshape(-1, 2)
+        polygons = [np.asarray(p, dtype=float).reshape(-1, 2) for p in _polygons(polygon)]
+        self.polygon = np.concatenate(polygons)
         self.origin = self.polygon.min(axis=0) - 2 * FOOTPRINT_CELL_M
         cols, rows = np.ceil((self.polygon.max(axis=0) - self.origin) / FOOTPRINT_CELL_M) + 3
         self.mask = np.zeros((int(rows), int(cols)), np.uint8)
-        corners = (self.polygon - self.origin) / FOOTPRINT_CELL_M - 0.5  # cell centres
-        cv2.fillPoly(self.mask, [np.round(corners * 16).astype(np.int32)], 1, cv2.LINE_8, 4)
+        corners = [(p - self.origin) / FOOTPRINT_CELL_M - 0.5 for p in polygons]  # cell centres
+        cv2.fillPoly(
+            self.mask, [np.round(c * 16).astype(np.int32) for c in corners], 1, cv2.LINE_8, 4
+        )
 
     def contains(self, xy: np.ndarray) -> np.ndarray:
         cells = np.floor((np.asarray(xy, dtype=float) - self.origin) / FOOTPRINT_CELL_M)
@@ -77,6 +81,10 @@ class Footprint:
         cells = cells[ok].astype(np.intp)
         inside[ok] = self.mask[cells[:, 1], cells[:, 0]] > 0
         return inside
+
+
+def _polygons(polygon: np.ndarray | list[np.ndarray]) -> list[np.ndarray]:
+    return list(polygon) if isinstance(polygon, list) else [np.asarray(polygon)]
 
 
 def covered_length(segments: np.ndarray, footprint: Footprint | None) -> float:

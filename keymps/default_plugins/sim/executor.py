@@ -142,8 +142,9 @@ class Marks:
     positions below the top (tip first), or the tip's path step by step for a tool without one."""
 
 
-def marks(result: Replay, object_top: float, blade_length: float = 0.0) -> Marks:
-    """Cuts where a work piece went below the object's top, icing where work stayed on it."""
+def marks(result: Replay, object_top: float | np.ndarray, blade_length: float = 0.0) -> Marks:
+    """Cuts where a work piece went below its object's top (one height, or one per replayed
+    sample), icing where work stayed on it."""
     work = result.kind == "work"
     below_top = result.tool_xyz[:, 2] < object_top - 1e-4
     cutting_pieces = np.unique(result.piece_index[work & below_top])
@@ -183,13 +184,14 @@ def render_outcome(
     scene: np.ndarray | None,
     found: Marks,
     options: SimOptions,
-    footprint: np.ndarray | None = None,
+    footprint: np.ndarray | list[np.ndarray] | None = None,
     *,
     rectified: bool = False,
 ) -> Any:
     """The scene image with what the tool did drawn where it did it (BGR uint8); cuts only
-    inside the `footprint` polygon (board metres) when it is given. `rectified`: the scene is
-    the photo rectified to the workspace (it spans it exactly, Appendix B)."""
+    inside the `footprint` polygon(s) (board metres) when given; with several footprints each
+    object's number is written beside it (as in plan.png). `rectified`: the scene is the photo
+    rectified to the workspace (it spans it exactly, Appendix B)."""
     import cv2
 
     from keymps.perception.frames import ImageFrame
@@ -233,18 +235,40 @@ def render_outcome(
     for point in found.contacts:
         centre = tuple(int(v) for v in pixels(point)[0])
         cv2.circle(image, centre, 6 << shift, CONTACT_COLOUR, 2, cv2.LINE_AA, shift)
+    if isinstance(footprint, list) and len(footprint) > 1:
+        _number_objects(image, [frame.to_pixels(p) for p in footprint])
     return image
+
+
+def _number_objects(image: np.ndarray, outlines_px: list[np.ndarray]) -> None:
+    """Write 1, 2, ... (the object ids, in order) above each outline's top-left corner."""
+    import cv2
+
+    height, width = image.shape[:2]
+    scale = max(0.45, min(width, height) / 700)
+    thick = max(1, round(min(width, height) / 300))
+    for number, outline in enumerate(outlines_px, start=1):
+        label = str(number)
+        (tw, th), _ = cv2.getTextSize(label, cv2.FONT_HERSHEY_SIMPLEX, scale, thick)
+        x0, y0 = outline.min(axis=0)
+        x = int(np.clip(x0, 0, max(0, width - tw)))
+        y = int(np.clip(y0 - 4, th, height - 1))
+        for colour, extra in (((0, 0, 0), 2), ((255, 255, 255), 0)):
+            cv2.putText(
+                image, label, (x, y), cv2.FONT_HERSHEY_SIMPLEX, scale, colour, thick + extra,
+                cv2.LINE_AA,
+            )  # fmt: skip
 
 
 def _paint_cuts(
     image: np.ndarray,
     sweeps: list[np.ndarray],
-    footprint: np.ndarray | None,
+    footprint: np.ndarray | list[np.ndarray] | None,
     pixels: Any,
     width: int,
     shift: int,
 ) -> None:
-    """Darken the union of the swept segments, clipped to the footprint, in place."""
+    """Darken the union of the swept segments, clipped to the footprint(s), in place."""
     import cv2
 
     covered = np.zeros(image.shape[:2], np.uint8)
@@ -254,7 +278,8 @@ def _paint_cuts(
     alpha = covered.astype(np.float32) / 255.0
     if footprint is not None:
         inside = np.zeros(image.shape[:2], np.uint8)
-        cv2.fillPoly(inside, [pixels(footprint)], 255, cv2.LINE_AA, shift)
+        polygons = footprint if isinstance(footprint, list) else [footprint]
+        cv2.fillPoly(inside, [pixels(p) for p in polygons], 255, cv2.LINE_AA, shift)
         alpha *= inside.astype(np.float32) / 255.0
     alpha = alpha[:, :, None]
     image[:] = np.round(image * (1.0 - alpha) + np.array(CUT_COLOUR) * alpha).astype(np.uint8)
@@ -280,7 +305,7 @@ class SimExecutor:
         outline = _footprint(run)
         # Without the object's footprint a blade's reach cannot be clipped: cut with the tip.
         blade_length = model.tool.blade_length if outline is not None else 0.0
-        found = marks(result, float(task.scene.object_height), blade_length)
+        found = marks(result, _object_tops(run, result), blade_length)
         clip = Footprint(outline) if outline is not None else None
         lengths = [covered_length(sweep, clip) for sweep in found.sweeps]
         period = float(np.diff(result.t).mean()) if len(result.t) > 1 else 0.0
@@ -344,17 +369,32 @@ def _count(number: int, noun: str) -> str:
     return f"{number} {noun}" if number == 1 else f"{number} {noun}s"
 
 
-def _footprint(run: Run) -> np.ndarray | None:
-    """The detected object's footprint in board metres, or None without a detection."""
+def _footprint(run: Run) -> list[np.ndarray] | None:
+    """Every object's footprint in board metres, or None without a detection."""
     from keymps.perception.frames import object_outline_m
     from keymps.types import Detection
 
+    if run.objects:
+        return [np.asarray(o.outline_m, float) for o in run.objects]
     if run.outline_m is not None:
-        return run.outline_m
+        return [run.outline_m]
     detection, scene = run.stages.detect, run.stages.image
     if not isinstance(detection, Detection) or not isinstance(scene, SceneImage):
         return None
-    return object_outline_m(detection, run.task, scene)
+    return [object_outline_m(detection, run.task, scene)]
+
+
+def _object_tops(run: Run, result: Replay) -> float | np.ndarray:
+    """The top of the object each replayed sample works on (scene.object_height without a
+    grounding that knows the objects)."""
+    tool_path = run.stages.compose
+    if not run.objects or not isinstance(tool_path, ToolPath):
+        return float(run.task.scene.object_height)
+    heights = {o.id: o.height for o in run.objects}
+    tallest = max(heights.values())
+    per_piece = np.array([heights.get(p.object_id, tallest) for p in tool_path.pieces])
+    index = np.clip(np.asarray(result.piece_index, dtype=int), 0, len(per_piece) - 1)
+    return per_piece[index]
 
 
 def _length_mm(lines: list[np.ndarray]) -> float:
