@@ -28,8 +28,10 @@ METHOD_NAMES = (
 @click.command(
     name="eval",
     context_settings={"help_option_names": ["-h", "--help"]},
-    epilog="Suites shipped: cutting_sim, icing, cake_six, real_cutting (benchmarks/suites/). "
-    "Without --model the offline planner runs (methods keymps and vlm-keypoint only).",
+    epilog="Suites shipped: cutting_sim, icing, cake_six, real_cutting, multi_object "
+    "(benchmarks/suites/), and `perception` (the detector benchmark of docs/perception.md: "
+    "--repeats sets the boards per 100). Without --model the offline planner runs (methods "
+    "keymps and vlm-keypoint only).",
 )
 @click.argument("suite_file", metavar="SUITE")
 @click.option(
@@ -80,6 +82,9 @@ def eval_command(
     results.jsonl, summary.md, summary.csv, d_boxplot.png and gallery.html, print the table."""
     import os
 
+    if suite_file == PERCEPTION:
+        _perception(out or Path("eval") / PERCEPTION, repeats or 4)
+        return
     # Runs are the unit of parallelism; set before NumPy loads OpenBLAS, whose helper threads
     # would otherwise spin on the other core after every matrix product.
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
@@ -122,6 +127,35 @@ def eval_command(
         f"{len(records)} runs ({failed} failed); results in {folder}/ "
         "(results.jsonl, summary.md, summary.csv, gallery.html)"
     )
+
+
+PERCEPTION = "perception"
+"""Not a suite file: the generated perception benchmark (keymps.eval.perception)."""
+
+
+def _perception(folder: Path, hundreds: int) -> None:
+    """Board vs threshold detector on generated boards and photos; summary.md in `folder`."""
+    from keymps.eval.perception import flat_benchmark, photo_benchmark, table
+
+    flat = flat_benchmark(100 * hundreds)
+    photos = photo_benchmark(10 * hundreds)
+    text = table(flat, photos)
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "summary.md").write_text(text + "\n", encoding="utf-8")
+    board, tall = flat["board"], photos["board+intrinsics"]
+    met = all(
+        rate == 1.0
+        for rate in (
+            board["found"].rate,
+            board["refused"].rate,
+            tall["tall"].rate,
+            tall["flat"].rate,
+        )
+    )
+    click.echo(text)
+    click.echo(f"{'targets met' if met else 'targets NOT met'}; table in {folder / 'summary.md'}")
+    if not met:
+        sys.exit(1)
 
 
 def _run(suite: Suite, options: EvalOptions, quiet: bool) -> list[dict[str, Any]]:
