@@ -109,8 +109,8 @@ class SceneObjectSpec(StrictModel):
     """What it is ("banana"); the offline planner reads it ("cut the banana in half")."""
     height: Annotated[float, Field(ge=0, le=1.0, allow_inf_nan=False)] | None = None
     """Its top surface above the board, metres; scene.object_height when omitted."""
-    at: Point2 | None = None
-    """A board point (metres) on or near it: pins it to the detected object nearest there
+    at: tuple[BaseOffset, BaseOffset] | None = None
+    """A board point (metres, within MAX_BOARD_M) on or near it: pins it to the detected object nearest there
     instead of matching left to right."""
 
 
