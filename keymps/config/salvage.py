@@ -8,8 +8,9 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from keymps.config.task import Task, _check_referenced_files, _display_path
+from keymps.config.task import Task, _check_referenced_files, _display_path, read_task_text
 from keymps.config.yaml_positions import YamlSyntaxError, load_yaml_with_positions
+from keymps.errors import TaskFileError
 
 _STAND_INS: dict[str, Any] = {
     "name": "stand-in",
@@ -27,8 +28,8 @@ def salvage_task(path: str | Path) -> tuple[Task, frozenset[str], list[str]] | N
     None when the file cannot be read or parsed as YAML at all."""
     path = Path(path)
     try:
-        parsed = load_yaml_with_positions(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, YamlSyntaxError):
+        parsed = load_yaml_with_positions(read_task_text(path))
+    except (TaskFileError, YamlSyntaxError):
         return None
     if not isinstance(parsed.data, dict):
         return None

@@ -411,9 +411,9 @@ MAX_TASK_FILE_BYTES = 1_000_000
 """Task files are a few hundred bytes; /dev/zero or a mistaken 4 GB file is not read."""
 
 
-def load_task(path: str | Path) -> Task:
-    """Read and validate a task file. Errors name the file, line, column and field."""
-    path = Path(path)
+def read_task_text(path: Path) -> str:
+    """A task file's text: a regular file of at most MAX_TASK_FILE_BYTES, UTF-8 (one located
+    TaskFileError otherwise: /dev/zero or a 4 GB file is never read)."""
     source = _display_path(path)
     if path.exists() and not path.is_dir() and not path.is_file():
         raise TaskFileError([f"{source}: not a regular file (a device or a pipe)"])
@@ -422,7 +422,7 @@ def load_task(path: str | Path) -> Task:
             [f"{source}: {path.stat().st_size} bytes; a task file is at most 1 MB of YAML"]
         )
     try:
-        text = path.read_text(encoding="utf-8")
+        return path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise TaskFileError([f"{source}: task file not found"]) from None
     except IsADirectoryError:
@@ -431,4 +431,11 @@ def load_task(path: str | Path) -> Task:
         raise TaskFileError([f"{source}: not a UTF-8 text file ({error.reason})"]) from None
     except OSError as error:
         raise TaskFileError([f"{source}: cannot read: {error.strerror}"]) from None
+
+
+def load_task(path: str | Path) -> Task:
+    """Read and validate a task file. Errors name the file, line, column and field."""
+    path = Path(path)
+    text = read_task_text(path)
+    source = _display_path(path)
     return parse_task(text, source=source, path=path.resolve())
