@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import time
 from pathlib import Path
 from typing import Any
@@ -256,6 +257,8 @@ def _arm(q: Any, robot_mode: int = 7, safety_mode: int = 1) -> Any:
     receive.getRobotMode.return_value = robot_mode
     receive.getSafetyMode.return_value = safety_mode
     receive.getActualQ.side_effect = lambda: list(q)
+    receive.isConnected.return_value = True
+    receive.getTimestamp.side_effect = time.monotonic  # a live arm's state keeps updating
     return receive
 
 
@@ -365,8 +368,10 @@ def test_ur_rtde_dry_run_refuses_a_trajectory_far_from_the_arm(
     arm_q = list(validated.trajectory.q[0])
     arm_q[0] += 0.5
     control = _control(arm_q)
-    with pytest.raises(KeympsError, match=r"starts 0\.50 rad away from the arm's shoulder_pan"):
-        _ur_executor(_arm(arm_q), control).execute(validated, run)
+    # a refusal is a failed report (dry run stated), never an exception or a motion
+    report = _ur_executor(_arm(arm_q), control).execute(validated, run)
+    assert not report.ok and report.dry_run
+    assert re.search(r"starts 0\.50 rad away from the arm's shoulder_pan", report.message)
     assert control.mock_calls == []
 
 
@@ -408,10 +413,9 @@ def test_ur_rtde_a_lost_connection_before_moving_is_a_clean_error(
     receive = _arm(list(validated.trajectory.q[0]))
     receive.getRobotMode.side_effect = RuntimeError("RTDE receive: connection lost")
     control = _control(list(validated.trajectory.q[0]))
-    with pytest.raises(KeympsError) as caught:
-        _ur_executor(receive, control).execute(validated, run)
-    assert_clean_error(caught.value)
-    assert "connection lost" in str(caught.value)
+    report = _ur_executor(receive, control).execute(validated, run)
+    assert_clean_error(KeympsError(report.message))
+    assert not report.ok and "connection lost" in report.message
     assert control.mock_calls == []
     receive.disconnect.assert_called_once()
 
