@@ -28,7 +28,7 @@ from keymps.perception.board_model import (
     to_lab,
 )
 from keymps.perception.image_io import to_bgr8
-from keymps.perception.search_area import SearchArea
+from keymps.perception.search_area import SearchArea, odd_kernel, roi_polygon
 from keymps.plugin import DetectionError, RegisterDetector, hookimpl
 from keymps.plugin import parse_options as plugin_options
 from keymps.types import DetectedObject, Detection, SceneImage
@@ -76,32 +76,8 @@ class BoardOptions(BaseModel):
     roi: list[tuple[float, float]] | None = None
     """Search only inside this polygon of image pixels, or box [x0, y0, x1, y1]."""
 
-    @field_validator("roi", mode="before")
-    @classmethod
-    def _polygon(cls, value: Any) -> Any:
-        if value is None:
-            return None
-        if (
-            isinstance(value, (list, tuple))
-            and len(value) == 4
-            and all(isinstance(v, (int, float)) for v in value)
-        ):
-            x0, y0, x1, y1 = value
-            if x1 <= x0 or y1 <= y0:
-                raise ValueError(f"a box must be [x0, y0, x1, y1] with x0 < x1, y0 < y1: {value}")
-            return [(x0, y1), (x1, y1), (x1, y0), (x0, y0)]
-        if not isinstance(value, (list, tuple)) or len(value) < 3:
-            raise ValueError(
-                "must be a box [x0, y0, x1, y1] or a polygon of 3 or more [x, y] points"
-            )
-        return value
-
-    @field_validator("blur")
-    @classmethod
-    def _odd(cls, value: int) -> int:
-        if value > 1 and value % 2 == 0:
-            raise ValueError(f"must be odd (a Gaussian kernel size), got {value}")
-        return value
+    _polygon = field_validator("roi", mode="before")(roi_polygon)
+    _odd = field_validator("blur")(odd_kernel)
 
 
 def parse_options(options: dict[str, Any]) -> BoardOptions:

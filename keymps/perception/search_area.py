@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -12,6 +13,33 @@ from keymps.types import Detection
 SIDE_NAMES = ("bottom", "right", "top", "left")
 """Names of a four-sided area's sides, in the order of its corners bottom-left, bottom-right,
 top-right, top-left (the order of scene.camera.board_corners_px)."""
+
+
+def roi_polygon(value: Any) -> Any:
+    """A detector's `roi` option as a polygon: a box [x0, y0, x1, y1] becomes its corners
+    bottom-left, bottom-right, top-right, top-left (SIDE_NAMES' order); a polygon of 3 or more
+    points passes as it is (pydantic checks the points). For a `field_validator(mode="before")`."""
+    if value is None:
+        return None
+    if (
+        isinstance(value, (list, tuple))
+        and len(value) == 4
+        and all(isinstance(v, (int, float)) for v in value)
+    ):
+        x0, y0, x1, y1 = value
+        if x1 <= x0 or y1 <= y0:
+            raise ValueError(f"a box must be [x0, y0, x1, y1] with x0 < x1, y0 < y1: {value}")
+        return [(x0, y1), (x1, y1), (x1, y0), (x0, y0)]
+    if not isinstance(value, (list, tuple)) or len(value) < 3:
+        raise ValueError("must be a box [x0, y0, x1, y1] or a polygon of 3 or more [x, y] points")
+    return value
+
+
+def odd_kernel(value: int) -> int:
+    """A Gaussian kernel size option: odd, or 0 / 1 for no blur."""
+    if value > 1 and value % 2 == 0:
+        raise ValueError(f"must be odd (a Gaussian kernel size), got {value}")
+    return value
 
 
 @dataclass(frozen=True)
