@@ -4,8 +4,9 @@
    searched area, as a smooth surface in CIE Lab (keymps.perception.board_model): lighting
    gradients and vignetting are part of the board.
 2. Every pixel's distance to that surface, forgiving half of a darkening (soft shadows).
-3. A threshold from the board's own noise, raised to half the object's contrast (so the
-   edge falls where a pixel is half object, as the true box is drawn), or the task's.
+3. A threshold from the board's own noise, raised for each object to half its own contrast
+   (so the edge falls where a pixel is half object, as the true box is drawn; a faint object
+   beside a bright one keeps its own edge), or the task's.
 4. Regions: crumbs (under min_area) are dropped; a region that touches three or more sides of
    the searched area, or covers most of it, is the board (or the table), never an object: the
    detection stops there. The largest remaining region is the object (or the one `pick` names);
@@ -149,17 +150,21 @@ class BoardDetector:
         ]
         if self.options.threshold is not None:
             threshold, how = float(self.options.threshold), "detector.threshold"
+            above = distance > threshold
         elif candidates:
             strongest = max(candidates, key=lambda r: r.area)
             threshold = max(t_noise, 0.5 * strongest.edge_contrast)
             how = (
-                f"automatic: half the edge contrast {strongest.edge_contrast:.1f} of the "
-                "largest region, "
-                f"at least {NOISE_FACTOR:g} x the board's noise {noise:.2f}"
+                "automatic: each region at half its own edge contrast (the largest "
+                f"{strongest.edge_contrast:.1f}), at least {NOISE_FACTOR:g} x the board's noise "
+                f"{noise:.2f}"
             )
+            objects_first = [r for r in candidates if not _board(r, self.options)]
+            above = _each_at_half_its_contrast(first, objects_first, distance, threshold, t_noise)
         else:
             threshold, how = t_noise, f"automatic: {NOISE_FACTOR:g} x the board's noise {noise:.2f}"
-        regions = self._regions(distance > threshold, distance, area, bands, min_area)
+            above = distance > threshold
+        regions = self._regions(above, distance, area, bands, min_area)
         report: dict[str, Any] = {
             "detector": "board",
             "searched_area": {"polygon_px": area.polygon.round(2).tolist(), "pixels": area.pixels},
@@ -398,3 +403,22 @@ def make_detector(options: dict[str, Any]) -> BoardDetector:
 @hookimpl
 def register_detectors(register: RegisterDetector) -> None:
     register("board", make_detector)
+
+
+def _each_at_half_its_contrast(
+    first: list[Region],
+    candidates: list[Region],
+    distance: np.ndarray,
+    largest_threshold: float,
+    t_noise: float,
+) -> np.ndarray:
+    """The pixels kept: inside each object-like region found at the noise threshold, those
+    over half that region's own edge contrast; elsewhere those over the largest's threshold
+    (board texture and board-like regions are judged as before). One threshold for all would drop a faint object
+    beside a bright one (a potato beside a banana)."""
+    above = distance > largest_threshold
+    for region in first:
+        if any(region is c for c in candidates):
+            own = max(t_noise, 0.5 * region.edge_contrast)
+            above[region.mask] = distance[region.mask] > own
+    return above
