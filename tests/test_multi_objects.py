@@ -410,3 +410,25 @@ def test_the_rerun_recording_has_one_entity_per_object(tmp_path: Path) -> None:
     paths = {chunk.entity_path for chunk in RrdReader(run.folder / "run.rrd").stream()}
     assert {"/world/objects/1", "/world/objects/2", "/world/objects/3"} <= paths
     assert "/world/objects/4" not in paths
+
+
+def test_a_declared_hard_object_gets_the_hard_objects_cut_however_it_is_addressed(
+    tmp_path: Path,
+) -> None:
+    """scene.objects names a potato: "the left one" is a potato's cut (sawing) exactly as
+    "the potato" is; it was a soft object's straight cut unless the sentence said potato."""
+    import keymps
+
+    png, _ = scene_file(tmp_path, [
+        ObjectSpec("potato", 0.09, 0.065, 0.05, 0, centre=(0.09, 0.12)),
+        ObjectSpec("banana", 0.18, 0.036, 0.035, 90, centre=(0.27, 0.12)),
+    ])  # fmt: skip
+    objects = "  objects: [{name: potato, height: 0.05}, {name: banana, height: 0.035}]\n"
+    keywords = {}
+    for sentence in ("Cut only the left one in half", "Cut the potato in half"):
+        path = tmp_path / f"{len(keywords)}.yaml"
+        path.write_text(task_text(png, sentence, KNIFE, objects))
+        run = keymps.run_task(path, out=tmp_path / f"run{len(keywords)}", rerun="off", quiet=True)
+        assert run.stages.plan is not None
+        keywords[sentence] = run.stages.plan.keyword
+    assert set(keywords.values()) == {"sawing"}, keywords

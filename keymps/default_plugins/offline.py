@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 import re
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -56,9 +56,16 @@ def _named_objects(description: str) -> set[str]:
 
 
 def choose_primitive(
-    family: str, primitives: Mapping[str, str], sentence: str, task_name: str = ""
+    family: str,
+    primitives: Mapping[str, str],
+    sentence: str,
+    task_name: str = "",
+    object_names: Sequence[str] = (),
 ) -> tuple[str, str]:
     """(name, why) of the primitive for this design, from names and descriptions.
+
+    `object_names` are the names scene.objects gives the objects the design is for: "cut the
+    left one in half" of a declared potato is a potato's cut.
 
     A primitive of the design's family named in the sentence ("with a rocking cut") or in the
     task's name ("rocking-eggplant") is taken first; `why` says which of the two named it.
@@ -72,7 +79,7 @@ def choose_primitive(
         return names[0], "the only primitive"
     cutting = [n for n in names if n not in icing]
     named_by = _words(task_name.replace("-", " ").replace("_", " "))
-    context = f"{sentence} {task_name.replace('-', ' ').replace('_', ' ')}"
+    context = " ".join([sentence, task_name.replace("-", " ").replace("_", " "), *object_names])
     mentioned = _words(context)
     family_names = icing if family == "icing" else cutting
     asked = [n for n in family_names if (words := _words(n)) and words <= mentioned]
@@ -140,8 +147,9 @@ class OfflineBackend:
                 )
             )
         family = intents[0][0].family
+        names = [objects[i].name or "" for _, clause in intents for i in clause.objects]
         keyword, why = choose_primitive(
-            family, request.primitives, request.instruction, request.task_name
+            family, request.primitives, request.instruction, request.task_name, names
         )
         answer: dict[str, Any] = {}
         if request.step in ("combined", "keyword"):
