@@ -490,3 +490,32 @@ def test_random_trickles_never_outlive_the_deadline(
         backend.complete(_request(deadline))
     assert time.perf_counter() - started < deadline + 0.5
     fuzz_counter.add("VLM attacks/deadlines", ("trickle", deadline, interval), "stopped in time")
+
+
+def test_folders_other_users_may_write_are_not_searched_outside_the_task(tmp_path: Path) -> None:
+    """A task in /tmp/x looked in /tmp/primitives first: anyone could plant a primitive there.
+    A world-writable ../primitives, or one another user owns, is left out; the task's own
+    primitives/ and the bundled dictionary stay."""
+    import os
+
+    from keymps.config.trust import prompt_search_dirs
+    from keymps.primitives.dictionary import BUNDLED_DIR, default_search_dirs
+
+    task_folder = tmp_path / "task"
+    task_folder.mkdir()
+    shared = tmp_path / "primitives"
+    shared.mkdir()
+    (shared / "straight.yaml").write_text("planted")
+    prompts = tmp_path / "prompts"
+    prompts.mkdir()
+    assert shared.resolve() in default_search_dirs(task_folder)  # ours: searched
+    shared.chmod(0o777)
+    prompts.chmod(0o777)
+    searched = default_search_dirs(task_folder)
+    assert shared.resolve() not in searched and BUNDLED_DIR.resolve() in searched
+    assert (task_folder / "primitives").resolve() in searched
+    assert prompts not in prompt_search_dirs(task_folder)
+    shared.chmod(0o755)
+    if os.geteuid() == 0:  # only root can make a folder another user's (CI runs as root)
+        os.chown(shared, 12345, 12345)
+        assert shared.resolve() not in default_search_dirs(task_folder)

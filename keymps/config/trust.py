@@ -71,14 +71,31 @@ def readable_file_problem(path: Path, roots: Sequence[Path], max_bytes: int) -> 
     return None
 
 
+def others_may_write(folder: Path) -> bool:
+    """Whether another user could have put files in `folder`: it is world-writable (like /tmp)
+    or owned by someone other than this user or root. Such a folder outside the task's own
+    tree (a task in /tmp/x looks in /tmp/primitives) is not searched: a planted primitive
+    would change the arm's motion."""
+    try:
+        info = folder.stat()
+    except OSError:
+        return False
+    return bool(info.st_mode & stat.S_IWOTH) or info.st_uid not in (os.getuid(), 0)
+
+
+def shared_folders_left_out(folders: Sequence[Path]) -> list[Path]:
+    """`folders` without those `others_may_write`."""
+    return [folder for folder in folders if not others_may_write(folder)]
+
+
 def prompt_search_dirs(task_folder: Path) -> list[Path]:
     """Where prompt templates are looked for, first match wins: the task folder's prompts/ and
     ../prompts, each folder in KEYMPS_PROMPTS_PATH, ./prompts, the bundled prompts."""
     from keymps.bundled import bundled_dir
 
-    dirs = [task_folder / "prompts", task_folder.parent / "prompts"]
+    dirs = [task_folder / "prompts", *shared_folders_left_out([task_folder.parent / "prompts"])]
     dirs += [Path(p) for p in os.environ.get("KEYMPS_PROMPTS_PATH", "").split(os.pathsep) if p]
-    dirs += [Path.cwd() / "prompts", bundled_dir("prompts")]
+    dirs += [*shared_folders_left_out([Path.cwd() / "prompts"]), bundled_dir("prompts")]
     return dirs
 
 

@@ -362,12 +362,19 @@ BUNDLED_DIR = bundled_dir("primitives")
 
 def default_search_dirs(task_folder: Path) -> list[Path]:
     """Where primitives are looked for, first match wins: the task folder's ../primitives and
-    primitives/, each folder in KEYMPS_PRIMITIVES_PATH, ./primitives, the bundled dictionary."""
+    primitives/, each folder in KEYMPS_PRIMITIVES_PATH, ./primitives, the bundled dictionary.
+    ../primitives and ./primitives are left out when other users may write them (a task in
+    /tmp/x would otherwise read /tmp/primitives: docs/security.md)."""
+    from keymps.config.trust import shared_folders_left_out
+
     task_folder = Path(task_folder)
-    dirs = [task_folder / ".." / "primitives", task_folder / "primitives"]
+    dirs = [
+        *shared_folders_left_out([task_folder / ".." / "primitives"]),
+        task_folder / "primitives",
+    ]
     env = os.environ.get("KEYMPS_PRIMITIVES_PATH", "")
     dirs += [Path(part) for part in env.split(os.pathsep) if part.strip()]
-    dirs += [Path.cwd() / "primitives", BUNDLED_DIR]
+    dirs += [*shared_folders_left_out([Path.cwd() / "primitives"]), BUNDLED_DIR]
     unique: list[Path] = []
     for folder in dirs:
         resolved = folder.resolve()
