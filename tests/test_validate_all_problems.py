@@ -17,6 +17,7 @@ GOOD = {
     "name": "name: mistakes",
     "instruction": "instruction: Put 15 icing dots around the cake",
     "image": "  image: scenes/round_cake.png",
+    "height": "  object_height: 0.06",
     "detector": "detector: {name: threshold, min_area: 50}",
     "prompt": "  prompt: prompts/icing.md",
     "primitives": "primitives: [line]",
@@ -29,6 +30,8 @@ GOOD = {
 
 MISTAKES = {
     "image": ("  image: scenes/no_such.png", "scene.image: file not found"),
+    # a typo inside scene: must not hide scene.image's problem (it did)
+    "height": ("  object_heigth: 0.06", "scene.object_heigth: unknown key"),
     "detector": ("detector: {name: threshold, min_area: -5}", "option 'min_area'"),
     "prompt": ("  prompt: prompts/nope.md", "planner.prompt: file not found"),
     "primitives": ("primitives: [line, zigzag]", "unknown primitive 'zigzag'"),
@@ -53,7 +56,7 @@ def task_text(lines: dict[str, str]) -> str:
             "scene:",
             lines["image"],
             "  workspace: {size: [0.30, 0.18], shift: [0.0, 0.0]}",
-            "  object_height: 0.06",
+            lines["height"],
             lines["detector"],
             "planner:",
             "  backend: offline",

@@ -38,7 +38,15 @@ def salvage_task(path: str | Path) -> tuple[Task, frozenset[str], list[str]] | N
         Task.model_validate({**data, "path": path.resolve()})
         broken: set[str] = set()
     except ValidationError as error:
-        broken = {str(e["loc"][0]) for e in error.errors() if e["loc"]}
+        # A bad key inside a section (scene.object_heigth) costs only that key, so that the
+        # section's other fields (scene.image) are still checked in the same run; a section
+        # still broken without its bad keys is set aside whole.
+        data = _without_bad_keys(data, error)
+        try:
+            Task.model_validate({**data, "path": path.resolve()})
+            broken = set()
+        except ValidationError as still:
+            broken = {str(e["loc"][0]) for e in still.errors() if e["loc"]}
     for key in broken:
         data.pop(key, None)
         if key in _STAND_INS:
@@ -56,3 +64,16 @@ def salvage_task(path: str | Path) -> tuple[Task, frozenset[str], list[str]] | N
         if problem.split(": ", 2)[1].split(".")[0] not in broken
     ]
     return task, frozenset(broken), problems
+
+
+def _without_bad_keys(data: dict[str, Any], error: ValidationError) -> dict[str, Any]:
+    """`data` without each key an error points at inside a section (two levels deep)."""
+    pruned = dict(data)
+    for item in error.errors():
+        loc = item["loc"]
+        if len(loc) < 2 or not isinstance(pruned.get(str(loc[0])), dict):
+            continue
+        section = dict(pruned[str(loc[0])])
+        section.pop(str(loc[1]), None)
+        pruned[str(loc[0])] = section
+    return pruned
