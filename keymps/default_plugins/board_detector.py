@@ -29,7 +29,12 @@ from keymps.perception.board_model import (
     to_lab,
 )
 from keymps.perception.image_io import to_bgr8
-from keymps.perception.search_area import SearchArea, odd_kernel, roi_polygon
+from keymps.perception.search_area import (
+    SearchArea,
+    comparable_object_warnings,
+    odd_kernel,
+    roi_polygon,
+)
 from keymps.plugin import DetectionError, RegisterDetector, hookimpl
 from keymps.plugin import parse_options as plugin_options
 from keymps.types import DetectedObject, Detection, SceneImage
@@ -386,13 +391,7 @@ def _warnings(chosen: Region, pick: int, objects: list[Region], options: BoardOp
             f"{' and '.join(chosen.sides)} side(s) of the searched area: it may be cut off, "
             "and its box smaller than the object"
         )
-    for index, region in enumerate(objects):
-        if index != pick and region.area >= options.comparable * chosen.area:
-            found.append(
-                f"detect: two objects of comparable size: #{pick} box {list(chosen.bbox)} "
-                f"({chosen.area:.0f} px, used) and #{index} box {list(region.bbox)} "
-                f"({region.area:.0f} px); set detector.pick to {index} to use the other"
-            )
+    found += comparable_object_warnings(objects, pick, options.comparable)
     return found
 
 

@@ -15,7 +15,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from keymps.errors import DetectionError
-from keymps.perception.search_area import odd_kernel, roi_polygon
+from keymps.perception.search_area import comparable_object_warnings, odd_kernel, roi_polygon
 from keymps.plugin import RegisterDetector, hookimpl
 from keymps.plugin import parse_options as plugin_options
 from keymps.types import DetectedObject, Detection, SceneImage
@@ -256,13 +256,7 @@ def _warnings(
                 "detector.roi: it may be cut off, and its box smaller than the object"
             )
     if pick is not None:  # one object kept: name the others it might have meant
-        for index, region in enumerate(regions):
-            if index != pick and region.area >= options.comparable * chosen.area:
-                found.append(
-                    f"detect: two objects of comparable size: #{pick} box {list(chosen.bbox)} "
-                    f"({chosen.area:.0f} px, used) and #{index} box {list(region.bbox)} "
-                    f"({region.area:.0f} px); set detector.pick to {index} to use the other"
-                )
+        found += comparable_object_warnings(regions, pick, options.comparable)
     return found
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -33,6 +34,19 @@ def roi_polygon(value: Any) -> Any:
     if not isinstance(value, (list, tuple)) or len(value) < 3:
         raise ValueError("must be a box [x0, y0, x1, y1] or a polygon of 3 or more [x, y] points")
     return value
+
+
+def comparable_object_warnings(regions: Sequence[Any], pick: int, comparable: float) -> list[str]:
+    """A warning per region (with .bbox and .area) at least `comparable` times the area of the
+    one at index `pick`: the detector may have kept the wrong object."""
+    chosen = regions[pick]
+    return [
+        f"detect: two objects of comparable size: #{pick} box {list(chosen.bbox)} "
+        f"({chosen.area:.0f} px, used) and #{index} box {list(region.bbox)} "
+        f"({region.area:.0f} px); set detector.pick to {index} to use the other"
+        for index, region in enumerate(regions)
+        if index != pick and region.area >= comparable * chosen.area
+    ]
 
 
 def odd_kernel(value: int) -> int:
