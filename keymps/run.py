@@ -12,6 +12,7 @@ from typing import IO, TYPE_CHECKING, Any
 
 from keymps.config.task import Task
 from keymps.errors import KeympsError
+from keymps.types import STAGES as PIPELINE_STAGES
 
 if TYPE_CHECKING:
     import numpy as np
@@ -55,7 +56,7 @@ class RunOptions:
     `acomplete` to an event loop (`keymps eval`'s broker) instead of calling `complete`."""
 
 
-STAGES = ("image", "detect", "plan", "ground", "compose", "solve", "time", "check", "execute")
+STAGES = ("image", *PIPELINE_STAGES)
 """The stages of a run, in order (the names of run.json's timings and of keymps_stage_done)."""
 
 
