@@ -337,9 +337,9 @@ def test_documented_entities_have_their_archetypes(recorded):
         "/execute/report": "TextDocument",
         "/run/summary": "TextDocument",
     }
+    expected["/joints/q"] = "Scalars"
+    expected["/joints/qd"] = "Scalars"
     for name in JOINTS:
-        expected[f"/joints/q/{name}"] = "Scalars"
-        expected[f"/joints/qd/{name}"] = "Scalars"
         expected[f"/world/robot/joint_transforms/{name}"] = "Transform3D"
     missing = {path: kind for path, kind in expected.items() if path not in entities}
     assert not missing, f"entities missing from run.rrd: {missing}"
@@ -352,15 +352,16 @@ def test_documented_entities_have_their_archetypes(recorded):
 
 
 def test_one_row_per_trajectory_sample_on_joints_and_tool_speed(recorded):
+    """One row per sample, one component (and one named, coloured line) per joint."""
     _, results, entities = recorded
-    for name in JOINTS:
-        for group in ("q", "qd"):
-            entity = entities[f"/joints/{group}/{name}"]
-            assert entity.rows["Scalars"] == SAMPLES
-            assert "time" in entity.timelines
-    column = JOINTS.index("elbow_joint")
-    recorded_q = np.array(entities["/joints/q/elbow_joint"].data["Scalars:scalars"]).ravel()
-    np.testing.assert_allclose(recorded_q, results.trajectory.q[:, column])
+    trajectory = results.trajectory
+    for group, values, unit in (("q", trajectory.q, "rad"), ("qd", trajectory.qd, "rad/s")):
+        entity = entities[f"/joints/{group}"]
+        assert entity.rows["Scalars"] == SAMPLES
+        assert entity.timelines == {"time"}
+        np.testing.assert_array_equal(np.array(entity.data["Scalars:scalars"]), values)
+        assert entity.data["SeriesLines:names"][0] == [f"{name} [{unit}]" for name in JOINTS]
+        assert len(set(entity.data["SeriesLines:colors"][0])) == len(JOINTS)
     assert entities["/tool/speed"].rows["Scalars"] == SAMPLES
 
 
@@ -416,10 +417,44 @@ def test_robot_meshes_come_from_the_urdf(recorded):
         "wrist_2_link",
         "wrist_3_link",
     }
-    # Rerun's COLLADA importer skips <polylist> geometry; the flange mesh must be triangles.
+    for path in meshes:
+        media = entities[path].data["Asset3D:media_type"][0][0]
+        assert media == "model/gltf-binary", (path, media)
+        triangles, colors = read_glb(bytes(entities[path].data["Asset3D:blob"][0][0]))
+        assert 100 < triangles < 5000, (path, triangles)
+        assert colors  # the COLLADA materials' colours, one primitive each
+    # The flange's <polylist> geometry (which Rerun's COLLADA importer skips) is drawn too.
     flange = next(entities[path] for path in meshes if "/wrist_3_link/" in path)
-    blob = bytes(flange.data["Asset3D:blob"][0][0])
-    assert b"<triangles" in blob and b"<polylist" not in blob
+    assert read_glb(bytes(flange.data["Asset3D:blob"][0][0]))[0] > 200
+
+
+def read_glb(blob: bytes) -> tuple[int, list[tuple[float, ...]]]:
+    """(triangles, base colours) of a binary glTF, checked against the spec's layout."""
+    import json
+    import struct
+
+    magic, version, length = struct.unpack_from("<4sII", blob)
+    assert (magic, version, length) == (b"glTF", 2, len(blob))
+    json_length, kind = struct.unpack_from("<I4s", blob, 12)
+    assert kind == b"JSON"
+    document = json.loads(blob[20 : 20 + json_length])
+    binary_length, kind = struct.unpack_from("<I4s", blob, 20 + json_length)
+    assert kind == b"BIN\x00" and 28 + json_length + binary_length == len(blob)
+    binary = blob[28 + json_length :]
+    triangles = 0
+    for primitive in document["meshes"][0]["primitives"]:
+        positions = document["accessors"][primitive["attributes"]["POSITION"]]
+        normals = document["accessors"][primitive["attributes"]["NORMAL"]]
+        indices = document["accessors"][primitive["indices"]]
+        assert positions["count"] == normals["count"] and indices["count"] % 3 == 0
+        view = document["bufferViews"][indices["bufferView"]]
+        dtype = {5123: np.uint16, 5125: np.uint32}[indices["componentType"]]
+        start = view["byteOffset"]
+        values = np.frombuffer(binary[start : start + view["byteLength"]], dtype=dtype)
+        assert len(values) == indices["count"] and values.max() < positions["count"]
+        triangles += indices["count"] // 3
+    colors = [tuple(m["pbrMetallicRoughness"]["baseColorFactor"]) for m in document["materials"]]
+    return triangles, colors
 
 
 def _matrix(translation: list[float], quaternion_xyzw: list[float] | None) -> np.ndarray:
@@ -533,7 +568,7 @@ def test_stage_and_time_timelines_and_no_wall_clock(recorded):
     timelines = set().union(*(entity.timelines for entity in entities.values()))
     assert timelines == {"stage", "time"}
     assert "stage" in entities["/image"].timelines
-    assert entities["/joints/q/elbow_joint"].timelines == {"time"}
+    assert entities["/joints/q"].timelines == {"time"}
 
 
 def test_a_blueprint_is_sent_with_the_recording(recorded):
@@ -673,11 +708,35 @@ def test_connect_streams_the_run_to_a_running_viewer_server(tmp_path):
             server.kill()
             server.wait()
     assert "/run/summary" in entities
-    assert entities["/joints/q/elbow_joint"].rows["Scalars"] == SAMPLES
+    assert entities["/joints/q"].rows["Scalars"] == SAMPLES
     assert entities["/image/pairs"].rows["LineStrips2D"] == 1
 
 
 TASKS = Path(__file__).resolve().parents[1] / "tasks"
+
+
+def timed_column(path: Path, entity: str, column: str) -> tuple[np.ndarray, np.ndarray]:
+    """(time in s, values) of one temporal column of one entity, in time order."""
+    from rerun.chunk import RrdReader
+
+    times, values = [], []
+    for chunk in RrdReader(path).stream():
+        batch = chunk.to_record_batch()
+        if (
+            chunk.entity_path == entity
+            and column in batch.schema.names
+            and "time" in batch.schema.names
+        ):
+            times.extend(batch.column("time").cast("int64").to_pylist())
+            values.extend(batch.column(column).to_pylist())
+    order = np.argsort(times, kind="stable")
+    return np.array(times, dtype=float)[order] / 1e9, np.array(values, dtype=object)[order]
+
+
+RECORDING_LIMIT_MB = {"cake_icing.yaml": 2.0, "object_cutting.yaml": 2.5}
+"""The icing run's target (issue 21; 5.53 MB before); cutting has 50 % more trajectory."""
+MESH_TRIANGLES_MAX = 15_000
+"""The seven UR3 links drawn (75,000 triangles in the URDF's COLLADA files)."""
 
 
 @pytest.mark.parametrize("task_file", ["cake_icing.yaml", "object_cutting.yaml"])
@@ -689,8 +748,7 @@ def test_a_shipped_task_run_by_the_engine_is_recorded_whole(task_file, tmp_path)
     run = run_task(TASKS / task_file, out=tmp_path / "run", backend="offline", rerun="save")
     entities = read_recording(run.folder / "run.rrd")
     trajectory, plan = run.stages.time, run.stages.plan
-    for name in trajectory.joint_names:
-        assert entities[f"/joints/q/{name}"].rows["Scalars"] == trajectory.samples
+    assert entities["/joints/q"].rows["Scalars"] == trajectory.samples
     assert entities["/tool/speed"].rows["Scalars"] == trajectory.samples
     assert len(entities["/image/pairs"].data["LineStrips2D:strips"][0]) == plan.num_pairs
     assert len(entities["/world/segments"].data["Arrows3D:origins"][0]) == plan.num_pairs
@@ -701,6 +759,44 @@ def test_a_shipped_task_run_by_the_engine_is_recorded_whole(task_file, tmp_path)
     rows = [0, len(picked) // 3, len(picked) // 2, len(picked) - 1]
     tips = recorded_tool_tips(entities, rows)
     np.testing.assert_allclose(tips, trajectory.tool_xyz[picked[rows]], atol=5e-4)
+
+
+@pytest.mark.parametrize("task_file", ["cake_icing.yaml", "object_cutting.yaml"])
+def test_a_shipped_task_records_what_main_recorded_in_a_small_file(task_file, tmp_path):
+    """run.rrd against the run's own trajectory.csv (what the recorder of main, 91cb8e4, put
+    in one Scalars entity per joint, now one component per joint): the same times, joint
+    angles to 1e-9 rad (the file's 9 decimals), tool speed from the file's tool positions;
+    the robot meshes small, the whole file under its limit."""
+    from keymps.pipeline.engine import run_task
+
+    run = run_task(TASKS / task_file, out=tmp_path / "run", backend="offline", rerun="save")
+    path = run.folder / "run.rrd"
+    csv = np.genfromtxt(run.folder / "trajectory.csv", delimiter=",", names=True, dtype=None)
+    t = np.asarray(csv["t"], dtype=float)
+    q = np.column_stack([csv[f"q{i}"] for i in range(1, 7)]).astype(float)
+    xyz = np.column_stack([csv["x"], csv["y"], csv["z"]]).astype(float)
+    times, values = timed_column(path, "/joints/q", "Scalars:scalars")
+    np.testing.assert_allclose(times, t, atol=1e-6)
+    np.testing.assert_allclose(np.array(values.tolist(), dtype=float), q, atol=1e-9)
+    times, values = timed_column(path, "/joints/qd", "Scalars:scalars")
+    qd = np.array(values.tolist(), dtype=float)
+    np.testing.assert_allclose(times, t, atol=1e-6)
+    np.testing.assert_array_equal(qd, run.stages.time.qd)
+    inner = slice(1, -1)  # the velocity the trajectory carries is the derivative of q
+    np.testing.assert_allclose(qd[inner], np.gradient(q, t, axis=0)[inner], atol=0.02)
+    times, values = timed_column(path, "/tool/speed", "Scalars:scalars")
+    speed = np.array(values.tolist(), dtype=float).ravel()
+    reference = np.linalg.norm(np.gradient(xyz, t, axis=0), axis=1)
+    np.testing.assert_allclose(speed, reference, atol=2e-4)  # xyz has 6 decimals
+    entities = read_recording(path)
+    triangles = sum(
+        read_glb(bytes(entity.data["Asset3D:blob"][0][0]))[0]
+        for name, entity in entities.items()
+        if name.startswith("/world/robot/") and "Asset3D" in entity.archetypes
+    )
+    assert 5_000 < triangles < MESH_TRIANGLES_MAX
+    size_mb = path.stat().st_size / 1e6
+    assert size_mb < RECORDING_LIMIT_MB[task_file], f"{task_file}: run.rrd is {size_mb:.2f} MB"
 
 
 def test_leaving_the_plugin_out_records_nothing(tmp_path, monkeypatch):
