@@ -124,7 +124,7 @@ def _primitive_corners(
     inputs = _children(primitive, "input")
     stride = 1 + max(int(i.get("offset", 0)) for i in inputs)
     indices = np.array(
-        next(iter(_children(primitive, "p")), primitive).text.split(), dtype=np.int64
+        (next(iter(_children(primitive, "p")), primitive).text or "").split(), dtype=np.int64
     ).reshape(-1, stride)
     positions = normals = None
     for item in inputs:
@@ -154,7 +154,9 @@ def read_collada(path: Path) -> list[Part]:
             sources = {
                 s.get("id", ""): _floats(
                     next(e for e in s.iter() if _tag(e) == "float_array").text
-                ).reshape(-1, int(next(e for e in s.iter() if _tag(e) == "accessor").get("stride")))
+                ).reshape(
+                    -1, int(next(e for e in s.iter() if _tag(e) == "accessor").get("stride", 3))
+                )
                 for s in _children(mesh, "source")
             }
             vertices = {
@@ -521,7 +523,8 @@ def glb_bytes(mesh: LightMesh) -> bytes:
     blob = bytearray()
     views: list[dict[str, int]] = []
     accessors: list[dict[str, object]] = []
-    primitives, materials = [], []
+    primitives: list[dict[str, object]] = []
+    materials: list[dict[str, object]] = []
 
     def add(array: np.ndarray, target: int, kind: str, component: int, bounds: bool) -> int:
         while len(blob) % 4:

@@ -100,7 +100,10 @@ def _loggable_mesh(uri: str) -> str:
     path = Path(unquote(urlparse(uri).path))
     if path.suffix.lower() != ".dae" or not path.is_file():
         return uri
-    return light_mesh(path).as_uri()
+    try:
+        return light_mesh(path).as_uri()
+    except (ValueError, KeyError, IndexError, StopIteration, SyntaxError, np.linalg.LinAlgError):
+        return uri  # a COLLADA file the reader does not understand is drawn as it is
 
 
 JointOrigins = tuple[tuple[str, tuple[float, float, float]], ...]
