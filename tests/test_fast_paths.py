@@ -184,6 +184,33 @@ def test_pruned_polyline_distance_is_exact() -> None:
         assert np.abs(got - _brute_force(points, polyline)).max() < 1e-15
 
 
+def test_grid_pass_of_the_polyline_distance_is_exact_where_it_answers() -> None:
+    from keymps.robot.safety_geometry import _brute_force, _near
+
+    rng = np.random.default_rng(RNG_SEED + 11)
+    answered = 0
+    for trial in range(16):
+        steps = rng.normal(
+            0, float(rng.choice([1e-4, 1e-3, 1e-2])), (int(rng.integers(20, 500)), 3)
+        )
+        if trial % 4 == 1:
+            steps[:, 0] = 0.0  # a path in a plane (sawing strokes in y-z)
+        if trial % 4 == 2:
+            steps[rng.random(len(steps)) < 0.2] = 0.0  # repeated points: zero-length segments
+        polyline = np.cumsum(steps, axis=0)
+        if trial % 4 == 3:  # back and forth over itself
+            polyline = np.concatenate([polyline, polyline[::-1] + 1e-6, polyline])
+        along = rng.integers(0, len(polyline) - 1, 3000)
+        fraction = rng.random((3000, 1))
+        points = polyline[along] + fraction * (polyline[along + 1] - polyline[along])
+        points += rng.normal(0, float(rng.choice([0.0, 1e-7, 1e-5, 1e-3])), points.shape)
+        got, near = _near(points, polyline)
+        exact = _brute_force(points, polyline)
+        assert np.array_equal(got[near], exact[near])  # the same value to the last bit
+        answered += near.sum()
+    assert answered > 0.5 * 16 * 3000  # most points near their path are answered by the grid
+
+
 def test_outside_distance_matches_opencv_on_random_outlines() -> None:
     import cv2
 

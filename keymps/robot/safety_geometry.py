@@ -15,6 +15,17 @@ def _segment_distances(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.n
     return np.sqrt((gap**2).sum(axis=-1))
 
 
+def _pair_distances(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Distance of point i to segment a[i]-b[i], all given as (3, n) columns: the same
+    arithmetic as `_segment_distances`, term by term (so the same value to the last bit)."""
+    (px, py, pz), (ax, ay, az), (bx, by, bz) = points, a, b
+    abx, aby, abz = bx - ax, by - ay, bz - az
+    length2 = np.maximum(abx * abx + aby * aby + abz * abz, 1e-18)
+    t = np.clip(((px - ax) * abx + (py - ay) * aby + (pz - az) * abz) / length2, 0.0, 1.0)
+    gx, gy, gz = px - (ax + t * abx), py - (ay + t * aby), pz - (az + t * abz)
+    return np.sqrt(gx * gx + gy * gy + gz * gz)
+
+
 def _brute_force(points: np.ndarray, polyline: np.ndarray) -> np.ndarray:
     a, b = polyline[:-1][None], polyline[1:][None]
     out = np.empty(len(points))
@@ -39,7 +50,69 @@ def distance_to_polyline(points: np.ndarray, polyline: np.ndarray) -> np.ndarray
     segments = len(polyline) - 1
     if segments <= 2 * BLOCK_SEGMENTS or segments * len(points) <= 50_000:
         return _brute_force(points, polyline)
-    return _pruned(points, polyline)
+    out, near = _near(points, polyline)
+    if not near.all():
+        out[~near] = _pruned(points[~near], polyline)
+    return out
+
+
+GRID_ENTRIES_PER_POINT = 8
+"""The grid pass is skipped when it would register more segment-cell pairs than this per point
+plus 100,000 (long segments against a fine grid: the pruned search is cheaper then)."""
+
+
+def _near(points: np.ndarray, polyline: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Exact distances of the points near the polyline, and which points those are.
+
+    Every segment is registered in the cells of a uniform grid (cell size h) that its box,
+    grown by h/4 on every side, overlaps. A point within h/8 of a segment lies inside that
+    grown box with a margin of h/8, far more than rounding, so the segment is registered in
+    the point's cell: when the nearest segment of the point's cell is within h/8, it is the
+    nearest of all. The others are left to the pruned search."""
+    a, b = polyline[:-1], polyline[1:]
+    lengths = np.sqrt(((b - a) ** 2).sum(axis=1))
+    extent = float(np.ptp(polyline, axis=0).max())
+    cell = max(float(lengths.mean()), float(lengths.max()) / 4, extent / 1000, 1e-9)
+    margin = cell / 4
+    out = np.zeros(len(points))
+    near = np.zeros(len(points), dtype=bool)
+    origin = polyline.min(axis=0) - 2 * cell
+    low = np.floor((np.minimum(a, b) - margin - origin) / cell).astype(np.int64)
+    high = np.floor((np.maximum(a, b) + margin - origin) / cell).astype(np.int64)
+    shape = high.max(axis=0) + 1
+    counts = high - low + 1
+    per_segment = counts.prod(axis=1)
+    total = int(per_segment.sum())
+    if total > GRID_ENTRIES_PER_POINT * len(points) + 100_000:
+        return out, near
+    # Every (segment, cell) pair: the cells of segment i's box counted in mixed radix.
+    segment = np.repeat(np.arange(len(a)), per_segment)
+    local = np.arange(total) - np.repeat(np.cumsum(per_segment) - per_segment, per_segment)
+    yz = counts[segment, 1] * counts[segment, 2]
+    cells = low[segment] + np.column_stack(
+        [local // yz, (local % yz) // counts[segment, 2], local % counts[segment, 2]]
+    )
+    keys = (cells[:, 0] * shape[1] + cells[:, 1]) * shape[2] + cells[:, 2]
+    order = np.argsort(keys, kind="stable")
+    keys, segment = keys[order], segment[order]
+    at = np.floor((points - origin) / cell).astype(np.int64)
+    inside = ((at >= 0) & (at < shape)).all(axis=1)
+    at_key = (at[:, 0] * shape[1] + at[:, 1]) * shape[2] + at[:, 2]
+    first = np.searchsorted(keys, at_key, side="left")
+    found = np.where(inside, np.searchsorted(keys, at_key, side="right") - first, 0)
+    has = np.flatnonzero(found)
+    if len(has) == 0:
+        return out, near
+    counts_has = found[has]
+    starts = np.cumsum(counts_has) - counts_has
+    pair_point = np.repeat(has, counts_has)
+    offsets = np.arange(len(pair_point)) - np.repeat(starts, counts_has)
+    pair_segment = segment[np.repeat(first[has], counts_has) + offsets]
+    distances = _pair_distances(points.T[:, pair_point], a.T[:, pair_segment], b.T[:, pair_segment])
+    best = np.minimum.reduceat(distances, starts)
+    out[has] = best
+    near[has] = best <= margin / 2
+    return out, near
 
 
 def _pruned(points: np.ndarray, polyline: np.ndarray) -> np.ndarray:
