@@ -204,7 +204,8 @@ def test_grid_pass_of_the_polyline_distance_is_exact_where_it_answers() -> None:
         fraction = rng.random((3000, 1))
         points = polyline[along] + fraction * (polyline[along + 1] - polyline[along])
         points += rng.normal(0, float(rng.choice([0.0, 1e-7, 1e-5, 1e-3])), points.shape)
-        got, near = _near(points, polyline)
+        groups = np.zeros(len(points), np.intp)
+        got, near = _near(points, groups, polyline[:-1], polyline[1:], groups[: len(polyline) - 1])
         exact = _brute_force(points, polyline)
         assert np.array_equal(got[near], exact[near])  # the same value to the last bit
         answered += near.sum()
