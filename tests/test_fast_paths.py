@@ -258,3 +258,41 @@ def test_shipped_runs_are_unchanged_by_the_closed_form(
     for name, value in slow_v.figures.items():
         assert fast_v.figures[name] == pytest.approx(value, rel=1e-3, abs=1e-6), name
     assert fast.stages.execute.ok == slow.stages.execute.ok
+
+
+def test_side_bands_in_windows_match_the_whole_image_computation() -> None:
+    from keymps.perception.search_area import SearchArea
+
+    rng = np.random.default_rng(RNG_SEED + 12)
+    for trial in range(20):
+        width, height = int(rng.integers(40, 300)), int(rng.integers(40, 300))
+        if trial % 4 == 0:
+            polygon = None  # the whole image
+        else:
+            count = int(rng.integers(3, 8))
+            angles = np.sort(rng.uniform(0, 2 * math.pi, count))
+            radius = rng.uniform(0.3, 0.7, count) * min(width, height) / 2
+            polygon = [
+                (width / 2 + r * math.cos(a) + rng.uniform(-5, 5), height / 2 + r * math.sin(a))
+                for r, a in zip(radius, angles, strict=True)
+            ]  # a corner may lie outside the image
+        area = SearchArea.of((width, height), polygon)
+        band_width = float(rng.choice([0.5, 1.5, 2.0, 3.7, 12.0]))
+        for got, side in zip(
+            area.side_bands(band_width),
+            zip(area.polygon, np.roll(area.polygon, -1, axis=0), strict=True),
+            strict=True,
+        ):
+            assert np.array_equal(got, _whole_image_band(area.mask, *side, band_width))
+
+
+def _whole_image_band(mask: np.ndarray, a: np.ndarray, b: np.ndarray, width_px: float) -> Any:
+    """One side's band computed over every pixel (as side_bands did before its windows)."""
+    height, width = mask.shape
+    cols = np.arange(width, dtype=np.float32)[None, :] + 0.5
+    rows = np.arange(height, dtype=np.float32)[:, None] + 0.5
+    edge = b - a
+    length = max(float(np.hypot(*edge)), 1e-9)
+    t = np.clip(((cols - a[0]) * edge[0] + (rows - a[1]) * edge[1]) / length**2, 0, 1)
+    dx, dy = cols - (a[0] + t * edge[0]), rows - (a[1] + t * edge[1])
+    return mask & (dx * dx + dy * dy <= width_px * width_px)
