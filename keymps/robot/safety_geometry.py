@@ -120,7 +120,8 @@ def _near(
     extent = (high_corner - low_corner).max(axis=1)
     mean = np.add.reduceat(lengths, first_segment) / np.diff(first_segment, append=len(a))
     longest = np.maximum.reduceat(lengths, first_segment)
-    cell = np.maximum.reduce([mean, longest / 4, extent / 1000, np.full(groups, 1e-9)])
+    # About two cells per segment: fewer segments per cell, few cells per segment.
+    cell = np.maximum.reduce([mean, longest / 4, extent / 1000, np.full(groups, 1e-9)]) / 2
     margin = cell / 4
     origin = low_corner - 2 * cell[:, None]
     seg_cell, seg_origin = cell[segment_group, None], origin[segment_group]
