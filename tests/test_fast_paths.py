@@ -260,6 +260,29 @@ def test_shipped_runs_are_unchanged_by_the_closed_form(
     assert fast.stages.execute.ok == slow.stages.execute.ok
 
 
+def test_distance_to_many_polylines_matches_one_polyline_at_a_time() -> None:
+    from keymps.robot.safety_geometry import _brute_force, distance_to_polylines
+
+    rng = np.random.default_rng(RNG_SEED + 13)
+    for _ in range(8):
+        polylines = []
+        for _ in range(int(rng.integers(1, 30))):
+            size = int(rng.choice([1, 2, 5, 40, 300]))  # a single point, travel, strokes
+            steps = rng.normal(0, float(rng.choice([1e-5, 1e-3, 1e-2])), (size, 3))
+            polylines.append(rng.uniform(-0.1, 0.1, 3) + np.cumsum(steps, axis=0))
+        which = rng.integers(0, len(polylines), 4000)
+        anchors = [polylines[i][rng.integers(0, len(polylines[i]))] for i in which]
+        points = np.array(anchors) + rng.normal(0, float(rng.choice([1e-7, 1e-4, 3e-2])), (4000, 3))
+        got = distance_to_polylines(points, which, polylines)
+        for index, polyline in enumerate(polylines):
+            mine = which == index
+            if len(polyline) == 1:
+                expected = np.linalg.norm(points[mine] - polyline[0], axis=1)
+            else:
+                expected = _brute_force(points[mine], polyline)
+            assert np.array_equal(got[mine], expected)
+
+
 def test_side_bands_in_windows_match_the_whole_image_computation() -> None:
     from keymps.perception.search_area import SearchArea
 
