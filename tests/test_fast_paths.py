@@ -319,3 +319,46 @@ def _whole_image_band(mask: np.ndarray, a: np.ndarray, b: np.ndarray, width_px: 
     t = np.clip(((cols - a[0]) * edge[0] + (rows - a[1]) * edge[1]) / length**2, 0, 1)
     dx, dy = cols - (a[0] + t * edge[0]), rows - (a[1] + t * edge[1])
     return mask & (dx * dx + dy * dy <= width_px * width_px)
+
+
+def test_cut_length_in_chunks_matches_all_blade_samples_at_once() -> None:
+    from keymps.default_plugins.sim.cut_sweep import Footprint, covered_length
+
+    rng = np.random.default_rng(RNG_SEED + 14)
+    for trial in range(24):
+        angles = np.sort(rng.uniform(0, 2 * math.pi, int(rng.integers(3, 60))))
+        radius = rng.uniform(0.03, 0.09, len(angles))
+        outline = np.column_stack([0.15 + radius * np.cos(angles), 0.1 + radius * np.sin(angles)])
+        footprint = Footprint(outline) if trial % 4 else None
+        count = int(rng.integers(1, 400))
+        heading = rng.uniform(0, math.pi)
+        along = np.array([math.cos(heading), math.sin(heading)])
+        tips = np.array([0.15, 0.1]) + np.outer(rng.uniform(-0.1, 0.1, count), along)
+        tips += rng.normal(0, float(rng.choice([0.0, 1e-4, 3e-3])), tips.shape)
+        blade = float(rng.choice([0.0005, 0.02, 0.16]))
+        segments = np.stack([tips, tips - blade * along], axis=1)
+        got = covered_length(segments, footprint)
+        assert got == _covered_length_at_once(segments, footprint)
+
+
+def _covered_length_at_once(segments: np.ndarray, footprint: Any) -> float:
+    """covered_length as it was: every blade sample in one array, np.unique of the bins."""
+    from keymps.default_plugins.sim.cut_sweep import FOOTPRINT_CELL_M, LENGTH_BIN_M
+
+    longest = float(np.linalg.norm(segments[:, 1] - segments[:, 0], axis=1).max())
+    fractions = np.linspace(0.0, 1.0, max(2, math.ceil(2 * longest / LENGTH_BIN_M) + 1))
+    starts, ends = segments[:, None, 0], segments[:, None, 1]
+    points = (starts + fractions[None, :, None] * (ends - starts)).reshape(-1, 2)
+    if footprint is not None:
+        cells = np.floor((points - footprint.origin) / FOOTPRINT_CELL_M)
+        rows, cols = footprint.mask.shape
+        ok = (cells[:, 0] >= 0) & (cells[:, 0] < cols) & (cells[:, 1] >= 0) & (cells[:, 1] < rows)
+        inside = np.zeros(len(cells), dtype=bool)
+        cells = cells[ok].astype(np.intp)
+        inside[ok] = footprint.mask[cells[:, 1], cells[:, 0]] > 0
+        points = points[inside]
+    if len(points) < 2:
+        return 0.0
+    centred = points - points.mean(axis=0)
+    axis = np.linalg.svd(centred, full_matrices=False)[2][0]
+    return float(len(np.unique(np.floor(centred @ axis / LENGTH_BIN_M))) * LENGTH_BIN_M)
