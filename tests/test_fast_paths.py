@@ -362,3 +362,30 @@ def _covered_length_at_once(segments: np.ndarray, footprint: Any) -> float:
     centred = points - points.mean(axis=0)
     axis = np.linalg.svd(centred, full_matrices=False)[2][0]
     return float(len(np.unique(np.floor(centred @ axis / LENGTH_BIN_M))) * LENGTH_BIN_M)
+
+
+@pytest.mark.parametrize("make_path", [ring_of_dots, radial_cuts])
+def test_densifying_all_parts_at_once_matches_part_by_part(make_path: Any) -> None:
+    from keymps.motion.strokes import _densify, _densify_all
+
+    rng = np.random.default_rng(RNG_SEED + 15)
+    compared = 0
+    for _ in range(4):
+        model = random_model(rng)
+        tool_path = make_path(center=(0.15 + rng.uniform(-0.01, 0.01), 0.09))
+        joints, _ = _solve(model, tool_path)
+        if joints is None:
+            continue
+        parts = []
+        for piece, qs in zip(tool_path.pieces, joints.pieces, strict=True):
+            cut = int(rng.integers(1, len(qs))) if len(qs) > 2 else len(qs) - 1
+            parts.append((piece.points[: cut + 1], piece.yaw[: cut + 1], qs[: cut + 1]))
+            if cut < len(qs) - 1:  # a corner: the next part starts where this one ends
+                parts.append((piece.points[cut:], piece.yaw[cut:], qs[cut:]))
+        together = _densify_all(model, parts)
+        one_by_one = [_densify(model, p, y, q) for p, y, q in parts]
+        for got, want in zip(together, one_by_one, strict=True):
+            for a, b in zip(got, want, strict=True):
+                assert a.shape == b.shape and np.abs(a - b).max() < 1e-12
+        compared += 1
+    assert compared >= 2
