@@ -162,6 +162,8 @@ def test_the_numpy_spline_is_scipys_not_a_knot_spline() -> None:
         at = np.concatenate([x, rng.uniform(-1e-3, x[-1] + 1e-3, 400)])
         ours, theirs = CubicSpline(x, y), ScipySpline(x, y, axis=0)
         together = ours.with_derivatives(at)
+        rates = ours.derivatives(at)
+        assert np.array_equal(rates[0], together[1]) and np.array_equal(rates[1], together[2])
         for nu in range(4):
             scale = max(1.0, float(np.abs(theirs(at, nu)).max()))
             assert np.abs(ours(at, nu) - theirs(at, nu)).max() / scale < 1e-11, (n, nu)

@@ -49,6 +49,17 @@ class CubicSpline:
         shape = (len(at), *self.shape)
         return value.reshape(shape), first.reshape(shape), second.reshape(shape)
 
+    def derivatives(self, at: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """First and second derivatives at `at` (m,): `with_derivatives` without the values."""
+        at = np.asarray(at, dtype=float)
+        interval = np.clip(np.searchsorted(self.x, at, side="right") - 1, 0, len(self.x) - 2)
+        t = (at - self.x[interval])[:, None]
+        c3, c2, c1 = (self.c[k][interval] for k in range(3))
+        first = (3 * c3 * t + 2 * c2) * t + c1
+        second = 6 * c3 * t + 2 * c2
+        shape = (len(at), *self.shape)
+        return first.reshape(shape), second.reshape(shape)
+
     def __call__(self, at: np.ndarray, nu: int = 0) -> np.ndarray:
         """Values (nu = 0) or the nu-th derivative (1, 2, 3) at `at` (m,): (m, ...)."""
         at = np.asarray(at, dtype=float)

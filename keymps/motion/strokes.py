@@ -311,3 +311,6 @@ class _Shifted:
 
     def with_derivatives(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return self.q_of_s.with_derivatives(np.asarray(s) + self.offset)
+
+    def derivatives(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return self.q_of_s.derivatives(np.asarray(s) + self.offset)
