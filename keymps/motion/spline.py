@@ -26,8 +26,8 @@ class CubicSpline:
             raise ValueError("CubicSpline: x must be strictly increasing")
         shape = y.shape[1:]
         values = y.reshape(len(x), -1)
-        slopes = _knot_slopes(h, np.diff(values, axis=0) / h[:, None])
         secant = np.diff(values, axis=0) / h[:, None]
+        slopes = _knot_slopes(h, secant)
         t = (slopes[:-1] + slopes[1:] - 2 * secant) / h[:, None]
         self.x = x
         self.shape = shape
