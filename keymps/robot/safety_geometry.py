@@ -88,6 +88,8 @@ def distance_to_polylines(
     return out
 
 
+PAIR_CHUNK = 8192
+"""(Point, segment) pairs measured at a time."""
 GRID_ENTRIES_PER_POINT = 8
 """The grid pass is skipped when it would register more segment-cell pairs than this per point
 plus 100,000 (long segments against a fine grid: the pruned search is cheaper then)."""
@@ -146,7 +148,9 @@ def _near(
     order = np.argsort(keys, kind="stable")
     keys, segment = keys[order], segment[order]
     g = point_group
-    at = np.floor((points - origin[g]) / cell[g, None]).astype(np.int64)
+    at = points - origin[g]
+    at /= cell[g, None]
+    at = np.floor(at, out=at).astype(np.int64)
     inside = ((at >= 0) & (at < shape[g])).all(axis=1)
     at_key = _keys(at, shape[g], offset[g])
     first = np.searchsorted(keys, at_key, side="left")
@@ -159,7 +163,13 @@ def _near(
     pair_point = np.repeat(has, counts_has)
     offsets = np.arange(len(pair_point)) - np.repeat(starts, counts_has)
     pair_segment = segment[np.repeat(first[has], counts_has) + offsets]
-    distances = _pair_distances(points.T[:, pair_point], a.T[:, pair_segment], b.T[:, pair_segment])
+    columns, a_columns, b_columns = points.T, a.T, b.T
+    distances = np.empty(len(pair_point))
+    for start in range(0, len(pair_point), PAIR_CHUNK):  # temporaries that stay in cache
+        p, s = pair_point[start : start + PAIR_CHUNK], pair_segment[start : start + PAIR_CHUNK]
+        distances[start : start + PAIR_CHUNK] = _pair_distances(
+            columns[:, p], a_columns[:, s], b_columns[:, s]
+        )
     best = np.minimum.reduceat(distances, starts)
     out[has] = best
     near[has] = best <= margin[g[has]] / 2
