@@ -162,6 +162,8 @@ def test_the_numpy_spline_is_scipys_not_a_knot_spline() -> None:
         at = np.concatenate([x, rng.uniform(-1e-3, x[-1] + 1e-3, 400)])
         ours, theirs = CubicSpline(x, y), ScipySpline(x, y, axis=0)
         together = ours.with_derivatives(at)
+        rates = ours.derivatives(at)
+        assert np.array_equal(rates[0], together[1]) and np.array_equal(rates[1], together[2])
         for nu in range(4):
             scale = max(1.0, float(np.abs(theirs(at, nu)).max()))
             assert np.abs(ours(at, nu) - theirs(at, nu)).max() / scale < 1e-11, (n, nu)
@@ -182,6 +184,34 @@ def test_pruned_polyline_distance_is_exact() -> None:
         points = picked + rng.normal(0, noise, picked.shape)
         got = distance_to_polyline(points, polyline)
         assert np.abs(got - _brute_force(points, polyline)).max() < 1e-15
+
+
+def test_grid_pass_of_the_polyline_distance_is_exact_where_it_answers() -> None:
+    from keymps.robot.safety_geometry import _brute_force, _near
+
+    rng = np.random.default_rng(RNG_SEED + 11)
+    answered = 0
+    for trial in range(16):
+        steps = rng.normal(
+            0, float(rng.choice([1e-4, 1e-3, 1e-2])), (int(rng.integers(20, 500)), 3)
+        )
+        if trial % 4 == 1:
+            steps[:, 0] = 0.0  # a path in a plane (sawing strokes in y-z)
+        if trial % 4 == 2:
+            steps[rng.random(len(steps)) < 0.2] = 0.0  # repeated points: zero-length segments
+        polyline = np.cumsum(steps, axis=0)
+        if trial % 4 == 3:  # back and forth over itself
+            polyline = np.concatenate([polyline, polyline[::-1] + 1e-6, polyline])
+        along = rng.integers(0, len(polyline) - 1, 3000)
+        fraction = rng.random((3000, 1))
+        points = polyline[along] + fraction * (polyline[along + 1] - polyline[along])
+        points += rng.normal(0, float(rng.choice([0.0, 1e-7, 1e-5, 1e-3])), points.shape)
+        groups = np.zeros(len(points), np.intp)
+        got, near = _near(points, groups, polyline[:-1], polyline[1:], groups[: len(polyline) - 1])
+        exact = _brute_force(points, polyline)
+        assert np.array_equal(got[near], exact[near])  # the same value to the last bit
+        answered += near.sum()
+    assert answered > 0.5 * 16 * 3000  # most points near their path are answered by the grid
 
 
 def test_outside_distance_matches_opencv_on_random_outlines() -> None:
@@ -230,3 +260,134 @@ def test_shipped_runs_are_unchanged_by_the_closed_form(
     for name, value in slow_v.figures.items():
         assert fast_v.figures[name] == pytest.approx(value, rel=1e-3, abs=1e-6), name
     assert fast.stages.execute.ok == slow.stages.execute.ok
+
+
+def test_distance_to_many_polylines_matches_one_polyline_at_a_time() -> None:
+    from keymps.robot.safety_geometry import _brute_force, distance_to_polylines
+
+    rng = np.random.default_rng(RNG_SEED + 13)
+    for _ in range(8):
+        polylines = []
+        for _ in range(int(rng.integers(1, 30))):
+            size = int(rng.choice([1, 2, 5, 40, 300]))  # a single point, travel, strokes
+            steps = rng.normal(0, float(rng.choice([1e-5, 1e-3, 1e-2])), (size, 3))
+            polylines.append(rng.uniform(-0.1, 0.1, 3) + np.cumsum(steps, axis=0))
+        which = rng.integers(0, len(polylines), 4000)
+        anchors = [polylines[i][rng.integers(0, len(polylines[i]))] for i in which]
+        points = np.array(anchors) + rng.normal(0, float(rng.choice([1e-7, 1e-4, 3e-2])), (4000, 3))
+        got = distance_to_polylines(points, which, polylines)
+        for index, polyline in enumerate(polylines):
+            mine = which == index
+            if len(polyline) == 1:
+                expected = np.linalg.norm(points[mine] - polyline[0], axis=1)
+            else:
+                expected = _brute_force(points[mine], polyline)
+            assert np.array_equal(got[mine], expected)
+
+
+def test_side_bands_in_windows_match_the_whole_image_computation() -> None:
+    from keymps.perception.search_area import SearchArea
+
+    rng = np.random.default_rng(RNG_SEED + 12)
+    for trial in range(20):
+        width, height = int(rng.integers(40, 300)), int(rng.integers(40, 300))
+        if trial % 4 == 0:
+            polygon = None  # the whole image
+        else:
+            count = int(rng.integers(3, 8))
+            angles = np.sort(rng.uniform(0, 2 * math.pi, count))
+            radius = rng.uniform(0.3, 0.7, count) * min(width, height) / 2
+            polygon = [
+                (width / 2 + r * math.cos(a) + rng.uniform(-5, 5), height / 2 + r * math.sin(a))
+                for r, a in zip(radius, angles, strict=True)
+            ]  # a corner may lie outside the image
+        area = SearchArea.of((width, height), polygon)
+        band_width = float(rng.choice([0.5, 1.5, 2.0, 3.7, 12.0]))
+        for got, side in zip(
+            area.side_bands(band_width),
+            zip(area.polygon, np.roll(area.polygon, -1, axis=0), strict=True),
+            strict=True,
+        ):
+            assert np.array_equal(got, _whole_image_band(area.mask, *side, band_width))
+
+
+def _whole_image_band(mask: np.ndarray, a: np.ndarray, b: np.ndarray, width_px: float) -> Any:
+    """One side's band computed over every pixel (as side_bands did before its windows)."""
+    height, width = mask.shape
+    cols = np.arange(width, dtype=np.float32)[None, :] + 0.5
+    rows = np.arange(height, dtype=np.float32)[:, None] + 0.5
+    edge = b - a
+    length = max(float(np.hypot(*edge)), 1e-9)
+    t = np.clip(((cols - a[0]) * edge[0] + (rows - a[1]) * edge[1]) / length**2, 0, 1)
+    dx, dy = cols - (a[0] + t * edge[0]), rows - (a[1] + t * edge[1])
+    return mask & (dx * dx + dy * dy <= width_px * width_px)
+
+
+def test_cut_length_in_chunks_matches_all_blade_samples_at_once() -> None:
+    from keymps.default_plugins.sim.cut_sweep import Footprint, covered_length
+
+    rng = np.random.default_rng(RNG_SEED + 14)
+    for trial in range(24):
+        angles = np.sort(rng.uniform(0, 2 * math.pi, int(rng.integers(3, 60))))
+        radius = rng.uniform(0.03, 0.09, len(angles))
+        outline = np.column_stack([0.15 + radius * np.cos(angles), 0.1 + radius * np.sin(angles)])
+        footprint = Footprint(outline) if trial % 4 else None
+        count = int(rng.integers(1, 400))
+        heading = rng.uniform(0, math.pi)
+        along = np.array([math.cos(heading), math.sin(heading)])
+        tips = np.array([0.15, 0.1]) + np.outer(rng.uniform(-0.1, 0.1, count), along)
+        tips += rng.normal(0, float(rng.choice([0.0, 1e-4, 3e-3])), tips.shape)
+        blade = float(rng.choice([0.0005, 0.02, 0.16]))
+        segments = np.stack([tips, tips - blade * along], axis=1)
+        got = covered_length(segments, footprint)
+        assert got == _covered_length_at_once(segments, footprint)
+
+
+def _covered_length_at_once(segments: np.ndarray, footprint: Any) -> float:
+    """covered_length as it was: every blade sample in one array, np.unique of the bins."""
+    from keymps.default_plugins.sim.cut_sweep import FOOTPRINT_CELL_M, LENGTH_BIN_M
+
+    longest = float(np.linalg.norm(segments[:, 1] - segments[:, 0], axis=1).max())
+    fractions = np.linspace(0.0, 1.0, max(2, math.ceil(2 * longest / LENGTH_BIN_M) + 1))
+    starts, ends = segments[:, None, 0], segments[:, None, 1]
+    points = (starts + fractions[None, :, None] * (ends - starts)).reshape(-1, 2)
+    if footprint is not None:
+        cells = np.floor((points - footprint.origin) / FOOTPRINT_CELL_M)
+        rows, cols = footprint.mask.shape
+        ok = (cells[:, 0] >= 0) & (cells[:, 0] < cols) & (cells[:, 1] >= 0) & (cells[:, 1] < rows)
+        inside = np.zeros(len(cells), dtype=bool)
+        cells = cells[ok].astype(np.intp)
+        inside[ok] = footprint.mask[cells[:, 1], cells[:, 0]] > 0
+        points = points[inside]
+    if len(points) < 2:
+        return 0.0
+    centred = points - points.mean(axis=0)
+    axis = np.linalg.svd(centred, full_matrices=False)[2][0]
+    return float(len(np.unique(np.floor(centred @ axis / LENGTH_BIN_M))) * LENGTH_BIN_M)
+
+
+@pytest.mark.parametrize("make_path", [ring_of_dots, radial_cuts])
+def test_densifying_all_parts_at_once_matches_part_by_part(make_path: Any) -> None:
+    from keymps.motion.strokes import _densify, _densify_all
+
+    rng = np.random.default_rng(RNG_SEED + 15)
+    compared = 0
+    for _ in range(4):
+        model = random_model(rng)
+        tool_path = make_path(center=(0.15 + rng.uniform(-0.01, 0.01), 0.09))
+        joints, _ = _solve(model, tool_path)
+        if joints is None:
+            continue
+        parts = []
+        for piece, qs in zip(tool_path.pieces, joints.pieces, strict=True):
+            cut = int(rng.integers(1, len(qs))) if len(qs) > 2 else len(qs) - 1
+            parts.append((piece.points[: cut + 1], piece.yaw[: cut + 1], qs[: cut + 1]))
+            if cut < len(qs) - 1:  # a corner: the next part starts where this one ends
+                parts.append((piece.points[cut:], piece.yaw[cut:], qs[cut:]))
+        together = _densify_all(model, parts)
+        one_by_one = [_densify(model, p, y, q) for p, y, q in parts]
+        for got, want in zip(together, one_by_one, strict=True):
+            for a, b in zip(got, want, strict=True):
+                assert a.shape == b.shape and np.abs(a - b).max() < 1e-12
+        compared += 1
+    assert compared >= 2

@@ -26,8 +26,8 @@ class CubicSpline:
             raise ValueError("CubicSpline: x must be strictly increasing")
         shape = y.shape[1:]
         values = y.reshape(len(x), -1)
-        slopes = _knot_slopes(h, np.diff(values, axis=0) / h[:, None])
         secant = np.diff(values, axis=0) / h[:, None]
+        slopes = _knot_slopes(h, secant)
         t = (slopes[:-1] + slopes[1:] - 2 * secant) / h[:, None]
         self.x = x
         self.shape = shape
@@ -48,6 +48,17 @@ class CubicSpline:
         second = 6 * c3 * t + 2 * c2
         shape = (len(at), *self.shape)
         return value.reshape(shape), first.reshape(shape), second.reshape(shape)
+
+    def derivatives(self, at: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """First and second derivatives at `at` (m,): `with_derivatives` without the values."""
+        at = np.asarray(at, dtype=float)
+        interval = np.clip(np.searchsorted(self.x, at, side="right") - 1, 0, len(self.x) - 2)
+        t = (at - self.x[interval])[:, None]
+        c3, c2, c1 = (self.c[k][interval] for k in range(3))
+        first = (3 * c3 * t + 2 * c2) * t + c1
+        second = 6 * c3 * t + 2 * c2
+        shape = (len(at), *self.shape)
+        return first.reshape(shape), second.reshape(shape)
 
     def __call__(self, at: np.ndarray, nu: int = 0) -> np.ndarray:
         """Values (nu = 0) or the nu-th derivative (1, 2, 3) at `at` (m,): (m, ...)."""

@@ -121,15 +121,26 @@ def _densify_all(
     of the path in one solve (consecutive parts join up, so one branch runs through them)."""
     dense = [_dense_points(points, yaw) for points, yaw, _ in parts]
     if model.closed_form is not None and parts:
-        all_p = np.concatenate([p for p, _, _ in dense])
-        all_y = np.concatenate([y for _, y, _ in dense])
+        # A part with nothing inserted keeps its points and joints as they are; it is solved
+        # again only every few millimetres, to carry the branch from one part to the next.
+        solve = [
+            _every_few(p, y) if len(p) == len(points) else np.arange(len(p))
+            for (p, y, _), (points, _, _) in zip(dense, parts, strict=True)
+        ]
+        all_p = np.concatenate([p[i] for (p, _, _), i in zip(dense, solve, strict=True)])
+        all_y = np.concatenate([y[i] for (_, y, _), i in zip(dense, solve, strict=True)])
         solved = model._solve_closed_form(all_p, all_y, parts[0][2][0])
         if solved is not None:
-            ends = np.cumsum([len(p) for p, _, _ in dense])[:-1]
+            ends = np.cumsum([len(i) for i in solve])[:-1]
             out = []
-            for (p, y, original), (_, _, q), dense_q in zip(
-                dense, parts, np.split(solved[0], ends), strict=True
+            for (p, y, original), (points, _, q), which, dense_q in zip(
+                dense, parts, solve, np.split(solved[0], ends), strict=True
             ):
+                if len(p) == len(points):  # nothing inserted: the subset checks the branch
+                    if np.abs(dense_q - q[which]).max() >= 1e-6:
+                        break
+                    out.append((p, y, q))
+                    continue
                 if np.abs(dense_q[original] - q).max() >= 1e-6:  # not the path's branch
                     break
                 dense_q[original] = q
@@ -137,6 +148,19 @@ def _densify_all(
             else:
                 return out
     return [_densify(model, points, yaw, q) for points, yaw, q in parts]
+
+
+CARRY_SPACING_M = 0.005
+"""Points of a part with nothing inserted are re-solved this far apart (see _densify_all)."""
+
+
+def _every_few(points: np.ndarray, yaw: np.ndarray) -> np.ndarray:
+    """Indexes of points about CARRY_SPACING_M apart along the path parameter (a turn of the
+    tool counts as in `_parameter_steps`), both ends included."""
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(_parameter_steps(points, yaw), axis=1))])
+    bins = np.floor(arc / CARRY_SPACING_M)
+    keep = np.flatnonzero(np.diff(bins, prepend=-1.0) > 0)
+    return np.union1d(keep, [0, len(points) - 1])
 
 
 def _densify(
@@ -287,3 +311,6 @@ class _Shifted:
 
     def with_derivatives(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return self.q_of_s.with_derivatives(np.asarray(s) + self.offset)
+
+    def derivatives(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return self.q_of_s.derivatives(np.asarray(s) + self.offset)

@@ -132,6 +132,14 @@ def _joint_motion(
     return q, dq * sd[:, None], ddq * (sd**2)[:, None] + dq * sdd[:, None]
 
 
+def _joint_rates(
+    stroke: Stroke, s: np.ndarray, sd: np.ndarray, sdd: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """q dot and q double dot of `_joint_motion`, without q (the limit check needs no more)."""
+    dq, ddq = stroke.q_of_s.derivatives(np.clip(s, 0.0, stroke.length))
+    return dq * sd[:, None], ddq * (sd**2)[:, None] + dq * sdd[:, None]
+
+
 def _limit_ratios(
     model: RobotModel, qd: np.ndarray, qdd: np.ndarray, period: float
 ) -> tuple[float, float, float]:
@@ -167,7 +175,7 @@ def time_stroke(
         times = np.arange(0.0, duration + 0.5 * check_period, check_period)
         times[-1] = min(times[-1], duration)
         s, sd, sdd = _sample_profile(profile, times)
-        _, qd, qdd = _joint_motion(stroke, s, sd, sdd)
+        qd, qdd = _joint_rates(stroke, s, sd, sdd)
         if first_duration is None:
             first_duration = duration
             worst_s = _worst_place(model, s, qd, qdd, check_period)

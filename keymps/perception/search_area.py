@@ -101,10 +101,17 @@ class SearchArea:
         for a, b in zip(self.polygon, np.roll(self.polygon, -1, axis=0), strict=True):
             edge = b - a
             length = max(float(np.hypot(*edge)), 1e-9)
-            t = np.clip(((cols - a[0]) * edge[0] + (rows - a[1]) * edge[1]) / length**2, 0, 1)
-            dx = cols - (a[0] + t * edge[0])
-            dy = rows - (a[1] + t * edge[1])
-            bands.append(self.mask & (dx * dx + dy * dy <= width_px * width_px))
+            # Only pixels within the side's box grown by width_px (and a pixel) can be near it.
+            x0, y0 = np.maximum(np.floor(np.minimum(a, b) - width_px - 1.5), 0).astype(int)
+            x1, y1 = np.maximum(np.ceil(np.maximum(a, b) + width_px + 1.5), 0).astype(int)
+            x, y = cols[:, x0:x1], rows[y0:y1]
+            t = np.clip(((x - a[0]) * edge[0] + (y - a[1]) * edge[1]) / length**2, 0, 1)
+            dx = x - (a[0] + t * edge[0])
+            dy = y - (a[1] + t * edge[1])
+            band = np.zeros_like(self.mask)
+            near = dx * dx + dy * dy <= width_px * width_px
+            band[y0:y1, x0:x1] = self.mask[y0:y1, x0:x1] & near
+            bands.append(band)
         return bands
 
     def sides_touched(self, region: np.ndarray, bands: list[np.ndarray] | None = None) -> list[str]:

@@ -17,7 +17,7 @@ import numpy as np
 
 from keymps.errors import SafetyError
 from keymps.plugin.trajectories import issue as _issue
-from keymps.robot.safety_geometry import distance_to_polyline, outside_distance
+from keymps.robot.safety_geometry import distance_to_polylines, outside_distance
 from keymps.types import (
     GroundedObject,
     ToolPath,
@@ -184,11 +184,8 @@ def _check_path(
     figures: dict[str, float],
 ) -> None:
     off_plan = np.linalg.norm(positions - trajectory.tool_xyz, axis=1)
-    off_path = np.zeros(len(positions))
-    for index, piece in enumerate(tool_path.pieces):
-        mine = np.flatnonzero(trajectory.piece_index == index)
-        if len(mine):
-            off_path[mine] = distance_to_polyline(positions[mine], np.asarray(piece.points))
+    polylines = [np.asarray(piece.points) for piece in tool_path.pieces]
+    off_path = distance_to_polylines(positions, trajectory.piece_index, polylines)
     figures["max_deviation_from_tool_path_mm"] = float(off_path.max() * 1000)
     figures["max_deviation_from_planned_samples_mm"] = float(off_plan.max() * 1000)
     for label, error in (("tool path", off_path), ("planned tool positions", off_plan)):

@@ -15,6 +15,17 @@ def _segment_distances(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.n
     return np.sqrt((gap**2).sum(axis=-1))
 
 
+def _pair_distances(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Distance of point i to segment a[i]-b[i], all given as (3, n) columns: the same
+    arithmetic as `_segment_distances`, term by term (so the same value to the last bit)."""
+    (px, py, pz), (ax, ay, az), (bx, by, bz) = points, a, b
+    abx, aby, abz = bx - ax, by - ay, bz - az
+    length2 = np.maximum(abx * abx + aby * aby + abz * abz, 1e-18)
+    t = np.clip(((px - ax) * abx + (py - ay) * aby + (pz - az) * abz) / length2, 0.0, 1.0)
+    gx, gy, gz = px - (ax + t * abx), py - (ay + t * aby), pz - (az + t * abz)
+    return np.sqrt(gx * gx + gy * gy + gz * gz)
+
+
 def _brute_force(points: np.ndarray, polyline: np.ndarray) -> np.ndarray:
     a, b = polyline[:-1][None], polyline[1:][None]
     out = np.empty(len(points))
@@ -39,7 +50,135 @@ def distance_to_polyline(points: np.ndarray, polyline: np.ndarray) -> np.ndarray
     segments = len(polyline) - 1
     if segments <= 2 * BLOCK_SEGMENTS or segments * len(points) <= 50_000:
         return _brute_force(points, polyline)
-    return _pruned(points, polyline)
+    a, b = polyline[:-1], polyline[1:]
+    out, near = _near(points, np.zeros(len(points), np.intp), a, b, np.zeros(len(a), np.intp))
+    if not near.all():
+        out[~near] = _pruned(points[~near], polyline)
+    return out
+
+
+def distance_to_polylines(
+    points: np.ndarray, which: np.ndarray, polylines: list[np.ndarray]
+) -> np.ndarray:
+    """Exact distance of each point (n, 3) to its own polyline, polylines[which[i]]: the same
+    values as `distance_to_polyline` per polyline, with one grid pass for all of them."""
+    points = np.asarray(points, dtype=float)
+    which = np.asarray(which, dtype=np.intp)
+    polylines = [np.asarray(p, dtype=float).reshape(-1, 3) for p in polylines]
+    sizes = np.array([len(p) for p in polylines])
+    out = np.zeros(len(points))
+    near = np.zeros(len(points), dtype=bool)
+    lines = np.flatnonzero(sizes >= 2)
+    if len(lines) and len(points):
+        vertices = np.concatenate([polylines[i] for i in lines])
+        ends = np.cumsum(sizes[lines])
+        keep = np.ones(len(vertices) - 1, dtype=bool)
+        keep[ends[:-1] - 1] = False  # no segment from one polyline's end to the next's start
+        a, b = vertices[:-1][keep], vertices[1:][keep]
+        group_of_line = np.full(len(polylines), -1, np.intp)
+        group_of_line[lines] = np.arange(len(lines))
+        groups = group_of_line[which]
+        mine = groups >= 0
+        segment_group = np.repeat(np.arange(len(lines)), sizes[lines] - 1)
+        found, found_near = _near(points[mine], groups[mine], a, b, segment_group)
+        out[mine], near[mine] = found, found_near
+    for line in np.unique(which[~near]):
+        rest = np.flatnonzero((which == line) & ~near)
+        out[rest] = distance_to_polyline(points[rest], polylines[line])
+    return out
+
+
+PAIR_CHUNK = 8192
+"""(Point, segment) pairs measured at a time."""
+GRID_ENTRIES_PER_POINT = 8
+"""The grid pass is skipped when it would register more segment-cell pairs than this per point
+plus 100,000 (long segments against a fine grid: the pruned search is cheaper then)."""
+
+
+def _near(
+    points: np.ndarray,
+    point_group: np.ndarray,
+    a: np.ndarray,
+    b: np.ndarray,
+    segment_group: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Exact distances of the points near their group's segments a[i]-b[i] (groups numbered
+    0, 1, ... in order, each with at least one segment), and which points those are.
+
+    Each group has a uniform grid (cell size h), and every segment is registered in the cells
+    its box, grown by h/4 on every side, overlaps. A point within h/8 of a segment lies inside
+    that grown box with a margin of h/8, far more than rounding, so the segment is registered
+    in the point's cell: when the nearest segment of the point's cell is within h/8, it is the
+    nearest of all. The others are left to the pruned search."""
+    out = np.zeros(len(points))
+    near = np.zeros(len(points), dtype=bool)
+    if len(points) == 0:
+        return out, near
+    groups = int(segment_group[-1]) + 1
+    first_segment = np.flatnonzero(np.diff(segment_group, prepend=-1))
+    lengths = np.sqrt(((b - a) ** 2).sum(axis=1))
+    low_corner = np.minimum.reduceat(np.minimum(a, b), first_segment, axis=0)
+    high_corner = np.maximum.reduceat(np.maximum(a, b), first_segment, axis=0)
+    extent = (high_corner - low_corner).max(axis=1)
+    mean = np.add.reduceat(lengths, first_segment) / np.diff(first_segment, append=len(a))
+    longest = np.maximum.reduceat(lengths, first_segment)
+    # About two cells per segment: fewer segments per cell, few cells per segment.
+    cell = np.maximum.reduce([mean, longest / 4, extent / 1000, np.full(groups, 1e-9)]) / 2
+    margin = cell / 4
+    origin = low_corner - 2 * cell[:, None]
+    seg_cell, seg_origin = cell[segment_group, None], origin[segment_group]
+    low = np.floor((np.minimum(a, b) - margin[segment_group, None] - seg_origin) / seg_cell)
+    high = np.floor((np.maximum(a, b) + margin[segment_group, None] - seg_origin) / seg_cell)
+    low, high = low.astype(np.int64), high.astype(np.int64)
+    shape = np.maximum.reduceat(high, first_segment, axis=0) + 1
+    offset = np.concatenate([[0], np.cumsum(shape.prod(axis=1))[:-1]])
+    counts = high - low + 1
+    per_segment = counts.prod(axis=1)
+    total = int(per_segment.sum())
+    if total > GRID_ENTRIES_PER_POINT * len(points) + 100_000:
+        return out, near
+    # Every (segment, cell) pair: the cells of each segment's box counted in mixed radix.
+    segment = np.repeat(np.arange(len(a)), per_segment)
+    local = np.arange(total) - np.repeat(np.cumsum(per_segment) - per_segment, per_segment)
+    yz = counts[segment, 1] * counts[segment, 2]
+    cells = low[segment] + np.column_stack(
+        [local // yz, (local % yz) // counts[segment, 2], local % counts[segment, 2]]
+    )
+    keys = _keys(cells, shape[segment_group[segment]], offset[segment_group[segment]])
+    order = np.argsort(keys, kind="stable")
+    keys, segment = keys[order], segment[order]
+    g = point_group
+    at = points - origin[g]
+    at /= cell[g, None]
+    at = np.floor(at, out=at).astype(np.int64)
+    inside = ((at >= 0) & (at < shape[g])).all(axis=1)
+    at_key = _keys(at, shape[g], offset[g])
+    first = np.searchsorted(keys, at_key, side="left")
+    found = np.where(inside, np.searchsorted(keys, at_key, side="right") - first, 0)
+    has = np.flatnonzero(found)
+    if len(has) == 0:
+        return out, near
+    counts_has = found[has]
+    starts = np.cumsum(counts_has) - counts_has
+    pair_point = np.repeat(has, counts_has)
+    offsets = np.arange(len(pair_point)) - np.repeat(starts, counts_has)
+    pair_segment = segment[np.repeat(first[has], counts_has) + offsets]
+    columns, a_columns, b_columns = points.T, a.T, b.T
+    distances = np.empty(len(pair_point))
+    for start in range(0, len(pair_point), PAIR_CHUNK):  # temporaries that stay in cache
+        p, s = pair_point[start : start + PAIR_CHUNK], pair_segment[start : start + PAIR_CHUNK]
+        distances[start : start + PAIR_CHUNK] = _pair_distances(
+            columns[:, p], a_columns[:, s], b_columns[:, s]
+        )
+    best = np.minimum.reduceat(distances, starts)
+    out[has] = best
+    near[has] = best <= margin[g[has]] / 2
+    return out, near
+
+
+def _keys(cells: np.ndarray, shape: np.ndarray, offset: np.ndarray) -> np.ndarray:
+    """One integer per (group, cell): the cell's row-major index in its group's grid."""
+    return offset + (cells[:, 0] * shape[:, 1] + cells[:, 1]) * shape[:, 2] + cells[:, 2]
 
 
 def _pruned(points: np.ndarray, polyline: np.ndarray) -> np.ndarray:

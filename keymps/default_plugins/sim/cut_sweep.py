@@ -20,6 +20,8 @@ LENGTH_BIN_M = 0.0005
 """Resolution of the measured cut lengths."""
 FOOTPRINT_CELL_M = 0.00025
 """Grid cell of the rasterised footprint used to clip the measured cuts."""
+CHUNK_POINTS = 8192
+"""Blade samples generated at a time when measuring a cut (a few hundred kB of temporaries)."""
 
 
 def blade_backwards(tool_x: np.ndarray, travel: np.ndarray) -> np.ndarray:
@@ -72,15 +74,21 @@ class Footprint:
         cv2.fillPoly(
             self.mask, [np.round(c * 16).astype(np.int32) for c in corners], 1, cv2.LINE_8, 4
         )
+        # A ring of outside cells round the mask: any cell beyond it is clipped onto the ring.
+        self._ringed = np.pad(self.mask > 0, 1).ravel()
+        self._last_cell = np.array([cols, rows], dtype=float)
 
     def contains(self, xy: np.ndarray) -> np.ndarray:
-        cells = np.floor((np.asarray(xy, dtype=float) - self.origin) / FOOTPRINT_CELL_M)
-        rows, cols = self.mask.shape
-        ok = (cells[:, 0] >= 0) & (cells[:, 0] < cols) & (cells[:, 1] >= 0) & (cells[:, 1] < rows)
-        inside = np.zeros(len(cells), dtype=bool)
-        cells = cells[ok].astype(np.intp)
-        inside[ok] = self.mask[cells[:, 1], cells[:, 0]] > 0
-        return inside
+        # In place: fresh memory for every temporary costs more than the arithmetic here.
+        cells = np.asarray(xy, dtype=float) - self.origin
+        cells /= FOOTPRINT_CELL_M
+        np.floor(cells, out=cells)
+        np.clip(cells, -1.0, self._last_cell, out=cells)
+        index = cells.astype(np.intp)
+        index += 1
+        flat = index[:, 1] * (int(self._last_cell[0]) + 2)
+        flat += index[:, 0]
+        return self._ringed[flat]
 
 
 def _polygons(polygon: np.ndarray | list[np.ndarray]) -> list[np.ndarray]:
@@ -93,13 +101,22 @@ def covered_length(segments: np.ndarray, footprint: Footprint | None) -> float:
         return 0.0
     longest = float(np.linalg.norm(segments[:, 1] - segments[:, 0], axis=1).max())
     fractions = np.linspace(0.0, 1.0, max(2, math.ceil(2 * longest / LENGTH_BIN_M) + 1))
-    starts, ends = segments[:, None, 0], segments[:, None, 1]
-    points = (starts + fractions[None, :, None] * (ends - starts)).reshape(-1, 2)
-    if footprint is not None:
-        points = points[footprint.contains(points)]
+    # Blade positions in chunks of about CHUNK_POINTS samples: fresh memory for large
+    # temporaries costs more than the arithmetic; only the points inside are kept.
+    step = max(1, CHUNK_POINTS // len(fractions))
+    kept = []
+    for first in range(0, len(segments), step):
+        chunk = segments[first : first + step]
+        starts, ends = chunk[:, None, 0], chunk[:, None, 1]
+        points = (starts + fractions[None, :, None] * (ends - starts)).reshape(-1, 2)
+        kept.append(points[footprint.contains(points)] if footprint is not None else points)
+    points = np.concatenate(kept)
     if len(points) < 2:
         return 0.0
-    centred = points - points.mean(axis=0)
-    axis = np.linalg.svd(centred, full_matrices=False)[2][0]  # the cut's line
-    bins = np.unique(np.floor(centred @ axis / LENGTH_BIN_M))
-    return float(len(bins) * LENGTH_BIN_M)
+    points -= points.mean(axis=0)  # centred
+    axis = np.linalg.svd(points, full_matrices=False)[2][0]  # the cut's line
+    along = points @ axis
+    along /= LENGTH_BIN_M
+    bins = np.floor(along, out=along).astype(np.int64)
+    occupied = np.count_nonzero(np.bincount(bins - bins.min()))  # len(np.unique(bins))
+    return float(occupied * LENGTH_BIN_M)

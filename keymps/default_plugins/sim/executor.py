@@ -109,16 +109,12 @@ def _unit(vectors: np.ndarray) -> np.ndarray:
 
 def tracking_errors(result: Replay, tool_path: ToolPath | None) -> np.ndarray:
     """Distance of each replayed tool position to its piece of the tool path (or the plan)."""
-    from keymps.robot.safety_geometry import distance_to_polyline
+    from keymps.robot.safety_geometry import distance_to_polylines
 
     if tool_path is None:
         return np.linalg.norm(result.tool_xyz - result.planned_xyz, axis=1)
-    errors = np.zeros(len(result.t))
-    for index, piece in enumerate(tool_path.pieces):
-        mine = np.flatnonzero(result.piece_index == index)
-        if len(mine):
-            errors[mine] = distance_to_polyline(result.tool_xyz[mine], np.asarray(piece.points))
-    return errors
+    polylines = [np.asarray(piece.points) for piece in tool_path.pieces]
+    return distance_to_polylines(result.tool_xyz, result.piece_index, polylines)
 
 
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
