@@ -22,7 +22,7 @@ DEFAULT_PLUGINS: dict[str, str] = {
     "board_detector": "keymps.default_plugins.board_detector",
     "threshold_detector": "keymps.default_plugins.threshold_detector",
     "offline_backend": "keymps.default_plugins.offline",
-    "litellm_backend": "keymps.default_plugins.litellm.backend",
+    "litellm_backend": "keymps.default_plugins.litellm",
     "replay_backend": "keymps.default_plugins.replay_backend",
     "image_sources": "keymps.default_plugins.image_sources",
     "sim_executor": "keymps.default_plugins.sim.executor",
