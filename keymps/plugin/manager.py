@@ -22,7 +22,7 @@ DEFAULT_PLUGINS: dict[str, str] = {
     "board_detector": "keymps.default_plugins.board_detector",
     "threshold_detector": "keymps.default_plugins.threshold_detector",
     "offline_backend": "keymps.default_plugins.offline",
-    "litellm_backend": "keymps.default_plugins.litellm.backend",
+    "litellm_backend": "keymps.default_plugins.litellm",
     "replay_backend": "keymps.default_plugins.replay_backend",
     "image_sources": "keymps.default_plugins.image_sources",
     "sim_executor": "keymps.default_plugins.sim.executor",
@@ -55,12 +55,12 @@ class PluginInfo:
     """Why the plugin failed to load (it provides nothing then); None when it loaded."""
 
 
-def _selected(name: str, dist: str | None) -> bool:
+def _selected(name: str, dist: metadata.Distribution | None) -> bool:
     allowed = os.environ.get("KEYMPS_LOAD_PLUGINS")
     if allowed is None:
         return True
     wanted = {item.strip() for item in allowed.split(",") if item.strip()}
-    return name in wanted or (dist is not None and dist in wanted)
+    return name in wanted or (dist is not None and dist.name in wanted)
 
 
 def _trace_hook_calls(manager: pluggy.PluginManager) -> None:
@@ -92,10 +92,16 @@ class KeympsPluginManager(pluggy.PluginManager):
 
     def __init__(self) -> None:
         super().__init__("keymps")
-        self.distributions: dict[str, tuple[str, str]] = {}
-        """Plugin name -> (distribution name, version) for entry-point plugins."""
+        self.sources: dict[str, metadata.Distribution] = {}
+        """Plugin name -> the distribution of an entry-point plugin (its metadata file is read
+        only when asked for: parsing it costs every command a few milliseconds)."""
         self.failures: dict[str, str] = {}
         """Plugin name -> the error that kept it from loading (`keymps plugins` lists them)."""
+
+    @property
+    def distributions(self) -> dict[str, tuple[str, str]]:
+        """Plugin name -> (distribution name, version) for entry-point plugins."""
+        return {name: (dist.name, dist.version) for name, dist in self.sources.items()}
 
 
 def build_manager() -> KeympsPluginManager:
@@ -110,14 +116,11 @@ def build_manager() -> KeympsPluginManager:
         except Exception as error:  # a broken plugin must not break unrelated commands
             manager.failures[name] = _warn_broken(name, error)
     for entry_point in metadata.entry_points(group=ENTRY_POINT_GROUP):
-        dist = entry_point.dist.name if entry_point.dist else None
+        dist = entry_point.dist
         if not _selected(entry_point.name, dist) or manager.has_plugin(entry_point.name):
             continue
-        if entry_point.dist is not None:
-            manager.distributions[entry_point.name] = (
-                entry_point.dist.name,
-                entry_point.dist.version,
-            )
+        if dist is not None:
+            manager.sources[entry_point.name] = dist
         try:
             manager.register(entry_point.load(), name=entry_point.name)
         except Exception as error:

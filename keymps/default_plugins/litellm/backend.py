@@ -20,7 +20,7 @@ from keymps.default_plugins.litellm.deadline import DeadlineExceeded, await_with
 from keymps.default_plugins.litellm.retry import Retrying
 from keymps.errors import KeympsError
 from keymps.planning.redaction import remember, url_secrets
-from keymps.plugin import RegisterVlmBackend, hookimpl, parse_options
+from keymps.plugin import parse_options
 
 if TYPE_CHECKING:
     from keymps.types import BackendAnswer, PlanRequest
@@ -300,10 +300,6 @@ def _answer_text(response: Any) -> str:
     return content or ""
 
 
-def _factory(options: dict[str, Any]) -> LitellmBackend:
+def make_backend(options: dict[str, Any]) -> LitellmBackend:
+    """The backend for a task's planner options (registered by keymps.default_plugins.litellm)."""
     return LitellmBackend(parse_options(LitellmOptions, options, "litellm backend"))
-
-
-@hookimpl
-def register_vlm_backends(register: RegisterVlmBackend) -> None:
-    register("litellm", _factory)

@@ -18,13 +18,13 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from keymps.plugin import parse_options, require_validated
 from keymps.types import ExecutionReport, Trajectory, ValidatedTrajectory
+from keymps_mujoco import NAME
 from keymps_mujoco.model import PERSPECTIVE_CAMERA, TOP_CAMERA, TORQUE_LIMITS_NM, Settings
 from keymps_mujoco.scene_inputs import SceneInputs, scene_from_run
 
 if TYPE_CHECKING:
     from keymps.run import Run
 
-NAME = "mujoco"
 VIDEO_FILE = "execution.mp4"
 REACHED_BOARD_M = 0.001
 """A cut reached the board when the blade's edge came within this of the board surface."""

@@ -20,7 +20,6 @@ from keymps.types import SceneImage
 if TYPE_CHECKING:
     from keymps.run import Run
 
-NAME = "mujoco"
 RGB = tuple[int, int, int]
 
 

@@ -30,8 +30,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from keymps.errors import KeympsError
 from keymps.plugin import parse_options, require_validated
 from keymps.types import ExecutionReport
-
-NAME = "ur-rtde"
+from keymps_ur_rtde import NAME
 
 ROBOT_MODES = {
     -1: "NO_CONTROLLER",
