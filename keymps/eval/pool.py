@@ -190,9 +190,8 @@ def run_in_processes(
     calls (keymps.eval.broker) and every run is a worker's."""
     import multiprocessing
 
-    from keymps.eval.turn import CpuTurn
-
     from keymps.eval.broker import BROKERED_BACKEND
+    from keymps.eval.turn import CpuTurn
 
     context = multiprocessing.get_context("forkserver")
     preload = ["keymps.eval.preload"]
