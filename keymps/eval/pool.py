@@ -226,10 +226,13 @@ def run_in_processes(
     stop_serving = threading.Event()
     stop_computing = threading.Event()
     serving = broker.serve(vlm_requests, vlm_replies, stop_serving)
+
     # Process.start() waits until the fork server has imported everything: start them aside
-    starting = threading.Thread(
-        target=lambda: [worker.start() for worker in workers], name="keymps-eval-start"
-    )
+    def start_workers() -> None:
+        for worker in workers:
+            worker.start()
+
+    starting = threading.Thread(target=start_workers, name="keymps-eval-start")
 
     def compute_here() -> None:
         _take_jobs(
