@@ -150,6 +150,25 @@ def test_file_executor_writes_csv_and_ros_joint_trajectory(tmp_path: Path) -> No
         assert points[i]["accelerations"] == pytest.approx(list(trajectory.qdd[i]))
 
 
+def test_file_executor_writes_the_runs_csv_once_and_a_stale_one_again(tmp_path: Path) -> None:
+    """Inside a pipeline run the engine has written trajectory.csv of this very trajectory just
+    before the executor: it is kept, not written twice. Called on its own (run.stages.check is
+    not this trajectory), the executor writes it whatever the folder holds."""
+    validated, run = validated_run("icing", tmp_path)
+    executor = create_component("executor", "file", {"json": None})
+    stale = tmp_path / "trajectory.csv"
+    stale.write_text("stale\n")
+    assert executor.execute(validated, run).files == (str(stale),)
+    fresh = stale.read_text()
+    assert (
+        fresh.startswith(CSV_HEADER) and len(fresh.splitlines()) == validated.trajectory.samples + 1
+    )
+    run.stages.check = validated  # as the engine records it before executing
+    stale.write_text("written by the engine\n")
+    assert executor.execute(validated, run).files == (str(stale),)
+    assert stale.read_text() == "written by the engine\n"
+
+
 def test_file_executor_skips_a_null_file_and_rejects_unknown_options(tmp_path: Path) -> None:
     validated, run = validated_run("icing", tmp_path)
     report = create_component("executor", "file", {"csv": None}).execute(validated, run)

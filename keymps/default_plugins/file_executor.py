@@ -39,7 +39,10 @@ class FileExecutor:
         trajectory = require_validated(validated, self.name)
         files = []
         if self.options.csv is not None:
-            files.append(write_trajectory_csv(trajectory, self._target(run, self.options.csv)))
+            target = self._target(run, self.options.csv)
+            if not self._written_by_run(validated, run, target):
+                write_trajectory_csv(trajectory, target)
+            files.append(target)
         if self.options.json_path is not None:
             files.append(
                 write_joint_trajectory_json(trajectory, self._target(run, self.options.json_path))
@@ -56,6 +59,16 @@ class FileExecutor:
     @staticmethod
     def _target(run: Run, path: Path) -> Path:
         return path if path.is_absolute() else run.path(str(path))
+
+    @staticmethod
+    def _written_by_run(validated: ValidatedTrajectory, run: Run, target: Path) -> bool:
+        """The run folder's trajectory.csv of this very trajectory: a pipeline run writes it
+        after the check, before any executor runs (docs/run-folder.md), so not twice."""
+        return (
+            run.stages.check is validated
+            and target == run.folder / "trajectory.csv"
+            and target.is_file()
+        )
 
 
 def make_file_executor(options: dict[str, Any]) -> FileExecutor:

@@ -26,6 +26,7 @@ As in any multiprocessing program, a script that runs a suite with processes > 1
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import os
 import queue
@@ -48,6 +49,9 @@ RUNS_AHEAD = 2
 """Runs each process prepares beyond its share of the VLM calls in flight."""
 MIN_JOBS_PER_PROCESS = 8
 """Below this many jobs per worker, starting workers costs more than it saves."""
+MIN_OFFLINE_JOBS_PER_PROCESS = 4
+"""The same without a VLM: this process computes runs while the workers start (about 1 s), so
+a worker pays off sooner."""
 POLL_S = 0.5
 
 
@@ -64,8 +68,10 @@ def default_processes(concurrency: int, jobs: int, backend: str | None = None) -
     """Worker processes for `jobs` runs at `concurrency`: one per core (every core for an
     offline backend, whatever the concurrency); 1 means in-process."""
     cores = available_cores()
-    processes = cores if backend in OFFLINE_BACKENDS else min(cores, concurrency)
-    while processes > 1 and jobs < MIN_JOBS_PER_PROCESS * processes:
+    offline = backend in OFFLINE_BACKENDS
+    processes = cores if offline else min(cores, concurrency)
+    per_process = MIN_OFFLINE_JOBS_PER_PROCESS if offline else MIN_JOBS_PER_PROCESS
+    while processes > 1 and jobs < per_process * processes:
         processes -= 1
     return max(1, processes)
 
@@ -133,8 +139,9 @@ def _take_jobs(
     job_runner: JobRunner,
     turn: CpuTurn,
     dispatch: Any,
+    stop: threading.Event | None = None,
 ) -> None:
-
+    """Take a job whenever one of `threads` is free until the queue's end (None) or `stop`."""
     free = threading.Semaphore(threads)
 
     def send(job: Job, future: Future[dict[str, Any]]) -> None:
@@ -152,7 +159,12 @@ def _take_jobs(
     with ThreadPoolExecutor(max_workers=threads) as pool:
         while True:
             free.acquire()
-            job = jobs.get()
+            if stop is not None and stop.is_set():
+                break
+            try:
+                job = jobs.get()
+            except (EOFError, OSError, ValueError):  # the parent is gone: nothing left to do
+                break
             if job is None:
                 break
             future = pool.submit(turn.run, job_runner.run, suite, job, options, backend, dispatch)
@@ -168,19 +180,32 @@ def run_in_processes(
     on_record: Callable[[Job, dict[str, Any]], None],
     broker: VlmBroker,
     job_runner: JobRunner,
+    when_idle: Callable[[], Any] | None = None,
 ) -> None:
-    """Run `jobs` in `processes` workers; call on_record in this process as each one ends."""
+    """Run `jobs` in `processes` processes; call on_record in this process as each one ends.
+
+    With an offline backend this process is one of them: it takes jobs from the same queue as
+    its workers from the start, while the fork server imports what the workers need (about a
+    second), so no core waits for the workers to start. With a VLM this process makes the
+    calls (keymps.eval.broker) and every run is a worker's."""
     import multiprocessing
 
+    from keymps.eval.broker import BROKERED_BACKEND
+    from keymps.eval.turn import CpuTurn
+
     context = multiprocessing.get_context("forkserver")
-    context.set_forkserver_preload(["keymps.eval.preload"])
+    preload = ["keymps.eval.preload"]
+    if backend == BROKERED_BACKEND:  # its runs build the litellm backend (0.15 s of imports)
+        preload.append("keymps.default_plugins.litellm.backend")
+    context.set_forkserver_preload(preload)
     job_queue = context.Queue()
     result_queue = context.Queue()
     for job in jobs:
         job_queue.put(job)
     runs = runs_in_flight(options.concurrency, processes, backend)
     shares = threads_per_process(runs, processes)
-    for _ in shares:
+    here = shares.pop(0) if backend in OFFLINE_BACKENDS and len(shares) > 1 else 0
+    for _ in range(len(shares) + (1 if here else 0)):
         job_queue.put(None)
     environment = dict(os.environ)
     vlm_requests = context.Queue()
@@ -199,10 +224,30 @@ def run_in_processes(
     ]  # fmt: skip
     received = 0
     stop_serving = threading.Event()
+    stop_computing = threading.Event()
     serving = broker.serve(vlm_requests, vlm_replies, stop_serving)
-    try:
+
+    # Process.start() waits until the fork server has imported everything: start them aside
+    def start_workers() -> None:
         for worker in workers:
             worker.start()
+
+    starting = threading.Thread(target=start_workers, name="keymps-eval-start")
+
+    def compute_here() -> None:
+        _take_jobs(
+            suite, options, backend, here, job_queue, result_queue, job_runner,
+            CpuTurn(active=False), None, stop_computing,
+        )  # fmt: skip
+        if when_idle is not None and not stop_computing.is_set():
+            with contextlib.suppress(Exception):  # only ever a head start
+                when_idle()
+
+    computing = threading.Thread(target=compute_here, name="keymps-eval-here", daemon=True)
+    try:
+        starting.start()
+        if here:
+            computing.start()
         while received < len(jobs):
             try:
                 job, record = result_queue.get(timeout=POLL_S)
@@ -212,6 +257,8 @@ def run_in_processes(
             on_record(job, record)
             received += 1
     finally:
+        stop_computing.set()
+        starting.join()  # a worker still starting reads the end of the queue and leaves
         for worker in workers:
             if worker.pid is None:  # never started
                 continue

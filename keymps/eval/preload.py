@@ -2,9 +2,10 @@
 
 Its whole job is importing what a run needs, so that each forked worker starts with it loaded
 instead of spending a second or more importing. litellm is not among them: the workers hand
-their VLM calls to the parent's event loop (keymps.eval.broker), which alone imports it. Nothing
-else imports this module. A module missing from the list costs only time: the worker's first
-run imports it.
+their VLM calls to the parent's event loop (keymps.eval.broker), which alone imports it; the
+litellm backend's own module is preloaded beside this one only when the runs use it
+(keymps.eval.pool). Nothing else imports this module. A module missing from the list costs only
+time: the worker's first run imports it.
 """
 
 import contextlib
@@ -21,7 +22,6 @@ import pinocchio  # noqa: E402, F401
 import scipy.optimize  # noqa: E402, F401  (the metric's assignment; runs need no scipy)
 import scipy.spatial  # noqa: E402, F401
 
-import keymps.default_plugins.litellm.backend  # noqa: E402, F401
 import keymps.eval.methods  # noqa: E402, F401
 import keymps.eval.runner  # noqa: E402, F401
 import keymps.eval.truth  # noqa: E402, F401

@@ -368,9 +368,16 @@ ProgressCallback = Callable[[Job, dict[str, Any]], None]
 
 
 def run_suite(
-    suite: Suite, options: EvalOptions, on_result: ProgressCallback | None = None
+    suite: Suite,
+    options: EvalOptions,
+    on_result: ProgressCallback | None = None,
+    when_idle: Callable[[], Any] | None = None,
 ) -> list[dict[str, Any]]:
-    """Run every job not yet in out/results.jsonl; return all records for these jobs."""
+    """Run every job not yet in out/results.jsonl; return all records for these jobs.
+
+    `when_idle` is called once in this process when, computing runs beside its worker
+    processes, it has none left while the workers finish theirs (the CLI imports the box plots'
+    matplotlib then)."""
     from keymps.eval.broker import BROKERED_BACKEND, VlmBroker
     from keymps.eval.methods import check_runnable, get_method
     from keymps.eval.pool import OFFLINE_BACKENDS, JobRunner, default_processes, run_in_processes
@@ -412,7 +419,9 @@ def run_suite(
     try:
         if processes > 1:
             runner = JobRunner(run=run_job, record=job_record)
-            run_in_processes(suite, todo, options, backend, processes, finished, broker, runner)
+            run_in_processes(
+                suite, todo, options, backend, processes, finished, broker, runner, when_idle
+            )
         else:
             _run_in_threads(suite, todo, options, backend, finished, broker, turn)
     finally:
