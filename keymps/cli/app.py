@@ -94,11 +94,11 @@ def run(task_file: Path, rerun_mode: str, rerun_url: str | None, quiet: bool, **
             printer.failed(error.run)  # its warnings and folder explain the error line after
         raise
     printer.summary(finished)
-    global _finished_cleanly
     # The run folder's files are written and closed, the recording (saved or off) flushed and
     # closed by the recorder's `finished` stage: nothing is left for the interpreter to tear
     # down but memory. A viewer stream (spawn, connect) keeps its normal exit.
-    _finished_cleanly = rerun_mode in ("save", "off")
+    if rerun_mode in ("save", "off"):
+        everything_written()
 
 
 @cli.command()
@@ -142,7 +142,14 @@ def _one_line_warning(message: Warning | str, category: type[Warning], *_: Any, 
 
 
 _finished_cleanly = False
-"""Set by `keymps run` once everything it wrote is closed: main() may skip the teardown."""
+
+
+def everything_written() -> None:
+    """A command says every file it wrote is closed: main() may skip the interpreter's teardown
+    once the command has returned successfully."""
+    global _finished_cleanly
+    _finished_cleanly = True
+
 
 SINGLE_THREADED = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 """A run's linear algebra is 6 x 6 systems and batched 3 x 3 products: BLAS helper threads only
