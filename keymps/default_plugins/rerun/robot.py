@@ -55,9 +55,14 @@ def ur3_urdf_path() -> Path:
     raise KeympsError(f"example-robot-data is installed but has no {URDF_SUFFIX}")
 
 
+def _cache_folders() -> tuple[Path, Path]:
+    """Where derived robot files go: the user cache folder, else the temp folder."""
+    return Path(user_cache_dir("keymps")) / "urdf", Path(tempfile.gettempdir())
+
+
 def _cache_file(name: str, content: str | bytes) -> Path:
     """Write a file once to the user cache folder (else the temp folder); return its path."""
-    for folder in (Path(user_cache_dir("keymps")) / "urdf", Path(tempfile.gettempdir())):
+    for folder in _cache_folders():
         target = folder / name
         try:
             folder.mkdir(parents=True, exist_ok=True)
@@ -89,7 +94,7 @@ def light_mesh(path: Path) -> Path:
         source + repr((meshes.TOLERANCE_M, meshes.BORDER_WEIGHT, meshes.CREASE_DEG, 2)).encode()
     )
     name = f"{path.stem}-{key.hexdigest()[:12]}.glb"
-    for folder in (Path(user_cache_dir("keymps")) / "urdf", Path(tempfile.gettempdir())):
+    for folder in _cache_folders():
         if (folder / name).is_file():
             return folder / name
     mesh = meshes.decimate(meshes.read_collada(path))
