@@ -49,6 +49,14 @@ def _vlm_run(
     return run, truth
 
 
+def _four_loaves(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> tuple[dict, tuple[int, int]]:
+    """A scene of four loaves, its truth and the detector's crop origin; the test key set."""
+    monkeypatch.setenv("MULTI_TEST_API_KEY", "sk-test")
+    png, truth = scene_file(tmp_path, loaves(4))
+    origin = ThresholdDetector().detect(__import__("cv2").imread(str(png))).crop_origin_px
+    return truth, origin
+
+
 def _crop_px(truth: dict, index: int, fx: float, fy: float, origin: tuple[int, int]) -> list[float]:
     obj = sorted(truth["objects"], key=lambda o: o["bbox_m"][0])[index]
     x0, y0, x1, y1 = obj["bbox_px"]
@@ -58,9 +66,7 @@ def _crop_px(truth: dict, index: int, fx: float, fy: float, origin: tuple[int, i
 def test_scripted_vlm_pairs_are_assigned_to_the_objects_they_lie_on(
     server: VlmServer, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    monkeypatch.setenv("MULTI_TEST_API_KEY", "sk-test")
-    png, truth = scene_file(tmp_path, loaves(4))
-    origin = ThresholdDetector().detect(__import__("cv2").imread(str(png))).crop_origin_px
+    truth, origin = _four_loaves(tmp_path, monkeypatch)
     # one cut across the right loaf, then two across the left one
     pairs = [
         [_crop_px(truth, 1, -0.05, 0.5, origin), _crop_px(truth, 1, 1.05, 0.5, origin)],
@@ -85,9 +91,7 @@ def test_scripted_vlm_pairs_are_assigned_to_the_objects_they_lie_on(
 def test_a_vlm_cut_spanning_two_objects_is_refused_naming_both(
     server: VlmServer, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    monkeypatch.setenv("MULTI_TEST_API_KEY", "sk-test")
-    png, truth = scene_file(tmp_path, loaves(4))
-    origin = ThresholdDetector().detect(__import__("cv2").imread(str(png))).crop_origin_px
+    truth, origin = _four_loaves(tmp_path, monkeypatch)
     across = [[_crop_px(truth, 0, 0.2, 0.5, origin), _crop_px(truth, 1, 0.8, 0.5, origin)]]
     spanning = {"keyword": "straight", "pairs": across, "rationale": "x"}
     with pytest.raises(StageError, match=r"^plan: .*pair 1 .* spans objects #1 and #2"):
@@ -101,9 +105,7 @@ def test_a_vlm_cut_spanning_two_objects_is_refused_naming_both(
 def test_a_spanning_pair_is_repaired_by_the_model(
     server: VlmServer, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    monkeypatch.setenv("MULTI_TEST_API_KEY", "sk-test")
-    png, truth = scene_file(tmp_path, loaves(4))
-    origin = ThresholdDetector().detect(__import__("cv2").imread(str(png))).crop_origin_px
+    truth, origin = _four_loaves(tmp_path, monkeypatch)
     across = [[_crop_px(truth, 0, 0.2, 0.5, origin), _crop_px(truth, 1, 0.8, 0.5, origin)]]
     fixed = [
         [_crop_px(truth, 0, -0.05, 0.5, origin), _crop_px(truth, 0, 1.05, 0.5, origin)],
