@@ -391,3 +391,115 @@ def test_densifying_all_parts_at_once_matches_part_by_part(make_path: Any) -> No
                 assert a.shape == b.shape and np.abs(a - b).max() < 1e-12
         compared += 1
     assert compared >= 2
+
+
+def _generated_strokes(
+    rng: np.random.Generator, count: int
+) -> list[tuple[RobotModel, ToolPath, Any]]:
+    """(model, tool path, strokes) of varied paths, with split halves (shifted splines) among them."""
+    from keymps.motion.strokes import split_stroke, split_strokes
+
+    cases = []
+    while len(cases) < count:
+        model = random_model(rng)
+        make_path = ring_of_dots if rng.random() < 0.5 else radial_cuts
+        tool_path = make_path(center=(0.15 + rng.uniform(-0.01, 0.01), 0.09))
+        joints, _ = _solve(model, tool_path)
+        if joints is None:
+            continue
+        strokes = split_strokes(model, tool_path, joints)
+        for stroke in list(strokes[:: max(1, len(strokes) // 4)]):
+            halves = split_stroke(stroke, float(rng.uniform(0, stroke.length)))
+            if halves is not None:
+                strokes.extend(halves)
+                quarters = split_stroke(halves[1], float(rng.uniform(0, halves[1].length)))
+                strokes.extend(quarters or ())  # a shift of a shift
+        cases.append((model, tool_path, strokes))
+    return cases
+
+
+def test_timing_all_strokes_at_once_matches_stroke_by_stroke(monkeypatch: Any) -> None:
+    from keymps.motion.spline import SplineTable
+    from keymps.motion.timing import Limits, time_stroke, time_strokes_at_once
+
+    monkeypatch.setattr(SplineTable, "CHUNK", 257)  # many chunk boundaries inside strokes
+    rng = np.random.default_rng(RNG_SEED + 16)
+    slowed = 0
+    for model, _, strokes in _generated_strokes(rng, 3):
+        # fast tool limits, so that the joint limits slow some strokes down (retimes)
+        tool_limits = Limits(math.inf, float(rng.uniform(1, 30)), float(rng.uniform(20, 400)))
+        period = 1 / float(rng.choice([125, 500, 1000]))
+        together = time_strokes_at_once(model, strokes, tool_limits, period)
+        for stroke, got in zip(strokes, together, strict=True):
+            try:
+                want = time_stroke(model, stroke, tool_limits, period)
+            except KeympsError as error:
+                assert isinstance(got, KeympsError) and str(got) == str(error)
+                continue
+            assert not isinstance(got, KeympsError)
+            assert (got.duration, got.limits, got.slowdown, got.worst_s) == (
+                want.duration,
+                want.limits,
+                want.slowdown,
+                want.worst_s,
+            )
+            slowed += want.slowdown > 1
+    assert slowed >= 3
+
+
+def test_sampling_all_strokes_at_once_matches_stroke_by_stroke() -> None:
+    from keymps.motion.timing import (
+        Limits,
+        _joint_motion,
+        _planned_points,
+        _sample_profile,
+        sample_trajectory,
+        time_strokes_at_once,
+    )
+
+    rng = np.random.default_rng(RNG_SEED + 17)
+    for model, tool_path, strokes in _generated_strokes(rng, 2):
+        rate = float(rng.choice([125, 500]))
+        timed = time_strokes_at_once(model, strokes, Limits(math.inf, 2.0, 20.0), 1 / rate)
+        timed = [item for item in timed if not isinstance(item, KeympsError)]
+        got = sample_trajectory(model, tool_path, timed, rate)
+        parts = []
+        for number, item in enumerate(timed):
+            steps = round(item.duration * rate) + (number == len(timed) - 1)
+            s, sd, sdd = _sample_profile(item.profile, np.arange(steps) * (1 / rate))
+            q, qd, qdd = _joint_motion(item.stroke, s, sd, sdd)
+            parts.append((q, qd, qdd, _planned_points(item.stroke, s)))
+        q, qd, qdd, xyz = (np.concatenate(column) for column in zip(*parts, strict=True))
+        qd[[0, -1]] = qdd[[0, -1]] = 0.0
+        for a, b in ((got.q, q), (got.qd, qd), (got.qdd, qdd), (got.tool_xyz, xyz)):
+            assert a.shape == b.shape and a.tobytes() == b.tobytes()
+
+
+def test_spline_table_is_each_spline_bit_for_bit(monkeypatch: Any) -> None:
+    from keymps.motion.spline import CubicSpline, SplineTable
+
+    monkeypatch.setattr(SplineTable, "CHUNK", 97)
+    rng = np.random.default_rng(RNG_SEED + 18)
+    splines = []
+    for n in [2, 3, 4, 5, 17, 277, 2, 60]:
+        x = np.concatenate([[0.0], np.cumsum(rng.uniform(1e-5, 3e-3, n - 1))])
+        splines.append(CubicSpline(x, np.cumsum(rng.normal(0, 0.01, (n, 6)), axis=0)))
+    table = SplineTable(splines)
+    which = [int(k) for k in rng.integers(0, len(splines), 30)]
+    at = [
+        np.sort(rng.uniform(-1e-3, splines[k].x[-1] + 1e-3, int(rng.integers(1, 300))))
+        for k in which
+    ]
+    flat = np.concatenate(at)
+    got = [np.zeros((len(flat), 6)) for _ in range(3)]
+    for part, value, first, second in table.chunks(flat, table.intervals(which, at)):
+        for out, columns in zip(got, (value, first, second), strict=True):
+            out[part] = columns.T
+    want = [
+        np.concatenate(c)
+        for c in zip(
+            *(splines[k].with_derivatives(a) for k, a in zip(which, at, strict=True)), strict=True
+        )
+    ]
+    for a, b in zip(got, want, strict=True):
+        assert a.tobytes() == b.tobytes()

@@ -11,13 +11,15 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from keymps.errors import KeympsError
-from keymps.motion.strokes import Stroke, split_stroke, split_strokes
+from keymps.motion.spline import CubicSpline, SplineTable
+from keymps.motion.strokes import Stroke, _Shifted, split_stroke, split_strokes
 from keymps.types import JointPath, ToolPath, Trajectory
 
 if TYPE_CHECKING:
@@ -123,6 +125,44 @@ def _sample_profile_by_calls(
     return values[:, 0], values[:, 1], values[:, 2]
 
 
+def _sample_profiles(
+    profiles: list[Any], times: list[np.ndarray]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`_sample_profile` of many profiles, `times[k]` on `profiles[k]`, end to end: the phase
+    search per profile, the cubic for all samples in one pass (the same values)."""
+    count = len(profiles)
+    starts = np.zeros((count, 8))
+    states = np.zeros((4, count, 8))  # jerk, acceleration, velocity, position per phase
+    index = []
+    by_calls = []
+    for k, (profile, at) in enumerate(zip(profiles, times, strict=True)):
+        phases = profile.profiles[0][0]
+        if len(profile.profiles) != 1 or phases.brake.duration > 0:
+            by_calls.append(k)  # never for rest-to-rest strokes
+            index.append(np.zeros(len(at), dtype=np.intp))
+            continue
+        t_sum = np.cumsum(phases.t)
+        starts[k, 1:] = t_sum
+        states[0, k, :7] = phases.j
+        states[1, k], states[2, k], states[3, k] = phases.a, phases.v, phases.p
+        index.append(np.searchsorted(t_sum, at, side="right") + 8 * k)  # Ruckig's upper_bound
+    flat = np.concatenate(index)
+    all_times = np.concatenate(times)
+    t = all_times - starts.ravel()[flat]
+    j, a, v, p = (table.ravel()[flat] for table in states)
+    position = p + t * (v + t * (a / 2 + t * j / 6))
+    velocity = v + t * (a + t * j / 2)
+    acceleration = a + t * j
+    if by_calls:
+        ends = np.cumsum([len(at) for at in times])
+        for k in by_calls:
+            part = slice(ends[k] - len(times[k]), ends[k])
+            position[part], velocity[part], acceleration[part] = _sample_profile_by_calls(
+                profiles[k], times[k]
+            )
+    return position, velocity, acceleration
+
+
 def _joint_motion(
     stroke: Stroke, s: np.ndarray, sd: np.ndarray, sdd: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -138,6 +178,80 @@ def _joint_rates(
     """q dot and q double dot of `_joint_motion`, without q (the limit check needs no more)."""
     dq, ddq = stroke.q_of_s.derivatives(np.clip(s, 0.0, stroke.length))
     return dq * sd[:, None], ddq * (sd**2)[:, None] + dq * sdd[:, None]
+
+
+class _StrokeRates:
+    """q, q dot and q double dot (`_joint_motion`) of many strokes at once: their splines in
+    one SplineTable; a stroke whose q(s) is no CubicSpline (or a shift of one) is evaluated on
+    its own."""
+
+    def __init__(self, strokes: list[Stroke]):
+        self.strokes = strokes
+        self.offsets: list[list[float]] = []
+        spline_of: list[CubicSpline | None] = []
+        for stroke in strokes:
+            q_of_s, offsets = stroke.q_of_s, []
+            while isinstance(q_of_s, _Shifted):  # q(s + outer) = inner(s + outer + ...)
+                offsets.append(q_of_s.offset)
+                q_of_s = q_of_s.q_of_s
+            self.offsets.append(offsets)
+            spline_of.append(q_of_s if isinstance(q_of_s, CubicSpline) else None)
+        self.table: SplineTable | None = None
+        self.spline_index: list[int] = []
+        if all(spline is not None for spline in spline_of):
+            unique: dict[int, int] = {}
+            splines: list[CubicSpline] = []
+            for spline in spline_of:
+                if id(spline) not in unique:
+                    unique[id(spline)] = len(splines)
+                    splines.append(spline)  # type: ignore[arg-type]
+                self.spline_index.append(unique[id(spline)])
+            shapes = {spline.c.shape[2] for spline in splines}
+            if len(shapes) == 1:
+                self.table = SplineTable(splines)
+
+    def chunks(
+        self,
+        which: list[int],
+        s: list[np.ndarray],
+        sd: np.ndarray,
+        sdd: np.ndarray,
+        values: bool = True,
+    ) -> Iterator[tuple[slice, np.ndarray | None, np.ndarray, np.ndarray]]:
+        """(samples, q or None, q dot, q double dot) chunk by chunk: `s[k]` on stroke
+        `which[k]`, end to end with `sd` and `sdd`."""
+        clipped = [
+            np.clip(part, 0.0, self.strokes[k].length) for k, part in zip(which, s, strict=True)
+        ]
+        if self.table is None:
+            q_parts, dq_parts, ddq_parts = [], [], []
+            for k, part in zip(which, clipped, strict=True):
+                q_of_s = self.strokes[k].q_of_s
+                if values:
+                    q_k, dq_k, ddq_k = q_of_s.with_derivatives(part)
+                    q_parts.append(q_k)
+                else:
+                    dq_k, ddq_k = q_of_s.derivatives(part)
+                dq_parts.append(dq_k)
+                ddq_parts.append(ddq_k)
+            q = np.concatenate(q_parts) if values else None
+            dq, ddq = np.concatenate(dq_parts), np.concatenate(ddq_parts)
+            qd, qdd = dq * sd[:, None], ddq * (sd**2)[:, None] + dq * sdd[:, None]
+            yield slice(0, len(sd)), None if q is None else q.T, qd.T, qdd.T
+            return
+        at = []
+        for k, part in zip(which, clipped, strict=True):
+            for offset in self.offsets[k]:
+                part = part + offset
+            at.append(part)
+        rows = self.table.intervals([self.spline_index[k] for k in which], at)
+        for part, q, dq, ddq in self.table.chunks(np.concatenate(at), rows, values):
+            rate, change = sd[part], sdd[part]
+            qd = dq * rate
+            qdd = ddq * rate**2
+            dq *= change
+            qdd += dq
+            yield part, q, qd, qdd
 
 
 def _limit_ratios(
@@ -193,7 +307,131 @@ def time_stroke(
             )
         else:
             limits = limits.scaled(max(rv, math.sqrt(ra), rj ** (1 / 3)) / LIMIT_MARGIN)
-    raise KeympsError(
+    raise _untimeable(stroke)
+
+
+def _check_profiles(
+    model: RobotModel,
+    rates: _StrokeRates,
+    which: list[int],
+    profiles: list[Any],
+    durations: list[float],
+    check_period: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """`_limit_ratios` and `_worst_place` of every profile (on stroke `which[k]`) in one pass:
+    the ratios per stroke (velocity, acceleration, jerk) and the worst place of each."""
+    times = []
+    for duration in durations:
+        at = np.arange(0.0, duration + 0.5 * check_period, check_period)
+        at[-1] = min(at[-1], duration)
+        times.append(at)
+    counts = np.array([len(at) for at in times])
+    ends = np.cumsum(counts)
+    starts = ends - counts
+    s, sd, sdd = _sample_profiles(profiles, times)
+    velocity, acceleration = np.empty(len(s)), np.empty(len(s))
+    jerk = np.zeros(len(s))  # jerk[i]: from sample i to i + 1 (of the same stroke: see below)
+    before = None  # the last q double dot of the chunk before
+    limits = [values[:, None] for values in (model.velocity_limits, model.acceleration_limits)]
+    jerk_limits = model.jerk_limits[:, None]
+    for part, _, qd, qdd in rates.chunks(which, np.split(s, ends[:-1]), sd, sdd, values=False):
+        np.abs(qd, out=qd)
+        qd /= limits[0]
+        velocity[part] = qd.max(axis=0)
+        change = np.diff(qdd, axis=1)
+        change /= check_period
+        np.abs(change, out=change)
+        change /= jerk_limits
+        jerk[part.start : part.start + change.shape[1]] = change.max(axis=0, initial=0.0)
+        if before is not None:
+            ends_before = (np.abs((qdd[:, 0] - before) / check_period) / model.jerk_limits).max()
+            jerk[part.start - 1] = ends_before
+        before = qdd[:, -1].copy()
+        np.abs(qdd, out=qdd)
+        qdd /= limits[1]
+        acceleration[part] = qdd.max(axis=0)
+    jerk[ends - 1] = 0.0  # across strokes; the ratios are >= 0, so a 0 changes no maximum
+    ratios = [np.maximum.reduceat(values, starts) for values in (velocity, acceleration, jerk)]
+    # the worst place: velocity, sqrt(acceleration), cbrt(jerk into the sample) as factors
+    into = np.zeros(len(s))
+    into[1:] = np.cbrt(jerk[:-1])
+    factor = np.maximum(np.maximum(velocity, np.sqrt(acceleration)), into)
+    owner = np.repeat(np.arange(len(counts)), counts)
+    hits = np.flatnonzero(factor == np.maximum.reduceat(factor, starts)[owner])
+    first_hit = np.searchsorted(owner[hits], np.arange(len(counts)))
+    if (
+        len(hits)
+        and first_hit.max() < len(hits)
+        and np.array_equal(owner[hits[first_hit]], np.arange(len(counts)))
+    ):
+        worst = s[hits[first_hit]]
+    else:  # a NaN somewhere: argmax's own rule (its first NaN)
+        worst = np.array(
+            [s[a + int(np.argmax(factor[a:b]))] for a, b in zip(starts, ends, strict=True)]
+        )
+    return ratios[0], ratios[1], ratios[2], worst
+
+
+def time_strokes_at_once(
+    model: RobotModel, strokes: list[Stroke], tool_limits: Limits, period: float
+) -> list[TimedStroke | KeympsError]:
+    """`time_stroke` of every stroke (the same profiles), each round's 1 kHz limit checks of
+    all strokes still being slowed down in one pass; a stroke that cannot be timed gets the
+    error `time_stroke` raises for it."""
+    rates = _StrokeRates(strokes)
+    check_period = min(period, 1.0 / CHECK_RATE_HZ)
+    limits = [
+        Limits(min(stroke.speed, tool_limits.velocity), *_tail(tool_limits)) for stroke in strokes
+    ]
+    first_duration: list[float] = [0.0] * len(strokes)
+    worst_s: list[float] = [0.0] * len(strokes)
+    out: list[TimedStroke | KeympsError | None] = [None] * len(strokes)
+    pending = list(range(len(strokes)))
+    for attempt in range(MAX_RETIMES):
+        which, profiles, durations = [], [], []
+        for k in pending:
+            try:
+                profile, duration = _profile(strokes[k].length, limits[k], period)
+            except KeympsError as error:
+                out[k] = error
+                continue
+            which.append(k)
+            profiles.append(profile)
+            durations.append(duration)
+        if not which:
+            break
+        rv, ra, rj, worst = _check_profiles(model, rates, which, profiles, durations, check_period)
+        pending = []
+        for i, k in enumerate(which):
+            if attempt == 0:
+                first_duration[k], worst_s[k] = durations[i], float(worst[i])
+            v, a, j = float(rv[i]), float(ra[i]), float(rj[i])
+            if max(v, a, j) <= 1.0:
+                out[k] = TimedStroke(
+                    strokes[k],
+                    profiles[i],
+                    durations[i],
+                    limits[k],
+                    durations[i] / first_duration[k],
+                    worst_s[k],
+                )
+                continue
+            if attempt < MAX_RETIMES // 2:
+                limits[k] = Limits(
+                    limits[k].velocity / max(v / LIMIT_MARGIN, 1.0),
+                    limits[k].acceleration / max(a / LIMIT_MARGIN, 1.0),
+                    limits[k].jerk / max(j / LIMIT_MARGIN, 1.0),
+                )
+            else:
+                limits[k] = limits[k].scaled(max(v, math.sqrt(a), j ** (1 / 3)) / LIMIT_MARGIN)
+            pending.append(k)
+    for k in pending:
+        out[k] = _untimeable(strokes[k])
+    return [item for item in out if item is not None]
+
+
+def _untimeable(stroke: Stroke) -> KeympsError:
+    return KeympsError(
         f"timing: piece {stroke.piece_index} ({stroke.kind}) cannot be timed inside the joint "
         "limits; the path passes too close to a singularity: move the base (task robot.base)"
     )
@@ -250,8 +488,12 @@ def time_strokes(
     rate = float(task.robot.rate_hz or model.rate_hz)
     tool_limits = Limits(math.inf, task.robot.max_tool_acceleration, task.robot.max_tool_jerk)
     timed = []
-    for stroke in split_strokes(model, tool_path, joint_path):
-        whole = time_stroke(model, stroke, tool_limits, 1.0 / rate)
+    strokes = split_strokes(model, tool_path, joint_path)
+    for stroke, whole in zip(
+        strokes, time_strokes_at_once(model, strokes, tool_limits, 1.0 / rate), strict=True
+    ):
+        if isinstance(whole, KeympsError):
+            raise whole
         nominal = whole.duration / whole.slowdown
         parts = _with_stops(model, whole, tool_limits, 1.0 / rate, MAX_STOP_DEPTH)
         for part in parts:
@@ -271,8 +513,9 @@ def _with_stops(
     if halves is None:
         return [whole]
     parts = []
-    for half in halves:
-        timed = time_stroke(model, half, tool_limits, period)
+    for timed in time_strokes_at_once(model, list(halves), tool_limits, period):
+        if isinstance(timed, KeympsError):
+            raise timed
         parts.extend(_with_stops(model, timed, tool_limits, period, depth - 1))
     return parts if sum(p.duration for p in parts) < whole.duration else [whole]
 
@@ -282,29 +525,29 @@ def sample_trajectory(
 ) -> Trajectory:
     """Concatenate the strokes on one clock; every sample is on the controller's grid."""
     period = 1.0 / rate
-    parts_t, parts_q, parts_qd, parts_qdd, parts_xyz, parts_piece = [], [], [], [], [], []
-    offset = 0
-    for number, item in enumerate(timed):
-        steps = round(item.duration / period)
-        last = number == len(timed) - 1
-        local = np.arange(steps + (1 if last else 0)) * period
-        s, sd, sdd = _sample_profile(item.profile, local)
-        q, qd, qdd = _joint_motion(item.stroke, s, sd, sdd)
-        parts_t.append((offset + np.arange(len(local))) * period)
-        parts_q.append(q)
-        parts_qd.append(qd)
-        parts_qdd.append(qdd)
-        parts_xyz.append(_planned_points(item.stroke, s))
-        parts_piece.append(np.full(len(local), item.stroke.piece_index))
-        offset += steps
-    piece_index = np.concatenate(parts_piece).astype(int)
+    local = [
+        np.arange(round(item.duration / period) + (1 if number == len(timed) - 1 else 0)) * period
+        for number, item in enumerate(timed)
+    ]
+    s, sd, sdd = _sample_profiles([item.profile for item in timed], local)
+    counts = [len(times) for times in local]
+    s_parts = np.split(s, np.cumsum(counts)[:-1])
+    q, qd, qdd = (np.empty((len(s), len(model.joint_names))) for _ in range(3))
+    rates = _StrokeRates([item.stroke for item in timed])
+    for part, q_part, qd_part, qdd_part in rates.chunks(list(range(len(timed))), s_parts, sd, sdd):
+        q[part], qd[part], qdd[part] = q_part.T, qd_part.T, qdd_part.T
+    xyz = np.concatenate(
+        [_planned_points(item.stroke, s_k) for item, s_k in zip(timed, s_parts, strict=True)]
+    )
+    piece_index = np.repeat([item.stroke.piece_index for item in timed], counts).astype(int)
+
     kinds = np.array([tool_path.pieces[i].kind for i in range(len(tool_path.pieces))], dtype="<U6")
     trajectory = Trajectory(
-        t=np.concatenate(parts_t),
-        q=np.concatenate(parts_q),
-        qd=np.concatenate(parts_qd),
-        qdd=np.concatenate(parts_qdd),
-        tool_xyz=np.concatenate(parts_xyz),
+        t=np.arange(len(s)) * period,
+        q=q,
+        qd=qd,
+        qdd=qdd,
+        tool_xyz=xyz,
         piece_index=piece_index,
         kind=kinds[piece_index],
         joint_names=model.joint_names,
