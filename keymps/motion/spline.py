@@ -81,6 +81,128 @@ class CubicSpline:
         return out.reshape(len(at), *self.shape)
 
 
+def many_splines(knots: list[np.ndarray], values: list[np.ndarray]) -> list[CubicSpline]:
+    """`CubicSpline(knots[k], values[k])` for every k, the same splines to the last bit, built
+    in one pass: the slope systems solved side by side (`_thomas_side_by_side`) and the
+    coefficients of all intervals in one array (each spline's a view of it). Splines of fewer
+    than four knots (solved in closed form) are built one by one."""
+    if len(knots) != len(values):
+        raise ValueError("many_splines: as many knot arrays as value arrays are needed")
+    x = [np.asarray(k, dtype=float) for k in knots]
+    y = [np.asarray(v, dtype=float) for v in values]
+    out: list[CubicSpline | None] = [None] * len(x)
+    batch = []
+    for k, (knots_k, values_k) in enumerate(zip(x, y, strict=True)):
+        if knots_k.ndim == 1 and len(knots_k) >= 4 and len(values_k) == len(knots_k):
+            batch.append(k)
+        else:
+            out[k] = CubicSpline(knots_k, values_k)
+    shapes = {y[k].shape[1:] for k in batch}
+    if len(shapes) > 1:
+        return [CubicSpline(k, v) for k, v in zip(x, y, strict=True)]
+    if batch:
+        for k, spline in zip(
+            batch, _splines_side_by_side([x[k] for k in batch], [y[k] for k in batch]), strict=True
+        ):
+            out[k] = spline
+    return [spline for spline in out if spline is not None]
+
+
+def _splines_side_by_side(x: list[np.ndarray], y: list[np.ndarray]) -> list[CubicSpline]:
+    """`many_splines` of splines of at least four knots each."""
+    shape = y[0].shape[1:]
+    sizes = np.array([len(k) for k in x])
+    all_x = np.concatenate(x)
+    all_y = np.concatenate([v.reshape(len(v), -1) for v in y])
+    knot_end = np.cumsum(sizes)
+    not_last = np.ones(len(all_x), dtype=bool)  # knots that start an interval
+    not_last[knot_end - 1] = False
+    h = np.diff(all_x)[not_last[:-1]]  # without the steps from one spline's end to the next
+    if not np.all(h > 0):
+        raise ValueError("CubicSpline: x must be strictly increasing")
+    secant = np.diff(all_y, axis=0)[not_last[:-1]] / h[:, None]
+    slopes = _many_knot_slopes(h, secant, sizes)
+    left = np.flatnonzero(not_last)
+    slope_left = slopes[left]
+    t = (slope_left + slopes[left + 1] - 2 * secant) / h[:, None]
+    c = np.empty((4, len(h), all_y.shape[1]))
+    c[0] = t / h[:, None]
+    c[1] = (secant - slope_left) / h[:, None] - t
+    c[2] = slope_left
+    c[3] = all_y[left]
+    interval_end = np.cumsum(sizes - 1)
+    out = []
+    for knots_k, start, end in zip(x, interval_end - (sizes - 1), interval_end, strict=True):
+        spline = CubicSpline.__new__(CubicSpline)
+        spline.x, spline.shape, spline.c = knots_k, shape, c[:, start:end]
+        out.append(spline)
+    return out
+
+
+def _many_knot_slopes(h: np.ndarray, secant: np.ndarray, sizes: np.ndarray) -> np.ndarray:
+    """`_knot_slopes` of splines of `sizes` (each >= 4) knots whose intervals are end to end
+    in h and secant: the same rows, solved side by side; the knots' slopes end to end."""
+    count, longest = len(sizes), int(sizes.max())
+    interval_end = np.cumsum(sizes - 1)
+    first = interval_end - (sizes - 1)  # each spline's first interval
+    # row i of spline k at [k, i], padded to the longest with rows of the identity
+    lower, upper = np.zeros((count, longest)), np.zeros((count, longest))
+    diagonal = np.ones((count, longest))
+    rhs = np.zeros((count, longest, secant.shape[1]))
+    inner = sizes - 2  # rows 1 .. n - 2
+    spline_of = np.repeat(np.arange(count), inner)
+    before = np.arange(len(spline_of)) - np.repeat(np.cumsum(inner) - inner - first, inner)
+    after = before + 1  # row i: intervals i - 1 and i
+    rows = (spline_of, before - first[spline_of] + 1)
+    lower[rows] = h[after]
+    diagonal[rows] = 2 * (h[before] + h[after])
+    upper[rows] = h[before]
+    rhs[rows] = 3 * (h[after, None] * secant[before] + h[before, None] * secant[after])
+    # not-a-knot: the third derivative is continuous across the second and last-but-one knots
+    every = np.arange(count)
+    h0, h1, s0, s1 = h[first], h[first + 1], secant[first], secant[first + 1]
+    diagonal[every, 0], upper[every, 0] = h1, h0 + h1
+    up = upper[every, 0]
+    square = np.array([v**2 for v in h0])  # as the scalar h[0] ** 2 of `_knot_slopes`
+    rhs[every, 0] = (((h0 + 2 * up) * h1)[:, None] * s0 + square[:, None] * s1) / up[:, None]
+    last = sizes - 1
+    hl, hm = h[interval_end - 1], h[interval_end - 2]
+    sl, sm = secant[interval_end - 1], secant[interval_end - 2]
+    diagonal[every, last], lower[every, last] = hm, hl + hm
+    low = lower[every, last]
+    square = np.array([v**2 for v in hl])
+    rhs[every, last] = (square[:, None] * sm + ((2 * low + hl) * hm)[:, None] * sl) / low[:, None]
+    solved = _thomas_side_by_side(lower, diagonal, upper, rhs, sizes)
+    return solved[np.arange(longest)[None, :] < sizes[:, None]]
+
+
+def _thomas_side_by_side(
+    lower: np.ndarray, diagonal: np.ndarray, upper: np.ndarray, rhs: np.ndarray, sizes: np.ndarray
+) -> np.ndarray:
+    """`_thomas` of many systems at once: row i of every system in one array operation, the
+    same operations per value; system k's rows are [k, :sizes[k]] (the rest is padding)."""
+    count, longest = diagonal.shape
+    ratio, scale = np.zeros((count, longest)), np.zeros((count, longest))
+    scale[:, 0] = 1.0 / diagonal[:, 0]
+    ratio[:, 0] = upper[:, 0] * scale[:, 0]
+    for i in range(1, longest):
+        scale[:, i] = 1.0 / (diagonal[:, i] - lower[:, i] * ratio[:, i - 1])
+        ratio[:, i] = upper[:, i] * scale[:, i]
+    forward = np.empty_like(rhs)
+    forward[:, 0] = rhs[:, 0] * scale[:, 0, None]
+    for i in range(1, longest):
+        forward[:, i] = (rhs[:, i] - lower[:, i, None] * forward[:, i - 1]) * scale[:, i, None]
+    out = np.empty_like(rhs)
+    out[:, -1] = forward[:, -1]
+    is_last = np.arange(longest)[None, :] == (sizes - 1)[:, None]
+    for i in range(longest - 2, -1, -1):
+        # a system's last row is its forward value as it is (not minus 0 * padding)
+        out[:, i] = np.where(
+            is_last[:, i, None], forward[:, i], forward[:, i] - ratio[:, i, None] * out[:, i + 1]
+        )
+    return out
+
+
 def _knot_slopes(h: np.ndarray, secant: np.ndarray) -> np.ndarray:
     """(n, d) first derivatives at the knots of the not-a-knot spline."""
     n = len(h) + 1

@@ -225,7 +225,7 @@ def _significant_points(points: np.ndarray, yaw: np.ndarray) -> np.ndarray:
 
 def split_strokes(model: RobotModel, tool_path: ToolPath, joint_path: JointPath) -> list[Stroke]:
     """Every piece cut at its sharp corners; parts that do not move are dropped."""
-    from keymps.motion.spline import CubicSpline
+    from keymps.motion.spline import many_splines
 
     if len(joint_path.pieces) != len(tool_path.pieces):
         raise KeympsError(
@@ -248,29 +248,38 @@ def split_strokes(model: RobotModel, tool_path: ToolPath, joint_path: JointPath)
             part = slice(start, end + 1)
             parts.append((index, piece, points[part], yaw[part], q[part]))
     dense = _densify_all(model, [(p, y, q) for _, _, p, y, q in parts])
-    strokes = []
-    for (index, piece, points, yaw, _), (dense_p, dense_yaw, dense_q) in zip(
-        parts, dense, strict=True
-    ):
-        s_dense = np.concatenate(
-            [[0.0], np.cumsum(np.linalg.norm(_parameter_steps(dense_p, dense_yaw), axis=1))]
-        )
-        s_plan = np.concatenate(
-            [[0.0], np.cumsum(np.linalg.norm(_parameter_steps(points, yaw), axis=1))]
-        )
-        strokes.append(
-            Stroke(
-                index,
-                piece.kind,
-                s_plan,
-                points,
-                CubicSpline(s_dense, dense_q),
-                float(piece.speed),
-            )
-        )
+    s_dense = _arc_parameters([(p, y) for p, y, _ in dense])
+    s_plan = _arc_parameters([(p, y) for _, _, p, y, _ in parts])
+    splines = many_splines(s_dense, [q for _, _, q in dense])
+    strokes = [
+        Stroke(index, piece.kind, s, points, spline, float(piece.speed))
+        for (index, piece, points, _, _), s, spline in zip(parts, s_plan, splines, strict=True)
+    ]
     if not strokes:
         raise KeympsError("timing: the tool path does not move")
     return strokes
+
+
+def _arc_parameters(parts: list[tuple[np.ndarray, np.ndarray]]) -> list[np.ndarray]:
+    """The arc parameter s (0 at the start) of every (points, yaw) part: the steps of all
+    parts in one pass, each part's running sum on its own (the same sums as part by part)."""
+    if not parts:
+        return []
+    sizes = [len(points) for points, _ in parts]
+    steps = np.linalg.norm(
+        _parameter_steps(
+            np.concatenate([points for points, _ in parts]),
+            np.concatenate([yaw for _, yaw in parts]),
+        ),
+        axis=1,
+    )
+    starts = np.cumsum(sizes) - sizes
+    out = []
+    for start, size in zip(starts.tolist(), sizes, strict=True):
+        s = np.zeros(size)
+        np.cumsum(steps[start : start + size - 1], out=s[1:])
+        out.append(s)
+    return out
 
 
 def split_stroke(stroke: Stroke, at_s: float) -> tuple[Stroke, Stroke] | None:
