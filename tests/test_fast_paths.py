@@ -503,3 +503,108 @@ def test_spline_table_is_each_spline_bit_for_bit(monkeypatch: Any) -> None:
     ]
     for a, b in zip(got, want, strict=True):
         assert a.tobytes() == b.tobytes()
+
+
+def _significant_points_one_by_one(points: np.ndarray, yaw: np.ndarray) -> np.ndarray:
+    """The straightforward `_significant_points`: every point's distance from the last kept."""
+    from keymps.motion.strokes import MIN_STEP_M, YAW_RADIUS_M
+
+    geometry = np.column_stack([points, YAW_RADIUS_M * yaw])
+    kept = [0]
+    for i in range(1, len(points)):
+        if np.linalg.norm(geometry[i] - geometry[kept[-1]]) >= MIN_STEP_M:
+            kept.append(i)
+    if len(kept) > 1:
+        kept[-1] = len(points) - 1
+    return np.array(kept)
+
+
+def _corner_indexes_point_by_point(points: np.ndarray, yaw: np.ndarray) -> list[int]:
+    """The straightforward `_corner_indexes` loop over every point (the same directions)."""
+    from keymps.motion import strokes
+
+    geometry = np.column_stack([points, strokes.YAW_RADIUS_M * yaw])
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(geometry, axis=0), axis=1))])
+    n = len(points)
+    if n < 3 or arc[-1] <= 0:
+        return []
+    chord = strokes.CORNER_CHORD_M
+    before = np.clip(np.searchsorted(arc, arc - chord, side="right") - 1, 0, n - 1)
+    after = np.clip(np.searchsorted(arc, arc + chord, side="left"), 0, n - 1)
+    incoming, outgoing = geometry - geometry[before], geometry[after] - geometry
+    norms = np.linalg.norm(incoming, axis=1) * np.linalg.norm(outgoing, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cosine = np.where(norms > 1e-18, (incoming * outgoing).sum(axis=1) / norms, 1.0)
+    sharp = cosine < math.cos(strokes.CORNER_ANGLE_RAD)
+    sharp[[0, -1]] = False
+    corners, index = [], 0
+    while index < n:
+        if not sharp[index]:
+            index += 1
+            continue
+        end = index
+        while end + 1 < n and sharp[end + 1] and arc[end + 1] - arc[index] <= 2 * chord:
+            end += 1
+        middle = (arc[index] + arc[end]) / 2
+        corners.append(index + int(np.argmin(np.abs(arc[index : end + 1] - middle))))
+        index = end + 1
+    return corners
+
+
+def _wandering_path(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Runs of long steps, dwells jittering by up to 0.2 mm, steps of exactly MIN_STEP_M,
+    reversals and turns of the tool: what rollouts and planners hand the timing."""
+    from keymps.motion.strokes import MIN_STEP_M
+
+    parts, yaws = [np.zeros((1, 3))], [np.zeros(1)]
+    for _ in range(int(rng.integers(3, 12))):
+        kind = rng.integers(0, 4)
+        count = int(rng.integers(2, 90))
+        if kind == 0:  # a run of long steps in one direction
+            step = rng.normal(0, 1, 3)
+            step *= rng.uniform(3e-4, 3e-3) / np.linalg.norm(step)
+            move = np.cumsum(np.tile(step, (count, 1)), axis=0)
+        elif kind == 1:  # a dwell
+            move = rng.uniform(-2e-4, 2e-4, (count, 3))
+        elif kind == 2:  # steps of exactly the threshold along one axis
+            move = np.zeros((count, 3))
+            move[:, int(rng.integers(0, 3))] = MIN_STEP_M * np.arange(1, count + 1)
+        else:  # back and forth
+            move = np.zeros((count, 3))
+            move[:, 0] = rng.uniform(1e-4, 2e-3) * np.sin(np.arange(count) * rng.uniform(0.3, 3))
+        parts.append(parts[-1][-1] + move)
+        turn = rng.uniform(-0.02, 0.02, count) if rng.random() < 0.3 else np.zeros(count)
+        yaws.append(yaws[-1][-1] + np.cumsum(turn))
+    return np.concatenate(parts), np.concatenate(yaws)
+
+
+def test_dropping_dwell_points_by_runs_matches_point_by_point() -> None:
+    from keymps.motion.strokes import _corner_indexes, _significant_points
+
+    rng = np.random.default_rng(RNG_SEED + 19)
+    for _ in range(300):
+        points, yaw = _wandering_path(rng)
+        kept = _significant_points(points, yaw)
+        assert np.array_equal(kept, _significant_points_one_by_one(points, yaw))
+        assert _corner_indexes(points[kept], yaw[kept]) == _corner_indexes_point_by_point(
+            points[kept], yaw[kept]
+        )
+
+
+def test_splines_side_by_side_are_the_splines_one_by_one() -> None:
+    from keymps.motion.spline import CubicSpline, many_splines
+
+    rng = np.random.default_rng(RNG_SEED + 20)
+    for _ in range(40):
+        knots, values = [], []
+        for _ in range(int(rng.integers(1, 25))):
+            n = int(rng.choice([2, 3, 4, 5, int(rng.integers(6, 250))]))
+            knots.append(np.concatenate([[0.0], np.cumsum(rng.uniform(1e-5, 3e-3, n - 1))]))
+            y = np.cumsum(rng.normal(0, 0.01, (n, 6)), axis=0)
+            if rng.random() < 0.2:
+                y[:, int(rng.integers(0, 6))] = 0.0  # a joint that does not move (zero slopes)
+            values.append(y)
+        together = many_splines(knots, values)
+        for spline, x, y in zip(together, knots, values, strict=True):
+            alone = CubicSpline(x, y)
+            assert spline.c.tobytes() == alone.c.tobytes() and np.array_equal(spline.x, alone.x)

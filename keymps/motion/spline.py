@@ -180,27 +180,33 @@ def _thomas_side_by_side(
     lower: np.ndarray, diagonal: np.ndarray, upper: np.ndarray, rhs: np.ndarray, sizes: np.ndarray
 ) -> np.ndarray:
     """`_thomas` of many systems at once: row i of every system in one array operation, the
-    same operations per value; system k's rows are [k, :sizes[k]] (the rest is padding)."""
+    same operations per value; system k's rows are [k, :sizes[k]], padded with identity rows
+    (whose forward values are exactly +0.0)."""
     count, longest = diagonal.shape
-    ratio, scale = np.zeros((count, longest)), np.zeros((count, longest))
-    scale[:, 0] = 1.0 / diagonal[:, 0]
-    ratio[:, 0] = upper[:, 0] * scale[:, 0]
+    low, mid, up = lower.T.copy(), diagonal.T.copy(), upper.T.copy()
+    low_column = low[:, :, None]
+    right = rhs.transpose(1, 0, 2).copy()
+    scale = 1.0 / mid[0]
+    ratio = up[0] * scale
+    previous = right[0] * scale[:, None]
+    forward, ratios = [previous], [ratio]
     for i in range(1, longest):
-        scale[:, i] = 1.0 / (diagonal[:, i] - lower[:, i] * ratio[:, i - 1])
-        ratio[:, i] = upper[:, i] * scale[:, i]
-    forward = np.empty_like(rhs)
-    forward[:, 0] = rhs[:, 0] * scale[:, 0, None]
-    for i in range(1, longest):
-        forward[:, i] = (rhs[:, i] - lower[:, i, None] * forward[:, i - 1]) * scale[:, i, None]
-    out = np.empty_like(rhs)
-    out[:, -1] = forward[:, -1]
-    is_last = np.arange(longest)[None, :] == (sizes - 1)[:, None]
+        scale = 1.0 / (mid[i] - low[i] * ratio)
+        ratio = up[i] * scale
+        previous = (right[i] - low_column[i] * previous) * scale[:, None]
+        forward.append(previous)
+        ratios.append(ratio)
+    # A system's last row is its forward value as it is: with a +0.0 ratio there (and +0.0
+    # below it) the subtraction leaves it unchanged, -0.0 included.
+    factor = np.array(ratios)
+    factor[np.arange(longest)[:, None] >= (sizes - 1)[None, :]] = 0.0
+    factor_column = factor[:, :, None]
+    after = forward[-1]
+    out = [after]
     for i in range(longest - 2, -1, -1):
-        # a system's last row is its forward value as it is (not minus 0 * padding)
-        out[:, i] = np.where(
-            is_last[:, i, None], forward[:, i], forward[:, i] - ratio[:, i, None] * out[:, i + 1]
-        )
-    return out
+        after = forward[i] - factor_column[i] * after
+        out.append(after)
+    return np.array(out[::-1]).transpose(1, 0, 2)
 
 
 def _knot_slopes(h: np.ndarray, secant: np.ndarray) -> np.ndarray:

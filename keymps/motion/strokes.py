@@ -6,6 +6,7 @@ arc parameter s and a cubic spline q(s) through IK solutions at most MAX_KNOT_SP
 
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -31,6 +32,8 @@ YAW_RADIUS_M = 0.05
 """Turning the tool by 1 rad counts like moving it 5 cm along the path parameter."""
 MAX_KNOT_SPACING = 0.002
 """IK points are added wherever the tool path's points are further apart than this."""
+SCAN_WINDOW = 64
+"""Points a dwell is scanned by at once in `_significant_points`."""
 MIN_STOP_GAP_M = 0.001
 """No stop closer than this to either end of a stroke (its ends are rests already)."""
 
@@ -80,18 +83,16 @@ def _corner_indexes(points: np.ndarray, yaw: np.ndarray) -> list[int]:
         cosine = np.where(norms > 1e-18, (incoming * outgoing).sum(axis=1) / norms, 1.0)
     sharp = cosine < math.cos(CORNER_ANGLE_RAD)
     sharp[[0, -1]] = False
-    corners = []
-    index = 0
-    while index < n:
-        if not sharp[index]:
-            index += 1
-            continue
+    corners: list[int] = []
+    end = -1
+    for index in np.flatnonzero(sharp).tolist():
+        if index <= end:
+            continue  # inside the run of the corner before
         end = index
         while end + 1 < n and sharp[end + 1] and arc[end + 1] - arc[index] <= 2 * CORNER_CHORD_M:
             end += 1
         middle = (arc[index] + arc[end]) / 2  # a reversal's cluster is centred on its tip
         corners.append(index + int(np.argmin(np.abs(arc[index : end + 1] - middle))))
-        index = end + 1
     return corners
 
 
@@ -213,10 +214,32 @@ def _significant_points(points: np.ndarray, yaw: np.ndarray) -> np.ndarray:
     MIN_STEP_M.
     """
     geometry = np.column_stack([points, YAW_RADIUS_M * yaw])
+    n = len(points)
+    # The test is the distance (1-D norm) from the last point kept. Row norms (another
+    # summation order) decide only where they are clear of MIN_STEP_M by far more than their
+    # rounding differences: runs of long steps are kept whole, runs of short ones skipped;
+    # every other point gets the test itself.
+    low, high = MIN_STEP_M * (1 - 1e-9), MIN_STEP_M * (1 + 1e-9)
+    steps = np.linalg.norm(np.diff(geometry, axis=0), axis=1)
+    unclear = [*np.flatnonzero(steps < high).tolist(), n - 1]  # steps not clearly long enough
     kept = [0]
-    for i in range(1, len(points)):
-        if np.linalg.norm(geometry[i] - geometry[kept[-1]]) >= MIN_STEP_M:
+    i = 1
+    while i < n:
+        last = kept[-1]
+        if last == i - 1 and steps[i - 1] >= high:
+            stop = unclear[bisect.bisect_left(unclear, i - 1)]
+            kept.extend(range(i, stop + 1))  # each step from a point kept, each long enough
+            i = stop + 1
+            continue
+        window = geometry[i : i + SCAN_WINDOW]
+        maybe = np.flatnonzero(np.linalg.norm(window - geometry[last], axis=1) >= low)
+        if not len(maybe):
+            i += len(window)
+            continue
+        i += int(maybe[0])
+        if np.linalg.norm(geometry[i] - geometry[last]) >= MIN_STEP_M:
             kept.append(i)
+        i += 1
     if len(kept) == 1:
         return np.array(kept)  # a pure dwell: nothing for the timing to move along
     kept[-1] = len(points) - 1
