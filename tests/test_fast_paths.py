@@ -492,7 +492,8 @@ def test_spline_table_is_each_spline_bit_for_bit(monkeypatch: Any) -> None:
     ]
     flat = np.concatenate(at)
     got = [np.zeros((len(flat), 6)) for _ in range(3)]
-    for part, value, first, second in table.chunks(flat, table.intervals(which, at)):
+    rows = table.intervals(which, flat, [len(a) for a in at])
+    for part, value, first, second in table.chunks(flat, rows):
         for out, columns in zip(got, (value, first, second), strict=True):
             out[part] = columns.T
     want = [

@@ -294,14 +294,19 @@ class SplineTable:
         self.first = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.intp)
         """Where each spline's intervals start in x and the coefficient columns."""
 
-    def intervals(self, which: list[int], at: list[np.ndarray]) -> np.ndarray:
-        """Interval of every sample: `at[k]` (m_k,) on spline `which[k]`, end to end."""
-        parts = []
-        for spline_index, values in zip(which, at, strict=True):
-            spline = self.splines[spline_index]
-            local = np.searchsorted(spline.x, values, side="right") - 1
-            parts.append(np.clip(local, 0, len(spline.x) - 2) + self.first[spline_index])
-        return np.concatenate(parts) if parts else np.zeros(0, dtype=np.intp)
+    def intervals(self, which: list[int], at: np.ndarray, counts: list[int]) -> np.ndarray:
+        """Interval of every sample: `at` holds `counts[k]` samples on spline `which[k]`, end
+        to end (each spline's own search; the clipping to its ends for all at once)."""
+        local, start = [], 0
+        for spline_index, count in zip(which, counts, strict=True):
+            knots = self.splines[spline_index].x
+            local.append(np.searchsorted(knots, at[start : start + count], side="right"))
+            start += count
+        if not local:
+            return np.zeros(0, dtype=np.intp)
+        last = np.array([len(self.splines[k].x) - 2 for k in which])
+        rows = np.clip(np.concatenate(local) - 1, 0, np.repeat(last, counts))
+        return rows + np.repeat(self.first[which], counts)
 
     def chunks(
         self, at: np.ndarray, rows: np.ndarray, values: bool = True

@@ -213,20 +213,21 @@ class _StrokeRates:
     def chunks(
         self,
         which: list[int],
-        s: list[np.ndarray],
+        s: np.ndarray,
+        counts: list[int],
         sd: np.ndarray,
         sdd: np.ndarray,
         values: bool = True,
     ) -> Iterator[tuple[slice, np.ndarray | None, np.ndarray, np.ndarray]]:
-        """(samples, q or None, q dot, q double dot) chunk by chunk: `s[k]` on stroke
-        `which[k]`, end to end with `sd` and `sdd`."""
-        clipped = [
-            np.clip(part, 0.0, self.strokes[k].length) for k, part in zip(which, s, strict=True)
-        ]
+        """(samples, q or None, q dot, q double dot), each (6, m), chunk by chunk: `s` holds
+        `counts[k]` samples on stroke `which[k]`, end to end with `sd` and `sdd`."""
+        lengths = np.array([self.strokes[k].length for k in which])
+        at = np.clip(s, 0.0, np.repeat(lengths, counts))
+        starts = (np.cumsum(counts) - counts).tolist()
         if self.table is None:
             q_parts, dq_parts, ddq_parts = [], [], []
-            for k, part in zip(which, clipped, strict=True):
-                q_of_s = self.strokes[k].q_of_s
+            for k, start, count in zip(which, starts, counts, strict=True):
+                q_of_s, part = self.strokes[k].q_of_s, at[start : start + count]
                 if values:
                     q_k, dq_k, ddq_k = q_of_s.with_derivatives(part)
                     q_parts.append(q_k)
@@ -239,13 +240,11 @@ class _StrokeRates:
             qd, qdd = dq * sd[:, None], ddq * (sd**2)[:, None] + dq * sdd[:, None]
             yield slice(0, len(sd)), None if q is None else q.T, qd.T, qdd.T
             return
-        at = []
-        for k, part in zip(which, clipped, strict=True):
-            for offset in self.offsets[k]:
-                part = part + offset
-            at.append(part)
-        rows = self.table.intervals([self.spline_index[k] for k in which], at)
-        for part, q, dq, ddq in self.table.chunks(np.concatenate(at), rows, values):
+        for k, start, count in zip(which, starts, counts, strict=True):
+            for offset in self.offsets[k]:  # as _Shifted adds them, outermost first
+                at[start : start + count] = at[start : start + count] + offset
+        rows = self.table.intervals([self.spline_index[k] for k in which], at, counts)
+        for part, q, dq, ddq in self.table.chunks(at, rows, values):
             rate, change = sd[part], sdd[part]
             qd = dq * rate
             qdd = ddq * rate**2
@@ -334,7 +333,7 @@ def _check_profiles(
     before = None  # the last q double dot of the chunk before
     limits = [values[:, None] for values in (model.velocity_limits, model.acceleration_limits)]
     jerk_limits = model.jerk_limits[:, None]
-    for part, _, qd, qdd in rates.chunks(which, np.split(s, ends[:-1]), sd, sdd, values=False):
+    for part, _, qd, qdd in rates.chunks(which, s, counts.tolist(), sd, sdd, values=False):
         np.abs(qd, out=qd)
         qd /= limits[0]
         velocity[part] = qd.max(axis=0)
@@ -534,7 +533,9 @@ def sample_trajectory(
     s_parts = np.split(s, np.cumsum(counts)[:-1])
     q, qd, qdd = (np.empty((len(s), len(model.joint_names))) for _ in range(3))
     rates = _StrokeRates([item.stroke for item in timed])
-    for part, q_part, qd_part, qdd_part in rates.chunks(list(range(len(timed))), s_parts, sd, sdd):
+    for part, q_part, qd_part, qdd_part in rates.chunks(
+        list(range(len(timed))), s, counts, sd, sdd
+    ):
         q[part], qd[part], qdd[part] = q_part.T, qd_part.T, qdd_part.T
     xyz = np.concatenate(
         [_planned_points(item.stroke, s_k) for item, s_k in zip(timed, s_parts, strict=True)]
