@@ -149,6 +149,23 @@ def test_ruckig_phases_in_numpy_match_at_time() -> None:
         assert np.abs(fast - reference).max() < 1e-12
 
 
+def test_sampling_many_profiles_at_once_is_each_profile_alone() -> None:
+    from keymps.motion.timing import Limits, _profile, _sample_profile, _sample_profiles
+
+    rng = np.random.default_rng(RNG_SEED + 21)
+    profiles, times = [], []
+    for _ in range(40):
+        limits = Limits(rng.uniform(0.005, 0.3), rng.uniform(0.05, 3.0), rng.uniform(0.5, 60.0))
+        profile, duration = _profile(float(rng.uniform(1e-5, 0.4)), limits, 1 / 125)
+        profiles.append(profile)
+        times.append(np.append(np.arange(0.0, duration + 0.01, 0.001), [duration, 0.0]))
+    together = np.array(_sample_profiles(profiles, times))
+    alone = np.concatenate(
+        [np.array(_sample_profile(p, t)) for p, t in zip(profiles, times)], axis=1
+    )
+    assert together.tobytes() == alone.tobytes()
+
+
 def test_the_numpy_spline_is_scipys_not_a_knot_spline() -> None:
     from scipy.interpolate import CubicSpline as ScipySpline
 

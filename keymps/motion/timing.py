@@ -131,21 +131,27 @@ def _sample_profiles(
     """`_sample_profile` of many profiles, `times[k]` on `profiles[k]`, end to end: the phase
     search per profile, the cubic for all samples in one pass (the same values)."""
     count = len(profiles)
-    starts = np.zeros((count, 8))
-    states = np.zeros((4, count, 8))  # jerk, acceleration, velocity, position per phase
-    index = []
+    phase_lists: list[list[Any]] = [[], [], [], [], []]
     by_calls = []
-    for k, (profile, at) in enumerate(zip(profiles, times, strict=True)):
-        phases = profile.profiles[0][0]
-        if len(profile.profiles) != 1 or phases.brake.duration > 0:
+    for k, profile in enumerate(profiles):
+        every = profile.profiles  # (a copy of Ruckig's profiles: read once)
+        phases = every[0][0]
+        if len(every) != 1 or phases.brake.duration > 0:
             by_calls.append(k)  # never for rest-to-rest strokes
-            index.append(np.zeros(len(at), dtype=np.intp))
+            for values, size in zip(phase_lists, (7, 7, 8, 8, 8), strict=True):
+                values.append([0.0] * size)
             continue
-        t_sum = np.cumsum(phases.t)
-        starts[k, 1:] = t_sum
-        states[0, k, :7] = phases.j
-        states[1, k], states[2, k], states[3, k] = phases.a, phases.v, phases.p
-        index.append(np.searchsorted(t_sum, at, side="right") + 8 * k)  # Ruckig's upper_bound
+        for values, name in zip(phase_lists, ("t", "j", "a", "v", "p"), strict=True):
+            values.append(getattr(phases, name))
+    durations, jerks, a0, v0, p0 = (np.array(values, dtype=float) for values in phase_lists)
+    starts = np.zeros((count, 8))
+    starts[:, 1:] = np.cumsum(durations, axis=1)  # row by row, as np.cumsum(phases.t)
+    states = np.zeros((4, count, 8))  # jerk, acceleration, velocity, position per phase
+    states[0, :, :7], states[1], states[2], states[3] = jerks, a0, v0, p0
+    index = [
+        np.searchsorted(starts[k, 1:], at, side="right") + 8 * k  # Ruckig's upper_bound
+        for k, at in enumerate(times)
+    ]
     flat = np.concatenate(index)
     all_times = np.concatenate(times)
     t = all_times - starts.ravel()[flat]
