@@ -161,7 +161,7 @@ def test_sampling_many_profiles_at_once_is_each_profile_alone() -> None:
         times.append(np.append(np.arange(0.0, duration + 0.01, 0.001), [duration, 0.0]))
     together = np.array(_sample_profiles(profiles, times))
     alone = np.concatenate(
-        [np.array(_sample_profile(p, t)) for p, t in zip(profiles, times)], axis=1
+        [np.array(_sample_profile(p, t)) for p, t in zip(profiles, times, strict=True)], axis=1
     )
     assert together.tobytes() == alone.tobytes()
 
