@@ -626,3 +626,24 @@ def test_splines_side_by_side_are_the_splines_one_by_one() -> None:
         for spline, x, y in zip(together, knots, values, strict=True):
             alone = CubicSpline(x, y)
             assert spline.c.tobytes() == alone.c.tobytes() and np.array_equal(spline.x, alone.x)
+
+
+def test_inserting_knots_in_all_parts_at_once_matches_part_by_part() -> None:
+    from keymps.motion.strokes import _dense_points, _dense_points_all, _every_few, _every_few_all
+
+    rng = np.random.default_rng(RNG_SEED + 22)
+    for _ in range(60):
+        parts = []
+        for _ in range(int(rng.integers(1, 12))):
+            points, yaw = _wandering_path(rng)
+            if rng.random() < 0.3:  # gaps of up to a few centimetres (travel moves)
+                points = points * rng.uniform(5, 40)
+            parts.append((points, yaw))
+        together = _dense_points_all(parts)
+        for (points, yaw), got in zip(parts, together, strict=True):
+            want = _dense_points(points, yaw)
+            for a, b in zip(got, want, strict=True):
+                assert a.shape == b.shape and a.tobytes() == b.tobytes()
+        for (points, yaw), got in zip(parts, _every_few_all(parts), strict=True):
+            want = _every_few(points, yaw)
+            assert got.dtype == want.dtype and np.array_equal(got, want)

@@ -120,35 +120,104 @@ def _densify_all(
 ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """`_densify` of every (points, yaw, q) part; with the closed form, all the inserted points
     of the path in one solve (consecutive parts join up, so one branch runs through them)."""
-    dense = [_dense_points(points, yaw) for points, yaw, _ in parts]
     if model.closed_form is not None and parts:
+        dense = _dense_points_all([(points, yaw) for points, yaw, _ in parts])
         # A part with nothing inserted keeps its points and joints as they are; it is solved
         # again only every few millimetres, to carry the branch from one part to the next.
+        kept = [
+            len(p) == len(points) for (p, _, _), (points, _, _) in zip(dense, parts, strict=True)
+        ]
+        carried = iter(
+            _every_few_all([(p, y) for (p, y, _), same in zip(dense, kept, strict=True) if same])
+        )
         solve = [
-            _every_few(p, y) if len(p) == len(points) else np.arange(len(p))
-            for (p, y, _), (points, _, _) in zip(dense, parts, strict=True)
+            next(carried) if same else np.arange(len(p))
+            for (p, _, _), same in zip(dense, kept, strict=True)
         ]
         all_p = np.concatenate([p[i] for (p, _, _), i in zip(dense, solve, strict=True)])
         all_y = np.concatenate([y[i] for (_, y, _), i in zip(dense, solve, strict=True)])
         solved = model._solve_closed_form(all_p, all_y, parts[0][2][0])
         if solved is not None:
-            ends = np.cumsum([len(i) for i in solve])[:-1]
-            out = []
-            for (p, y, original), (points, _, q), which, dense_q in zip(
-                dense, parts, solve, np.split(solved[0], ends), strict=True
-            ):
-                if len(p) == len(points):  # nothing inserted: the subset checks the branch
-                    if np.abs(dense_q - q[which]).max() >= 1e-6:
-                        break
-                    out.append((p, y, q))
-                    continue
-                if np.abs(dense_q[original] - q).max() >= 1e-6:  # not the path's branch
-                    break
-                dense_q[original] = q
-                out.append((p, y, dense_q))
-            else:
-                return out
+            sizes = np.array([len(i) for i in solve])
+            offsets = np.cumsum(sizes) - sizes
+            # Where the solve meets the path's own IK (the subset of a part with nothing
+            # inserted, the original points of one with points inserted) it must agree:
+            # otherwise it is not the path's branch.
+            at = np.concatenate(
+                [
+                    offset + (np.arange(len(which)) if same else original)
+                    for (_, _, original), which, same, offset in zip(
+                        dense, solve, kept, offsets, strict=True
+                    )
+                ]
+            )
+            path_parts = [
+                q[which] if same else q
+                for (_, _, q), which, same in zip(parts, solve, kept, strict=True)
+            ]
+            path_q = np.concatenate(path_parts)
+            deviation = np.abs(solved[0][at] - path_q).max(axis=1)
+            rows = np.array([len(q) for q in path_parts])
+            first_row = np.cumsum(rows) - rows
+            if not np.any(np.maximum.reduceat(deviation, first_row) >= 1e-6):
+                dense_q = solved[0]
+                dense_q[at] = path_q
+                return [
+                    (points, yaw, q) if same else (p, y, dense_q[offset : offset + len(p)])
+                    for (p, y, _), (points, yaw, q), same, offset in zip(
+                        dense, parts, kept, offsets, strict=True
+                    )
+                ]
     return [_densify(model, points, yaw, q) for points, yaw, q in parts]
+
+
+def _dense_points_all(
+    parts: list[tuple[np.ndarray, np.ndarray]],
+) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """`_dense_points` of every (points, yaw) part, the same values: the gaps and the inserted
+    points of all parts in one pass (the gap from one part's end to the next one's start
+    left out)."""
+    sizes = np.array([len(points) for points, _ in parts])
+    points = np.concatenate([points for points, _ in parts])
+    yaw = np.concatenate([yaw for _, yaw in parts])
+    ends = np.cumsum(sizes) - 1  # each part's last point
+    gaps = np.hypot(np.linalg.norm(np.diff(points, axis=0), axis=1), YAW_RADIUS_M * np.diff(yaw))
+    extra = np.maximum(np.ceil(gaps / MAX_KNOT_SPACING).astype(int) - 1, 0)
+    # every point but a part's last: its gap's start and `extra` evenly spaced inner points
+    rows = np.append(extra + 1, 1)
+    rows[ends] = 1
+    gap_of = np.repeat(np.arange(len(points)), rows)
+    starts = np.cumsum(rows) - rows
+    inner = np.ones(len(points), dtype=bool)
+    inner[ends] = False
+    row_of_gap = gap_of[inner[gap_of]]
+    fraction = (np.flatnonzero(inner[gap_of]) - starts[row_of_gap]) / rows[row_of_gap]
+    dense_p = points[gap_of].copy()  # a part's last point as it is
+    dense_y = yaw[gap_of].copy()
+    step_p = points[row_of_gap + 1] - points[row_of_gap]
+    dense_p[inner[gap_of]] = points[row_of_gap] + fraction[:, None] * step_p
+    dense_y[inner[gap_of]] = yaw[row_of_gap] + fraction * (yaw[row_of_gap + 1] - yaw[row_of_gap])
+    out = []
+    first_point = ends + 1 - sizes
+    for (part_p, part_y), start, end in zip(
+        parts, first_point.tolist(), ends.tolist(), strict=True
+    ):
+        if not extra[start:end].any():
+            out.append((part_p, part_y, np.arange(len(part_p))))
+            continue
+        begin, stop = starts[start], starts[end] + 1
+        out.append((dense_p[begin:stop], dense_y[begin:stop], starts[start : end + 1] - begin))
+    return out
+
+
+def _every_few_all(parts: list[tuple[np.ndarray, np.ndarray]]) -> list[np.ndarray]:
+    """`_every_few` of every (points, yaw) part (the arc parameters in one pass)."""
+    out = []
+    for arc in _arc_parameters(parts):
+        bins = np.floor(arc / CARRY_SPACING_M)
+        keep = np.flatnonzero(np.diff(bins, prepend=-1.0) > 0)
+        out.append(keep if keep[-1] == len(arc) - 1 else np.append(keep, len(arc) - 1))
+    return out
 
 
 CARRY_SPACING_M = 0.005
