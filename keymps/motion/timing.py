@@ -62,7 +62,8 @@ class TimedStroke:
     slowdown: float
     """Duration relative to the profile with the tool limits alone (1.0: no joint limit hit)."""
     worst_s: float = 0.0
-    """Where (arc parameter) the profile at the tool limits broke the joint limits most."""
+    """Where (arc parameter) the profile at the tool limits broke the joint limits most; only
+    for a stroke slowed down STOP_SLOWDOWN times or more (0.0 for the others)."""
     nominal: float = 0.0
     """This stroke's share of the time the stroke it was split from takes at the tool limits
     alone (set by time_strokes)."""
@@ -216,6 +217,14 @@ class _StrokeRates:
             if len(shapes) == 1:
                 self.table = SplineTable(splines)
 
+    def motion(
+        self, k: int, s: np.ndarray, sd: np.ndarray, sdd: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """`_joint_motion` of stroke k, (m, 6) each, through the table."""
+        chunks = list(self.chunks([k], s, [len(s)], sd, sdd))
+        q, qd, qdd = (np.concatenate([c[i] for c in chunks], axis=1).T for i in (1, 2, 3))
+        return q, qd, qdd
+
     def chunks(
         self,
         which: list[int],
@@ -287,8 +296,7 @@ def time_stroke(
     """The fastest profile (tool limits first) whose joints stay inside every joint limit."""
     limits = Limits(min(stroke.speed, tool_limits.velocity), *_tail(tool_limits))
     check_period = min(period, 1.0 / CHECK_RATE_HZ)
-    first_duration = None
-    worst_s = 0.0
+    first_duration = first_place = None
     for attempt in range(MAX_RETIMES):
         profile, duration = _profile(stroke.length, limits, period)
         times = np.arange(0.0, duration + 0.5 * check_period, check_period)
@@ -297,12 +305,12 @@ def time_stroke(
         qd, qdd = _joint_rates(stroke, s, sd, sdd)
         if first_duration is None:
             first_duration = duration
-            worst_s = _worst_place(model, s, qd, qdd, check_period)
+            first_place = _worst_place(model, s, qd, qdd, check_period)
         rv, ra, rj = _limit_ratios(model, qd, qdd, check_period)
         if max(rv, ra, rj) <= 1.0:
-            return TimedStroke(
-                stroke, profile, duration, limits, duration / first_duration, worst_s
-            )
+            slowdown = duration / first_duration
+            worst_s = first_place if slowdown >= STOP_SLOWDOWN else None
+            return TimedStroke(stroke, profile, duration, limits, slowdown, worst_s or 0.0)
         if attempt < MAX_RETIMES // 2:
             # lower only what is violated: keeps the profile fast where it can be
             limits = Limits(
@@ -322,59 +330,69 @@ def _check_profiles(
     profiles: list[Any],
     durations: list[float],
     check_period: float,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """`_limit_ratios` and `_worst_place` of every profile (on stroke `which[k]`) in one pass:
-    the ratios per stroke (velocity, acceleration, jerk) and the worst place of each."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`_limit_ratios` of every profile (on stroke `which[k]`) in one pass: the ratios per
+    profile (velocity, acceleration, jerk).
+
+    Dividing by a limit is monotone, so the largest ratio is the largest magnitude per joint
+    divided by its limit: the same number as dividing every sample first.
+    """
+    times = _check_times(durations, check_period)
+    counts = np.array([len(at) for at in times])
+    starts = np.cumsum(counts) - counts
+    s, sd, sdd = _sample_profiles(profiles, times)
+    joints = len(model.velocity_limits)
+    largest = np.zeros((3, joints, len(counts)))  # |q dot|, |q double dot|, |change of it|
+    before = None  # the last q double dot of the chunk before
+    for part, _, qd, qdd in rates.chunks(which, s, counts.tolist(), sd, sdd, values=False):
+        first = int(np.searchsorted(starts, part.start, side="right")) - 1
+        last = int(np.searchsorted(starts, part.start + qd.shape[1], side="left"))
+        owners = np.arange(first, last)  # the profiles with samples in this chunk
+        cuts = np.maximum(starts[first:last] - part.start, 0)
+        for slot, values in ((0, qd), (1, qdd)):
+            found = np.maximum.reduceat(np.abs(values), cuts, axis=1)
+            largest[slot][:, owners] = np.maximum(largest[slot][:, owners], found)
+        change = np.abs(np.diff(qdd, axis=1))
+        change[:, cuts[1:] - 1] = 0.0  # from one profile's last sample to the next one's first
+        inside = cuts < change.shape[1]
+        if inside.any():
+            found = np.maximum.reduceat(change, cuts[inside], axis=1)
+            largest[2][:, owners[inside]] = np.maximum(largest[2][:, owners[inside]], found)
+        if before is not None and starts[first] < part.start:
+            # the change from the chunk before, inside one profile
+            largest[2][:, first] = np.maximum(largest[2][:, first], np.abs(qdd[:, 0] - before))
+        before = qdd[:, -1].copy()
+    velocity = (largest[0] / model.velocity_limits[:, None]).max(axis=0)
+    acceleration = (largest[1] / model.acceleration_limits[:, None]).max(axis=0)
+    jerk = (largest[2] / check_period / model.jerk_limits[:, None]).max(axis=0)
+    return velocity, acceleration, jerk
+
+
+def _check_times(durations: list[float], check_period: float) -> list[np.ndarray]:
+    """The limit check's sampling of profiles of these durations (the end included)."""
     times = []
     for duration in durations:
         at = np.arange(0.0, duration + 0.5 * check_period, check_period)
         at[-1] = min(at[-1], duration)
         times.append(at)
-    counts = np.array([len(at) for at in times])
-    ends = np.cumsum(counts)
-    starts = ends - counts
-    s, sd, sdd = _sample_profiles(profiles, times)
-    velocity, acceleration = np.empty(len(s)), np.empty(len(s))
-    jerk = np.zeros(len(s))  # jerk[i]: from sample i to i + 1 (of the same stroke: see below)
-    before = None  # the last q double dot of the chunk before
-    limits = [values[:, None] for values in (model.velocity_limits, model.acceleration_limits)]
-    jerk_limits = model.jerk_limits[:, None]
-    for part, _, qd, qdd in rates.chunks(which, s, counts.tolist(), sd, sdd, values=False):
-        np.abs(qd, out=qd)
-        qd /= limits[0]
-        velocity[part] = qd.max(axis=0)
-        change = np.diff(qdd, axis=1)
-        change /= check_period
-        np.abs(change, out=change)
-        change /= jerk_limits
-        jerk[part.start : part.start + change.shape[1]] = change.max(axis=0, initial=0.0)
-        if before is not None:
-            ends_before = (np.abs((qdd[:, 0] - before) / check_period) / model.jerk_limits).max()
-            jerk[part.start - 1] = ends_before
-        before = qdd[:, -1].copy()
-        np.abs(qdd, out=qdd)
-        qdd /= limits[1]
-        acceleration[part] = qdd.max(axis=0)
-    jerk[ends - 1] = 0.0  # across strokes; the ratios are >= 0, so a 0 changes no maximum
-    ratios = [np.maximum.reduceat(values, starts) for values in (velocity, acceleration, jerk)]
-    # the worst place: velocity, sqrt(acceleration), cbrt(jerk into the sample) as factors
-    into = np.zeros(len(s))
-    into[1:] = np.cbrt(jerk[:-1])
-    factor = np.maximum(np.maximum(velocity, np.sqrt(acceleration)), into)
-    owner = np.repeat(np.arange(len(counts)), counts)
-    hits = np.flatnonzero(factor == np.maximum.reduceat(factor, starts)[owner])
-    first_hit = np.searchsorted(owner[hits], np.arange(len(counts)))
-    if (
-        len(hits)
-        and first_hit.max() < len(hits)
-        and np.array_equal(owner[hits[first_hit]], np.arange(len(counts)))
-    ):
-        worst = s[hits[first_hit]]
-    else:  # a NaN somewhere: argmax's own rule (its first NaN)
-        worst = np.array(
-            [s[a + int(np.argmax(factor[a:b]))] for a, b in zip(starts, ends, strict=True)]
-        )
-    return ratios[0], ratios[1], ratios[2], worst
+    return times
+
+
+def _worst_places(
+    model: RobotModel,
+    rates: _StrokeRates,
+    which: list[int],
+    profiles: list[Any],
+    durations: list[float],
+    check_period: float,
+) -> list[float]:
+    """`_worst_place` of each profile (on stroke `which[k]`)."""
+    places = []
+    for k, profile, at in zip(which, profiles, _check_times(durations, check_period), strict=True):
+        s, sd, sdd = _sample_profiles([profile], [at])
+        _, qd, qdd = rates.motion(k, s, sd, sdd)
+        places.append(_worst_place(model, s, qd, qdd, check_period))
+    return places
 
 
 def time_strokes_at_once(
@@ -388,8 +406,7 @@ def time_strokes_at_once(
     limits = [
         Limits(min(stroke.speed, tool_limits.velocity), *_tail(tool_limits)) for stroke in strokes
     ]
-    first_duration: list[float] = [0.0] * len(strokes)
-    worst_s: list[float] = [0.0] * len(strokes)
+    first: list[tuple[Any, float]] = [(None, 0.0)] * len(strokes)  # profile, duration
     out: list[TimedStroke | KeympsError | None] = [None] * len(strokes)
     pending = list(range(len(strokes)))
     for attempt in range(MAX_RETIMES):
@@ -405,21 +422,15 @@ def time_strokes_at_once(
             durations.append(duration)
         if not which:
             break
-        rv, ra, rj, worst = _check_profiles(model, rates, which, profiles, durations, check_period)
+        rv, ra, rj = _check_profiles(model, rates, which, profiles, durations, check_period)
         pending = []
         for i, k in enumerate(which):
             if attempt == 0:
-                first_duration[k], worst_s[k] = durations[i], float(worst[i])
+                first[k] = profiles[i], durations[i]
             v, a, j = float(rv[i]), float(ra[i]), float(rj[i])
             if max(v, a, j) <= 1.0:
-                out[k] = TimedStroke(
-                    strokes[k],
-                    profiles[i],
-                    durations[i],
-                    limits[k],
-                    durations[i] / first_duration[k],
-                    worst_s[k],
-                )
+                slowdown = durations[i] / first[k][1]
+                out[k] = TimedStroke(strokes[k], profiles[i], durations[i], limits[k], slowdown)
                 continue
             if attempt < MAX_RETIMES // 2:
                 limits[k] = Limits(
@@ -432,6 +443,22 @@ def time_strokes_at_once(
             pending.append(k)
     for k in pending:
         out[k] = _untimeable(strokes[k])
+    # Only a stroke slowed down enough to be stopped somewhere needs where (_with_stops).
+    slow = [
+        k
+        for k, item in enumerate(out)
+        if isinstance(item, TimedStroke) and item.slowdown >= STOP_SLOWDOWN
+    ]
+    places = _worst_places(
+        model,
+        rates,
+        slow,
+        [first[k][0] for k in slow],
+        [first[k][1] for k in slow],
+        check_period,
+    )
+    for k, place in zip(slow, places, strict=True):
+        out[k].worst_s = place  # type: ignore[union-attr]
     return [item for item in out if item is not None]
 
 
@@ -542,6 +569,7 @@ def sample_trajectory(
     for part, q_part, qd_part, qdd_part in rates.chunks(
         list(range(len(timed))), s, counts, sd, sdd
     ):
+        assert q_part is not None
         q[part], qd[part], qdd[part] = q_part.T, qd_part.T, qdd_part.T
     xyz = np.concatenate(
         [_planned_points(item.stroke, s_k) for item, s_k in zip(timed, s_parts, strict=True)]
