@@ -67,33 +67,69 @@ def _corner_indexes(points: np.ndarray, yaw: np.ndarray) -> list[int]:
     sub-millimetre jitter of a rollout turning round (the bottom of a dot) makes one corner,
     not many; of a run of neighbouring corner points the middle one is kept.
     """
-    geometry = np.column_stack([points, YAW_RADIUS_M * yaw])
+    return _corner_indexes_all([(points, yaw)])[0]
+
+
+def _geometry_of_all(
+    parts: list[tuple[np.ndarray, np.ndarray]],
+) -> tuple[np.ndarray, np.ndarray, list[int]]:
+    """(x, y, z, YAW_RADIUS_M * yaw) of all parts' points end to end, the length of every step
+    between consecutive points (across parts too: not used) and where each part starts."""
+    sizes = [len(points) for points, _ in parts]
+    geometry = np.column_stack(
+        [
+            np.concatenate([points for points, _ in parts]),
+            YAW_RADIUS_M * np.concatenate([yaw for _, yaw in parts]),
+        ]
+    )
     steps = np.linalg.norm(np.diff(geometry, axis=0), axis=1)
-    arc = np.concatenate([[0.0], np.cumsum(steps)])
-    n = len(points)
-    if n < 3 or arc[-1] <= 0:
+    return geometry, steps, (np.cumsum(sizes) - sizes).tolist()
+
+
+def _corner_indexes_all(parts: list[tuple[np.ndarray, np.ndarray]]) -> list[list[int]]:
+    """`_corner_indexes` of every (points, yaw) part: each part's arc length and chord search
+    on its own, the directions of all points in one pass (the same values)."""
+    if not parts:
         return []
-    before = np.searchsorted(arc, arc - CORNER_CHORD_M, side="right") - 1
-    after = np.searchsorted(arc, arc + CORNER_CHORD_M, side="left")
-    before, after = np.clip(before, 0, n - 1), np.clip(after, 0, n - 1)
-    incoming = geometry - geometry[before]
-    outgoing = geometry[after] - geometry
+    geometry, steps, starts = _geometry_of_all(parts)
+    arcs, before, after = [], [], []
+    for (points, _), start in zip(parts, starts, strict=True):
+        n = len(points)
+        arc = np.zeros(n)
+        np.cumsum(steps[start : start + n - 1], out=arc[1:])
+        arcs.append(arc)
+        back = np.searchsorted(arc, arc - CORNER_CHORD_M, side="right") - 1
+        ahead = np.searchsorted(arc, arc + CORNER_CHORD_M, side="left")
+        before.append(np.clip(back, 0, n - 1) + start)
+        after.append(np.clip(ahead, 0, n - 1) + start)
+    incoming = geometry - geometry[np.concatenate(before)]
+    outgoing = geometry[np.concatenate(after)] - geometry
     norms = np.linalg.norm(incoming, axis=1) * np.linalg.norm(outgoing, axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
         cosine = np.where(norms > 1e-18, (incoming * outgoing).sum(axis=1) / norms, 1.0)
-    sharp = cosine < math.cos(CORNER_ANGLE_RAD)
-    sharp[[0, -1]] = False
-    corners: list[int] = []
-    end = -1
-    for index in np.flatnonzero(sharp).tolist():
-        if index <= end:
-            continue  # inside the run of the corner before
-        end = index
-        while end + 1 < n and sharp[end + 1] and arc[end + 1] - arc[index] <= 2 * CORNER_CHORD_M:
-            end += 1
-        middle = (arc[index] + arc[end]) / 2  # a reversal's cluster is centred on its tip
-        corners.append(index + int(np.argmin(np.abs(arc[index : end + 1] - middle))))
-    return corners
+    sharp_all = cosine < math.cos(CORNER_ANGLE_RAD)
+    out = []
+    for (points, _), start, arc in zip(parts, starts, arcs, strict=True):
+        n = len(points)
+        if n < 3 or arc[-1] <= 0:
+            out.append([])
+            continue
+        sharp = sharp_all[start : start + n]
+        corners: list[int] = []
+        end = -1
+        for index in np.flatnonzero(sharp[1:-1]).tolist():
+            index += 1  # the ends are no corners
+            if index <= end:
+                continue  # inside the run of the corner before
+            end = index
+            while (
+                end + 2 < n and sharp[end + 1] and arc[end + 1] - arc[index] <= 2 * CORNER_CHORD_M
+            ):
+                end += 1
+            middle = (arc[index] + arc[end]) / 2  # a reversal's cluster is centred on its tip
+            corners.append(index + int(np.argmin(np.abs(arc[index : end + 1] - middle))))
+        out.append(corners)
+    return out
 
 
 def _dense_points(points: np.ndarray, yaw: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -282,14 +318,30 @@ def _significant_points(points: np.ndarray, yaw: np.ndarray) -> np.ndarray:
     cusp the joints cannot follow at speed. Dropping those points moves the path by less than
     MIN_STEP_M.
     """
-    geometry = np.column_stack([points, YAW_RADIUS_M * yaw])
-    n = len(points)
+    return _significant_points_all([(points, yaw)])[0]
+
+
+def _significant_points_all(parts: list[tuple[np.ndarray, np.ndarray]]) -> list[np.ndarray]:
+    """`_significant_points` of every (points, yaw) part (the steps of all in one pass)."""
+    if not parts:
+        return []
+    geometry, steps, starts = _geometry_of_all(parts)
+    return [
+        _significant_in(
+            geometry[start : start + len(points)], steps[start : start + len(points) - 1]
+        )
+        for (points, _), start in zip(parts, starts, strict=True)
+    ]
+
+
+def _significant_in(geometry: np.ndarray, steps: np.ndarray) -> np.ndarray:
+    """`_significant_points` of one part's geometry and steps (see `_geometry_of_all`)."""
+    n = len(geometry)
     # The test is the distance (1-D norm) from the last point kept. Row norms (another
     # summation order) decide only where they are clear of MIN_STEP_M by far more than their
     # rounding differences: runs of long steps are kept whole, runs of short ones skipped;
     # every other point gets the test itself.
     low, high = MIN_STEP_M * (1 - 1e-9), MIN_STEP_M * (1 + 1e-9)
-    steps = np.linalg.norm(np.diff(geometry, axis=0), axis=1)
     unclear = [*np.flatnonzero(steps < high).tolist(), n - 1]  # steps not clearly long enough
     kept = [0]
     i = 1
@@ -311,7 +363,7 @@ def _significant_points(points: np.ndarray, yaw: np.ndarray) -> np.ndarray:
         i += 1
     if len(kept) == 1:
         return np.array(kept)  # a pure dwell: nothing for the timing to move along
-    kept[-1] = len(points) - 1
+    kept[-1] = n - 1
     return np.array(kept)
 
 
@@ -324,18 +376,27 @@ def split_strokes(model: RobotModel, tool_path: ToolPath, joint_path: JointPath)
             f"timing: the joint path has {len(joint_path.pieces)} pieces but the tool path "
             f"has {len(tool_path.pieces)}"
         )
-    parts: list[tuple[int, Piece, np.ndarray, np.ndarray, np.ndarray]] = []
     for index, (piece, q_all) in enumerate(zip(tool_path.pieces, joint_path.pieces, strict=True)):
         if len(q_all) != len(piece.points):
             raise KeympsError(
                 f"timing: piece {index} has {len(piece.points)} points but {len(q_all)} joint "
                 "vectors"
             )
-        kept = _significant_points(piece.points, piece.yaw)
-        if len(kept) < 2:
-            continue
-        points, yaw, q = piece.points[kept], piece.yaw[kept], q_all[kept]
-        cuts = [0, *_corner_indexes(points, yaw), len(points) - 1]
+    moving = []  # (piece index, kept point indexes) of the pieces that move
+    for index, kept in enumerate(
+        _significant_points_all([(piece.points, piece.yaw) for piece in tool_path.pieces])
+    ):
+        if len(kept) >= 2:
+            moving.append((index, kept))
+    kept_points = [
+        (tool_path.pieces[i].points[kept], tool_path.pieces[i].yaw[kept]) for i, kept in moving
+    ]
+    parts: list[tuple[int, Piece, np.ndarray, np.ndarray, np.ndarray]] = []
+    for (index, kept), (points, yaw), corners in zip(
+        moving, kept_points, _corner_indexes_all(kept_points), strict=True
+    ):
+        piece, q = tool_path.pieces[index], joint_path.pieces[index][kept]
+        cuts = [0, *corners, len(points) - 1]
         for start, end in zip(cuts[:-1], cuts[1:], strict=True):
             part = slice(start, end + 1)
             parts.append((index, piece, points[part], yaw[part], q[part]))
