@@ -649,3 +649,19 @@ def test_inserting_knots_in_all_parts_at_once_matches_part_by_part() -> None:
         for (points, yaw), got in zip(parts, _every_few_all(parts), strict=True):
             want = _every_few(points, yaw)
             assert got.dtype == want.dtype and np.array_equal(got, want)
+
+
+def test_inverse_dh_links_are_the_inverted_links_bit_for_bit() -> None:
+    from keymps.robot.closed_form import _inverse, dh_link, inverse_dh_link
+
+    rng = np.random.default_rng(RNG_SEED + 23)
+    for _ in range(4):
+        arm = random_model(rng).closed_form.arm  # type: ignore[union-attr]
+        theta = np.concatenate(
+            [rng.uniform(-2 * math.pi, 2 * math.pi, 3000), [0.0, -0.0, math.pi, -math.pi / 2]]
+        )
+        for i in range(6):
+            assert (
+                inverse_dh_link(theta, i, arm).tobytes()
+                == _inverse(dh_link(theta, i, arm)).tobytes()
+            )

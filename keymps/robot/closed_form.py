@@ -57,6 +57,25 @@ def dh_link(theta: np.ndarray, i: int, arm: ArmGeometry) -> np.ndarray:
     return out
 
 
+def inverse_dh_link(theta: np.ndarray, i: int, arm: ArmGeometry) -> np.ndarray:
+    """`_inverse(dh_link(theta, i, arm))` built directly: the rotation transposed and the
+    translation -R^T p summed in einsum's order (the same numbers, a third of the work)."""
+    d, a = _dh(arm)
+    ct, st = np.cos(theta), np.sin(theta)
+    ca, sa = math.cos(_ALPHA[i]), math.sin(_ALPHA[i])
+    rotation = ((ct, -st * ca, st * sa), (st, ct * ca, -ct * sa), (0.0, sa, ca))
+    p = (a[i] * ct, a[i] * st, d[i])
+    out = np.zeros((*np.shape(theta), 4, 4))
+    for row in range(3):
+        for column in range(3):
+            out[..., row, column] = rotation[column][row]
+        out[..., row, 3] = -(
+            (rotation[0][row] * p[0] + rotation[1][row] * p[1]) + rotation[2][row] * p[2]
+        )
+    out[..., 3, 3] = 1.0
+    return out
+
+
 def _inverse(pose: np.ndarray) -> np.ndarray:
     """Inverse of (..., 4, 4) rigid transforms."""
     out = np.zeros_like(pose)
@@ -135,24 +154,20 @@ def solve_flange(targets: np.ndarray, arm: ArmGeometry) -> np.ndarray:
     with np.errstate(invalid="ignore", divide="ignore"):
         phi = np.arccos(d4 / radius)
         psi = np.arctan2(p05[:, 1], p05[:, 0])
+        r = targets[:, :3, :3]
         for shoulder, sign1 in enumerate((1.0, -1.0)):
             theta1 = psi + sign1 * phi + math.pi / 2
             s1, c1 = np.sin(theta1), np.cos(theta1)
+            t16 = inverse_dh_link(theta1, 0, arm) @ targets
             cos5 = (p06[:, 0] * s1 - p06[:, 1] * c1 - d4) / d6
             cos5 = np.where(np.abs(cos5) <= 1.0 + 1e-12, np.clip(cos5, -1.0, 1.0), np.nan)
             for wrist, sign5 in enumerate((1.0, -1.0)):
                 theta5 = sign5 * np.arccos(cos5)
                 s5 = np.sin(theta5)
-                r = targets[:, :3, :3]
                 y_arg = (-r[:, 0, 1] * s1 + r[:, 1, 1] * c1) / s5
                 x_arg = (r[:, 0, 0] * s1 - r[:, 1, 0] * c1) / s5
                 theta6 = np.where(np.abs(s5) > 1e-12, np.arctan2(y_arg, x_arg), 0.0)
-                t14 = (
-                    _inverse(dh_link(theta1, 0, arm))
-                    @ targets
-                    @ _inverse(dh_link(theta6, 5, arm))
-                    @ _inverse(dh_link(theta5, 4, arm))
-                )
+                t14 = t16 @ inverse_dh_link(theta6, 5, arm) @ inverse_dh_link(theta5, 4, arm)
                 # Axes 2-4 are parallel to frame 1's z: the arm's plane is frame 1's x-y.
                 px, py = t14[:, 0, 3], t14[:, 1, 3]
                 cos3 = (px**2 + py**2 - a2**2 - a3**2) / (2 * a2 * a3)
@@ -161,9 +176,7 @@ def solve_flange(targets: np.ndarray, arm: ArmGeometry) -> np.ndarray:
                     theta3 = sign3 * np.arccos(cos3)
                     along, across = a2 + a3 * np.cos(theta3), a3 * np.sin(theta3)
                     theta2 = np.arctan2(along * py - across * px, along * px + across * py)
-                    t34 = (
-                        _inverse(dh_link(theta3, 2, arm)) @ _inverse(dh_link(theta2, 1, arm)) @ t14
-                    )
+                    t34 = inverse_dh_link(theta3, 2, arm) @ inverse_dh_link(theta2, 1, arm) @ t14
                     theta4 = np.arctan2(t34[:, 1, 0], t34[:, 0, 0])
                     branch = 4 * shoulder + 2 * wrist + elbow
                     q = np.column_stack([theta1, theta2, theta3, theta4, theta5, theta6])
