@@ -114,20 +114,19 @@ def _corner_indexes_all(parts: list[tuple[np.ndarray, np.ndarray]]) -> list[list
         if n < 3 or arc[-1] <= 0:
             out.append([])
             continue
-        sharp = sharp_all[start : start + n]
+        at = (np.flatnonzero(sharp_all[start + 1 : start + n - 1]) + 1).tolist()  # no ends
         corners: list[int] = []
-        end = -1
-        for index in np.flatnonzero(sharp[1:-1]).tolist():
-            index += 1  # the ends are no corners
-            if index <= end:
-                continue  # inside the run of the corner before
-            end = index
-            while (
-                end + 2 < n and sharp[end + 1] and arc[end + 1] - arc[index] <= 2 * CORNER_CHORD_M
-            ):
-                end += 1
-            middle = (arc[index] + arc[end]) / 2  # a reversal's cluster is centred on its tip
-            corners.append(index + int(np.argmin(np.abs(arc[index : end + 1] - middle))))
+        if at:
+            sharp, arc_m = set(at), arc.tolist()  # Python floats: the same arithmetic
+            end = -1
+            for index in at:
+                if index <= end:
+                    continue  # inside the run of the corner before
+                end = index
+                while end + 1 in sharp and arc_m[end + 1] - arc_m[index] <= 2 * CORNER_CHORD_M:
+                    end += 1
+                middle = (arc_m[index] + arc_m[end]) / 2  # a reversal's cluster: its tip
+                corners.append(min(range(index, end + 1), key=lambda k: abs(arc_m[k] - middle)))
         out.append(corners)
     return out
 

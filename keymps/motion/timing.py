@@ -563,7 +563,6 @@ def sample_trajectory(
     ]
     s, sd, sdd = _sample_profiles([item.profile for item in timed], local)
     counts = [len(times) for times in local]
-    s_parts = np.split(s, np.cumsum(counts)[:-1])
     q, qd, qdd = (np.empty((len(s), len(model.joint_names))) for _ in range(3))
     rates = _StrokeRates([item.stroke for item in timed])
     for part, q_part, qd_part, qdd_part in rates.chunks(
@@ -571,9 +570,13 @@ def sample_trajectory(
     ):
         assert q_part is not None
         q[part], qd[part], qdd[part] = q_part.T, qd_part.T, qdd_part.T
-    xyz = np.concatenate(
-        [_planned_points(item.stroke, s_k) for item, s_k in zip(timed, s_parts, strict=True)]
-    )
+    lengths = np.repeat([item.stroke.length for item in timed], counts)
+    on_path = np.clip(s, 0.0, lengths)
+    xyz = np.empty((len(s), 3))
+    for item, start, count in zip(timed, np.cumsum(counts) - counts, counts, strict=True):
+        part = slice(start, start + count)
+        for k in range(3):  # `_planned_points`, all strokes clipped in one call
+            xyz[part, k] = np.interp(on_path[part], item.stroke.s, item.stroke.points[:, k])
     piece_index = np.repeat([item.stroke.piece_index for item in timed], counts).astype(int)
 
     kinds = np.array([tool_path.pieces[i].kind for i in range(len(tool_path.pieces))], dtype="<U6")
