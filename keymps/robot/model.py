@@ -160,14 +160,13 @@ class RobotModel:
         """`tool_poses` by one Pinocchio call per configuration (what verifies the IK)."""
         import pinocchio as pin
 
-        positions = np.empty((len(qs), 3))
-        rotations = np.empty((len(qs), 3, 3))
+        poses = np.empty((len(qs), 4, 4))
+        model, data, frame = self.model, self.data, self.tcp_frame
+        forward, place = pin.forwardKinematics, pin.updateFramePlacement
         for i, q in enumerate(np.asarray(qs, dtype=float)):
-            pin.forwardKinematics(self.model, self.data, q)
-            pose = pin.updateFramePlacement(self.model, self.data, self.tcp_frame)
-            positions[i] = pose.translation
-            rotations[i] = pose.rotation
-        return positions, rotations
+            forward(model, data, q)
+            poses[i] = place(model, data, frame).homogeneous  # one conversion, not two
+        return poses[:, :3, 3].copy(), poses[:, :3, :3].copy()
 
     def joint_origins(self, q: np.ndarray) -> np.ndarray:
         """(7, 3): the origins of the six joints and of the flange, board frame."""
