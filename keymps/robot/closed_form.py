@@ -57,11 +57,17 @@ def dh_link(theta: np.ndarray, i: int, arm: ArmGeometry) -> np.ndarray:
     return out
 
 
-def inverse_dh_link(theta: np.ndarray, i: int, arm: ArmGeometry) -> np.ndarray:
+def inverse_dh_link(
+    theta: np.ndarray,
+    i: int,
+    arm: ArmGeometry,
+    cos_sin: tuple[np.ndarray, np.ndarray] | None = None,
+) -> np.ndarray:
     """`_inverse(dh_link(theta, i, arm))` built directly: the rotation transposed and the
-    translation -R^T p summed in einsum's order (the same numbers, a third of the work)."""
+    translation -R^T p summed in einsum's order (the same numbers, a third of the work).
+    `cos_sin`: np.cos(theta), np.sin(theta) when the caller has them already."""
     d, a = _dh(arm)
-    ct, st = np.cos(theta), np.sin(theta)
+    ct, st = (np.cos(theta), np.sin(theta)) if cos_sin is None else cos_sin
     ca, sa = math.cos(_ALPHA[i]), math.sin(_ALPHA[i])
     rotation = ((ct, -st * ca, st * sa), (st, ct * ca, -ct * sa), (0.0, sa, ca))
     p = (a[i] * ct, a[i] * st, d[i])
@@ -158,11 +164,12 @@ def solve_flange(targets: np.ndarray, arm: ArmGeometry) -> np.ndarray:
         for shoulder, sign1 in enumerate((1.0, -1.0)):
             theta1 = psi + sign1 * phi + math.pi / 2
             s1, c1 = np.sin(theta1), np.cos(theta1)
-            t16 = inverse_dh_link(theta1, 0, arm) @ targets
+            t16 = inverse_dh_link(theta1, 0, arm, (c1, s1)) @ targets
             cos5 = (p06[:, 0] * s1 - p06[:, 1] * c1 - d4) / d6
             cos5 = np.where(np.abs(cos5) <= 1.0 + 1e-12, np.clip(cos5, -1.0, 1.0), np.nan)
+            angle5 = np.arccos(cos5)
             for wrist, sign5 in enumerate((1.0, -1.0)):
-                theta5 = sign5 * np.arccos(cos5)
+                theta5 = sign5 * angle5
                 s5 = np.sin(theta5)
                 y_arg = (-r[:, 0, 1] * s1 + r[:, 1, 1] * c1) / s5
                 x_arg = (r[:, 0, 0] * s1 - r[:, 1, 0] * c1) / s5
@@ -172,11 +179,17 @@ def solve_flange(targets: np.ndarray, arm: ArmGeometry) -> np.ndarray:
                 px, py = t14[:, 0, 3], t14[:, 1, 3]
                 cos3 = (px**2 + py**2 - a2**2 - a3**2) / (2 * a2 * a3)
                 cos3 = np.where(np.abs(cos3) <= 1.0 + 1e-12, np.clip(cos3, -1.0, 1.0), np.nan)
+                angle3 = np.arccos(cos3)
                 for elbow, sign3 in enumerate((1.0, -1.0)):
-                    theta3 = sign3 * np.arccos(cos3)
-                    along, across = a2 + a3 * np.cos(theta3), a3 * np.sin(theta3)
+                    theta3 = sign3 * angle3
+                    c3, s3 = np.cos(theta3), np.sin(theta3)
+                    along, across = a2 + a3 * c3, a3 * s3
                     theta2 = np.arctan2(along * py - across * px, along * px + across * py)
-                    t34 = inverse_dh_link(theta3, 2, arm) @ inverse_dh_link(theta2, 1, arm) @ t14
+                    t34 = (
+                        inverse_dh_link(theta3, 2, arm, (c3, s3))
+                        @ inverse_dh_link(theta2, 1, arm)
+                        @ t14
+                    )
                     theta4 = np.arctan2(t34[:, 1, 0], t34[:, 0, 0])
                     branch = 4 * shoulder + 2 * wrist + elbow
                     q = np.column_stack([theta1, theta2, theta3, theta4, theta5, theta6])
