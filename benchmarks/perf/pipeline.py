@@ -169,6 +169,7 @@ def stage_floors(warm: dict[str, dict[str, Any]], repeats: int) -> dict[str, dic
         outline = run.outline_m
         xy = np.asarray(trajectory.tool_xyz)[:, :2]
         pairs = _stage_pairs(model, points, yaws, seed, profile, times, trajectory.q, xy, outline)
+        pairs.update(_timing_pair(model, tool_path, run.stages.solve, task))
         measured = interleaved(pairs, repeats)
         results[name] = measured
     return results
@@ -197,6 +198,23 @@ def _stage_pairs(
         "fk_per_call": lambda: model.pinocchio_tool_poses(qs),
         "footprint_vectorized": lambda: outside_distance(xy, outline),
         "footprint_per_point": lambda: _footprint_per_point(xy, outline),
+    }
+
+
+def _timing_pair(
+    model: Any, tool_path: Any, joint_path: Any, task: Any
+) -> dict[str, Callable[[], Any]]:
+    """The joint-limit timing of every stroke: all strokes at once against one by one."""
+    import math
+
+    from keymps.motion.timing import Limits, split_strokes, time_stroke, time_strokes_at_once
+
+    strokes = split_strokes(model, tool_path, joint_path)
+    limits = Limits(math.inf, task.robot.max_tool_acceleration, task.robot.max_tool_jerk)
+    period = 1.0 / float(task.robot.rate_hz or model.rate_hz)
+    return {
+        "timing_at_once": lambda: time_strokes_at_once(model, strokes, limits, period),
+        "timing_by_stroke": lambda: [time_stroke(model, s, limits, period) for s in strokes],
     }
 
 
@@ -290,6 +308,7 @@ def main() -> None:
                 ("profile_numpy", "profile_calls"),
                 ("fk_batched", "fk_per_call"),
                 ("footprint_vectorized", "footprint_per_point"),
+                ("timing_at_once", "timing_by_stroke"),
             ):
                 a, b = measured_stages[fast], measured_stages[slow]
                 print(
