@@ -100,10 +100,14 @@ def many_splines(knots: list[np.ndarray], values: list[np.ndarray]) -> list[Cubi
     shapes = {y[k].shape[1:] for k in batch}
     if len(shapes) > 1:
         return [CubicSpline(k, v) for k, v in zip(x, y, strict=True)]
-    if batch:
-        for k, spline in zip(
-            batch, _splines_side_by_side([x[k] for k in batch], [y[k] for k in batch]), strict=True
-        ):
+    # Systems are solved side by side padded to the longest of their group: grouping by
+    # powers of two of the size keeps the padding below half of every group.
+    groups: dict[int, list[int]] = {}
+    for k in batch:
+        groups.setdefault(len(x[k]).bit_length(), []).append(k)
+    for group in groups.values():
+        built = _splines_side_by_side([x[k] for k in group], [y[k] for k in group])
+        for k, spline in zip(group, built, strict=True):
             out[k] = spline
     return [spline for spline in out if spline is not None]
 
