@@ -81,6 +81,10 @@ class CubicSpline:
         return out.reshape(len(at), *self.shape)
 
 
+PADDING_SLACK = 4096
+"""Rows of padding a group of slope systems may hold beyond twice its own (`many_splines`)."""
+
+
 def many_splines(knots: list[np.ndarray], values: list[np.ndarray]) -> list[CubicSpline]:
     """`CubicSpline(knots[k], values[k])` for every k, the same splines to the last bit, built
     in one pass: the slope systems solved side by side (`_thomas_side_by_side`) and the
@@ -100,12 +104,19 @@ def many_splines(knots: list[np.ndarray], values: list[np.ndarray]) -> list[Cubi
     shapes = {y[k].shape[1:] for k in batch}
     if len(shapes) > 1:
         return [CubicSpline(k, v) for k, v in zip(x, y, strict=True)]
-    # Systems are solved side by side padded to the longest of their group: grouping by
-    # powers of two of the size keeps the padding below half of every group.
-    groups: dict[int, list[int]] = {}
-    for k in batch:
-        groups.setdefault(len(x[k]).bit_length(), []).append(k)
-    for group in groups.values():
+    # Systems are solved side by side, padded to the longest of their group: a group takes
+    # the next shorter system while its padded rows stay under twice its real rows (plus
+    # PADDING_SLACK), so that one long stroke among many short ones costs no memory.
+    groups: list[list[int]] = []
+    padded = real = 0
+    for k in sorted(batch, key=lambda k: -len(x[k])):
+        if groups and (len(groups[-1]) + 1) * padded <= 2 * (real + len(x[k])) + PADDING_SLACK:
+            groups[-1].append(k)
+            real += len(x[k])
+        else:
+            groups.append([k])
+            padded = real = len(x[k])
+    for group in groups:
         built = _splines_side_by_side([x[k] for k in group], [y[k] for k in group])
         for k, spline in zip(group, built, strict=True):
             out[k] = spline
