@@ -108,7 +108,7 @@ def _corner_indexes_all(parts: list[tuple[np.ndarray, np.ndarray]]) -> list[list
     with np.errstate(invalid="ignore", divide="ignore"):
         cosine = np.where(norms > 1e-18, (incoming * outgoing).sum(axis=1) / norms, 1.0)
     sharp_all = cosine < math.cos(CORNER_ANGLE_RAD)
-    out = []
+    out: list[list[int]] = []
     for (points, _), start, arc in zip(parts, starts, arcs, strict=True):
         n = len(points)
         if n < 3 or arc[-1] <= 0:

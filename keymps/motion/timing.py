@@ -205,7 +205,7 @@ class _StrokeRates:
             spline_of.append(q_of_s if isinstance(q_of_s, CubicSpline) else None)
         self.table: SplineTable | None = None
         self.spline_index: list[int] = []
-        if all(spline is not None for spline in spline_of):
+        if strokes and all(spline is not None for spline in spline_of):
             unique: dict[int, int] = {}
             splines: list[CubicSpline] = []
             for spline in spline_of:
@@ -296,7 +296,7 @@ def time_stroke(
     """The fastest profile (tool limits first) whose joints stay inside every joint limit."""
     limits = Limits(min(stroke.speed, tool_limits.velocity), *_tail(tool_limits))
     check_period = min(period, 1.0 / CHECK_RATE_HZ)
-    first_duration = first_place = None
+    first_duration, first_place = None, 0.0
     for attempt in range(MAX_RETIMES):
         profile, duration = _profile(stroke.length, limits, period)
         times = np.arange(0.0, duration + 0.5 * check_period, check_period)
@@ -309,8 +309,8 @@ def time_stroke(
         rv, ra, rj = _limit_ratios(model, qd, qdd, check_period)
         if max(rv, ra, rj) <= 1.0:
             slowdown = duration / first_duration
-            worst_s = first_place if slowdown >= STOP_SLOWDOWN else None
-            return TimedStroke(stroke, profile, duration, limits, slowdown, worst_s or 0.0)
+            worst_s = first_place if slowdown >= STOP_SLOWDOWN else 0.0
+            return TimedStroke(stroke, profile, duration, limits, slowdown, worst_s)
         if attempt < MAX_RETIMES // 2:
             # lower only what is violated: keeps the profile fast where it can be
             limits = Limits(
