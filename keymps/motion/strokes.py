@@ -32,8 +32,6 @@ YAW_RADIUS_M = 0.05
 """Turning the tool by 1 rad counts like moving it 5 cm along the path parameter."""
 MAX_KNOT_SPACING = 0.002
 """IK points are added wherever the tool path's points are further apart than this."""
-SCAN_WINDOW = 64
-"""Points a dwell is scanned by at once in `_significant_points`."""
 MIN_STOP_GAP_M = 0.001
 """No stop closer than this to either end of a stroke (its ends are rests already)."""
 
@@ -100,8 +98,8 @@ def _corner_indexes_all(parts: list[tuple[np.ndarray, np.ndarray]]) -> list[list
         arcs.append(arc)
         back = np.searchsorted(arc, arc - CORNER_CHORD_M, side="right") - 1
         ahead = np.searchsorted(arc, arc + CORNER_CHORD_M, side="left")
-        before.append(np.clip(back, 0, n - 1) + start)
-        after.append(np.clip(ahead, 0, n - 1) + start)
+        before.append(np.maximum(back, 0) + start)  # back >= -1, ahead <= n: the clip
+        after.append(np.minimum(ahead, n - 1) + start)
     incoming = geometry - geometry[np.concatenate(before)]
     outgoing = geometry[np.concatenate(after)] - geometry
     norms = np.linalg.norm(incoming, axis=1) * np.linalg.norm(outgoing, axis=1)
@@ -336,12 +334,14 @@ def _significant_points_all(parts: list[tuple[np.ndarray, np.ndarray]]) -> list[
 def _significant_in(geometry: np.ndarray, steps: np.ndarray) -> np.ndarray:
     """`_significant_points` of one part's geometry and steps (see `_geometry_of_all`)."""
     n = len(geometry)
-    # The test is the distance (1-D norm) from the last point kept. Row norms (another
-    # summation order) decide only where they are clear of MIN_STEP_M by far more than their
-    # rounding differences: runs of long steps are kept whole, runs of short ones skipped;
-    # every other point gets the test itself.
+    # The test is the distance (1-D norm) from the last point kept. Row norms and sums of
+    # squares in Python floats (other summation orders) decide only where they are clear of
+    # MIN_STEP_M by far more than their rounding differences: runs of long steps are kept
+    # whole, other points measured in Python floats; the 1-D norm itself decides the rest.
     low, high = MIN_STEP_M * (1 - 1e-9), MIN_STEP_M * (1 + 1e-9)
+    low2, high2 = low * low, high * high
     unclear = [*np.flatnonzero(steps < high).tolist(), n - 1]  # steps not clearly long enough
+    rows: list[list[float]] | None = None
     kept = [0]
     i = 1
     while i < n:
@@ -351,13 +351,14 @@ def _significant_in(geometry: np.ndarray, steps: np.ndarray) -> np.ndarray:
             kept.extend(range(i, stop + 1))  # each step from a point kept, each long enough
             i = stop + 1
             continue
-        window = geometry[i : i + SCAN_WINDOW]
-        maybe = np.flatnonzero(np.linalg.norm(window - geometry[last], axis=1) >= low)
-        if not len(maybe):
-            i += len(window)
-            continue
-        i += int(maybe[0])
-        if np.linalg.norm(geometry[i] - geometry[last]) >= MIN_STEP_M:
+        if rows is None:
+            rows = geometry.tolist()
+        x, y, z, w = rows[last]
+        a, b, c, d = rows[i]
+        squared = (a - x) ** 2 + (b - y) ** 2 + (c - z) ** 2 + (d - w) ** 2
+        if squared >= high2 or (
+            squared >= low2 and np.linalg.norm(geometry[i] - geometry[last]) >= MIN_STEP_M
+        ):
             kept.append(i)
         i += 1
     if len(kept) == 1:
