@@ -334,12 +334,14 @@ class SplineTable:
             here = rows[part]
             t = at[part] - self.x[here]
             block = self.rates.take(here, axis=1)
-            first = block[:w] * t
+            second = block[3 * w :]  # (a slice of this chunk's own copy: computed in place)
+            second *= t
+            second += block[w : 2 * w]
+            first = block[:w]
+            first *= t
             first += block[w : 2 * w]
             first *= t
             first += block[2 * w : 3 * w]
-            second = block[3 * w :] * t
-            second += block[w : 2 * w]
             value = None
             if values:
                 c = self.values.take(here, axis=1)

@@ -260,12 +260,11 @@ class _StrokeRates:
                 at[start : start + count] = at[start : start + count] + offset
         rows = self.table.intervals([self.spline_index[k] for k in which], at, counts)
         for part, q, dq, ddq in self.table.chunks(at, rows, values):
-            rate, change = sd[part], sdd[part]
-            qd = dq * rate
-            qdd = ddq * rate**2
-            dq *= change
-            qdd += dq
-            yield part, q, qd, qdd
+            rate = sd[part]
+            ddq *= rate**2  # q double dot: ddq * sd**2 + dq * sdd, in place
+            ddq += dq * sdd[part]
+            dq *= rate  # q dot
+            yield part, q, dq, ddq
 
 
 def _limit_ratios(
@@ -349,10 +348,8 @@ def _check_profiles(
         last = int(np.searchsorted(starts, part.start + qd.shape[1], side="left"))
         owners = np.arange(first, last)  # the profiles with samples in this chunk
         cuts = np.maximum(starts[first:last] - part.start, 0)
-        for slot, values in ((0, qd), (1, qdd)):
-            found = np.maximum.reduceat(np.abs(values), cuts, axis=1)
-            largest[slot][:, owners] = np.maximum(largest[slot][:, owners], found)
-        change = np.abs(np.diff(qdd, axis=1))
+        change = np.diff(qdd, axis=1)
+        np.abs(change, out=change)
         change[:, cuts[1:] - 1] = 0.0  # from one profile's last sample to the next one's first
         inside = cuts < change.shape[1]
         if inside.any():
@@ -362,6 +359,10 @@ def _check_profiles(
             # the change from the chunk before, inside one profile
             largest[2][:, first] = np.maximum(largest[2][:, first], np.abs(qdd[:, 0] - before))
         before = qdd[:, -1].copy()
+        for slot, values in ((0, qd), (1, qdd)):
+            np.abs(values, out=values)
+            found = np.maximum.reduceat(values, cuts, axis=1)
+            largest[slot][:, owners] = np.maximum(largest[slot][:, owners], found)
     velocity = (largest[0] / model.velocity_limits[:, None]).max(axis=0)
     acceleration = (largest[1] / model.acceleration_limits[:, None]).max(axis=0)
     jerk = (largest[2] / check_period / model.jerk_limits[:, None]).max(axis=0)
