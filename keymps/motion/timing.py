@@ -493,10 +493,13 @@ def slow_piece_warnings(
 ) -> list[str]:
     """One line per work piece the joint limits slow SLOW_PIECE_FACTOR times or more."""
     lines = []
+    by_piece: dict[int, list[TimedStroke]] = {}
+    for item in timed:
+        by_piece.setdefault(item.stroke.piece_index, []).append(item)
     for index, piece in enumerate(tool_path.pieces):
         if piece.kind != "work":
             continue
-        mine = [item for item in timed if item.stroke.piece_index == index]
+        mine = by_piece.get(index, [])
         duration = sum(item.duration for item in mine)
         at_tool_limits = sum(item.nominal for item in mine)
         if not mine or duration < SLOW_PIECE_FACTOR * at_tool_limits:
