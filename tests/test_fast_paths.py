@@ -665,3 +665,43 @@ def test_inverse_dh_links_are_the_inverted_links_bit_for_bit() -> None:
                 inverse_dh_link(theta, i, arm).tobytes()
                 == _inverse(dh_link(theta, i, arm)).tobytes()
             )
+
+
+class _OtherSpline:
+    """A q(s) that is no keymps CubicSpline (a plugin's, say): evaluated stroke by stroke."""
+
+    def __init__(self, spline: Any):
+        self.spline = spline
+
+    def derivatives(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return self.spline.derivatives(s)  # type: ignore[no-any-return]
+
+    def with_derivatives(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return self.spline.with_derivatives(s)  # type: ignore[no-any-return]
+
+
+def test_strokes_of_other_splines_are_timed_and_sampled_alike() -> None:
+    import dataclasses
+
+    from keymps.motion.timing import Limits, sample_trajectory, time_stroke, time_strokes_at_once
+
+    rng = np.random.default_rng(RNG_SEED + 24)
+    for model, tool_path, strokes in _generated_strokes(rng, 1):
+        others = [dataclasses.replace(s, q_of_s=_OtherSpline(s.q_of_s)) for s in strokes[:12]]
+        limits = Limits(math.inf, 8.0, 150.0)
+        together = time_strokes_at_once(model, others, limits, 1 / 125)
+        for stroke, got in zip(others, together, strict=True):
+            want = time_stroke(model, stroke, limits, 1 / 125)
+            assert not isinstance(got, KeympsError)
+            assert (got.duration, got.limits, got.slowdown) == (
+                want.duration,
+                want.limits,
+                want.slowdown,
+            )
+        timed = [item for item in together if not isinstance(item, KeympsError)]
+        direct = [
+            dataclasses.replace(item, stroke=s) for item, s in zip(timed, strokes[:12], strict=True)
+        ]
+        a = sample_trajectory(model, tool_path, timed, 125.0)
+        b = sample_trajectory(model, tool_path, direct, 125.0)
+        assert a.q.tobytes() == b.q.tobytes() and a.qdd.tobytes() == b.qdd.tobytes()
