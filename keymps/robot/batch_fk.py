@@ -16,6 +16,8 @@ from typing import Any
 
 import numpy as np
 
+from keymps.robot.probes import probe_configurations
+
 AGREEMENT = 1e-12
 CHUNK = 4096
 """Configurations per pass: keeps every temporary in cache and out of fresh memory mappings
@@ -121,8 +123,7 @@ class BatchKinematics:
         import pinocchio as pin
 
         data = model.createData()
-        rng = np.random.default_rng(7)
-        qs = rng.uniform(-math.pi, math.pi, (4, model.nq))
+        qs = probe_configurations(4, model.nq)
         poses = self.joint_poses(qs)
         for k, q in enumerate(qs):
             pin.forwardKinematics(model, data, q)
