@@ -258,7 +258,9 @@ def main() -> None:
         "--baseline-python", type=Path, help="an interpreter with another keymps to compare with"
     )
     parser.add_argument(
-        "--no-bytecode", action="store_true", help="leave keymps' bytecode as the environment has it"
+        "--no-bytecode",
+        action="store_true",
+        help="leave keymps' bytecode as the environment has it",
     )
     args = parser.parse_args()
     baseline = args.baseline_python

@@ -10,7 +10,6 @@ configurations and refuses (returns None) any model it does not reproduce to 1e-
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Any
 
