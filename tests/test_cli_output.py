@@ -91,3 +91,20 @@ def test_console_lines_are_not_cut_at_80_columns(
     starts = ("✓", "backend", "keyword", "segments", "duration", "run folder", "warning", "open")
     for line in (done.stderr + done.stdout).splitlines():
         assert line.startswith(starts), f"a line cut in the middle: {line!r}"
+
+
+@pytest.mark.parametrize("no_color", [False, True])
+def test_progress_is_coloured_on_a_terminal_unless_no_color(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, no_color: bool
+) -> None:
+    if no_color:
+        monkeypatch.setenv("NO_COLOR", "1")
+    else:
+        monkeypatch.delenv("NO_COLOR", raising=False)
+    path = task_file(tmp_path, "Put 3 icing dots around the cake")
+    args = ["run", str(path), "--rerun", "off", "--out", str(tmp_path / "run")]
+    result = CliRunner().invoke(cli, args, color=True)  # as on a terminal
+    assert result.exit_code == 0, result.output
+    ticks = [line for line in result.output.splitlines() if "✓" in line]
+    assert len(ticks) == 9
+    assert all(("\x1b[" in line) is not no_color for line in ticks)

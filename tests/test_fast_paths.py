@@ -122,6 +122,33 @@ def test_a_path_the_closed_form_cannot_take_falls_back_with_the_same_errors() ->
     assert np.abs(model.solve_points(near, np.zeros(2), seed)[0] - auto[0]).max() < 1e-6
 
 
+def test_the_kinematics_self_checks_refuse_a_model_that_disagrees() -> None:
+    """Both fast paths check themselves against Pinocchio at the probe configurations."""
+    import dataclasses
+
+    from keymps.robot.batch_fk import BatchKinematics
+    from keymps.robot.closed_form import ClosedFormIk
+    from keymps.robot.probes import probe_configurations
+
+    probes = probe_configurations(64, 6)
+    assert probes.shape == (64, 6) and np.abs(probes).max() < math.pi
+    # spread: every joint's range is covered, no two probes alike
+    for column in probes.T:
+        assert np.histogram(column, bins=8, range=(-math.pi, math.pi))[0].min() >= 4
+    assert np.array_equal(probes, probe_configurations(64, 6))
+
+    model = RobotModel("ur3", tool=BUILTIN_TOOLS["knife"])
+    base = model.base_in_board.homogeneous
+    assert ClosedFormIk.for_model(model.arm, base, model.fk) is not None
+    longer = dataclasses.replace(model.arm, forearm=model.arm.forearm + 1e-6)
+    assert ClosedFormIk.for_model(longer, base, model.fk) is None
+    batch = BatchKinematics.for_model(model.model)
+    assert batch is not None
+    joints = list(batch.joints)
+    joints[3] = dataclasses.replace(joints[3], translation=joints[3].translation + [1e-6, 0, 0])
+    assert not BatchKinematics(tuple(joints))._agrees_with(model.model)
+
+
 def test_batched_forward_kinematics_is_pinocchios() -> None:
     rng = np.random.default_rng(RNG_SEED + 2)
     for _ in range(3):

@@ -22,6 +22,11 @@ with main's checkout), the CLI run, the warm computation, the recording and the 
 measured for that version, interleaved with this one's: before/after figures from one run, on
 one machine load.
 
+Every command runs with keymps' bytecode compiled beforehand, in a temporary PYTHONPYCACHEPREFIX
+(the checkout is not touched), as pip leaves an installed package and as a checkout is after its
+first run: without that, PYTHONDONTWRITEBYTECODE and a checkout without __pycache__ make every
+run compile all of keymps again (about 0.1 s). `--no-bytecode` measures that case.
+
 Targets: cli_vs_import_floor <= 2.5, warm_ms_per_trajectory_s <= 4, icing_recording_mb < 2,
 eval_cutting_sim_runs_per_s > 8 (2 cores). The last lines are machine-readable `name: value`.
 """
@@ -90,6 +95,7 @@ def startup(repeats: int, folder: Path, baseline: Path | None) -> dict[str, floa
         functions["cli_run_baseline"] = command(
             [*keymps(baseline), "run", *task, str(folder / "cli-baseline")], where(baseline)
         )
+    interleaved(functions, 1)  # warm the file cache
     return interleaved(functions, repeats)
 
 
@@ -249,6 +255,18 @@ def eval_rate(folder: Path, repeats: int, baseline: Path | None = None) -> tuple
     return runs / elapsed, runs
 
 
+def cache_bytecode(folder: Path, pythons: list[str]) -> None:
+    """Compile each interpreter's keymps into a private bytecode cache that every child uses."""
+    os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
+    os.environ["PYTHONPYCACHEPREFIX"] = str(folder / "pycache")
+    compile_keymps = (
+        "import compileall, os, keymps; "
+        "compileall.compile_dir(os.path.dirname(keymps.__file__), quiet=1)"
+    )
+    for python in pythons:
+        subprocess.run([python, "-c", compile_keymps], check=True, cwd=tempfile.gettempdir())
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--repeats", type=int, default=5)
@@ -257,12 +275,20 @@ def main() -> None:
     parser.add_argument(
         "--baseline-python", type=Path, help="an interpreter with another keymps to compare with"
     )
+    parser.add_argument(
+        "--no-bytecode",
+        action="store_true",
+        help="leave keymps' bytecode as the environment has it",
+    )
     args = parser.parse_args()
     baseline = args.baseline_python
     lines: list[tuple[str, str]] = []
     with tempfile.TemporaryDirectory() as scratch:
         folder = Path(scratch)
-        print(f"load {load()} at start; {os.cpu_count()} cores")
+        if not args.no_bytecode:
+            cache_bytecode(folder, [sys.executable] + ([str(baseline)] if baseline else []))
+        cached = "not cached" if args.no_bytecode else "cached"
+        print(f"load {load()} at start; {os.cpu_count()} cores; keymps bytecode {cached}")
 
         measured = startup(args.repeats, folder, baseline)
         ratio = measured["cli_run"] / measured["import_floor"]
@@ -328,6 +354,7 @@ def main() -> None:
                     f"{prefix or 'this '}eval cutting_sim (load {load()}): {runs} runs, {rate:.2f} runs/s"
                 )
                 lines.append((f"{prefix}eval_cutting_sim_runs_per_s", f"{rate:.2f}"))
+        lines.append(("bytecode_cached", str(int(not args.no_bytecode))))
         lines.append(("load_average", load()))
     for name, value in lines:
         print(f"{name}: {value}")

@@ -1,8 +1,9 @@
-"""What `keymps run` and `keymps plugins` print (rich on stderr for progress)."""
+"""What `keymps run` and `keymps plugins` print (progress on stderr, the summary on stdout)."""
 
 from __future__ import annotations
 
 import json
+import os
 from typing import Any
 
 import click
@@ -49,21 +50,19 @@ def _stage_detail(stage: str, result: Any) -> str:
 
 class RunPrinter:
     def __init__(self, quiet: bool = False):
-        from rich.console import Console
-
         self.quiet = quiet
-        # soft_wrap: a long line is the terminal's to wrap, not cut by rich at 80 columns
-        self.console = Console(stderr=True, highlight=False, soft_wrap=True)
+        # click drops the colours when stderr is not a terminal; NO_COLOR (no-color.org) too.
+        # Plain click.echo rather than rich here: rich's import is 20 ms of every run.
+        self.color: bool | None = False if os.environ.get("NO_COLOR") else None
 
     def stage_done(self, stage: str, seconds: float, result: Any) -> None:
         if self.quiet:
             return
         title = _STAGE_TITLES.get(stage, stage)
-        detail = _stage_detail(stage, result)
-        from rich.markup import escape
-
-        detail = escape(redact_text(detail))
-        self.console.print(f"[green]✓[/] {title:<32} {seconds:7.3f} s  [dim]{detail}[/]")
+        detail = redact_text(_stage_detail(stage, result))
+        tick = click.style("✓", fg="green")
+        line = f"{tick} {title:<32} {seconds:7.3f} s  {click.style(detail, dim=True)}"
+        click.echo(line, err=True, color=self.color)
 
     def summary(self, run: Run) -> None:
         folder = run.folder

@@ -10,11 +10,12 @@ configurations and refuses (returns None) any model it does not reproduce to 1e-
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+
+from keymps.robot.probes import probe_configurations
 
 AGREEMENT = 1e-12
 CHUNK = 4096
@@ -121,8 +122,7 @@ class BatchKinematics:
         import pinocchio as pin
 
         data = model.createData()
-        rng = np.random.default_rng(7)
-        qs = rng.uniform(-math.pi, math.pi, (4, model.nq))
+        qs = probe_configurations(4, model.nq)
         poses = self.joint_poses(qs)
         for k, q in enumerate(qs):
             pin.forwardKinematics(model, data, q)

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from keymps.robot.description import ArmGeometry
+from keymps.robot.probes import probe_configurations
 
 BRANCHES = 8
 """Solutions per pose: (shoulder, wrist, elbow) signs, index = 4 shoulder + 2 wrist + elbow."""
@@ -129,8 +130,7 @@ class ClosedFormIk:
         board_from_dh = np.asarray(base_link_in_board, dtype=float) @ np.diag([-1.0, -1.0, 1, 1])
         zero = np.zeros(6)
         flange_from_tcp = _inverse(board_from_dh @ dh_flange(zero, arm)) @ tcp(zero)
-        rng = np.random.default_rng(20261201)
-        for q in rng.uniform(-math.pi, math.pi, (4, 6)):
+        for q in probe_configurations(4, 6):
             got = board_from_dh @ dh_flange(q, arm) @ flange_from_tcp
             if not np.allclose(got, tcp(q), atol=MODEL_AGREEMENT, rtol=0.0):
                 return None
