@@ -23,9 +23,9 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from keymps.perception.board_model import (
     BoardModel,
-    border_band,
     distance_to_board,
     fit_board,
+    lab_planes,
     to_lab,
 )
 from keymps.perception.image_io import to_bgr8
@@ -144,7 +144,7 @@ class BoardDetector:
         # a region touches a side when it reaches the first 1.5 px inside the left-out edge
         bands = area.side_bands(1.5 + self.options.edge)
         if self.options.edge:
-            distance[border_band(area.mask, self.options.edge)] = 0.0
+            distance[area.border_band(self.options.edge)] = 0.0
             left_out = area.side_bands(self.options.edge)
             bands = [band & ~out for band, out in zip(bands, left_out, strict=True)]
 
@@ -254,24 +254,26 @@ class BoardDetector:
     def _board_distance(
         self, lab: np.ndarray, area: SearchArea
     ) -> tuple[np.ndarray, BoardModel, np.ndarray, float]:
-        """Distance to the board model, the model, and the board's noise (99.5th percentile)."""
+        """Distance to the board model, the model (and its planes), and the board's noise
+        (99.5th percentile)."""
         import cv2
 
         height, width = area.mask.shape
         border = self.options.border or max(3, round(0.02 * min(width, height)))
-        band = border_band(area.mask, border)
+        band = area.border_band(border)
         degree = self.options.surface
+        planes = lab_planes(lab)
         model = fit_board(lab, band, degree)
-        surface = model.image()
-        distance = distance_to_board(lab, surface, self.options.shadow)
+        surface = model.planes()
+        distance = distance_to_board(planes, surface, self.options.shadow)
         # refit on every pixel that looks like board, away from anything that does not
         rough = distance > max(MIN_THRESHOLD, 4.0 * model.residual + 2.0)
         grown = cv2.dilate(rough.astype(np.uint8), np.ones((9, 9), np.uint8)) > 0
         board_pixels = area.mask & ~grown
         if board_pixels.sum() > 10 * (degree + 1) ** 2:
             model = fit_board(lab, board_pixels, degree)
-            surface = model.image()
-            distance = distance_to_board(lab, surface, self.options.shadow)
+            surface = model.planes()
+            distance = distance_to_board(planes, surface, self.options.shadow)
         else:
             board_pixels = band
         samples = distance[board_pixels]
@@ -293,6 +295,7 @@ class BoardDetector:
 
         binary = (mask & area.mask).astype(np.uint8) * 255
         contours, _ = cv2.findContours(binary, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+        band_pixels = [max(int(band.sum()), 1) for band in bands]
         found = []
         for contour in contours:
             region_area = float(cv2.contourArea(contour))
@@ -302,18 +305,22 @@ class BoardDetector:
             cv2.drawContours(filled, [contour], -1, 255, cv2.FILLED)
             inside = filled > 0
             x, y, w, h = cv2.boundingRect(contour)
+            # the region lies in its box: count there, not over the whole image
+            box = np.s_[y : y + h, x : x + w]
+            inside_box, bands_box = inside[box], [band[box] for band in bands]
             found.append(
                 Region(
                     contour=contour.reshape(-1, 2),
                     mask=inside,
                     area=region_area,
                     bbox=(x, y, x + w, y + h),
-                    coverage=float(inside.sum()) / max(area.pixels, 1),
-                    sides=tuple(area.sides_touched(inside, bands)),
+                    coverage=float(inside_box.sum()) / max(area.pixels, 1),
+                    sides=tuple(area.sides_touched(inside_box, bands_box)),
                     along=max(
-                        float((inside & band).sum()) / max(int(band.sum()), 1) for band in bands
+                        float((inside_box & band).sum()) / pixels
+                        for band, pixels in zip(bands_box, band_pixels, strict=True)
                     ),
-                    contrast=float(np.median(distance[inside & mask])),
+                    contrast=float(np.median(distance[box][inside_box & mask[box]])),
                     edge_contrast=_edge_contrast(filled, distance, (x, y, x + w, y + h)),
                 )
             )

@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from functools import lru_cache
 from typing import Any
 
 import numpy as np
@@ -58,30 +59,40 @@ def odd_kernel(value: int) -> int:
 
 @dataclass(frozen=True)
 class SearchArea:
+    """Made by SearchArea.of, one per image size and polygon: its arrays are read-only, and
+    what is derived from them alone (side bands, border bands) is computed once."""
+
     mask: np.ndarray
     """Bool H x W: the pixels searched."""
     polygon: np.ndarray
     """(N, 2) corners in continuous pixel coordinates."""
+    _derived: dict[tuple[str, float], Any] = field(
+        default_factory=dict, init=False, repr=False, compare=False
+    )
 
     @classmethod
     def of(cls, size_px: tuple[int, int], polygon: list[tuple[float, float]] | None) -> SearchArea:
         """The polygon (continuous pixel coordinates), or the whole image when None."""
+        corners = None if polygon is None else np.asarray(polygon, dtype=float).reshape(-1, 2)
+        key = None if corners is None else tuple(map(tuple, corners.tolist()))
+        return _search_area((int(size_px[0]), int(size_px[1])), key)
+
+    def border_band(self, width_px: int) -> np.ndarray:
+        """The searched pixels within width_px of the area's boundary (OpenCV's 3 x 3 L2
+        distance to the nearest pixel outside, the image's border counting as outside)."""
+        if ("border", width_px) not in self._derived:
+            band = self.mask & (self._boundary_distance() <= width_px)
+            self._derived["border", width_px] = _read_only(band)
+        return self._derived["border", width_px]  # type: ignore[no-any-return]
+
+    def _boundary_distance(self) -> np.ndarray:
         import cv2
 
-        width, height = size_px
-        if polygon is None:
-            corners = np.array([[0, height], [width, height], [width, 0], [0, 0]], float)
-            return cls(np.ones((height, width), bool), corners)
-        corners = np.asarray(polygon, dtype=float).reshape(-1, 2)
-        area = np.zeros((height, width), np.uint8)
-        # Pixel centres at +0.5: a polygon vertex (x, y) is index (x - 0.5, y - 0.5).
-        points = np.round((corners - 0.5) * 16).astype(np.int32)
-        cv2.fillPoly(area, [points.reshape(-1, 1, 2)], 255, cv2.LINE_8, 4)
-        if not area.any():
-            raise KeympsError(
-                f"detector.roi {corners.tolist()} lies outside the {width} x {height} px image"
-            )
-        return cls(area > 0, corners)
+        if ("distance", 0) not in self._derived:
+            padded = np.pad(self.mask.astype(np.uint8), 1)
+            distance = cv2.distanceTransform(padded, cv2.DIST_L2, 3)[1:-1, 1:-1]
+            self._derived["distance", 0] = _read_only(distance)
+        return self._derived["distance", 0]  # type: ignore[no-any-return]
 
     @property
     def pixels(self) -> int:
@@ -94,6 +105,11 @@ class SearchArea:
 
     def side_bands(self, width_px: float = 2.0) -> list[np.ndarray]:
         """Per side, the searched pixels whose centre lies within width_px of that side."""
+        if ("sides", width_px) not in self._derived:
+            self._derived["sides", width_px] = [_read_only(b) for b in self._side_bands(width_px)]
+        return list(self._derived["sides", width_px])
+
+    def _side_bands(self, width_px: float) -> list[np.ndarray]:
         height, width = self.mask.shape
         cols = np.arange(width, dtype=np.float32)[None, :] + 0.5
         rows = np.arange(height, dtype=np.float32)[:, None] + 0.5
@@ -119,6 +135,33 @@ class SearchArea:
         bands = bands if bands is not None else self.side_bands()
         names = self.side_names()
         return [names[i] for i, band in enumerate(bands) if (region & band).any()]
+
+
+@lru_cache(maxsize=2)  # one camera (or two) at a time: full-size arrays, kept
+def _search_area(
+    size_px: tuple[int, int], corners: tuple[tuple[float, float], ...] | None
+) -> SearchArea:
+    import cv2
+
+    width, height = size_px
+    if corners is None:
+        whole = np.array([[0, height], [width, height], [width, 0], [0, 0]], float)
+        return SearchArea(_read_only(np.ones((height, width), bool)), _read_only(whole))
+    polygon = np.array(corners, dtype=float)
+    area = np.zeros((height, width), np.uint8)
+    # Pixel centres at +0.5: a polygon vertex (x, y) is index (x - 0.5, y - 0.5).
+    points = np.round((polygon - 0.5) * 16).astype(np.int32)
+    cv2.fillPoly(area, [points.reshape(-1, 1, 2)], 255, cv2.LINE_8, 4)
+    if not area.any():
+        raise KeympsError(
+            f"detector.roi {polygon.tolist()} lies outside the {width} x {height} px image"
+        )
+    return SearchArea(_read_only(area > 0), _read_only(polygon))
+
+
+def _read_only(array: np.ndarray) -> np.ndarray:
+    array.flags.writeable = False
+    return array
 
 
 MAX_OBJECT_COVERAGE = 0.75
