@@ -75,11 +75,11 @@ class BoardModel:
             np.arange(height, dtype=np.float32)[:, None],
         )
         result = np.zeros((3, height, width), np.float32)
-        scaled = np.empty((height, width), np.float32)
+        term, scaled = np.empty((2, height, width), np.float32)
         for (i, j), weights in zip(_exponents(self.degree), self.coefficients, strict=True):
-            term = x**i * y**j  # (1, W) times (H, 1): one H x W product per term
+            np.multiply(x**i, y**j, out=term)  # (1, W) times (H, 1): one H x W product per term
             for channel in range(3):
-                # contiguous planes, no temporaries: the same float32 sums, term by term
+                # into buffers, not fresh arrays: the same float32 sums, term by term
                 result[channel] += np.multiply(term, weights[channel], out=scaled)
         return result
 
@@ -156,14 +156,20 @@ def _row_norms(vectors: np.ndarray) -> np.ndarray:
 def distance_to_board(lab: np.ndarray, model: np.ndarray, shadow: float) -> np.ndarray:
     """Per-pixel Lab distance to the board model; darkening counts (1 - shadow) of its size.
     Both are channel planes (3 x H x W, or three H x W arrays): lab_planes(), model.planes()."""
-    lightness = lab[0] - model[0]
+    lightness = np.subtract(lab[0], model[0])
     # a shadow scales (L + 16, a, b) alike: compare chroma with the board's, scaled as much
-    ratio = np.divide(lab[0] + 16.0, np.maximum(model[0] + 16.0, 1.0))
+    ratio = np.add(model[0], 16.0)
+    np.maximum(ratio, 1.0, out=ratio)
+    scratch = np.add(lab[0], 16.0)
+    np.divide(scratch, ratio, out=ratio)
     np.clip(ratio, 0.0, 1.0, out=ratio)
-    da = lab[1] - ratio * model[1]
-    db = lab[2] - ratio * model[2]
-    darker = np.where(lightness < 0, np.float32(1.0 - shadow) * lightness, lightness)
-    total = np.square(darker)
-    total += np.square(da)
-    total += np.square(db)
+    # in place, in buffers: the same float32 operations as the formula, in the same order
+    da = np.multiply(ratio, model[1])
+    np.subtract(lab[1], da, out=da)
+    db = np.multiply(ratio, model[2], out=ratio)
+    np.subtract(lab[2], db, out=db)
+    np.multiply(lightness, np.float32(1.0 - shadow), out=lightness, where=lightness < 0)
+    total = np.square(lightness, out=lightness)
+    total += np.square(da, out=da)
+    total += np.square(db, out=db)
     return np.sqrt(total, out=total)
