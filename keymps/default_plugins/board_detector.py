@@ -26,6 +26,7 @@ from keymps.perception.board_model import (
     distance_to_board,
     fit_board,
     lab_planes,
+    prepare_lab_tables,
     to_lab,
 )
 from keymps.perception.image_io import to_bgr8
@@ -403,7 +404,9 @@ def _warnings(chosen: Region, pick: int, objects: list[Region], options: BoardOp
 
 
 def make_detector(options: dict[str, Any]) -> BoardDetector:
-    return BoardDetector(parse_options(options))
+    detector = BoardDetector(parse_options(options))
+    prepare_lab_tables()  # OpenCV's first Lab conversion, on the other core while the run starts
+    return detector
 
 
 @hookimpl

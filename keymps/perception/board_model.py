@@ -14,6 +14,8 @@ full. Units are Lab (Delta E 1976): about 2.3 is the smallest difference a perso
 
 from __future__ import annotations
 
+import contextlib
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,11 +23,44 @@ import numpy as np
 MAX_SAMPLES = 12_000
 """Board pixels used for one fit (drawn evenly); more change the surface by nothing visible."""
 
+_lab_tables: threading.Thread | None = None
+_lab_tables_lock = threading.Lock()
+
+
+def prepare_lab_tables() -> None:
+    """Have OpenCV build its Lab conversion tables on another thread (once per process).
+
+    OpenCV builds them on a process's first conversion to or from Lab: about 100 ms of software
+    floating point, with the GIL released, so on a second core it costs the run nothing. The
+    board detector starts it when it is made, well before the run detects."""
+    global _lab_tables
+    with _lab_tables_lock:
+        if _lab_tables is None:
+            _lab_tables = threading.Thread(
+                target=_build_lab_tables, name="keymps-lab-tables", daemon=True
+            )
+            _lab_tables.start()
+
+
+def lab_tables_ready() -> None:
+    """Wait for prepare_lab_tables' thread, if any. OpenCV's table build is not thread-safe:
+    every Lab conversion calls this first (after a fork the thread is gone and this returns)."""
+    if _lab_tables is not None:
+        _lab_tables.join()
+
+
+def _build_lab_tables() -> None:
+    with contextlib.suppress(Exception):  # the conversion itself will report any problem
+        import cv2
+
+        cv2.cvtColor(np.zeros((1, 1, 3), np.float32), cv2.COLOR_BGR2Lab)
+
 
 def to_lab(image: np.ndarray) -> np.ndarray:
     """BGR uint8 (H x W x 3) -> float32 CIE Lab: L in [0, 100], a and b about [-128, 127]."""
     import cv2
 
+    lab_tables_ready()
     return np.asarray(cv2.cvtColor(image.astype(np.float32) / 255.0, cv2.COLOR_BGR2Lab))
 
 
@@ -117,7 +152,8 @@ def fit_board(
     if len(flat) > MAX_SAMPLES:
         flat = flat[np.linspace(0, len(flat) - 1, MAX_SAMPLES).astype(int)]
     rows, cols = np.divmod(flat, width)
-    values = lab[rows, cols].astype(np.float64)
+    # rows by index (take) rather than by mask or index pairs: the same rows, copied faster
+    values = lab.reshape(-1, lab.shape[-1]).take(flat, axis=0).astype(np.float64)
     probe = BoardModel(np.zeros((1, 3)), degree, (width, height), 0, 0.0)
     x, y = probe._normalized(cols.astype(np.float64), rows.astype(np.float64))
     design = _monomials(x, y, degree)
@@ -129,10 +165,11 @@ def fit_board(
     for _ in range(iterations):
         if inliers.sum() < design.shape[1] * 4:
             break
-        used = design[inliers]
+        kept = np.flatnonzero(inliers)
+        used = design.take(kept, axis=0)
         # normal equations: a (terms x terms) solve instead of an SVD of every sample
         coefficients = np.linalg.solve(
-            used.T @ used + 1e-9 * np.eye(used.shape[1]), used.T @ values[inliers]
+            used.T @ used + 1e-9 * np.eye(used.shape[1]), used.T @ values.take(kept, axis=0)
         )
         residual = _row_norms(values - design @ coefficients)
         typical = float(np.median(residual[inliers]))
