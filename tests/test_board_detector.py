@@ -235,3 +235,40 @@ def test_every_object_of_a_pair_is_found_whatever_their_contrasts() -> None:
             if len(found) != len(truth) or not all(within):
                 missed.append(f"{first}+{second} seed {seed}: true {truth}, found {found}")
     assert not missed, f"{len(missed)} of 156 scenes: " + "; ".join(missed[:5])
+
+
+LAB_OF_A_RANDOM_IMAGE = """
+import hashlib, sys, threading
+import numpy as np
+image = np.random.default_rng(7).integers(0, 256, (240, 320, 3), dtype=np.uint8)
+if sys.argv[1] == "thread":
+    from keymps.plugin.manager import create_component
+    create_component("detector", "board", {})  # starts OpenCV's Lab tables on another thread
+    print(any(t.name == "keymps-lab-tables" for t in threading.enumerate()))
+    from keymps.perception.board_model import to_lab
+    lab = to_lab(image)
+else:
+    import cv2
+    print(True)
+    lab = cv2.cvtColor(image.astype(np.float32) / 255.0, cv2.COLOR_BGR2Lab)
+print(hashlib.sha256(np.ascontiguousarray(lab).tobytes()).hexdigest())
+"""
+
+
+def test_lab_tables_built_on_another_thread_give_opencvs_conversion() -> None:
+    import subprocess
+    import sys
+
+    def lab(how: str) -> list[str]:
+        done = subprocess.run(
+            [sys.executable, "-c", LAB_OF_A_RANDOM_IMAGE, how],
+            capture_output=True,
+            text=True,
+            check=True,
+            timeout=60,
+        )
+        return done.stdout.split()
+
+    threaded, direct = lab("thread"), lab("direct")
+    assert threaded[0] == "True"  # the thread was running when the detector was made
+    assert threaded[1] == direct[1]  # the same float32 Lab, bit for bit
