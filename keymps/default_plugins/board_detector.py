@@ -296,7 +296,7 @@ class BoardDetector:
 
         binary = (mask & area.mask).astype(np.uint8) * 255
         contours, _ = cv2.findContours(binary, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-        band_pixels = [max(int(band.sum()), 1) for band in bands]
+        band_pixels = [max(int(np.count_nonzero(band)), 1) for band in bands]
         found = []
         for contour in contours:
             region_area = float(cv2.contourArea(contour))

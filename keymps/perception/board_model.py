@@ -61,7 +61,8 @@ def to_lab(image: np.ndarray) -> np.ndarray:
     import cv2
 
     lab_tables_ready()
-    return np.asarray(cv2.cvtColor(image.astype(np.float32) / 255.0, cv2.COLOR_BGR2Lab))
+    scaled = np.divide(image, np.float32(255.0), dtype=np.float32)  # one pass: astype, then / 255
+    return np.asarray(cv2.cvtColor(scaled, cv2.COLOR_BGR2Lab))
 
 
 def lab_planes(lab: np.ndarray) -> np.ndarray:
@@ -112,6 +113,10 @@ class BoardModel:
         result = np.zeros((3, height, width), np.float32)
         term, scaled = np.empty((2, height, width), np.float32)
         for (i, j), weights in zip(_exponents(self.degree), self.coefficients, strict=True):
+            if i == j == 0:  # the constant term: weight times 1
+                for channel in range(3):
+                    result[channel] += weights[channel]
+                continue
             np.multiply(x**i, y**j, out=term)  # (1, W) times (H, 1): one H x W product per term
             for channel in range(3):
                 # into buffers, not fresh arrays: the same float32 sums, term by term
