@@ -158,8 +158,11 @@ exported wins."""
 
 
 def main() -> None:
+    from keymps._memory import keep_freed_memory
+
     for name in SINGLE_THREADED:
         os.environ.setdefault(name, "1")
+    keep_freed_memory()  # freed arrays reused, not faulted in again page by page
     warnings.formatwarning = _one_line_warning
     try:
         cli(prog_name="keymps")

@@ -16,6 +16,10 @@ import os
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
+from keymps._memory import keep_freed_memory  # noqa: E402
+
+keep_freed_memory()  # inherited by every worker the fork server starts
+
 import cv2  # noqa: E402, F401
 import numpy  # noqa: E402, F401
 import pinocchio  # noqa: E402, F401
