@@ -125,7 +125,7 @@ class BoardModel:
 
     def image(self) -> np.ndarray:
         """The model over the whole image (H x W x 3, float32)."""
-        return np.stack(self.planes(), axis=-1)
+        return np.ascontiguousarray(np.moveaxis(self.planes(), 0, -1))
 
     def describe(self, planes: np.ndarray) -> dict[str, object]:
         """JSON-ready summary: the mean colour, how much it varies, the fit's residual.
