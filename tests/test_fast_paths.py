@@ -763,6 +763,9 @@ def test_board_model_planes_are_the_term_by_term_image() -> None:
                 expected[..., channel] += weights[channel] * term
         assert np.array_equal(model.image(), expected)
         assert np.array_equal(np.moveaxis(model.planes(), 0, -1), expected)
+        used = rng.normal(0, 50, (3, height, width)).astype(np.float32)  # an earlier surface
+        assert model.planes(out=used) is used
+        assert np.array_equal(np.moveaxis(used, 0, -1), expected)
         described = model.describe(model.planes())
         mean = expected.reshape(-1, 3).mean(axis=0)
         assert described["mean_lab"] == [round(float(v), 2) for v in mean]

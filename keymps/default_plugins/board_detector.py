@@ -273,7 +273,7 @@ class BoardDetector:
         board_pixels = area.mask & ~grown
         if board_pixels.sum() > 10 * (degree + 1) ** 2:
             model = fit_board(lab, board_pixels, degree)
-            surface = model.planes()
+            surface = model.planes(out=surface)  # into the first surface, used up
             distance = distance_to_board(planes, surface, self.options.shadow)
         else:
             board_pixels = band

@@ -103,14 +103,16 @@ class BoardModel:
         x, y = self._normalized(cols.astype(np.float32), rows.astype(np.float32))
         return _monomials(x, y, self.degree) @ self.coefficients
 
-    def planes(self) -> np.ndarray:
-        """The model over the whole image, one plane per channel (3 x H x W, float32)."""
+    def planes(self, out: np.ndarray | None = None) -> np.ndarray:
+        """The model over the whole image, one plane per channel (3 x H x W, float32), into
+        `out` if given (an earlier model's planes no longer needed)."""
         width, height = self.size_px
         x, y = self._normalized(
             np.arange(width, dtype=np.float32)[None, :],
             np.arange(height, dtype=np.float32)[:, None],
         )
-        result = np.zeros((3, height, width), np.float32)
+        result = np.zeros((3, height, width), np.float32) if out is None else out
+        result.fill(0.0)
         term, scaled = np.empty((2, height, width), np.float32)
         for (i, j), weights in zip(_exponents(self.degree), self.coefficients, strict=True):
             if i == j == 0:  # the constant term: weight times 1
@@ -206,7 +208,7 @@ def distance_to_board(lab: np.ndarray, model: np.ndarray, shadow: float) -> np.n
     np.divide(scratch, ratio, out=ratio)
     np.clip(ratio, 0.0, 1.0, out=ratio)
     # in place, in buffers: the same float32 operations as the formula, in the same order
-    da = np.multiply(ratio, model[1])
+    da = np.multiply(ratio, model[1], out=scratch)
     np.subtract(lab[1], da, out=da)
     db = np.multiply(ratio, model[2], out=ratio)
     np.subtract(lab[2], db, out=db)
