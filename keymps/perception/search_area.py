@@ -137,7 +137,7 @@ class SearchArea:
         return [names[i] for i, band in enumerate(bands) if (region & band).any()]
 
 
-@lru_cache(maxsize=2)  # one camera (or two) at a time: full-size arrays, kept
+@lru_cache(maxsize=1)  # the last size and polygon only: its full-size arrays stay in memory
 def _search_area(
     size_px: tuple[int, int], corners: tuple[tuple[float, float], ...] | None
 ) -> SearchArea:
