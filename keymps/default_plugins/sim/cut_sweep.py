@@ -79,16 +79,26 @@ class Footprint:
         self._last_cell = np.array([cols, rows], dtype=float)
 
     def contains(self, xy: np.ndarray) -> np.ndarray:
-        # In place: fresh memory for every temporary costs more than the arithmetic here.
-        cells = np.asarray(xy, dtype=float) - self.origin
+        """(n,) whether each point (n, 2) lies in a footprint cell."""
+        xy = np.asarray(xy, dtype=float)
+        return self.contains_xy(xy[:, 0], xy[:, 1])
+
+    def contains_xy(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Whether each point (x, y) lies in a footprint cell: arrays of one shape, x overwritten
+        (fresh memory for every temporary costs more than the arithmetic here)."""
+        flat = self._ringed_cell(y, 1) * (int(self._last_cell[0]) + 2)
+        flat += self._ringed_cell(x, 0)
+        return self._ringed[flat]
+
+    def _ringed_cell(self, values: np.ndarray, axis: int) -> np.ndarray:
+        """Cell index along `axis` in the ringed mask, cells beyond it clipped onto the ring."""
+        cells = np.subtract(values, self.origin[axis])
         cells /= FOOTPRINT_CELL_M
         np.floor(cells, out=cells)
-        np.clip(cells, -1.0, self._last_cell, out=cells)
+        np.clip(cells, -1.0, self._last_cell[axis], out=cells)
         index = cells.astype(np.intp)
         index += 1
-        flat = index[:, 1] * (int(self._last_cell[0]) + 2)
-        flat += index[:, 0]
-        return self._ringed[flat]
+        return index
 
 
 def _polygons(polygon: np.ndarray | list[np.ndarray]) -> list[np.ndarray]:
@@ -96,27 +106,93 @@ def _polygons(polygon: np.ndarray | list[np.ndarray]) -> list[np.ndarray]:
 
 
 def covered_length(segments: np.ndarray, footprint: Footprint | None) -> float:
-    """Metres of one cut's line the segments (k, 2, 2) cover, inside the footprint when given."""
+    """Metres of one cut's line the segments (k, 2, 2) cover, inside the footprint when given.
+
+    Each segment is sampled at the same fractions (at most half a length bin apart); the samples
+    inside the footprint are projected on their principal axis (the cut's line) and the length
+    is the number of LENGTH_BIN_M bins they occupy. Consecutive samples of a segment are less
+    than a bin apart along any axis, so the samples of a run of inside ones occupy every bin
+    between the run's two ends: only each run's ends are projected, and the axis comes from the
+    runs' sums of fractions and of their squares (a 2x2 scatter matrix, not an SVD)."""
     if len(segments) == 0:
         return 0.0
-    longest = float(np.linalg.norm(segments[:, 1] - segments[:, 0], axis=1).max())
+    starts = np.ascontiguousarray(segments[:, 0], dtype=float)
+    steps = np.ascontiguousarray(segments[:, 1], dtype=float) - starts
+    longest = float(np.sqrt((steps**2).sum(axis=1)).max())
     fractions = np.linspace(0.0, 1.0, max(2, math.ceil(2 * longest / LENGTH_BIN_M) + 1))
-    # Blade positions in chunks of about CHUNK_POINTS samples: fresh memory for large
-    # temporaries costs more than the arithmetic; only the points inside are kept.
-    step = max(1, CHUNK_POINTS // len(fractions))
-    kept = []
-    for first in range(0, len(segments), step):
-        chunk = segments[first : first + step]
-        starts, ends = chunk[:, None, 0], chunk[:, None, 1]
-        points = (starts + fractions[None, :, None] * (ends - starts)).reshape(-1, 2)
-        kept.append(points[footprint.contains(points)] if footprint is not None else points)
-    points = np.concatenate(kept)
-    if len(points) < 2:
+    if footprint is None:
+        rows = np.arange(len(segments))
+        first = np.zeros(len(segments), np.intp)
+        last = np.full(len(segments), len(fractions) - 1)
+    else:
+        rows, first, last = _inside_runs(starts, steps, fractions, footprint)
+    count = last - first + 1
+    if count.sum() < 2:
         return 0.0
-    points -= points.mean(axis=0)  # centred
-    axis = np.linalg.svd(points, full_matrices=False)[2][0]  # the cut's line
-    along = points @ axis
-    along /= LENGTH_BIN_M
-    bins = np.floor(along, out=along).astype(np.int64)
-    occupied = np.count_nonzero(np.bincount(bins - bins.min()))  # len(np.unique(bins))
-    return float(occupied * LENGTH_BIN_M)
+    start, step = starts[rows], steps[rows]
+    mean, axis = _principal_axis(start, step, fractions, first, last)
+    ends = [(start + fractions[index, None] * step - mean) @ axis for index in (first, last)]
+    low = np.floor(np.minimum(*ends) / LENGTH_BIN_M).astype(np.int64)
+    high = np.floor(np.maximum(*ends) / LENGTH_BIN_M).astype(np.int64)
+    return float(_union_size(low, high) * LENGTH_BIN_M)
+
+
+def _inside_runs(
+    starts: np.ndarray, steps: np.ndarray, fractions: np.ndarray, footprint: Footprint
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Runs of consecutive samples start + fraction * step inside the footprint: each run's
+    segment, first and last sample index (segment by segment, in order)."""
+    rows, first, last = [], [], []
+    chunk = max(1, CHUNK_POINTS // len(fractions))
+    edges = np.zeros((min(chunk, len(starts)), len(fractions) + 2), np.int8)
+    for top in range(0, len(starts), chunk):
+        start, step = starts[top : top + chunk], steps[top : top + chunk]
+        x = start[:, 0, None] + fractions * step[:, 0, None]
+        y = start[:, 1, None] + fractions * step[:, 1, None]
+        inside = edges[: len(start)]
+        inside[:, 1:-1] = footprint.contains_xy(x, y)
+        change = np.diff(inside, axis=1)  # row-major: each row's runs open and close in turn
+        opened, closed = np.nonzero(change == 1), np.nonzero(change == -1)[1]
+        rows.append(opened[0] + top)
+        first.append(opened[1])
+        last.append(closed - 1)
+    return np.concatenate(rows), np.concatenate(first), np.concatenate(last)
+
+
+def _principal_axis(
+    start: np.ndarray, step: np.ndarray, fractions: np.ndarray, first: np.ndarray, last: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The mean and the unit principal axis of the samples start + f * step, f = fractions[i]
+    for i in first..last, from sums over each run (about a reference point, for precision)."""
+    cumulative = np.concatenate([[0.0], np.cumsum(fractions)])
+    squares = np.concatenate([[0.0], np.cumsum(fractions**2)])
+    count = (last - first + 1).astype(float)
+    f1 = cumulative[last + 1] - cumulative[first]
+    f2 = squares[last + 1] - squares[first]
+    reference = (start + 0.5 * step).mean(axis=0)
+    s = start - reference
+    total = count.sum()
+    mean = (count @ s + f1 @ step) / total
+    # sum over samples of p p^T, p = s + f step: count s s^T + f1 (s step^T + step s^T) + f2 step step^T
+    scatter = (
+        np.einsum("k,ki,kj->ij", count, s, s)
+        + np.einsum("k,ki,kj->ij", f1, s, step)
+        + np.einsum("k,ki,kj->ij", f1, step, s)
+        + np.einsum("k,ki,kj->ij", f2, step, step)
+    ) - total * np.outer(mean, mean)
+    (a, b), (_, c) = scatter
+    largest = 0.5 * (a + c) + math.hypot(0.5 * (a - c), b)
+    # the eigenvector of the largest eigenvalue, from the better-conditioned of the two rows
+    axis = np.array([b, largest - a]) if largest - a >= largest - c else np.array([largest - c, b])
+    norm = math.hypot(*axis)
+    axis = axis / norm if norm > 0 else np.array([1.0, 0.0])
+    return mean + reference, axis
+
+
+def _union_size(low: np.ndarray, high: np.ndarray) -> int:
+    """How many integers the union of the intervals [low[i], high[i]] holds."""
+    order = np.argsort(low, kind="stable")
+    low, high = low[order], high[order]
+    reach = np.maximum.accumulate(high)
+    before = np.concatenate([[low[0] - 1], reach[:-1]])
+    return int(np.maximum(high - np.maximum(low - 1, before), 0).sum())
