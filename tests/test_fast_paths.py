@@ -161,6 +161,10 @@ def test_batched_forward_kinematics_is_pinocchios() -> None:
         assert np.abs(rotations - expected_r).max() < 1e-12
         origins = model.joint_origins_many(qs[:200])
         assert np.abs(origins - np.array([model.joint_origins(q) for q in qs[:200]])).max() < 1e-12
+        # one pass for the safety check: the very same numbers as the two passes
+        together = model.tool_poses_and_joint_origins(qs)
+        apart = (positions, rotations, model.joint_origins_many(qs))
+        assert all(np.array_equal(a, b) for a, b in zip(together, apart, strict=True))
 
 
 def test_ruckig_phases_in_numpy_match_at_time() -> None:

@@ -80,7 +80,7 @@ def check_approach(
     the workspace and the board (tool tip and arm). Jerk and tool tilt are not checked: moveJ
     is the controller's trapezoid, and the arm may start tilted. Raises SafetyError."""
     move = move_j_profile(q_from, q_to, speed, acceleration, rate_hz)
-    positions, rotations = model.tool_poses(move.q)
+    positions, rotations, origins = model.tool_poses_and_joint_origins(move.q)
     move = replace(move, tool_xyz=positions, joint_names=tuple(model.joint_names))
     path = ToolPath((Piece("travel", 0, positions, np.zeros(len(positions)), speed),), "approach")
     problems: list[str] = []
@@ -89,7 +89,7 @@ def check_approach(
     _check_joints(model, move, joint_problems, figures)
     problems += [p for p in joint_problems if " jerk " not in p]
     board: list[str] = []
-    _check_board(model, move, positions, rotations, board, figures)
+    _check_board(move, positions, rotations, origins, board, figures)
     problems += [p for p in board if "tilts" not in p]
     _check_workspace(move, path, positions, task, problems, figures)
     if problems:

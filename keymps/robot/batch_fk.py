@@ -99,10 +99,39 @@ class BatchKinematics:
                 for a in range(0, len(qs), CHUNK)
             ]
             return np.concatenate([p for p, _ in parts]), np.concatenate([r for _, r in parts])
-        rotation, origin = self.joint_poses(qs)[joint]
+        return self._frame(self.joint_poses(qs), joint, placement)
+
+    def frame_poses_and_origins(
+        self, qs: np.ndarray, joint: int, placement: Any, extra: tuple[int, Any] | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """`frame_poses` and `origins` from one pass over the chain (the same values)."""
+        qs = np.atleast_2d(np.asarray(qs, dtype=float))
+        if len(qs) > CHUNK:
+            parts = [
+                self.frame_poses_and_origins(qs[a : a + CHUNK], joint, placement, extra)
+                for a in range(0, len(qs), CHUNK)
+            ]
+            return tuple(np.concatenate([part[k] for part in parts]) for k in range(3))  # type: ignore[return-value]
+        poses = self.joint_poses(qs)
+        position, rotation = self._frame(poses, joint, placement)
+        return position, rotation, self._origins(poses, extra)
+
+    def _frame(
+        self, poses: list[tuple[np.ndarray, np.ndarray]], joint: int, placement: Any
+    ) -> tuple[np.ndarray, np.ndarray]:
+        rotation, origin = poses[joint]
         position = origin + np.einsum("ijn,j->in", rotation, np.array(placement.translation))
         turned = np.einsum("ijn,jk->nik", rotation, np.array(placement.rotation))
         return np.ascontiguousarray(position.T), np.ascontiguousarray(turned)
+
+    def _origins(
+        self, poses: list[tuple[np.ndarray, np.ndarray]], extra: tuple[int, Any] | None
+    ) -> np.ndarray:
+        points = [origin for _, origin in poses[1:]]
+        if extra is not None:
+            rotation, origin = poses[extra[0]]
+            points.append(origin + np.einsum("ijn,j->in", rotation, np.array(extra[1].translation)))
+        return np.ascontiguousarray(np.stack(points).transpose(2, 0, 1))
 
     def origins(self, qs: np.ndarray, extra: tuple[int, Any] | None = None) -> np.ndarray:
         """(n, njoints - 1 [+ 1], 3): the joints' origins [and a frame's, (joint, placement)]."""
@@ -111,12 +140,7 @@ class BatchKinematics:
             return np.concatenate(
                 [self.origins(qs[a : a + CHUNK], extra) for a in range(0, len(qs), CHUNK)]
             )
-        poses = self.joint_poses(qs)
-        points = [origin for _, origin in poses[1:]]
-        if extra is not None:
-            rotation, origin = poses[extra[0]]
-            points.append(origin + np.einsum("ijn,j->in", rotation, np.array(extra[1].translation)))
-        return np.ascontiguousarray(np.stack(points).transpose(2, 0, 1))
+        return self._origins(self.joint_poses(qs), extra)
 
     def _agrees_with(self, model: Any) -> bool:
         import pinocchio as pin
@@ -162,7 +186,8 @@ def _turn(fixed: np.ndarray, joint: _Joint, angle: np.ndarray) -> np.ndarray:
         return turned
     # About a principal axis only the two other columns mix: (a, b) -> (a c + b s, b c - a s).
     first, second = {0: (1, 2), 1: (2, 0), 2: (0, 1)}[joint.principal]
-    turned = fixed.copy()
+    turned = np.empty_like(fixed)
+    turned[:, joint.principal] = fixed[:, joint.principal]
     a, b = fixed[:, first], fixed[:, second]
     turned[:, first] = a * c + b * s
     turned[:, second] = b * c - a * s

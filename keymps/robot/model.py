@@ -156,6 +156,18 @@ class RobotModel:
         frame = self._tcp_frame
         return self.batch.frame_poses(qs, frame.parentJoint, frame.placement)
 
+    def tool_poses_and_joint_origins(
+        self, qs: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """`tool_poses` and `joint_origins_many` of (n, 6) joint vectors, in one pass when
+        batched."""
+        if self.batch is None or len(qs) == 0:
+            return (*self.tool_poses(qs), self.joint_origins_many(qs))
+        frame, flange = self._tcp_frame, self._flange
+        return self.batch.frame_poses_and_origins(
+            qs, frame.parentJoint, frame.placement, (flange.parentJoint, flange.placement)
+        )
+
     def pinocchio_tool_poses(self, qs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """`tool_poses` by one Pinocchio call per configuration (what verifies the IK)."""
         import pinocchio as pin

@@ -61,9 +61,11 @@ def validate(
     figures["duration_s"] = trajectory.duration_s
     figures["samples"] = float(trajectory.samples)
     _check_joints(model, trajectory, problems, figures)
-    positions, rotations = model.tool_poses(trajectory.q)
+    positions, rotations, origins = model.tool_poses_and_joint_origins(
+        np.asarray(trajectory.q, dtype=float)
+    )
     _check_path(trajectory, tool_path, positions, problems, figures)
-    _check_board(model, trajectory, positions, rotations, problems, figures)
+    _check_board(trajectory, positions, rotations, origins, problems, figures)
     _check_footprint(trajectory, tool_path, positions, outline_m, problems, figures)
     _check_workspace(trajectory, tool_path, positions, task, problems, figures)
     if problems:
@@ -199,10 +201,10 @@ def _check_path(
 
 
 def _check_board(
-    model: RobotModel,
     trajectory: Trajectory,
     positions: np.ndarray,
     rotations: np.ndarray,
+    origins: np.ndarray,
     problems: list[str],
     figures: dict[str, float],
 ) -> None:
@@ -222,7 +224,7 @@ def _check_board(
             f"the tool tilts {math.degrees(tilt[i]):.1f} degrees from straight down at "
             f"{_at(trajectory, i)}"
         )
-    lowest, lowest_at = _lowest_arm_point(model, trajectory)
+    lowest, lowest_at = _lowest_arm_point(origins)
     figures["min_arm_z_mm"] = lowest * 1000
     if lowest < ARM_CLEARANCE_M:
         problems.append(
@@ -231,10 +233,10 @@ def _check_board(
         )
 
 
-def _lowest_arm_point(model: RobotModel, trajectory: Trajectory) -> tuple[float, int]:
-    """The lowest height of the elbow, wrists and flange over every sample, and its index."""
-    # joint origins 2..6 and the flange, all samples at once
-    heights = model.joint_origins_many(np.asarray(trajectory.q, dtype=float))[:, 2:, 2].min(axis=1)
+def _lowest_arm_point(origins: np.ndarray) -> tuple[float, int]:
+    """The lowest height of the elbow, wrists and flange over every sample (`origins`: each
+    sample's joint origins and flange, (n, 7, 3)), and its index."""
+    heights = origins[:, 2:, 2].min(axis=1)  # joint origins 2..6 and the flange
     index = int(np.argmin(heights))
     return float(heights[index]), index
 
