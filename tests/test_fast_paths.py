@@ -921,3 +921,54 @@ def test_run_folder_png_keeps_every_pixel(tmp_path: Any) -> None:
             image[: height // 2] = image[0, 0]
         path = write_image(tmp_path / f"{trial}.png", image)
         assert np.array_equal(cv2.imread(str(path), cv2.IMREAD_UNCHANGED), image)
+
+
+def test_painting_cuts_on_covered_pixels_matches_blending_the_whole_image() -> None:
+    from keymps.default_plugins.sim.executor import _paint_cuts
+
+    rng = np.random.default_rng(RNG_SEED + 17)
+    shift, painted = 4, 0
+    for trial in range(8):
+        height, width = (int(v) for v in rng.integers(50, 300, 2))
+        scale = float(rng.uniform(1500, 3000))  # pixels per metre
+
+        def pixels(xy: np.ndarray, scale: float = scale) -> np.ndarray:
+            return np.round(np.asarray(xy).reshape(-1, 2) * scale * (1 << shift)).astype(np.int32)
+
+        image = rng.integers(0, 256, (height, width, 3), dtype=np.uint8)
+        size = np.array([width, height]) / scale
+        sweeps = []
+        for _ in range(int(rng.integers(1, 5))):
+            tips = rng.uniform(0, 1, (int(rng.integers(2, 60)), 2)) * size
+            sweeps.append(np.stack([tips, tips + rng.normal(0, 0.02, tips.shape)], axis=1))
+        footprint = None
+        if trial % 3:
+            angles = np.sort(rng.uniform(0, 2 * math.pi, 12))
+            footprint = size / 2 + np.column_stack([np.cos(angles), np.sin(angles)]) * size / 3
+        line = int(rng.integers(1, 6))
+        got = image.copy()
+        _paint_cuts(got, sweeps, footprint, pixels, line, shift)
+        assert np.array_equal(got, _paint_whole_image(image, sweeps, footprint, pixels, line))
+        painted += not np.array_equal(got, image)
+    assert painted >= 6  # (a footprint may happen to clip every cut away)
+
+
+def _paint_whole_image(
+    image: np.ndarray, sweeps: list[np.ndarray], footprint: Any, pixels: Any, width: int
+) -> np.ndarray:
+    """_paint_cuts as it was: every pixel of the image blended."""
+    import cv2
+
+    from keymps.default_plugins.sim.executor import CUT_COLOUR
+
+    covered = np.zeros(image.shape[:2], np.uint8)
+    for sweep in sweeps:
+        segments = pixels(sweep.reshape(-1, 2)).reshape(-1, 2, 2)
+        cv2.polylines(covered, list(segments), False, 255, width, cv2.LINE_AA, 4)
+    alpha = covered.astype(np.float32) / 255.0
+    if footprint is not None:
+        inside = np.zeros(image.shape[:2], np.uint8)
+        cv2.fillPoly(inside, [pixels(footprint)], 255, cv2.LINE_AA, 4)
+        alpha *= inside.astype(np.float32) / 255.0
+    alpha = alpha[:, :, None]
+    return np.round(image * (1.0 - alpha) + np.array(CUT_COLOUR) * alpha).astype(np.uint8)

@@ -271,14 +271,19 @@ def _paint_cuts(
     for sweep in sweeps:
         segments = pixels(sweep.reshape(-1, 2)).reshape(-1, 2, 2)
         cv2.polylines(covered, list(segments), False, 255, width, cv2.LINE_AA, shift)
-    alpha = covered.astype(np.float32) / 255.0
+    # Only the covered pixels change (elsewhere the blend gives the pixel back exactly).
+    rows, cols = np.nonzero(covered)
+    alpha = covered[rows, cols].astype(np.float32) / 255.0
     if footprint is not None:
         inside = np.zeros(image.shape[:2], np.uint8)
         polygons = footprint if isinstance(footprint, list) else [footprint]
         cv2.fillPoly(inside, [pixels(p) for p in polygons], 255, cv2.LINE_AA, shift)
-        alpha *= inside.astype(np.float32) / 255.0
-    alpha = alpha[:, :, None]
-    image[:] = np.round(image * (1.0 - alpha) + np.array(CUT_COLOUR) * alpha).astype(np.uint8)
+        alpha *= inside[rows, cols].astype(np.float32) / 255.0
+    alpha = alpha[:, None]
+    pixel = image[rows, cols]
+    image[rows, cols] = np.round(pixel * (1.0 - alpha) + np.array(CUT_COLOUR) * alpha).astype(
+        np.uint8
+    )
 
 
 class SimExecutor:
