@@ -72,11 +72,18 @@ class BatchKinematics:
         kinematics = cls(tuple(joints))
         return kinematics if kinematics._agrees_with(model) else None
 
-    def joint_poses(self, qs: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    def joint_poses(
+        self, qs: np.ndarray, cos_sin: tuple[np.ndarray, np.ndarray] | None = None
+    ) -> list[tuple[np.ndarray, np.ndarray]]:
         """Per joint (0: the universe), rotations (3, 3, n) and origins (3, n) for (n, nq)
-        configurations: component-major, so that every step is a few long vector operations."""
+        configurations: component-major, so that every step is a few long vector operations.
+        `cos_sin`: the angles' cosines and sines (nq, n) when the caller has them already."""
         qs = np.atleast_2d(np.asarray(qs, dtype=float))
         n = len(qs)
+        if cos_sin is None:
+            angles = np.ascontiguousarray(qs.T)
+            cos_sin = np.cos(angles), np.sin(angles)
+        cos, sin = cos_sin
         poses = [(np.repeat(np.eye(3)[:, :, None], n, axis=2), np.zeros((3, n)))]
         for joint in self.joints:
             parent_r, parent_p = poses[joint.parent]
@@ -85,21 +92,32 @@ class BatchKinematics:
             else:
                 fixed = np.einsum("ijn,jk->ikn", parent_r, joint.rotation)
             origin = parent_p + np.einsum("ijn,j->in", parent_r, joint.translation)
-            poses.append((_turn(fixed, joint, qs[:, joint.q_index]), origin))
+            column = joint.q_index
+            poses.append((_turn(fixed, joint, cos[column], sin[column]), origin))
         return poses
 
     def frame_poses(
-        self, qs: np.ndarray, joint: int, placement: Any
+        self,
+        qs: np.ndarray,
+        joint: int,
+        placement: Any,
+        cos_sin: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """(n, 3) positions and (n, 3, 3) rotations of a frame placed at `placement` on `joint`."""
+        """(n, 3) positions and (n, 3, 3) rotations of a frame placed at `placement` on `joint`
+        (`cos_sin` as for `joint_poses`)."""
         qs = np.atleast_2d(np.asarray(qs, dtype=float))
         if len(qs) > CHUNK:
             parts = [
-                self.frame_poses(qs[a : a + CHUNK], joint, placement)
+                self.frame_poses(
+                    qs[a : a + CHUNK],
+                    joint,
+                    placement,
+                    None if cos_sin is None else (cos_sin[0][:, a : a + CHUNK], cos_sin[1][:, a : a + CHUNK]),
+                )
                 for a in range(0, len(qs), CHUNK)
             ]
             return np.concatenate([p for p, _ in parts]), np.concatenate([r for _, r in parts])
-        return self._frame(self.joint_poses(qs), joint, placement)
+        return self._frame(self.joint_poses(qs, cos_sin), joint, placement)
 
     def frame_poses_and_origins(
         self, qs: np.ndarray, joint: int, placement: Any, extra: tuple[int, Any] | None = None
@@ -177,9 +195,9 @@ def _principal(axis: np.ndarray) -> int | None:
     return None
 
 
-def _turn(fixed: np.ndarray, joint: _Joint, angle: np.ndarray) -> np.ndarray:
-    """fixed (3, 3, n) times the joint's rotation by `angle` (n,) about its axis."""
-    c, s = np.cos(angle), np.sin(angle)
+def _turn(fixed: np.ndarray, joint: _Joint, c: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """fixed (3, 3, n) times the joint's rotation about its axis by angles of cosines c and
+    sines s (n,)."""
     if joint.principal is None:  # Rodrigues: I + sin K + (1 - cos) K^2
         turned = fixed + s * np.einsum("ijn,jk->ikn", fixed, joint.cross)
         turned += (1.0 - c) * np.einsum("ijn,jk->ikn", fixed, joint.cross2)
@@ -197,3 +215,30 @@ def _turn(fixed: np.ndarray, joint: _Joint, angle: np.ndarray) -> np.ndarray:
 def _cross_matrix(axis: np.ndarray) -> np.ndarray:
     x, y, z = axis / np.linalg.norm(axis)
     return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+
+
+def interpolated_cos_sin(qs: np.ndarray, substeps: int) -> tuple[np.ndarray, np.ndarray]:
+    """Cosines and sines of the angles qs[i] + j / substeps * (qs[i + 1] - qs[i]) for every
+    sample i but the last and j = 0 .. substeps - 1, then of qs[-1]: (nq, (n - 1) * substeps
+    + 1) each, in that order (component-major, as `joint_poses` takes them).
+
+    Trigonometric functions dominate batched forward kinematics. Each substep turns the
+    previous angle by the same small angle (a rotation recurrence, exact but for a few
+    rounding errors), so only the samples and their steps need cos and sin."""
+    qs = np.asarray(qs, dtype=float)
+    n, nq = qs.shape
+    angles = np.ascontiguousarray(qs.T)
+    step = (angles[:, 1:] - angles[:, :-1]) / substeps
+    cos, sin = np.empty((substeps, nq, n - 1)), np.empty((substeps, nq, n - 1))
+    cos[0], sin[0] = np.cos(angles[:, :-1]), np.sin(angles[:, :-1])
+    cos_step, sin_step = np.cos(step), np.sin(step)
+    for j in range(1, substeps):
+        np.multiply(cos[j - 1], cos_step, out=cos[j])
+        cos[j] -= sin[j - 1] * sin_step
+        np.multiply(sin[j - 1], cos_step, out=sin[j])
+        sin[j] += cos[j - 1] * sin_step
+    out_cos, out_sin = np.empty((nq, (n - 1) * substeps + 1)), np.empty((nq, (n - 1) * substeps + 1))
+    out_cos[:, :-1].reshape(nq, n - 1, substeps)[:] = cos.transpose(1, 2, 0)
+    out_sin[:, :-1].reshape(nq, n - 1, substeps)[:] = sin.transpose(1, 2, 0)
+    out_cos[:, -1], out_sin[:, -1] = np.cos(angles[:, -1]), np.sin(angles[:, -1])
+    return out_cos, out_sin

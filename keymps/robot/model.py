@@ -149,12 +149,15 @@ class RobotModel:
         """(n, 3) tool tip positions for (n, 6) joint vectors."""
         return self.tool_poses(qs)[0]
 
-    def tool_poses(self, qs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(n, 3) tool tip positions and (n, 3, 3) rotations for (n, 6) joint vectors."""
+    def tool_poses(
+        self, qs: np.ndarray, cos_sin: tuple[np.ndarray, np.ndarray] | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(n, 3) tool tip positions and (n, 3, 3) rotations for (n, 6) joint vectors
+        (`cos_sin`: their cosines and sines, (6, n) each, when the caller has them)."""
         if self.batch is None or len(qs) == 0:
             return self.pinocchio_tool_poses(qs)
         frame = self._tcp_frame
-        return self.batch.frame_poses(qs, frame.parentJoint, frame.placement)
+        return self.batch.frame_poses(qs, frame.parentJoint, frame.placement, cos_sin)
 
     def tool_poses_and_joint_origins(
         self, qs: np.ndarray

@@ -78,28 +78,38 @@ class Replay:
 
 def replay(model: Any, trajectory: Trajectory, rate_hz: float) -> Replay:
     """Joints interpolated linearly between samples at `rate_hz`, through forward kinematics."""
+    from keymps.robot.batch_fk import interpolated_cos_sin
+
     substeps = max(1, math.ceil(rate_hz / trajectory.rate_hz))
-    n = trajectory.samples
     fractions = np.arange(substeps) / substeps
-    base = np.repeat(np.arange(n - 1), substeps)
-    frac = np.tile(fractions, n - 1)
-    base = np.append(base, n - 1)
-    frac = np.append(frac, 0.0)
-    nxt = np.minimum(base + 1, n - 1)
-    q = trajectory.q[base] + frac[:, None] * (trajectory.q[nxt] - trajectory.q[base])
-    planned = trajectory.tool_xyz[base] + frac[:, None] * (
-        trajectory.tool_xyz[nxt] - trajectory.tool_xyz[base]
-    )
-    t = trajectory.t[base] + frac / trajectory.rate_hz
-    positions, rotations = model.tool_poses(q)
+
+    def between(values: np.ndarray) -> np.ndarray:
+        """Each sample and the substeps after it towards the next, then the last sample."""
+        values = np.asarray(values, dtype=float)
+        inner = values[:-1, None] + fractions[:, None] * (values[1:] - values[:-1])[:, None]
+        return np.concatenate([inner.reshape(-1, values.shape[1]), values[-1:]])
+
+    q = between(trajectory.q)
+    t = np.concatenate(
+        [(np.asarray(trajectory.t[:-1])[:, None] + fractions / trajectory.rate_hz).ravel(),
+         np.asarray(trajectory.t[-1:], dtype=float)]
+    )  # fmt: skip
+    batched = getattr(model, "batch", None) is not None
+    cos_sin = interpolated_cos_sin(trajectory.q, substeps) if batched else None
+    positions, rotations = model.tool_poses(q, cos_sin)
     return Replay(
         t,
         positions,
-        planned,
-        np.asarray(trajectory.piece_index)[base],
-        np.asarray(trajectory.kind)[base],
+        between(trajectory.tool_xyz),
+        _spread(np.asarray(trajectory.piece_index), substeps),
+        _spread(np.asarray(trajectory.kind), substeps),
         _unit(rotations[:, :2, 0]),
     )
+
+
+def _spread(values: np.ndarray, substeps: int) -> np.ndarray:
+    """Each sample's value for it and its substeps, then the last sample's."""
+    return np.concatenate([np.repeat(values[:-1], substeps), values[-1:]])
 
 
 def _unit(vectors: np.ndarray) -> np.ndarray:
