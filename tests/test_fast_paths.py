@@ -1017,9 +1017,42 @@ def test_sim_replay_matches_forward_kinematics_of_every_interpolated_sample() ->
         positions, rotations = model.tool_poses(joints)
         planned = trajectory.tool_xyz
         assert np.array_equal(got.t, trajectory.t[base] + frac / rate)
-        assert np.array_equal(got.planned_xyz, planned[base] + frac[:, None] * (planned[nxt] - planned[base]))
+        assert np.array_equal(
+            got.planned_xyz, planned[base] + frac[:, None] * (planned[nxt] - planned[base])
+        )
         assert np.array_equal(got.piece_index, pieces[base])
         assert np.array_equal(got.kind, trajectory.kind[base])
         assert np.abs(got.tool_xyz - positions).max() < 1e-13
         x_axis = rotations[:, :2, 0] / np.linalg.norm(rotations[:, :2, 0], axis=1, keepdims=True)
         assert got.tool_x is not None and np.abs(got.tool_x - x_axis).max() < 1e-12
+
+
+def test_trajectory_csv_in_numpy_is_pythons_formatting_row_by_row() -> None:
+    from keymps.motion.trajectory_io import CSV_HEADER, ROW, trajectory_csv
+    from keymps.types import Trajectory
+
+    rng = np.random.default_rng(RNG_SEED + 20)
+    for trial in range(12):
+        n = int(rng.integers(1, 3000))
+        scale = float(rng.choice([1e-7, 1e-3, 1.0, 7.0, 1e4]))
+        q = rng.normal(0, scale, (n, 6))
+        xyz = rng.normal(0, scale, (n, 3))
+        t = np.arange(n) / float(rng.choice([125.0, 500.0])) + float(rng.uniform(0, 100))
+        if trial % 2:  # what the fast path must hand to Python: ties, -0, huge, non-finite
+            picks = rng.integers(0, n, 12)
+            q[picks[:4], rng.integers(0, 6, 4)] = rng.integers(-99, 99, 4) * 2 + 1 / 2**10
+            xyz[picks[4:7], rng.integers(0, 3, 3)] = (rng.integers(-9, 9, 3) * 2 + 1) / 2**7
+            q[picks[7], 0], q[picks[8], 1], q[picks[9], 2] = -0.0, -1e-13, 3e17
+            q[picks[10], 3], xyz[picks[11], 2] = float(rng.choice([np.nan, np.inf, -np.inf])), 1e30
+        pieces = np.sort(rng.integers(0, int(rng.choice([3, 40, 20_000])), n))
+        kinds = rng.choice(["work", "travel"], n)
+        trajectory = Trajectory(
+            t, q, q, q, xyz, pieces, kinds, tuple("abcdef"), 125.0
+        )  # fmt: skip
+        rows = [
+            ROW % (*numbers, piece, kind)
+            for numbers, piece, kind in zip(
+                np.column_stack([t, q, xyz]).tolist(), pieces.tolist(), kinds.tolist(), strict=True
+            )
+        ]
+        assert trajectory_csv(trajectory).decode() == "\n".join([CSV_HEADER, *rows]) + "\n"

@@ -17,16 +17,109 @@ CSV_HEADER = "t,q1,q2,q3,q4,q5,q6,x,y,z,piece,kind"
 def write_trajectory_csv(trajectory: Trajectory, path: str | Path) -> Path:
     """One row per controller sample: seconds, radians, tool tip metres (board), piece, kind."""
     path = Path(path)
-    row = ",".join(["%.6f"] + ["%.9f"] * 6 + ["%.6f"] * 3 + ["%d", "%s"])
-    numbers = np.column_stack([trajectory.t, trajectory.q, trajectory.tool_xyz]).tolist()
-    pieces = np.asarray(trajectory.piece_index).astype(int).tolist()
-    kinds = [str(kind) for kind in trajectory.kind]
-    rows = [
-        row % (*values, piece, kind)
-        for values, piece, kind in zip(numbers, pieces, kinds, strict=True)
-    ]
-    _write_text(path, "\n".join([CSV_HEADER, *rows]) + "\n")
+    _write_text(path, trajectory_csv(trajectory))
     return path
+
+
+def trajectory_csv(trajectory: Trajectory) -> bytes:
+    """The CSV's bytes: what `ROW % (t, q1..q6, x, y, z, piece, kind)` gives row by row,
+    formatted column by column in numpy (Python's float formatting would take most of a run's
+    writing time)."""
+    rows = len(np.asarray(trajectory.t).reshape(-1))
+    if rows == 0:
+        return (CSV_HEADER + "\n").encode()
+    fields = [
+        _number_chars(np.asarray(trajectory.t, dtype=float).reshape(-1, 1), 6),
+        _number_chars(np.asarray(trajectory.q, dtype=float).reshape(rows, 6), 9),
+        _number_chars(np.asarray(trajectory.tool_xyz, dtype=float).reshape(rows, 3), 6),
+        _number_chars(np.asarray(trajectory.piece_index).astype(float).reshape(-1, 1), None),
+        _string_chars([str(kind) for kind in trajectory.kind])[:, None, :],
+    ]
+    cells = [
+        np.concatenate([field, np.full((*field.shape[:2], 1), ord(","), np.uint8)], axis=2)
+        for field in fields
+    ]
+    chars = np.concatenate([cell.reshape(rows, -1) for cell in cells], axis=1)
+    chars[:, -1] = ord("\n")  # the last field's comma
+    flat = chars.ravel()
+    return (CSV_HEADER + "\n").encode() + flat[flat != _PAD].tobytes()
+
+
+ROW = ",".join(["%.6f"] + ["%.9f"] * 6 + ["%.6f"] * 3 + ["%d", "%s"])
+"""The format of one row (what `trajectory_csv` writes, without Python's per-value cost)."""
+_PAD = 0
+"""Fills each value's characters up to its column's widest; dropped when the rows are joined."""
+_QUADS: np.ndarray | None = None
+
+
+def _quads() -> np.ndarray:
+    """(10000,) the ASCII digits of 0000 .. 9999, four bytes in one uint32 each."""
+    global _QUADS
+    if _QUADS is None:
+        text = "".join(f"{i:04d}" for i in range(10_000)).encode()
+        _QUADS = np.frombuffer(text, np.uint32)
+    return _QUADS
+
+
+def _number_chars(values: np.ndarray, decimals: int | None) -> np.ndarray:
+    """(n, m, width) ASCII of `"%.<decimals>f" % v` (`"%d"` for decimals None: whole numbers)
+    for values (n, m), padded with _PAD.
+
+    v * 10**decimals is rounded to the nearest integer (exact below 2**52): that is the
+    correctly rounded decimal unless the product lies within its own rounding error of a half;
+    those values (and huge or non-finite ones) are formatted by Python."""
+    places = decimals or 0
+    with np.errstate(invalid="ignore"):
+        magnitude = np.abs(values * 10.0**places)
+        fraction = magnitude - np.floor(magnitude)
+        exact = (magnitude < 2.0**52) & (np.abs(fraction - 0.5) > magnitude * 2.0**-50)
+    units = np.rint(np.where(exact, magnitude, 0.0)).astype(np.int64)
+    whole = units // 10**places
+    width = len(str(int(whole.max(initial=0))))
+    count = np.ones(whole.shape, np.int64)  # digits of each whole part
+    for exponent in range(1, width):
+        count += whole >= 10**exponent
+    groups = -(-(width + places) // 4)
+    chunks = np.stack([(units // 10 ** (4 * k)) % 10_000 for k in range(groups - 1, -1, -1)], -1)
+    digits = _quads().take(chunks).view(np.uint8).reshape(*values.shape, 4 * groups)
+    digits = digits[..., 4 * groups - places - width :]
+    leading = np.arange(width) < (width - count)[..., None]
+    digits[..., :width][leading] = _PAD  # zeros before the whole part's first digit
+    sign = np.where(np.signbit(values), ord("-"), _PAD).astype(np.uint8)[..., None]
+    parts = [sign, digits[..., :width]]
+    if decimals is not None:
+        parts += [np.full((*values.shape, 1), ord("."), np.uint8), digits[..., width:]]
+    return _python_formatted(np.concatenate(parts, axis=-1), values, ~exact, decimals)
+
+
+def _python_formatted(
+    chars: np.ndarray, values: np.ndarray, which: np.ndarray, decimals: int | None
+) -> np.ndarray:
+    """`chars` with the values at `which` formatted by Python instead (right-aligned)."""
+    at = list(zip(*np.nonzero(which), strict=True))
+    if not at:
+        return chars
+    pattern = f"%.{decimals}f" if decimals is not None else "%d"
+    texts = [(pattern % values[i, j]).encode() for i, j in at]
+    extra = max(len(text) for text in texts) - chars.shape[-1]
+    if extra > 0:
+        pad = np.full((*chars.shape[:2], extra), _PAD, np.uint8)
+        chars = np.concatenate([pad, chars], axis=-1)
+    for (i, j), text in zip(at, texts, strict=True):
+        chars[i, j] = _PAD
+        chars[i, j, chars.shape[-1] - len(text) :] = np.frombuffer(text, np.uint8)
+    return chars
+
+
+def _string_chars(texts: list[str]) -> np.ndarray:
+    """(n, width) the UTF-8 bytes of each text, padded with _PAD."""
+    unique, index = np.unique(np.asarray(texts, dtype=str), return_inverse=True)
+    encoded = [text.encode() for text in unique.tolist()]
+    width = max((len(e) for e in encoded), default=0)
+    table = np.full((len(encoded), width), _PAD, np.uint8)
+    for row, text in enumerate(encoded):
+        table[row, : len(text)] = np.frombuffer(text, np.uint8)
+    return table[index.reshape(-1)]
 
 
 def read_trajectory_csv(path: str | Path) -> dict[str, np.ndarray]:
@@ -96,7 +189,7 @@ def write_joint_trajectory_json(trajectory: Trajectory, path: str | Path) -> Pat
     return path
 
 
-def _write_text(path: Path, text: str) -> None:
+def _write_text(path: Path, text: str | bytes) -> None:
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         write_atomically(path, text)

@@ -112,7 +112,9 @@ class BatchKinematics:
                     qs[a : a + CHUNK],
                     joint,
                     placement,
-                    None if cos_sin is None else (cos_sin[0][:, a : a + CHUNK], cos_sin[1][:, a : a + CHUNK]),
+                    None
+                    if cos_sin is None
+                    else (cos_sin[0][:, a : a + CHUNK], cos_sin[1][:, a : a + CHUNK]),
                 )
                 for a in range(0, len(qs), CHUNK)
             ]
@@ -237,7 +239,10 @@ def interpolated_cos_sin(qs: np.ndarray, substeps: int) -> tuple[np.ndarray, np.
         cos[j] -= sin[j - 1] * sin_step
         np.multiply(sin[j - 1], cos_step, out=sin[j])
         sin[j] += cos[j - 1] * sin_step
-    out_cos, out_sin = np.empty((nq, (n - 1) * substeps + 1)), np.empty((nq, (n - 1) * substeps + 1))
+    out_cos, out_sin = (
+        np.empty((nq, (n - 1) * substeps + 1)),
+        np.empty((nq, (n - 1) * substeps + 1)),
+    )
     out_cos[:, :-1].reshape(nq, n - 1, substeps)[:] = cos.transpose(1, 2, 0)
     out_sin[:, :-1].reshape(nq, n - 1, substeps)[:] = sin.transpose(1, 2, 0)
     out_cos[:, -1], out_sin[:, -1] = np.cos(angles[:, -1]), np.sin(angles[:, -1])
