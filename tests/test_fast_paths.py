@@ -1038,7 +1038,10 @@ def test_trajectory_csv_in_numpy_is_pythons_formatting_row_by_row() -> None:
         q = rng.normal(0, scale, (n, 6))
         xyz = rng.normal(0, scale, (n, 3))
         t = np.arange(n) / float(rng.choice([125.0, 500.0])) + float(rng.uniform(0, 100))
-        if trial % 2:  # what the fast path must hand to Python: ties, -0, huge, non-finite
+        # decimal halves (0.1504555 m: within a rounding error of the tie), as icing paths have
+        xyz[::3, 0] = (2 * rng.integers(0, 400_000, len(xyz[::3])) + 1) / 2e6
+        q[::5, 1] = (2 * rng.integers(-4e9, 4e9, len(q[::5])) + 1) / 2e9
+        if trial % 2:  # binary ties, -0, huge, non-finite
             picks = rng.integers(0, n, 12)
             q[picks[:4], rng.integers(0, 6, 4)] = rng.integers(-99, 99, 4) * 2 + 1 / 2**10
             xyz[picks[4:7], rng.integers(0, 3, 3)] = (rng.integers(-9, 9, 3) * 2 + 1) / 2**7

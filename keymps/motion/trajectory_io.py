@@ -65,15 +65,19 @@ def _number_chars(values: np.ndarray, decimals: int | None) -> np.ndarray:
     """(n, m, width) ASCII of `"%.<decimals>f" % v` (`"%d"` for decimals None: whole numbers)
     for values (n, m), padded with _PAD.
 
-    v * 10**decimals is rounded to the nearest integer (exact below 2**52): that is the
-    correctly rounded decimal unless the product lies within its own rounding error of a half;
-    those values (and huge or non-finite ones) are formatted by Python."""
+    |v| * 10**decimals rounded to the nearest integer is the correctly rounded decimal unless
+    the product lies within its own rounding error of a half: there the exact product decides
+    (half to even, as Python). Huge (2**52 and more) and non-finite values are formatted by
+    Python."""
     places = decimals or 0
     with np.errstate(invalid="ignore"):
         magnitude = np.abs(values * 10.0**places)
         fraction = magnitude - np.floor(magnitude)
-        exact = (magnitude < 2.0**52) & (np.abs(fraction - 0.5) > magnitude * 2.0**-50)
+        exact = magnitude < 2.0**52
+        near_half = exact & (np.abs(fraction - 0.5) <= magnitude * 2.0**-50)
     units = np.rint(np.where(exact, magnitude, 0.0)).astype(np.int64)
+    if near_half.any():
+        units[near_half] = _round_exactly(np.abs(values[near_half]), 10.0**places)
     whole = units // 10**places
     width = len(str(int(whole.max(initial=0))))
     count = np.ones(whole.shape, np.int64)  # digits of each whole part
@@ -90,6 +94,30 @@ def _number_chars(values: np.ndarray, decimals: int | None) -> np.ndarray:
     if decimals is not None:
         parts += [np.full((*values.shape, 1), ord("."), np.uint8), digits[..., width:]]
     return _python_formatted(np.concatenate(parts, axis=-1), values, ~exact, decimals)
+
+
+def _round_exactly(values: np.ndarray, power: float) -> np.ndarray:
+    """round(values * power), half to even, from the exact product (Dekker's two-product:
+    product + error, both doubles); power is a power of ten up to 10**22, values below 2**52
+    / power."""
+    product = values * power
+    value_high, value_low = _split(values)
+    power_high, power_low = _split(np.asarray(power))
+    error = (
+        (value_high * power_high - product) + value_high * power_low + value_low * power_high
+    ) + value_low * power_low
+    below = np.floor(product)
+    beyond_half = (product - (below + 0.5)) + error  # the sign is exact
+    odd = below % 2 == 1
+    up = (beyond_half > 0) | ((beyond_half == 0) & odd)
+    return (below + up).astype(np.int64)
+
+
+def _split(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Veltkamp's split of doubles into two halves of 26 bits: high + low == values exactly."""
+    scaled = 134217729.0 * values  # 2**27 + 1
+    high = scaled - (scaled - values)
+    return high, values - high
 
 
 def _python_formatted(
