@@ -371,28 +371,36 @@ def _whole_image_band(mask: np.ndarray, a: np.ndarray, b: np.ndarray, width_px: 
     return mask & (dx * dx + dy * dy <= width_px * width_px)
 
 
-def test_cut_length_in_chunks_matches_all_blade_samples_at_once() -> None:
+def test_cut_length_from_runs_matches_all_blade_samples_at_once() -> None:
     from keymps.default_plugins.sim.cut_sweep import Footprint, covered_length
 
     rng = np.random.default_rng(RNG_SEED + 14)
-    for trial in range(24):
-        angles = np.sort(rng.uniform(0, 2 * math.pi, int(rng.integers(3, 60))))
-        radius = rng.uniform(0.03, 0.09, len(angles))
-        outline = np.column_stack([0.15 + radius * np.cos(angles), 0.1 + radius * np.sin(angles)])
-        footprint = Footprint(outline) if trial % 4 else None
+    for trial in range(40):
+        outlines = []
+        for _ in range(int(rng.choice([1, 1, 2, 3]))):  # several objects: holes between them
+            angles = np.sort(rng.uniform(0, 2 * math.pi, int(rng.integers(3, 60))))
+            radius = rng.uniform(0.01, 0.09, len(angles))  # ragged: concave outlines
+            centre = np.array([0.15, 0.1]) + rng.normal(0, 0.04, 2)
+            outlines.append(
+                centre + radius[:, None] * np.column_stack([np.cos(angles), np.sin(angles)])
+            )
+        footprint = Footprint(outlines if len(outlines) > 1 else outlines[0]) if trial % 4 else None
         count = int(rng.integers(1, 400))
         heading = rng.uniform(0, math.pi)
         along = np.array([math.cos(heading), math.sin(heading)])
         tips = np.array([0.15, 0.1]) + np.outer(rng.uniform(-0.1, 0.1, count), along)
         tips += rng.normal(0, float(rng.choice([0.0, 1e-4, 3e-3])), tips.shape)
         blade = float(rng.choice([0.0005, 0.02, 0.16]))
-        segments = np.stack([tips, tips - blade * along], axis=1)
+        turn = heading + rng.normal(0, float(rng.choice([0.0, 0.05, 0.5])), count)
+        backwards = np.column_stack([np.cos(turn), np.sin(turn)])
+        segments = np.stack([tips, tips - blade * backwards], axis=1)
         got = covered_length(segments, footprint)
         assert got == _covered_length_at_once(segments, footprint)
 
 
 def _covered_length_at_once(segments: np.ndarray, footprint: Any) -> float:
-    """covered_length as it was: every blade sample in one array, np.unique of the bins."""
+    """covered_length as it was: every blade sample tested and projected on the SVD's axis,
+    np.unique of the bins."""
     from keymps.default_plugins.sim.cut_sweep import FOOTPRINT_CELL_M, LENGTH_BIN_M
 
     longest = float(np.linalg.norm(segments[:, 1] - segments[:, 0], axis=1).max())

@@ -20,8 +20,9 @@ LENGTH_BIN_M = 0.0005
 """Resolution of the measured cut lengths."""
 FOOTPRINT_CELL_M = 0.00025
 """Grid cell of the rasterised footprint used to clip the measured cuts."""
-CHUNK_POINTS = 8192
-"""Blade samples generated at a time when measuring a cut (a few hundred kB of temporaries)."""
+COARSE_SAMPLES = 16
+"""Every this many blade samples one is tested against the footprint; the ones between only
+near its edge."""
 
 
 def blade_backwards(tool_x: np.ndarray, travel: np.ndarray) -> np.ndarray:
@@ -75,8 +76,23 @@ class Footprint:
             self.mask, [np.round(c * 16).astype(np.int32) for c in corners], 1, cv2.LINE_8, 4
         )
         # A ring of outside cells round the mask: any cell beyond it is clipped onto the ring.
-        self._ringed = np.pad(self.mask > 0, 1).ravel()
+        ringed = np.pad(self.mask > 0, 1)
+        self._ringed = ringed.ravel()
         self._last_cell = np.array([cols, rows], dtype=float)
+        # Per cell, the chessboard distance (in cells) to the nearest cell of the other value:
+        # every point whose cell is nearer than that is inside exactly when this cell is. (The
+        # ring's clipping moves no two cells further apart.)
+        inside = ringed.astype(np.uint8)
+        to_outside = cv2.distanceTransform(inside, cv2.DIST_C, 3)
+        to_inside = cv2.distanceTransform(1 - inside, cv2.DIST_C, 3)
+        self._same_within = np.where(ringed, to_outside, to_inside).ravel()
+        # Beyond the box round the inside cells every cell is outside: a cell's distance to
+        # that box is a reach too (and the only one that grows beyond the ring).
+        rows_in, cols_in = np.nonzero(self.mask)
+        self._inside_box = (
+            np.array([cols_in.min(), rows_in.min()], dtype=float) if len(rows_in) else None,
+            np.array([cols_in.max(), rows_in.max()], dtype=float) if len(rows_in) else None,
+        )
 
     def contains(self, xy: np.ndarray) -> np.ndarray:
         """(n,) whether each point (n, 2) lies in a footprint cell."""
@@ -84,21 +100,42 @@ class Footprint:
         return self.contains_xy(xy[:, 0], xy[:, 1])
 
     def contains_xy(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """Whether each point (x, y) lies in a footprint cell: arrays of one shape, x overwritten
-        (fresh memory for every temporary costs more than the arithmetic here)."""
-        flat = self._ringed_cell(y, 1) * (int(self._last_cell[0]) + 2)
-        flat += self._ringed_cell(x, 0)
-        return self._ringed[flat]
+        """Whether each point (x, y) lies in a footprint cell (x and y: arrays of one shape)."""
+        return self._ringed[self._cells(x, y)]
 
-    def _ringed_cell(self, values: np.ndarray, axis: int) -> np.ndarray:
-        """Cell index along `axis` in the ringed mask, cells beyond it clipped onto the ring."""
+    def contains_and_reach(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """`contains_xy`, and for each point the chessboard distance in cells from its cell to
+        the nearest cell of the other kind (a point whose cell is nearer has the same answer)."""
+        column, row = self._cell(x, 0), self._cell(y, 1)
+        low, high = self._inside_box
+        if low is None:  # nothing inside: every point is outside, whatever its neighbours
+            return np.zeros(column.shape, bool), np.full(column.shape, np.inf)
+        to_box = np.maximum.reduce([low[0] - column, column - high[0], low[1] - row, row - high[1]])
+        cells = self._flat(column, row)
+        return self._ringed[cells], np.maximum(self._same_within[cells], to_box)
+
+    def _cells(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Flat indices into the ringed mask of the points' cells."""
+        return self._flat(self._cell(x, 0), self._cell(y, 1))
+
+    def _cell(self, values: np.ndarray, axis: int) -> np.ndarray:
+        """The cells (whole numbers as floats, mask coordinates) of coordinates along `axis`."""
         cells = np.subtract(values, self.origin[axis])
         cells /= FOOTPRINT_CELL_M
-        np.floor(cells, out=cells)
-        np.clip(cells, -1.0, self._last_cell[axis], out=cells)
-        index = cells.astype(np.intp)
-        index += 1
-        return index
+        return np.floor(cells, out=cells)
+
+    def _flat(self, column: np.ndarray, row: np.ndarray) -> np.ndarray:
+        """Flat indices into the ringed mask of cells, those beyond it clipped onto the ring."""
+        flat = _ringed_index(row, self._last_cell[1]) * (int(self._last_cell[0]) + 2)
+        flat += _ringed_index(column, self._last_cell[0])
+        return flat
+
+
+def _ringed_index(cells: np.ndarray, last: float) -> np.ndarray:
+    """Index along one axis of the ringed mask of cells (mask coordinates), clipped onto it."""
+    index = np.clip(cells, -1.0, last).astype(np.intp)
+    index += 1
+    return index
 
 
 def _polygons(polygon: np.ndarray | list[np.ndarray]) -> list[np.ndarray]:
@@ -141,22 +178,50 @@ def _inside_runs(
     starts: np.ndarray, steps: np.ndarray, fractions: np.ndarray, footprint: Footprint
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Runs of consecutive samples start + fraction * step inside the footprint: each run's
-    segment, first and last sample index (segment by segment, in order)."""
-    rows, first, last = [], [], []
-    chunk = max(1, CHUNK_POINTS // len(fractions))
-    edges = np.zeros((min(chunk, len(starts)), len(fractions) + 2), np.int8)
-    for top in range(0, len(starts), chunk):
-        start, step = starts[top : top + chunk], steps[top : top + chunk]
-        x = start[:, 0, None] + fractions * step[:, 0, None]
-        y = start[:, 1, None] + fractions * step[:, 1, None]
-        inside = edges[: len(start)]
-        inside[:, 1:-1] = footprint.contains_xy(x, y)
-        change = np.diff(inside, axis=1)  # row-major: each row's runs open and close in turn
-        opened, closed = np.nonzero(change == 1), np.nonzero(change == -1)[1]
-        rows.append(opened[0] + top)
-        first.append(opened[1])
-        last.append(closed - 1)
-    return np.concatenate(rows), np.concatenate(first), np.concatenate(last)
+    segment, first and last sample index (segment by segment, in order).
+
+    Every COARSE_SAMPLES-th sample is tested. The samples between two tested ones are tested
+    too only when the cells' distances to the other kind of cell do not show that all of them
+    are of the tested ones' kind (near the footprint's edge): runs begin and end only there,
+    or at a segment's ends."""
+    n = len(fractions)
+    coarse = np.unique(np.append(np.arange(0, n, COARSE_SAMPLES), n - 1))
+    gaps = np.diff(coarse)
+    x = starts[:, 0, None] + fractions[coarse] * steps[:, 0, None]
+    y = starts[:, 1, None] + fractions[coarse] * steps[:, 1, None]
+    inside, reach = footprint.contains_and_reach(x, y)
+    # Sample j of a gap is at most j * per_sample cells (per axis) from the gap's first
+    # sample, so its cell at most floor(that) + 1 cells: the same kind as the first one when
+    # that is below the first's reach, or likewise from the gap's last sample.
+    per_sample = np.abs(steps).max(axis=1) / FOOTPRINT_CELL_M / (n - 1) * (1 + 1e-9) + 1e-9
+    settled = (inside[:, :-1] == inside[:, 1:]) & (
+        reach[:, :-1] + reach[:, 1:] - 2 > gaps * per_sample[:, None]
+    )
+    segment, gap = np.nonzero(~settled)
+    # each unsettled gap's samples, its first to the one before the next tested one
+    counts = gaps[gap]
+    offsets = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+    row, sample = np.repeat(segment, counts), np.repeat(coarse[gap], counts) + offsets
+    start, step, fraction = starts[row], steps[row], fractions[sample]
+    tested = footprint.contains_xy(
+        start[:, 0] + fraction * step[:, 0], start[:, 1] + fraction * step[:, 1]
+    )
+    # a change between a sample and the next: within a gap, or from its last to the next
+    # tested sample
+    following = np.append(tested[1:], False)
+    gap_end = np.cumsum(counts) - 1
+    following[gap_end] = inside[segment, gap + 1]
+    change = following.astype(np.int8) - tested
+    opened_row, opened_at = row[change == 1], sample[change == 1] + 1
+    closed_row, closed_at = row[change == -1], sample[change == -1]
+    # runs that begin at a segment's first sample or end at its last
+    first_in, last_in = np.flatnonzero(inside[:, 0]), np.flatnonzero(inside[:, -1])
+    opened_row, opened_at = np.append(opened_row, first_in), np.append(opened_at, 0 * first_in)
+    closed_row = np.append(closed_row, last_in)
+    closed_at = np.append(closed_at, np.full(len(last_in), n - 1))
+    opened = np.sort(opened_row * n + opened_at)  # in each segment runs open, close in turn
+    closed = np.sort(closed_row * n + closed_at)
+    return opened // n, opened % n, closed % n
 
 
 def _principal_axis(
