@@ -76,23 +76,10 @@ class Footprint:
             self.mask, [np.round(c * 16).astype(np.int32) for c in corners], 1, cv2.LINE_8, 4
         )
         # A ring of outside cells round the mask: any cell beyond it is clipped onto the ring.
-        ringed = np.pad(self.mask > 0, 1)
-        self._ringed = ringed.ravel()
+        self.ringed = np.pad(self.mask > 0, 1)
+        """The mask with a ring of outside cells round it (what `cells` index)."""
         self._last_cell = np.array([cols, rows], dtype=float)
-        # Per cell, the chessboard distance (in cells) to the nearest cell of the other value:
-        # every point whose cell is nearer than that is inside exactly when this cell is. (The
-        # ring's clipping moves no two cells further apart.)
-        inside = ringed.astype(np.uint8)
-        to_outside = cv2.distanceTransform(inside, cv2.DIST_C, 3)
-        to_inside = cv2.distanceTransform(1 - inside, cv2.DIST_C, 3)
-        self._same_within = np.where(ringed, to_outside, to_inside).ravel()
-        # Beyond the box round the inside cells every cell is outside: a cell's distance to
-        # that box is a reach too (and the only one that grows beyond the ring).
-        rows_in, cols_in = np.nonzero(self.mask)
-        self._inside_box = (
-            np.array([cols_in.min(), rows_in.min()], dtype=float) if len(rows_in) else None,
-            np.array([cols_in.max(), rows_in.max()], dtype=float) if len(rows_in) else None,
-        )
+        self._inside_counts: np.ndarray | None = None
 
     def contains(self, xy: np.ndarray) -> np.ndarray:
         """(n,) whether each point (n, 2) lies in a footprint cell."""
@@ -101,41 +88,39 @@ class Footprint:
 
     def contains_xy(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """Whether each point (x, y) lies in a footprint cell (x and y: arrays of one shape)."""
-        return self._ringed[self._cells(x, y)]
+        return self.inside(self.cells(y, 1), self.cells(x, 0))
 
-    def contains_and_reach(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """`contains_xy`, and for each point the chessboard distance in cells from its cell to
-        the nearest cell of the other kind (a point whose cell is nearer has the same answer)."""
-        column, row = self._cell(x, 0), self._cell(y, 1)
-        low, high = self._inside_box
-        if low is None:  # nothing inside: every point is outside, whatever its neighbours
-            return np.zeros(column.shape, bool), np.full(column.shape, np.inf)
-        to_box = np.maximum.reduce([low[0] - column, column - high[0], low[1] - row, row - high[1]])
-        cells = self._flat(column, row)
-        return self._ringed[cells], np.maximum(self._same_within[cells], to_box)
+    def inside(self, rows: np.ndarray, columns: np.ndarray) -> np.ndarray:
+        """Whether cells of the ringed mask are footprint cells."""
+        flat = rows * self.ringed.shape[1]
+        flat += columns
+        return self.ringed.ravel()[flat]
 
-    def _cells(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """Flat indices into the ringed mask of the points' cells."""
-        return self._flat(self._cell(x, 0), self._cell(y, 1))
-
-    def _cell(self, values: np.ndarray, axis: int) -> np.ndarray:
-        """The cells (whole numbers as floats, mask coordinates) of coordinates along `axis`."""
+    def cells(self, values: np.ndarray, axis: int) -> np.ndarray:
+        """The cells of coordinates along `axis` (0: x, columns; 1: y, rows) in the ringed
+        mask, those beyond it clipped onto its ring."""
         cells = np.subtract(values, self.origin[axis])
         cells /= FOOTPRINT_CELL_M
-        return np.floor(cells, out=cells)
+        np.floor(cells, out=cells)
+        np.clip(cells, -1.0, self._last_cell[axis], out=cells)
+        index = cells.astype(np.intp)
+        index += 1
+        return index
 
-    def _flat(self, column: np.ndarray, row: np.ndarray) -> np.ndarray:
-        """Flat indices into the ringed mask of cells, those beyond it clipped onto the ring."""
-        flat = _ringed_index(row, self._last_cell[1]) * (int(self._last_cell[0]) + 2)
-        flat += _ringed_index(column, self._last_cell[0])
-        return flat
+    def inside_cells(
+        self, columns: tuple[np.ndarray, np.ndarray], rows: tuple[np.ndarray, np.ndarray]
+    ) -> np.ndarray:
+        """How many cells of each box of ringed-mask cells (first and last column, first and
+        last row, all included) are inside: a summed-area table's four corners."""
+        if self._inside_counts is None:
+            import cv2
 
-
-def _ringed_index(cells: np.ndarray, last: float) -> np.ndarray:
-    """Index along one axis of the ringed mask of cells (mask coordinates), clipped onto it."""
-    index = np.clip(cells, -1.0, last).astype(np.intp)
-    index += 1
-    return index
+            self._inside_counts = cv2.integral(self.ringed.astype(np.uint8))
+        table = self._inside_counts
+        (left, right), (top, bottom) = columns, rows
+        return (
+            table[bottom + 1, right + 1] - table[top, right + 1] - table[bottom + 1, left]
+        ) + table[top, left]
 
 
 def _polygons(polygon: np.ndarray | list[np.ndarray]) -> list[np.ndarray]:
@@ -181,22 +166,22 @@ def _inside_runs(
     segment, first and last sample index (segment by segment, in order).
 
     Every COARSE_SAMPLES-th sample is tested. The samples between two tested ones are tested
-    too only when the cells' distances to the other kind of cell do not show that all of them
-    are of the tested ones' kind (near the footprint's edge): runs begin and end only there,
-    or at a segment's ends."""
+    too only when the cells round them are not all of one kind (near the footprint's edge):
+    runs begin and end only there, or at a segment's ends."""
     n = len(fractions)
     coarse = np.unique(np.append(np.arange(0, n, COARSE_SAMPLES), n - 1))
     gaps = np.diff(coarse)
-    x = starts[:, 0, None] + fractions[coarse] * steps[:, 0, None]
-    y = starts[:, 1, None] + fractions[coarse] * steps[:, 1, None]
-    inside, reach = footprint.contains_and_reach(x, y)
-    # Sample j of a gap is at most j * per_sample cells (per axis) from the gap's first
-    # sample, so its cell at most floor(that) + 1 cells: the same kind as the first one when
-    # that is below the first's reach, or likewise from the gap's last sample.
-    per_sample = np.abs(steps).max(axis=1) / FOOTPRINT_CELL_M / (n - 1) * (1 + 1e-9) + 1e-9
-    settled = (inside[:, :-1] == inside[:, 1:]) & (
-        reach[:, :-1] + reach[:, 1:] - 2 > gaps * per_sample[:, None]
-    )
+    column = footprint.cells(starts[:, 0, None] + fractions[coarse] * steps[:, 0, None], 0)
+    row = footprint.cells(starts[:, 1, None] + fractions[coarse] * steps[:, 1, None], 1)
+    inside = footprint.inside(row, column)
+    # The samples between two tested ones lie in the box of their cells (grown by a cell for
+    # rounding): when every cell of that box is of one kind, so are they.
+    last = np.array(footprint.ringed.shape) - 1
+    columns = _grown_box(column[:, :-1], column[:, 1:], last[1])
+    rows = _grown_box(row[:, :-1], row[:, 1:], last[0])
+    count = footprint.inside_cells(columns, rows)
+    area = (columns[1] - columns[0] + 1) * (rows[1] - rows[0] + 1)
+    settled = (count == 0) | (count == area)
     segment, gap = np.nonzero(~settled)
     # each unsettled gap's samples, its first to the one before the next tested one
     counts = gaps[gap]
@@ -222,6 +207,11 @@ def _inside_runs(
     opened = np.sort(opened_row * n + opened_at)  # in each segment runs open, close in turn
     closed = np.sort(closed_row * n + closed_at)
     return opened // n, opened % n, closed % n
+
+
+def _grown_box(a: np.ndarray, b: np.ndarray, last: int) -> tuple[np.ndarray, np.ndarray]:
+    """The cells from min(a, b) - 1 to max(a, b) + 1, within 0 .. last."""
+    return np.maximum(np.minimum(a, b) - 1, 0), np.minimum(np.maximum(a, b) + 1, last)
 
 
 def _principal_axis(
