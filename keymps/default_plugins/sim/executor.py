@@ -76,6 +76,11 @@ class Replay:
     """(n, 2) the tool x axis (a blade's direction) on the board, unit length; None: unknown."""
 
 
+REPLAY_CHUNK = 4096
+"""Replayed samples computed at a time: temporaries that stay in cache and out of fresh memory
+(which costs a page fault per 4 kB here, more than the arithmetic)."""
+
+
 def replay(model: Any, trajectory: Trajectory, rate_hz: float) -> Replay:
     """Joints interpolated linearly between samples at `rate_hz`, through forward kinematics."""
     from keymps.robot.batch_fk import interpolated_cos_sin
@@ -89,21 +94,31 @@ def replay(model: Any, trajectory: Trajectory, rate_hz: float) -> Replay:
         inner = values[:-1, None] + fractions[:, None] * (values[1:] - values[:-1])[:, None]
         return np.concatenate([inner.reshape(-1, values.shape[1]), values[-1:]])
 
-    q = between(trajectory.q)
+    q = np.asarray(trajectory.q, dtype=float)
+    n = len(q)
+    positions, tool_x = np.empty(((n - 1) * substeps + 1, 3)), np.empty(((n - 1) * substeps + 1, 2))
+    batched = getattr(model, "batch", None) is not None
+    per_chunk = max(1, REPLAY_CHUNK // substeps)
+    # Chunks share their end samples (computed alike in both: the same numbers).
+    for first in range(0, max(n - 1, 1), per_chunk):
+        last = min(first + per_chunk, n - 1)
+        joints = q[first : last + 1]
+        cos_sin = interpolated_cos_sin(joints, substeps) if batched else None
+        chunk_positions, rotations = model.tool_poses(between(joints), cos_sin)
+        done = slice(first * substeps, last * substeps + 1)
+        positions[done] = chunk_positions
+        tool_x[done] = _unit(rotations[:, :2, 0])
     t = np.concatenate(
         [(np.asarray(trajectory.t[:-1])[:, None] + fractions / trajectory.rate_hz).ravel(),
          np.asarray(trajectory.t[-1:], dtype=float)]
     )  # fmt: skip
-    batched = getattr(model, "batch", None) is not None
-    cos_sin = interpolated_cos_sin(trajectory.q, substeps) if batched else None
-    positions, rotations = model.tool_poses(q, cos_sin)
     return Replay(
         t,
         positions,
         between(trajectory.tool_xyz),
         _spread(np.asarray(trajectory.piece_index), substeps),
         _spread(np.asarray(trajectory.kind), substeps),
-        _unit(rotations[:, :2, 0]),
+        tool_x,
     )
 
 
