@@ -15,15 +15,30 @@ def _segment_distances(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.n
     return np.sqrt((gap**2).sum(axis=-1))
 
 
-def _pair_distances(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Distance of point i to segment a[i]-b[i], all given as (3, n) columns: the same
+def _pair_distances(
+    points: np.ndarray,
+    a: np.ndarray,
+    ab: np.ndarray,
+    length2: np.ndarray,
+    point: np.ndarray,
+    segment: np.ndarray,
+) -> np.ndarray:
+    """Distance of points[:, point[i]] to segment segment[i], from (3, n) point columns, (3, m)
+    segment starts a and vectors ab = b - a and their squared lengths (at least 1e-18): the same
     arithmetic as `_segment_distances`, term by term (so the same value to the last bit)."""
-    (px, py, pz), (ax, ay, az), (bx, by, bz) = points, a, b
-    abx, aby, abz = bx - ax, by - ay, bz - az
-    length2 = np.maximum(abx * abx + aby * aby + abz * abz, 1e-18)
-    t = np.clip(((px - ax) * abx + (py - ay) * aby + (pz - az) * abz) / length2, 0.0, 1.0)
+    px, py, pz = points[0][point], points[1][point], points[2][point]
+    ax, ay, az = a[0][segment], a[1][segment], a[2][segment]
+    abx, aby, abz = ab[0][segment], ab[1][segment], ab[2][segment]
+    t = (px - ax) * abx
+    t += (py - ay) * aby
+    t += (pz - az) * abz
+    t /= length2[segment]
+    np.clip(t, 0.0, 1.0, out=t)
     gx, gy, gz = px - (ax + t * abx), py - (ay + t * aby), pz - (az + t * abz)
-    return np.sqrt(gx * gx + gy * gy + gz * gz)
+    gx *= gx
+    gx += gy * gy
+    gx += gz * gz
+    return np.sqrt(gx, out=gx)
 
 
 def _brute_force(points: np.ndarray, polyline: np.ndarray) -> np.ndarray:
@@ -163,12 +178,14 @@ def _near(
     pair_point = np.repeat(has, counts_has)
     offsets = np.arange(len(pair_point)) - np.repeat(starts, counts_has)
     pair_segment = segment[np.repeat(first[has], counts_has) + offsets]
-    columns, a_columns, b_columns = points.T, a.T, b.T
+    columns, a_columns = np.ascontiguousarray(points.T), np.ascontiguousarray(a.T)
+    ab = np.ascontiguousarray((b - a).T)
+    length2 = np.maximum(ab[0] * ab[0] + ab[1] * ab[1] + ab[2] * ab[2], 1e-18)
     distances = np.empty(len(pair_point))
     for start in range(0, len(pair_point), PAIR_CHUNK):  # temporaries that stay in cache
         p, s = pair_point[start : start + PAIR_CHUNK], pair_segment[start : start + PAIR_CHUNK]
         distances[start : start + PAIR_CHUNK] = _pair_distances(
-            columns[:, p], a_columns[:, s], b_columns[:, s]
+            columns, a_columns, ab, length2, p, s
         )
     best = np.minimum.reduceat(distances, starts)
     out[has] = best
