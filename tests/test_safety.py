@@ -134,6 +134,13 @@ def test_executors_refuse_forged_or_modified_validated_trajectories() -> None:
     object.__setattr__(validated, "trajectory", replace(validated.trajectory, q=q))
     with pytest.raises(SafetyError, match="modified afterwards"):
         require_validated(validated, "sim")
+    validated = validate(model, trajectory, path, CAKE, task)
+    assert require_validated(validated, "sim") is validated.trajectory
+    kind = np.array(validated.trajectory.kind, copy=True)
+    kind[len(kind) // 2] = "travel" if kind[len(kind) // 2] == "work" else "work"
+    object.__setattr__(validated, "trajectory", replace(validated.trajectory, kind=kind))
+    with pytest.raises(SafetyError, match="modified afterwards"):
+        require_validated(validated, "sim")
 
 
 def test_distance_to_polyline_is_exact_on_large_inputs() -> None:

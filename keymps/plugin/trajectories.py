@@ -24,7 +24,9 @@ def _digest(trajectory: Trajectory) -> str:
     for array in (trajectory.t, trajectory.q, trajectory.qd, trajectory.qdd, trajectory.tool_xyz):
         digest.update(np.ascontiguousarray(array, dtype=float).tobytes())
     digest.update(np.ascontiguousarray(trajectory.piece_index, dtype=np.int64).tobytes())
-    digest.update("|".join(map(str, trajectory.kind)).encode())
+    kinds = np.ascontiguousarray(np.asarray(trajectory.kind, dtype=str))
+    digest.update(f"{kinds.dtype.str}{kinds.shape}".encode())  # fixed width: no join needed
+    digest.update(kinds.tobytes())
     digest.update(repr((trajectory.joint_names, float(trajectory.rate_hz))).encode())
     return digest.hexdigest()
 

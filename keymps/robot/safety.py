@@ -119,7 +119,7 @@ def _check_structure(
     if index.min() < 0 or index.max() >= pieces:
         problems.append(f"piece_index outside the tool path's {pieces} pieces")
     else:
-        expected = np.array([tool_path.pieces[i].kind for i in index])
+        expected = np.array([piece.kind for piece in tool_path.pieces])[index]
         if not np.array_equal(expected, np.asarray(trajectory.kind).astype(str)):
             problems.append("kind does not match the kinds of the tool path's pieces")
     return not problems
