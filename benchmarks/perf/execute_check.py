@@ -1,0 +1,198 @@
+"""The check and execute stages and trajectory.csv, this checkout against an earlier commit's,
+interleaved in one process on the same warm runs.
+
+Run: python benchmarks/perf/execute_check.py [--baseline a668308] [--repeats 15]
+
+The baseline's sim executor, cut sweep, safety check, distances, batched forward kinematics,
+trajectory CSV writer and PNG writer are loaded from `git show <baseline>:<file>` as modules of
+their own; everything else (task loading, the planned runs, the robot model) is this checkout's.
+Each repeat times `validate`, `write_trajectory_csv` and `SimExecutor.execute` of both versions
+in turn (the order alternating), on the icing and the cutting run of the offline planner. The
+first round is a warm-up whose reports are compared: the sim and validation figures of the two
+versions, to 1e-9 relative.
+
+Prints medians and minimums (the minimum is the steadier figure on a shared machine) and, last,
+machine-readable `name: value` lines of the median speed-ups.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import importlib.util
+import math
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[2]
+TASKS = {"icing": "tasks/cake_icing.yaml", "cutting": "tasks/object_cutting.yaml"}
+STAGES = ("check", "csv", "execute")
+
+
+def baseline_module(name: str, path: str, commit: str, folder: Path) -> ModuleType:
+    """keymps/<path> as it was at `commit`, imported as module `name`."""
+    source = subprocess.run(
+        ["git", "show", f"{commit}:keymps/{path}"], cwd=ROOT, check=True, capture_output=True
+    ).stdout
+    file = folder / f"{name}.py"
+    file.write_bytes(source)
+    spec = importlib.util.spec_from_file_location(name, file)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+class Baseline:
+    """The baseline's modules, wired to each other instead of to this checkout's."""
+
+    def __init__(self, commit: str, folder: Path):
+        def load(name: str, path: str) -> ModuleType:
+            return baseline_module(f"baseline_{name}", path, commit, folder)
+
+        self.geometry = load("safety_geometry", "robot/safety_geometry.py")
+        self.batch_fk = load("batch_fk", "robot/batch_fk.py")
+        self.cut_sweep = load("cut_sweep", "default_plugins/sim/cut_sweep.py")
+        self.run_module = load("run", "run.py")
+        self.trajectory_io = load("trajectory_io", "motion/trajectory_io.py")
+        self.executor = load("executor", "default_plugins/sim/executor.py")
+        self.executor.covered_length = self.cut_sweep.covered_length
+        self.executor.Footprint = self.cut_sweep.Footprint
+        self.safety = load("safety", "robot/safety.py")
+        self.safety.distance_to_polylines = self.geometry.distance_to_polylines
+        self.safety.outside_distance = self.geometry.outside_distance
+
+    @contextlib.contextmanager
+    def installed(self, run: Any) -> Iterator[None]:
+        """The baseline's distances, PNG writer and forward kinematics for the block."""
+        import keymps.run
+
+        saved = sys.modules["keymps.robot.safety_geometry"], keymps.run.write_image, run.robot
+        sys.modules["keymps.robot.safety_geometry"] = self.geometry  # imported inside functions
+        keymps.run.write_image = self.run_module.write_image
+        run.robot = BaselineKinematics(run.robot, self.batch_fk)
+        try:
+            yield
+        finally:
+            sys.modules["keymps.robot.safety_geometry"], keymps.run.write_image, run.robot = saved
+
+
+class BaselineKinematics:
+    """A robot model whose batched forward kinematics are the baseline's."""
+
+    def __init__(self, model: Any, batch_fk: ModuleType):
+        self._model = model
+        self._batch = batch_fk.BatchKinematics.for_model(model.model)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._model, name)
+
+    def tool_poses(self, qs: Any, *_: Any) -> Any:
+        frame = self._model._tcp_frame
+        return self._batch.frame_poses(qs, frame.parentJoint, frame.placement)
+
+    def joint_origins_many(self, qs: Any) -> Any:
+        flange = self._model._flange
+        return self._batch.origins(qs, (flange.parentJoint, flange.placement))
+
+
+def stages_once(run: Any, version: str, baseline: Baseline) -> tuple[dict[str, float], Any]:
+    """Seconds of check, csv and execute of one version, and its reports."""
+    from keymps.default_plugins.sim import executor
+    from keymps.motion.trajectory_io import write_trajectory_csv
+    from keymps.robot.safety import validate
+
+    trajectory, tool_path = run.stages.check.trajectory, run.stages.compose
+    context: Any = contextlib.nullcontext()
+    check, write_csv, sim = validate, write_trajectory_csv, executor
+    if version == "baseline":
+        context = baseline.installed(run)
+        check, sim = baseline.safety.validate, baseline.executor
+        write_csv = baseline.trajectory_io.write_trajectory_csv
+    seconds: dict[str, float] = {}
+    with context:
+        started = time.perf_counter()
+        validated = check(run.robot, trajectory, tool_path, run.objects, run.task)
+        seconds["check"] = time.perf_counter() - started
+        started = time.perf_counter()
+        write_csv(validated.trajectory, run.path("trajectory.csv"))
+        seconds["csv"] = time.perf_counter() - started
+        started = time.perf_counter()
+        report = sim.SimExecutor(sim.SimOptions()).execute(validated, run)
+        seconds["execute"] = time.perf_counter() - started
+    return seconds, (validated.report.figures, report.figures)
+
+
+def same_figures(a: dict[str, float], b: dict[str, float]) -> list[str]:
+    """The keys whose values differ by more than 1e-9 relative."""
+    return [
+        key
+        for key in sorted(set(a) | set(b))
+        if key not in a or key not in b or not math.isclose(a[key], b[key], rel_tol=1e-9)
+    ]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--baseline", default="a668308", help="git commit to compare with")
+    parser.add_argument("--repeats", type=int, default=15)
+    arguments = parser.parse_args()
+
+    from keymps import run_task
+
+    with tempfile.TemporaryDirectory() as scratch:
+        folder = Path(scratch)
+        baseline = Baseline(arguments.baseline, folder)
+        runs = {}
+        for name, task in TASKS.items():
+            cold = folder / f"cold-{name}"
+            run_task(ROOT / task, out=cold, rerun="off", backend="offline", executor="sim")
+            runs[name] = run_task(
+                ROOT / task, out=folder / name, rerun="off", backend="offline", executor="sim"
+            )
+        print(f"load {os.getloadavg()[0]:.2f} at start; baseline {arguments.baseline}")
+        times: dict[tuple[str, str, str], list[float]] = {}
+        for repeat in range(arguments.repeats + 1):
+            for name, run in runs.items():
+                order = ("baseline", "this") if repeat % 2 else ("this", "baseline")
+                reports = {}
+                for version in order:
+                    seconds, reports[version] = stages_once(run, version, baseline)
+                    for stage, value in seconds.items():
+                        times.setdefault((name, version, stage), []).append(value * 1000)
+                if repeat == 0:  # warm-up: compare the reports, drop the times
+                    for key in list(times):
+                        times[key].clear()
+                    for what, a, b in zip(
+                        ("validation", "sim"), reports["baseline"], reports["this"], strict=True
+                    ):
+                        differ = same_figures(a, b)
+                        verdict = f"differ: {', '.join(differ)}" if differ else "the same"
+                        print(f"{name} {what} figures: {verdict}")
+        print(f"load {os.getloadavg()[0]:.2f} at the end")
+        lines = []
+        for name in runs:
+            for stage in STAGES:
+                before, after = times[(name, "baseline", stage)], times[(name, "this", stage)]
+                ratio = statistics.median(before) / statistics.median(after)
+                print(
+                    f"{name:8s} {stage:8s} median {statistics.median(before):6.1f} -> "
+                    f"{statistics.median(after):6.1f} ms ({ratio:.2f}x), "
+                    f"min {min(before):6.1f} -> {min(after):6.1f} ms"
+                )
+                lines.append((f"{stage}_speedup_{name}", f"{ratio:.2f}"))
+        for key, value in lines:
+            print(f"{key}: {value}")
+
+
+if __name__ == "__main__":
+    main()
