@@ -3,6 +3,8 @@ outside a polygon (the object's footprint). The simulator measures with the same
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 
@@ -162,14 +164,22 @@ def _near(
     keys = _keys(cells, shape[segment_group[segment]], offset[segment_group[segment]])
     order = np.argsort(keys, kind="stable")
     keys, segment = keys[order], segment[order]
+    # each occupied cell once: where its segments start in `segment`, and how many
+    cell_starts = np.flatnonzero(np.diff(keys, prepend=keys[0] - 1))
+    cell_keys = keys[cell_starts]
+    cell_counts = np.diff(cell_starts, append=len(keys))
     g = point_group
-    at = points - origin[g]
-    at /= cell[g, None]
+    per_point = _per_point(g, groups)
+    point_shape = per_point(shape)
+    at = points - per_point(origin)
+    at /= per_point(cell)[:, None]
     at = np.floor(at, out=at).astype(np.int64)
-    inside = ((at >= 0) & (at < shape[g])).all(axis=1)
-    at_key = _keys(at, shape[g], offset[g])
-    first = np.searchsorted(keys, at_key, side="left")
-    found = np.where(inside, np.searchsorted(keys, at_key, side="right") - first, 0)
+    inside = ((at >= 0) & (at < point_shape)).all(axis=1)
+    at_key = _keys(at, point_shape, per_point(offset))
+    where = np.minimum(np.searchsorted(cell_keys, at_key), len(cell_keys) - 1)
+    hit = inside & (cell_keys[where] == at_key)
+    first = cell_starts[where]
+    found = np.where(hit, cell_counts[where], 0)
     has = np.flatnonzero(found)
     if len(has) == 0:
         return out, near
@@ -191,6 +201,15 @@ def _near(
     out[has] = best
     near[has] = best <= margin[g[has]] / 2
     return out, near
+
+
+def _per_point(groups: np.ndarray, count: int) -> Any:
+    """A function giving each point its group's row of a per-group table: by repeating the
+    rows when the points come group by group (as a path's samples do), else by indexing."""
+    if len(groups) and bool((groups[1:] >= groups[:-1]).all()):
+        repeats = np.bincount(groups, minlength=count)
+        return lambda table: np.repeat(table, repeats, axis=0)
+    return lambda table: table[groups]
 
 
 def _keys(cells: np.ndarray, shape: np.ndarray, offset: np.ndarray) -> np.ndarray:
