@@ -282,6 +282,37 @@ def test_outside_distance_matches_opencv_on_random_outlines() -> None:
         assert np.abs(outside_distance(points, outline) - np.maximum(-signed, 0.0)).max() < 1e-6
 
 
+def test_outside_distance_with_a_bound_is_brute_forces_to_the_bit() -> None:
+    from keymps.robot.safety_geometry import (
+        _brute_force,
+        _near_bound,
+        inside_polygon,
+        outside_distance,
+    )
+
+    rng = np.random.default_rng(RNG_SEED + 21)
+    bounded = 0
+    for trial in range(16):
+        count = int(rng.integers(100, 1000))  # dense outlines, as detections give
+        angles = np.sort(rng.uniform(0, 2 * math.pi, count))
+        radius = rng.uniform(0.05, 0.06, (count, 1)) if trial % 2 else 0.07
+        centre = np.array([0.15, 0.1])
+        outline = centre + radius * np.column_stack([np.cos(angles), np.sin(angles)])
+        # work samples a few mm out of the outline (sawing overshoots), in some trials far ones
+        scale = rng.uniform(0.98, 1.02, (400, 1))
+        near = centre + (outline[rng.integers(0, count, 400)] - centre) * scale
+        far = rng.uniform(-0.2, 0.5, (50 if trial % 4 == 3 else 0, 2))
+        points = np.concatenate([near, far])
+        closed = np.vstack([outline, outline[:1]])
+        lifted = np.column_stack([points, np.zeros(len(points))])
+        expected = _brute_force(lifted, np.column_stack([closed, np.zeros(len(closed))]))
+        inside = inside_polygon(points, outline)
+        expected[inside] = 0.0
+        assert np.array_equal(outside_distance(points, outline), expected)
+        bounded += _near_bound(points[~inside], closed) is not None
+    assert bounded >= 6  # the bound's grid pass answered, not only the branch and bound
+
+
 @pytest.mark.parametrize("task_file", ["cake_icing.yaml", "object_cutting.yaml"])
 def test_shipped_runs_are_unchanged_by_the_closed_form(
     task_file: str, tmp_path: Any, monkeypatch: pytest.MonkeyPatch

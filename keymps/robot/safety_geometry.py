@@ -58,8 +58,11 @@ BLOCK_SEGMENTS = 8
 strokes run over each other, and every overlapping block must be searched)."""
 
 
-def distance_to_polyline(points: np.ndarray, polyline: np.ndarray) -> np.ndarray:
-    """Exact distance of each point (n, 3) to a polyline (m, 3)."""
+def distance_to_polyline(
+    points: np.ndarray, polyline: np.ndarray, within: float | None = None
+) -> np.ndarray:
+    """Exact distance of each point (n, 3) to a polyline (m, 3). `within`: a bound known on
+    every distance (the grid pass then answers for every point)."""
     points = np.asarray(points, dtype=float)
     polyline = np.asarray(polyline, dtype=float)
     if len(polyline) == 1 or len(points) == 0:
@@ -68,7 +71,9 @@ def distance_to_polyline(points: np.ndarray, polyline: np.ndarray) -> np.ndarray
     if segments <= 2 * BLOCK_SEGMENTS or segments * len(points) <= 50_000:
         return _brute_force(points, polyline)
     a, b = polyline[:-1], polyline[1:]
-    out, near = _near(points, np.zeros(len(points), np.intp), a, b, np.zeros(len(a), np.intp))
+    smallest = 0.0 if within is None else 8 * within * (1 + 1e-9) + 1e-12
+    zeros = np.zeros(len(points), np.intp)
+    out, near = _near(points, zeros, a, b, np.zeros(len(a), np.intp), smallest)
     if not near.all():
         out[~near] = _pruned(points[~near], polyline)
     return out
@@ -118,9 +123,11 @@ def _near(
     a: np.ndarray,
     b: np.ndarray,
     segment_group: np.ndarray,
+    smallest_cell: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Exact distances of the points near their group's segments a[i]-b[i] (groups numbered
-    0, 1, ... in order, each with at least one segment), and which points those are.
+    0, 1, ... in order, each with at least one segment), and which points those are. With
+    `smallest_cell` 8 d, every point within d of its group's segments is near.
 
     Each group has a uniform grid (cell size h), and every segment is registered in the cells
     its box, grown by h/4 on every side, overlaps. A point within h/8 of a segment lies inside
@@ -141,6 +148,7 @@ def _near(
     longest = np.maximum.reduceat(lengths, first_segment)
     # About two cells per segment: fewer segments per cell, few cells per segment.
     cell = np.maximum.reduce([mean, longest / 4, extent / 1000, np.full(groups, 1e-9)]) / 2
+    cell = np.maximum(cell, smallest_cell)
     margin = cell / 4
     origin = low_corner - 2 * cell[:, None]
     seg_cell, seg_origin = cell[segment_group, None], origin[segment_group]
@@ -268,8 +276,22 @@ def outside_distance(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
     out = np.zeros(len(points))
     outside = ~inside_polygon(points, polygon)
     if outside.any():  # far from the edge inside, where every edge would be a candidate
-        out[outside] = distance_to_polyline(lifted[outside], flat)
+        away = lifted[outside]
+        out[outside] = distance_to_polyline(away, flat, _near_bound(away[:, :2], closed))
     return out
+
+
+def _near_bound(points: np.ndarray, polygon: np.ndarray) -> float | None:
+    """A bound on the points' distances to the polygon (the farthest point's distance to the
+    nearest of 64 of the corners) when it is small beside the polygon (the grid pass then
+    answers for every point with few segments per cell), else None."""
+    corners = polygon[:: max(1, len(polygon) // 64)]
+    bound = 0.0
+    for start in range(0, len(points), 1024):
+        gaps = points[start : start + 1024, None, :] - corners[None]
+        bound = max(bound, float(np.sqrt((gaps**2).sum(axis=2)).min(axis=1).max()))
+    extent = float((polygon.max(axis=0) - polygon.min(axis=0)).max())
+    return bound if bound <= extent / 16 else None
 
 
 def inside_polygon(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
