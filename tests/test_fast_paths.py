@@ -1098,3 +1098,20 @@ def test_trajectory_csv_in_numpy_is_pythons_formatting_row_by_row() -> None:
             )
         ]
         assert trajectory_csv(trajectory).decode() == "\n".join([CSV_HEADER, *rows]) + "\n"
+
+
+def test_blade_positions_are_picked_as_with_numpys_norm_and_union() -> None:
+    from keymps.default_plugins.sim.cut_sweep import SWEEP_STEP_M, _every
+
+    rng = np.random.default_rng(RNG_SEED + 22)
+    for _ in range(20):
+        n = int(rng.integers(2, 5000))
+        tip = np.cumsum(rng.normal(0, float(rng.choice([1e-5, 1e-4, 1e-3])), (n, 3)), axis=0)
+        far = tip[:, :2] + 0.16 * rng.normal(0, 1, (n, 2)) / 40
+        moved = np.maximum(
+            np.linalg.norm(np.diff(tip, axis=0), axis=1),
+            np.linalg.norm(np.diff(far, axis=0), axis=1),
+        )
+        bins = np.floor(np.concatenate([[0.0], np.cumsum(moved)]) / SWEEP_STEP_M)
+        expected = np.union1d(np.flatnonzero(np.diff(bins, prepend=-1.0) > 0), [n - 1])
+        assert np.array_equal(_every(tip, far, SWEEP_STEP_M), expected)
