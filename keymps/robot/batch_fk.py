@@ -209,8 +209,10 @@ def _turn(fixed: np.ndarray, joint: _Joint, c: np.ndarray, s: np.ndarray) -> np.
     turned = np.empty_like(fixed)
     turned[:, joint.principal] = fixed[:, joint.principal]
     a, b = fixed[:, first], fixed[:, second]
-    turned[:, first] = a * c + b * s
-    turned[:, second] = b * c - a * s
+    np.multiply(a, c, out=turned[:, first])  # in place: a * c + b * s, b * c - a * s
+    turned[:, first] += b * s
+    np.multiply(b, c, out=turned[:, second])
+    turned[:, second] -= a * s
     return turned
 
 

@@ -98,7 +98,7 @@ def replay(model: Any, trajectory: Trajectory, rate_hz: float) -> Replay:
     n = len(q)
     positions, tool_x = np.empty(((n - 1) * substeps + 1, 3)), np.empty(((n - 1) * substeps + 1, 2))
     batched = getattr(model, "batch", None) is not None
-    per_chunk = max(1, REPLAY_CHUNK // substeps)
+    per_chunk = max(1, (REPLAY_CHUNK - 1) // substeps)  # with its end: one chunk of batch FK
     # Chunks share their end samples (computed alike in both: the same numbers).
     for first in range(0, max(n - 1, 1), per_chunk):
         last = min(first + per_chunk, n - 1)
