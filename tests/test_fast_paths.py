@@ -1115,3 +1115,12 @@ def test_blade_positions_are_picked_as_with_numpys_norm_and_union() -> None:
         bins = np.floor(np.concatenate([[0.0], np.cumsum(moved)]) / SWEEP_STEP_M)
         expected = np.union1d(np.flatnonzero(np.diff(bins, prepend=-1.0) > 0), [n - 1])
         assert np.array_equal(_every(tip, far, SWEEP_STEP_M), expected)
+
+
+def test_row_norms_are_numpys_norms_to_the_bit() -> None:
+    from keymps.robot.safety_geometry import row_norms
+
+    rng = np.random.default_rng(RNG_SEED + 23)
+    for columns in (1, 2, 3, 6):
+        vectors = rng.normal(0, 1, (20_000, columns)) * 10.0 ** rng.uniform(-12, 3, (20_000, 1))
+        assert np.array_equal(row_norms(vectors), np.linalg.norm(vectors, axis=1))

@@ -17,7 +17,7 @@ import numpy as np
 
 from keymps.errors import SafetyError
 from keymps.plugin.trajectories import issue as _issue
-from keymps.robot.safety_geometry import distance_to_polylines, outside_distance
+from keymps.robot.safety_geometry import distance_to_polylines, outside_distance, row_norms
 from keymps.types import (
     GroundedObject,
     ToolPath,
@@ -185,7 +185,7 @@ def _check_path(
     problems: list[str],
     figures: dict[str, float],
 ) -> None:
-    off_plan = np.linalg.norm(positions - trajectory.tool_xyz, axis=1)
+    off_plan = row_norms(positions - trajectory.tool_xyz)
     polylines = [np.asarray(piece.points) for piece in tool_path.pieces]
     off_path = distance_to_polylines(positions, trajectory.piece_index, polylines)
     figures["max_deviation_from_tool_path_mm"] = float(off_path.max() * 1000)

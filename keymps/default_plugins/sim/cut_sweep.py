@@ -11,6 +11,8 @@ import math
 
 import numpy as np
 
+from keymps.robot.safety_geometry import row_norms
+
 SWEEP_STEP_M = 0.0005
 """The blade's position is taken each time its tip or far end has moved this far."""
 NO_TRAVEL_M = 0.001
@@ -50,21 +52,11 @@ def edge_segments(
 def _every(tip: np.ndarray, far: np.ndarray, step: float) -> np.ndarray:
     """Indices of the samples where the tip or the far end has moved `step` since the last one,
     plus the first and the last."""
-    moved = np.maximum(_step_lengths(tip), _step_lengths(far))
+    moved = np.maximum(row_norms(tip[1:] - tip[:-1]), row_norms(far[1:] - far[:-1]))
     distance = np.concatenate([[0.0], np.cumsum(moved)])
     bins = np.floor(distance / step)
     keep = np.flatnonzero(np.diff(bins, prepend=-1.0) > 0)  # ascending, the first included
     return keep if keep[-1] == len(tip) - 1 else np.append(keep, len(tip) - 1)
-
-
-def _step_lengths(points: np.ndarray) -> np.ndarray:
-    """|points[i + 1] - points[i]| for (n, 2 or 3) points: what np.linalg.norm of the
-    differences gives, summed in the same order, without its temporaries."""
-    steps = points[1:] - points[:-1]
-    squares = steps[:, 0] * steps[:, 0]
-    for axis in range(1, points.shape[1]):
-        squares += steps[:, axis] * steps[:, axis]
-    return np.sqrt(squares, out=squares)
 
 
 class Footprint:

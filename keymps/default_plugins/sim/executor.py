@@ -28,6 +28,7 @@ from keymps.default_plugins.sim.cut_sweep import (
     edge_segments,
 )
 from keymps.plugin import RegisterExecutor, hookimpl, parse_options, require_validated
+from keymps.robot.safety_geometry import row_norms
 from keymps.types import ExecutionReport, SceneImage, ToolPath, ValidatedTrajectory
 
 if TYPE_CHECKING:
@@ -128,7 +129,7 @@ def _spread(values: np.ndarray, substeps: int) -> np.ndarray:
 
 
 def _unit(vectors: np.ndarray) -> np.ndarray:
-    norms = np.linalg.norm(vectors, axis=1, keepdims=True)
+    norms = row_norms(vectors)[:, None]
     return np.divide(vectors, norms, out=np.zeros_like(vectors), where=norms > 1e-9)
 
 
@@ -137,7 +138,7 @@ def tracking_errors(result: Replay, tool_path: ToolPath | None) -> np.ndarray:
     from keymps.robot.safety_geometry import distance_to_polylines
 
     if tool_path is None:
-        return np.linalg.norm(result.tool_xyz - result.planned_xyz, axis=1)
+        return row_norms(result.tool_xyz - result.planned_xyz)
     polylines = [np.asarray(piece.points) for piece in tool_path.pieces]
     return distance_to_polylines(result.tool_xyz, result.piece_index, polylines)
 
