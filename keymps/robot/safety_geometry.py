@@ -112,8 +112,13 @@ def distance_to_polylines(
         groups = group_of_line[which]
         mine = groups >= 0
         segment_group = np.repeat(np.arange(len(lines)), sizes[lines] - 1)
-        found, found_near = _near(points[mine], groups[mine], a, b, segment_group)
-        out[mine], near[mine] = found, found_near
+        if mine.all():  # every point has a line (as always for a trajectory): no copies
+            out, near = _near(points, groups, a, b, segment_group)
+        else:
+            found, found_near = _near(points[mine], groups[mine], a, b, segment_group)
+            out[mine], near[mine] = found, found_near
+    if near.all():
+        return out
     for line in np.unique(which[~near]):
         rest = np.flatnonzero((which == line) & ~near)
         out[rest] = distance_to_polyline(points[rest], polylines[line])
@@ -192,7 +197,8 @@ def _near(
     at = points - per_point(origin)
     at /= per_point(cell)[:, None]
     at = np.floor(at, out=at).astype(np.int64)
-    inside = ((at >= 0) & (at < point_shape)).all(axis=1)
+    ok = (at >= 0) & (at < point_shape)
+    inside = ok[:, 0] & ok[:, 1] & ok[:, 2]  # faster than .all(axis=1) over three
     at_key = _keys(at, point_shape, per_point(offset))
     where = np.minimum(np.searchsorted(cell_keys, at_key), len(cell_keys) - 1)
     hit = inside & (cell_keys[where] == at_key)
