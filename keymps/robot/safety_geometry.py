@@ -200,7 +200,12 @@ def _near(
     ok = (at >= 0) & (at < point_shape)
     inside = ok[:, 0] & ok[:, 1] & ok[:, 2]  # faster than .all(axis=1) over three
     at_key = _keys(at, point_shape, per_point(offset))
-    where = np.minimum(np.searchsorted(cell_keys, at_key), len(cell_keys) - 1)
+    # Consecutive samples of a path mostly share a cell: one search per run of equal keys.
+    run_start = np.flatnonzero(np.diff(at_key, prepend=at_key[0] - 1))
+    found_at = np.searchsorted(cell_keys, at_key[run_start])
+    where = np.minimum(
+        np.repeat(found_at, np.diff(run_start, append=len(at_key))), len(cell_keys) - 1
+    )
     hit = inside & (cell_keys[where] == at_key)
     first = cell_starts[where]
     found = np.where(hit, cell_counts[where], 0)
