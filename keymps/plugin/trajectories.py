@@ -22,13 +22,18 @@ _issued: dict[int, tuple[weakref.ref[ValidatedTrajectory], str]] = {}
 def _digest(trajectory: Trajectory) -> str:
     digest = hashlib.sha256()
     for array in (trajectory.t, trajectory.q, trajectory.qd, trajectory.qdd, trajectory.tool_xyz):
-        digest.update(np.ascontiguousarray(array, dtype=float).tobytes())
-    digest.update(np.ascontiguousarray(trajectory.piece_index, dtype=np.int64).tobytes())
+        digest.update(_bytes_of(np.ascontiguousarray(array, dtype=float)))
+    digest.update(_bytes_of(np.ascontiguousarray(trajectory.piece_index, dtype=np.int64)))
     kinds = np.ascontiguousarray(np.asarray(trajectory.kind, dtype=str))
     digest.update(f"{kinds.dtype.str}{kinds.shape}".encode())  # fixed width: no join needed
     digest.update(kinds.tobytes())
     digest.update(repr((trajectory.joint_names, float(trajectory.rate_hz))).encode())
     return digest.hexdigest()
+
+
+def _bytes_of(array: np.ndarray) -> np.ndarray:
+    """The bytes of a C-contiguous array, without copying them (what tobytes() gives)."""
+    return array.reshape(-1).view(np.uint8)
 
 
 def issue(trajectory: Trajectory, report: ValidationReport) -> ValidatedTrajectory:
