@@ -31,9 +31,9 @@ def _digest(trajectory: Trajectory) -> str:
     return digest.hexdigest()
 
 
-def _bytes_of(array: np.ndarray) -> np.ndarray:
+def _bytes_of(array: np.ndarray) -> memoryview:
     """The bytes of a C-contiguous array, without copying them (what tobytes() gives)."""
-    return array.reshape(-1).view(np.uint8)
+    return memoryview(array.reshape(-1).view(np.uint8))
 
 
 def issue(trajectory: Trajectory, report: ValidationReport) -> ValidatedTrajectory:
