@@ -33,7 +33,7 @@ def _digest(trajectory: Trajectory) -> str:
 
 def _bytes_of(array: np.ndarray) -> memoryview:
     """The bytes of a C-contiguous array, without copying them (what tobytes() gives)."""
-    return memoryview(array.reshape(-1).view(np.uint8))
+    return array.reshape(-1).view(np.uint8).data
 
 
 def issue(trajectory: Trajectory, report: ValidationReport) -> ValidatedTrajectory:
