@@ -153,44 +153,12 @@ def _near(
     near = np.zeros(len(points), dtype=bool)
     if len(points) == 0:
         return out, near
-    groups = int(segment_group[-1]) + 1
-    first_segment = np.flatnonzero(np.diff(segment_group, prepend=-1))
-    lengths = np.sqrt(((b - a) ** 2).sum(axis=1))
-    low_corner = np.minimum.reduceat(np.minimum(a, b), first_segment, axis=0)
-    high_corner = np.maximum.reduceat(np.maximum(a, b), first_segment, axis=0)
-    extent = (high_corner - low_corner).max(axis=1)
-    mean = np.add.reduceat(lengths, first_segment) / np.diff(first_segment, append=len(a))
-    longest = np.maximum.reduceat(lengths, first_segment)
-    # About two cells per segment: fewer segments per cell, few cells per segment.
-    cell = np.maximum.reduce([mean, longest / 4, extent / 1000, np.full(groups, 1e-9)]) / 2
-    cell = np.maximum(cell, smallest_cell)
-    margin = cell / 4
-    origin = low_corner - 2 * cell[:, None]
-    seg_cell, seg_origin = cell[segment_group, None], origin[segment_group]
-    low = np.floor((np.minimum(a, b) - margin[segment_group, None] - seg_origin) / seg_cell)
-    high = np.floor((np.maximum(a, b) + margin[segment_group, None] - seg_origin) / seg_cell)
-    low, high = low.astype(np.int64), high.astype(np.int64)
-    shape = np.maximum.reduceat(high, first_segment, axis=0) + 1
-    offset = np.concatenate([[0], np.cumsum(shape.prod(axis=1))[:-1]])
-    counts = high - low + 1
-    per_segment = counts.prod(axis=1)
-    total = int(per_segment.sum())
-    if total > GRID_ENTRIES_PER_POINT * len(points) + 100_000:
+    grid = _grid(a, b, segment_group, smallest_cell)
+    if grid.total > GRID_ENTRIES_PER_POINT * len(points) + 100_000:
         return out, near
-    # Every (segment, cell) pair: the cells of each segment's box counted in mixed radix.
-    segment = np.repeat(np.arange(len(a)), per_segment)
-    local = np.arange(total) - np.repeat(np.cumsum(per_segment) - per_segment, per_segment)
-    yz = counts[segment, 1] * counts[segment, 2]
-    cells = low[segment] + np.column_stack(
-        [local // yz, (local % yz) // counts[segment, 2], local % counts[segment, 2]]
-    )
-    keys = _keys(cells, shape[segment_group[segment]], offset[segment_group[segment]])
-    order = np.argsort(keys, kind="stable")
-    keys, segment = keys[order], segment[order]
-    # each occupied cell once: where its segments start in `segment`, and how many
-    cell_starts = np.flatnonzero(np.diff(keys, prepend=keys[0] - 1))
-    cell_keys = keys[cell_starts]
-    cell_counts = np.diff(cell_starts, append=len(keys))
+    groups, cell, margin, origin = grid.groups, grid.cell, grid.margin, grid.origin
+    shape, offset = grid.shape, grid.offset
+    segment, cell_starts, cell_keys, cell_counts = grid.entries()
     g = point_group
     per_point = _per_point(g, groups)
     point_shape = per_point(shape)
@@ -217,9 +185,8 @@ def _near(
     pair_point = np.repeat(has, counts_has)
     offsets = np.arange(len(pair_point)) - np.repeat(starts, counts_has)
     pair_segment = segment[np.repeat(first[has], counts_has) + offsets]
-    columns, a_columns = np.ascontiguousarray(points.T), np.ascontiguousarray(a.T)
-    ab = np.ascontiguousarray((b - a).T)
-    length2 = np.maximum(ab[0] * ab[0] + ab[1] * ab[1] + ab[2] * ab[2], 1e-18)
+    columns = np.ascontiguousarray(points.T)
+    a_columns, ab, length2 = grid.a_columns, grid.ab, grid.length2
     distances = np.empty(len(pair_point))
     for start in range(0, len(pair_point), PAIR_CHUNK):  # temporaries that stay in cache
         p, s = pair_point[start : start + PAIR_CHUNK], pair_segment[start : start + PAIR_CHUNK]
@@ -230,6 +197,92 @@ def _near(
     out[has] = best
     near[has] = best <= margin[g[has]] / 2
     return out, near
+
+
+class _Grid:
+    """The uniform grids of `_near` for one set of segments: built once, kept for the next
+    points measured against the same segments (the simulator's after the safety check's)."""
+
+    def __init__(self, a: np.ndarray, b: np.ndarray, segment_group: np.ndarray, smallest: float):
+        self.a, self.b, self.segment_group = a, b, segment_group
+        self.groups = groups = int(segment_group[-1]) + 1
+        self.first_segment = first_segment = np.flatnonzero(np.diff(segment_group, prepend=-1))
+        lengths = np.sqrt(((b - a) ** 2).sum(axis=1))
+        low_corner = np.minimum.reduceat(np.minimum(a, b), first_segment, axis=0)
+        high_corner = np.maximum.reduceat(np.maximum(a, b), first_segment, axis=0)
+        extent = (high_corner - low_corner).max(axis=1)
+        mean = np.add.reduceat(lengths, first_segment) / np.diff(first_segment, append=len(a))
+        longest = np.maximum.reduceat(lengths, first_segment)
+        # About two cells per segment: fewer segments per cell, few cells per segment.
+        cell = np.maximum.reduce([mean, longest / 4, extent / 1000, np.full(groups, 1e-9)]) / 2
+        self.cell = cell = np.maximum(cell, smallest)
+        self.margin = margin = cell / 4
+        self.origin = origin = low_corner - 2 * cell[:, None]
+        seg_cell, seg_origin = cell[segment_group, None], origin[segment_group]
+        low = np.floor((np.minimum(a, b) - margin[segment_group, None] - seg_origin) / seg_cell)
+        high = np.floor((np.maximum(a, b) + margin[segment_group, None] - seg_origin) / seg_cell)
+        self.low, high = low.astype(np.int64), high.astype(np.int64)
+        self.shape = np.maximum.reduceat(high, first_segment, axis=0) + 1
+        self.offset = np.concatenate([[0], np.cumsum(self.shape.prod(axis=1))[:-1]])
+        self.counts = high - self.low + 1
+        self.per_segment = self.counts.prod(axis=1)
+        self.total = int(self.per_segment.sum())
+        self.a_columns = np.ascontiguousarray(a.T)
+        self.ab = np.ascontiguousarray((b - a).T)
+        ab = self.ab
+        self.length2 = np.maximum(ab[0] * ab[0] + ab[1] * ab[1] + ab[2] * ab[2], 1e-18)
+        self._entries: tuple[np.ndarray, ...] | None = None
+
+    def entries(self) -> tuple[np.ndarray, ...]:
+        """Every (segment, cell) registration sorted by cell: the segments, and per occupied
+        cell where its segments start, its key and how many."""
+        if self._entries is None:
+            total, per_segment, counts, low = self.total, self.per_segment, self.counts, self.low
+            # Every (segment, cell) pair: the cells of each segment's box counted in mixed radix.
+            segment = np.repeat(np.arange(len(self.a)), per_segment)
+            local = np.arange(total) - np.repeat(np.cumsum(per_segment) - per_segment, per_segment)
+            yz = counts[segment, 1] * counts[segment, 2]
+            cells = low[segment] + np.column_stack(
+                [local // yz, (local % yz) // counts[segment, 2], local % counts[segment, 2]]
+            )
+            group = self.segment_group[segment]
+            keys = _keys(cells, self.shape[group], self.offset[group])
+            order = np.argsort(keys, kind="stable")
+            keys, segment = keys[order], segment[order]
+            cell_starts = np.flatnonzero(np.diff(keys, prepend=keys[0] - 1))
+            self._entries = (
+                segment,
+                cell_starts,
+                keys[cell_starts],
+                np.diff(cell_starts, append=len(keys)),
+            )
+        return self._entries
+
+
+_GRIDS: dict[bytes, _Grid] = {}
+"""The last grids built, by a digest of their segments (a few: the check's and the sim's)."""
+
+
+def _grid(a: np.ndarray, b: np.ndarray, segment_group: np.ndarray, smallest: float) -> _Grid:
+    """The grids of these segments, built or as built before for the very same ones."""
+    import hashlib
+
+    digest = hashlib.sha1(usedforsecurity=False)
+    for array in (a, b):
+        digest.update(np.ascontiguousarray(array, dtype=float).reshape(-1).view(np.uint8).data)
+    digest.update(
+        np.ascontiguousarray(segment_group, dtype=np.int64).reshape(-1).view(np.uint8).data
+    )
+    digest.update(repr((np.shape(a), np.shape(b), float(smallest))).encode())
+    key = digest.digest()
+    grid = _GRIDS.get(key)
+    if grid is None:  # copies: a caller may change its arrays afterwards
+        a, b = np.array(a, dtype=float), np.array(b, dtype=float)
+        grid = _Grid(a, b, np.array(segment_group, dtype=np.intp), smallest)
+        if len(_GRIDS) >= 4:
+            _GRIDS.pop(next(iter(_GRIDS)))
+        _GRIDS[key] = grid
+    return grid
 
 
 def _per_point(groups: np.ndarray, count: int) -> Any:
