@@ -109,6 +109,7 @@ def stages_once(run: Any, version: str, baseline: Baseline) -> tuple[dict[str, f
     """Seconds of check, csv and execute of one version, and its reports."""
     from keymps.default_plugins.sim import executor
     from keymps.motion.trajectory_io import write_trajectory_csv
+    from keymps.robot import safety_geometry
     from keymps.robot.safety import validate
 
     trajectory, tool_path = run.stages.check.trajectory, run.stages.compose
@@ -120,6 +121,9 @@ def stages_once(run: Any, version: str, baseline: Baseline) -> tuple[dict[str, f
         write_csv = baseline.trajectory_io.write_trajectory_csv
     seconds: dict[str, float] = {}
     with context:
+        # as in a run of a new task: the check builds the path's distance grids, the sim reuses
+        # them (a warm run of the same task finds them from the run before)
+        safety_geometry._GRIDS.clear()
         started = time.perf_counter()
         validated = check(run.robot, trajectory, tool_path, run.objects, run.task)
         seconds["check"] = time.perf_counter() - started
