@@ -176,8 +176,8 @@ def marks(result: Replay, object_top: float | np.ndarray, blade_length: float = 
     sweeps = [_sweep(result, a, b, blade_length) for a, b in cut_runs]
     strokes, dots = [], []
     for a, b in _runs(work & ~cutting):
-        for piece in np.unique(result.piece_index[a:b]):
-            xy = result.tool_xyz[a:b][result.piece_index[a:b] == piece, :2]
+        for _, mine in _by_piece(result.piece_index[a:b]):
+            xy = result.tool_xyz[a:b, :2] if mine is None else result.tool_xyz[a:b][mine, :2]
             if np.ptp(xy, axis=0).max() < DOT_EXTENT_M:
                 dots.append(xy.mean(axis=0))
             else:
@@ -192,13 +192,22 @@ def _sweep(result: Replay, start: int, end: int, blade_length: float) -> np.ndar
     backwards = None
     if result.tool_x is not None:
         backwards = result.tool_x[start:end].copy()
-        pieces = result.piece_index[start:end]
-        for piece in np.unique(pieces):
+        for piece, mine in _by_piece(result.piece_index[start:end]):
             whole = np.flatnonzero(result.piece_index == piece)
             travel = result.tool_xyz[whole[-1], :2] - result.tool_xyz[whole[0], :2]
-            mine = pieces == piece
-            backwards[mine] = blade_backwards(backwards[mine], travel)
+            if mine is None:
+                backwards = blade_backwards(backwards, travel)
+            else:
+                backwards[mine] = blade_backwards(backwards[mine], travel)
     return edge_segments(result.tool_xyz[start:end], backwards, blade_length)
+
+
+def _by_piece(pieces: np.ndarray) -> list[tuple[int, np.ndarray | None]]:
+    """Each piece among `pieces` (ascending) with the mask of its samples; None for the mask
+    when there is one piece only (the common case: no copies needed)."""
+    if len(pieces) and (pieces == pieces[0]).all():
+        return [(int(pieces[0]), None)]
+    return [(int(piece), pieces == piece) for piece in np.unique(pieces)]
 
 
 def render_outcome(
