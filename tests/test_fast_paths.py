@@ -165,6 +165,10 @@ def test_batched_forward_kinematics_is_pinocchios() -> None:
         together = model.tool_poses_and_joint_origins(qs)
         apart = (positions, rotations, model.joint_origins_many(qs))
         assert all(np.array_equal(a, b) for a, b in zip(together, apart, strict=True))
+        for some in (qs[:4096], qs):  # one chunk of batch FK, and more
+            got_p, got_x = model.tool_positions_and_x_axes(some)
+            assert np.array_equal(got_p, positions[: len(some)])
+            assert np.array_equal(got_x, rotations[: len(some), :, 0])
 
 
 def test_ruckig_phases_in_numpy_match_at_time() -> None:

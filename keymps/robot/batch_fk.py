@@ -136,6 +136,20 @@ class BatchKinematics:
         position, rotation = self._frame(poses, joint, placement)
         return position, rotation, self._origins(poses, extra)
 
+    def frame_positions_and_x_axes(
+        self,
+        qs: np.ndarray,
+        joint: int,
+        placement: Any,
+        cos_sin: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """`frame_poses` with only the rotations' first columns, (n, 3) each (the same values):
+        for up to CHUNK configurations."""
+        rotation, origin = self.joint_poses(qs, cos_sin)[joint]
+        position = origin + np.einsum("ijn,j->in", rotation, np.array(placement.translation))
+        x_axis = np.einsum("ijn,j->in", rotation, np.array(placement.rotation)[:, 0].copy())
+        return np.ascontiguousarray(position.T), np.ascontiguousarray(x_axis.T)
+
     def _frame(
         self, poses: list[tuple[np.ndarray, np.ndarray]], joint: int, placement: Any
     ) -> tuple[np.ndarray, np.ndarray]:

@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from keymps.errors import KeympsError
+from keymps.robot.batch_fk import CHUNK as BATCH_CHUNK
 from keymps.robot.batch_fk import BatchKinematics
 from keymps.robot.closed_form import ClosedFormIk
 from keymps.robot.description import (
@@ -158,6 +159,19 @@ class RobotModel:
             return self.pinocchio_tool_poses(qs)
         frame = self._tcp_frame
         return self.batch.frame_poses(qs, frame.parentJoint, frame.placement, cos_sin)
+
+    def tool_positions_and_x_axes(
+        self, qs: np.ndarray, cos_sin: tuple[np.ndarray, np.ndarray] | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(n, 3) tool tip positions and tool x axes (the rotations' first columns) for (n, 6)
+        joint vectors, as `tool_poses` gives them, without the rest of the rotations."""
+        if self.batch is None or len(qs) == 0 or len(qs) > BATCH_CHUNK:
+            positions, rotations = self.tool_poses(qs, cos_sin)
+            return positions, rotations[:, :, 0]
+        frame = self._tcp_frame
+        return self.batch.frame_positions_and_x_axes(
+            qs, frame.parentJoint, frame.placement, cos_sin
+        )
 
     def tool_poses_and_joint_origins(
         self, qs: np.ndarray

@@ -105,10 +105,10 @@ def replay(model: Any, trajectory: Trajectory, rate_hz: float) -> Replay:
         last = min(first + per_chunk, n - 1)
         joints = q[first : last + 1]
         cos_sin = interpolated_cos_sin(joints, substeps) if batched else None
-        chunk_positions, rotations = model.tool_poses(between(joints), cos_sin)
+        chunk_positions, x_axes = model.tool_positions_and_x_axes(between(joints), cos_sin)
         done = slice(first * substeps, last * substeps + 1)
         positions[done] = chunk_positions
-        tool_x[done] = _unit(rotations[:, :2, 0])
+        tool_x[done] = _unit(x_axes[:, :2])
     t = np.concatenate(
         [(np.asarray(trajectory.t[:-1])[:, None] + fractions / trajectory.rate_hz).ravel(),
          np.asarray(trajectory.t[-1:], dtype=float)]
