@@ -171,14 +171,14 @@ def _inside_runs(
     n = len(fractions)
     coarse = np.unique(np.append(np.arange(0, n, COARSE_SAMPLES), n - 1))
     gaps = np.diff(coarse)
-    column = footprint.cells(starts[:, 0, None] + fractions[coarse] * steps[:, 0, None], 0)
-    row = footprint.cells(starts[:, 1, None] + fractions[coarse] * steps[:, 1, None], 1)
-    inside = footprint.inside(row, column)
+    cell_column = footprint.cells(starts[:, 0, None] + fractions[coarse] * steps[:, 0, None], 0)
+    cell_row = footprint.cells(starts[:, 1, None] + fractions[coarse] * steps[:, 1, None], 1)
+    inside = footprint.inside(cell_row, cell_column)
     # The samples between two tested ones lie in the box of their cells (grown by a cell for
     # rounding): when every cell of that box is of one kind, so are they.
     last = np.array(footprint.ringed.shape) - 1
-    columns = _grown_box(column[:, :-1], column[:, 1:], last[1])
-    rows = _grown_box(row[:, :-1], row[:, 1:], last[0])
+    columns = _grown_box(cell_column[:, :-1], cell_column[:, 1:], last[1])
+    rows = _grown_box(cell_row[:, :-1], cell_row[:, 1:], last[0])
     count = footprint.inside_cells(columns, rows)
     area = (columns[1] - columns[0] + 1) * (rows[1] - rows[0] + 1)
     settled = (count == 0) | (count == area)
@@ -201,7 +201,8 @@ def _inside_runs(
     closed_row, closed_at = row[change == -1], sample[change == -1]
     # runs that begin at a segment's first sample or end at its last
     first_in, last_in = np.flatnonzero(inside[:, 0]), np.flatnonzero(inside[:, -1])
-    opened_row, opened_at = np.append(opened_row, first_in), np.append(opened_at, 0 * first_in)
+    opened_row = np.append(opened_row, first_in)
+    opened_at = np.append(opened_at, np.zeros(len(first_in), np.intp))
     closed_row = np.append(closed_row, last_in)
     closed_at = np.append(closed_at, np.full(len(last_in), n - 1))
     opened = np.sort(opened_row * n + opened_at)  # in each segment runs open, close in turn
