@@ -28,7 +28,7 @@ from keymps.default_plugins.sim.cut_sweep import (
     edge_segments,
 )
 from keymps.plugin import RegisterExecutor, hookimpl, parse_options, require_validated
-from keymps.robot.safety_geometry import row_norms
+from keymps.robot.safety_geometry import distance_to_polylines, row_norms
 from keymps.types import ExecutionReport, SceneImage, ToolPath, ValidatedTrajectory
 
 if TYPE_CHECKING:
@@ -135,8 +135,6 @@ def _unit(vectors: np.ndarray) -> np.ndarray:
 
 def tracking_errors(result: Replay, tool_path: ToolPath | None) -> np.ndarray:
     """Distance of each replayed tool position to its piece of the tool path (or the plan)."""
-    from keymps.robot.safety_geometry import distance_to_polylines
-
     if tool_path is None:
         return row_norms(result.tool_xyz - result.planned_xyz)
     polylines = [np.asarray(piece.points) for piece in tool_path.pieces]
