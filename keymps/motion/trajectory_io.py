@@ -89,7 +89,8 @@ def _number_chars(values: np.ndarray, decimals: int | None) -> np.ndarray:
     digits = digits[..., 4 * groups - places - width :]
     leading = np.arange(width) < (width - count)[..., None]
     digits[..., :width][leading] = _PAD  # zeros before the whole part's first digit
-    sign = np.where(np.signbit(values), ord("-"), _PAD).astype(np.uint8)[..., None]
+    negative = np.signbit(values) if decimals is not None else values < 0  # "%d" % -0.0: "0"
+    sign = np.where(negative, ord("-"), _PAD).astype(np.uint8)[..., None]
     parts = [sign, digits[..., :width]]
     if decimals is not None:
         parts += [np.full((*values.shape, 1), ord("."), np.uint8), digits[..., width:]]
