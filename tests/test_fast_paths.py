@@ -902,3 +902,30 @@ def test_region_counts_in_the_box_are_the_whole_image_counts() -> None:
             assert region.contrast == float(np.median(distance[inside & mask]))
             checked += 1
     assert checked >= 12
+
+
+def test_travel_legs_crossing_tests_at_once_match_one_leg_at_a_time() -> None:
+    from keymps.motion.compose import TRAVEL_SPACING_M, _crossed_legs
+    from keymps.robot.safety_geometry import outside_distance
+
+    def crosses(a: np.ndarray, b: np.ndarray, outline: np.ndarray) -> bool:
+        length = float(np.linalg.norm(b - a))
+        count = max(2, math.ceil(length / (TRAVEL_SPACING_M / 2)) + 1)
+        points = a + np.linspace(0.0, 1.0, count)[:, None] * (b - a)
+        return bool((outside_distance(points, outline) <= TRAVEL_SPACING_M).any())
+
+    rng = np.random.default_rng(RNG_SEED + 40)
+    answers: list[bool] = []
+    for _ in range(40):
+        centre, radius = rng.uniform(0.1, 0.3, 2), rng.uniform(0.02, 0.1)
+        turns = np.sort(rng.uniform(0, 2 * np.pi, int(rng.integers(3, 40))))
+        wobble = radius * rng.uniform(0.6, 1.0, len(turns))[:, None]
+        outline = centre + wobble * np.column_stack([np.cos(turns), np.sin(turns)])
+        count = int(rng.integers(1, 30))
+        starts = list(rng.uniform(0.0, 0.4, (count, 3)))
+        ends = list(rng.uniform(0.0, 0.4, (count, 3)))
+        ends[0] = starts[0].copy()  # a leg of zero length
+        expected = [crosses(a[:2], b[:2], outline) for a, b in zip(starts, ends, strict=True)]
+        assert _crossed_legs(starts, ends, outline).tolist() == expected
+        answers += expected
+    assert 0.1 < sum(answers) / len(answers) < 0.9  # both answers occur often
