@@ -1132,3 +1132,104 @@ def test_row_norms_are_numpys_norms_to_the_bit() -> None:
     for columns in (1, 2, 3, 6):
         vectors = rng.normal(0, 1, (20_000, columns)) * 10.0 ** rng.uniform(-12, 3, (20_000, 1))
         assert np.array_equal(row_norms(vectors), np.linalg.norm(vectors, axis=1))
+def test_travel_legs_crossing_tests_at_once_match_one_leg_at_a_time() -> None:
+    from keymps.motion.compose import TRAVEL_SPACING_M, _crossed_legs
+    from keymps.robot.safety_geometry import outside_distance
+
+    def crosses(a: np.ndarray, b: np.ndarray, outline: np.ndarray) -> bool:
+        length = float(np.linalg.norm(b - a))
+        count = max(2, math.ceil(length / (TRAVEL_SPACING_M / 2)) + 1)
+        points = a + np.linspace(0.0, 1.0, count)[:, None] * (b - a)
+        return bool((outside_distance(points, outline) <= TRAVEL_SPACING_M).any())
+
+    rng = np.random.default_rng(RNG_SEED + 40)
+    answers: list[bool] = []
+    for _ in range(40):
+        centre, radius = rng.uniform(0.1, 0.3, 2), rng.uniform(0.02, 0.1)
+        turns = np.sort(rng.uniform(0, 2 * np.pi, int(rng.integers(3, 40))))
+        wobble = radius * rng.uniform(0.6, 1.0, len(turns))[:, None]
+        outline = centre + wobble * np.column_stack([np.cos(turns), np.sin(turns)])
+        count = int(rng.integers(1, 30))
+        starts = list(rng.uniform(0.0, 0.4, (count, 3)))
+        ends = list(rng.uniform(0.0, 0.4, (count, 3)))
+        ends[0] = starts[0].copy()  # a leg of zero length
+        expected = [crosses(a[:2], b[:2], outline) for a, b in zip(starts, ends, strict=True)]
+        assert _crossed_legs(starts, ends, outline).tolist() == expected
+        answers += expected
+    assert 0.1 < sum(answers) / len(answers) < 0.9  # both answers occur often
+
+
+def _merging_strokes_pair_by_pair(pairs: np.ndarray, line_width: float) -> Any:
+    """merging_strokes as it was: every pair of strokes, points grouped one by one."""
+    from keymps.designs.legibility import MERGE_PATH_FACTOR, _cross
+
+    pairs = np.asarray(pairs, float).reshape(-1, 2, 2)
+    ends = pairs.reshape(-1, 2)
+    tolerance = 1e-6 * max(1.0, float(np.abs(ends).max()))
+    nodes: list[np.ndarray] = []
+    node_of: list[int] = []
+    for point in ends:
+        for k, node in enumerate(nodes):
+            if np.abs(node - point).max() <= tolerance:
+                node_of.append(k)
+                break
+        else:
+            nodes.append(point)
+            node_of.append(len(nodes) - 1)
+    lengths = np.linalg.norm(pairs[:, 1] - pairs[:, 0], axis=1)
+    between = np.full((len(nodes), len(nodes)), np.inf)
+    np.fill_diagonal(between, 0.0)
+    for k, length in enumerate(lengths):
+        a, b = node_of[2 * k], node_of[2 * k + 1]
+        between[a, b] = between[b, a] = min(between[a, b], length)
+    for k in range(len(nodes)):
+        between = np.minimum(between, between[:, k : k + 1] + between[k : k + 1, :])
+    step = line_width / 4
+    samples = [np.linspace(0.0, 1.0, max(2, math.ceil(n / step) + 1)) for n in lengths]
+    points = [p[0] + f[:, None] * (p[1] - p[0]) for p, f in zip(pairs, samples, strict=True)]
+    along = [f * n for f, n in zip(samples, lengths, strict=True)]
+    best = None
+    for i in range(len(pairs)):
+        for j in range(i + 1, len(pairs)):
+            gaps = np.linalg.norm(points[i][:, None, :] - points[j][None, :, :], axis=2)
+            if gaps.min() >= line_width or _cross(pairs[i], pairs[j]):
+                continue
+            ui, uj = along[i][:, None], along[j][None, :]
+            ri, rj = lengths[i] - ui, lengths[j] - uj
+            ai, bi, aj, bj = node_of[2 * i], node_of[2 * i + 1], node_of[2 * j], node_of[2 * j + 1]
+            path = np.minimum.reduce(
+                [ui + between[ai, aj] + uj, ui + between[ai, bj] + rj,
+                 ri + between[bi, aj] + uj, ri + between[bi, bj] + rj]
+            )  # fmt: skip
+            merging = (gaps < line_width) & (path > MERGE_PATH_FACTOR * line_width)
+            if merging.any():
+                gap = float(gaps[merging].min())
+                if best is None or gap < best[0]:
+                    a, b = np.argwhere(merging & (gaps == gap))[0]
+                    best = (gap, (points[i][a] + points[j][b]) / 2)
+    return best
+
+
+def test_merging_strokes_from_near_boxes_match_every_pair_of_strokes() -> None:
+    from keymps.designs.legibility import merging_strokes
+
+    rng = np.random.default_rng(RNG_SEED + 41)
+    found = 0
+    for case in range(80):
+        count = int(rng.integers(1, 25))
+        scale = float(rng.choice([1.0, 100.0, 600.0]))  # metres or pixels
+        starts = rng.uniform(0, scale, (count, 2))
+        lengths = np.where(rng.random(count) < 0.5, 0.0, rng.uniform(0, 0.3 * scale, count))
+        turns = rng.uniform(0, 2 * np.pi, count)
+        goals = starts + lengths[:, None] * np.column_stack([np.cos(turns), np.sin(turns)])
+        pairs = np.stack([starts, goals], axis=1)
+        if case % 3 == 0 and count > 2:  # strokes sharing ends: a polyline
+            pairs[1:, 0] = pairs[:-1, 1]
+        width = float(rng.uniform(0.005, 0.08)) * scale
+        got = merging_strokes(pairs, width)
+        expected = _merging_strokes_pair_by_pair(pairs, width)
+        assert (got is None) == (expected is None)
+        if got is not None:
+            assert got[0] == expected[0] and np.array_equal(got[1], expected[1])
+            found += 1
+    assert 10 < found < 70

@@ -173,18 +173,15 @@ def check_tool_path(tool_path: ToolPath, task: Task) -> ToolPath:
                 "keypoints off the board"
             )
     motion = task.motion
-    length = path_length_m(tool_path)
+    moving = [(p.length_m, p.speed) for p in tool_path.pieces if len(p.points) > 1]
+    length = float(sum(piece_length for piece_length, _ in moving))  # path_length_m's sum
     if not np.isfinite(length) or length > motion.max_path_length:
         raise KeympsError(
             f"the tool path is {length:.1f} m long ({len(tool_path.pieces)} pieces), more than "
             f"motion.max_path_length = {motion.max_path_length:g} m; ask for fewer or shorter "
             "strokes, or raise the limit"
         )
-    at_speed = sum(
-        piece.length_m / max(float(piece.speed), 1e-9)
-        for piece in tool_path.pieces
-        if len(piece.points) > 1
-    )
+    at_speed = sum(piece_length / max(float(speed), 1e-9) for piece_length, speed in moving)
     estimate = max(at_speed, _rest_to_rest_s(length, task))
     if estimate > motion.max_duration_s:
         raise KeympsError(

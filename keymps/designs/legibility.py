@@ -39,24 +39,23 @@ def merging_strokes(pairs: np.ndarray, line_width: float) -> tuple[float, np.nda
     along = [f * length for f, length in zip(samples, lengths, strict=True)]
     best: tuple[float, np.ndarray] | None = None
     far = MERGE_PATH_FACTOR * line_width
-    for i in range(len(pairs)):
-        for j in range(i + 1, len(pairs)):
-            gaps = np.linalg.norm(points[i][:, None, :] - points[j][None, :, :], axis=2)
-            if gaps.min() >= line_width or _cross(pairs[i], pairs[j]):
-                continue  # lines that cross are drawn to (a pentagram's), not merging
-            ui, uj = along[i][:, None], along[j][None, :]
-            ri, rj = lengths[i] - ui, lengths[j] - uj
-            ai, bi, aj, bj = node_of[2 * i], node_of[2 * i + 1], node_of[2 * j], node_of[2 * j + 1]
-            path = np.minimum.reduce(
-                [ui + between[ai, aj] + uj, ui + between[ai, bj] + rj,
-                 ri + between[bi, aj] + uj, ri + between[bi, bj] + rj]
-            )  # fmt: skip
-            merging = (gaps < line_width) & (path > far)
-            if merging.any():
-                gap = float(gaps[merging].min())
-                if best is None or gap < best[0]:
-                    a, b = np.argwhere(merging & (gaps == gap))[0]
-                    best = (gap, (points[i][a] + points[j][b]) / 2)
+    for i, j in _near_pairs(pairs, line_width):  # in the order of loops over i < j
+        gaps = np.linalg.norm(points[i][:, None, :] - points[j][None, :, :], axis=2)
+        if gaps.min() >= line_width or _cross(pairs[i], pairs[j]):
+            continue  # lines that cross are drawn to (a pentagram's), not merging
+        ui, uj = along[i][:, None], along[j][None, :]
+        ri, rj = lengths[i] - ui, lengths[j] - uj
+        ai, bi, aj, bj = node_of[2 * i], node_of[2 * i + 1], node_of[2 * j], node_of[2 * j + 1]
+        path = np.minimum.reduce(
+            [ui + between[ai, aj] + uj, ui + between[ai, bj] + rj,
+             ri + between[bi, aj] + uj, ri + between[bi, bj] + rj]
+        )  # fmt: skip
+        merging = (gaps < line_width) & (path > far)
+        if merging.any():
+            gap = float(gaps[merging].min())
+            if best is None or gap < best[0]:
+                a, b = np.argwhere(merging & (gaps == gap))[0]
+                best = (gap, (points[i][a] + points[j][b]) / 2)
     return best
 
 
@@ -70,16 +69,29 @@ def _cross(first: np.ndarray, second: np.ndarray) -> bool:
     return side(a, b, c) * side(a, b, d) < 0 and side(c, d, a) * side(c, d, b) < 0
 
 
+def _near_pairs(pairs: np.ndarray, line_width: float) -> np.ndarray:
+    """(i, j), i < j in row order: the strokes whose bounding boxes come closer than the line
+    width. The boxes' distance is a lower bound of every gap between the strokes' points, so
+    the strokes left out are exactly ones with no gap under the line width (the margin covers
+    rounding in the sampled points)."""
+    low, high = pairs.min(axis=1), pairs.max(axis=1)
+    apart = np.maximum(low[:, None, :] - high[None, :, :], low[None, :, :] - high[:, None, :])
+    box_gap = np.linalg.norm(np.maximum(apart, 0.0), axis=2)
+    return np.argwhere(np.triu(box_gap < line_width * (1.0 + 1e-9), k=1))
+
+
 def _unique_points(points: np.ndarray, tolerance: float) -> tuple[np.ndarray, list[int]]:
-    """The distinct points (within tolerance) and, per input point, the index of its own."""
-    nodes: list[np.ndarray] = []
+    """The distinct points (within tolerance) and, per input point, the index of its own: the
+    first point of a group within tolerance of it stands for the group."""
+    close = np.abs(points[:, None, :] - points[None, :, :]).max(axis=2) <= tolerance
+    nodes: list[int] = []
     index: list[int] = []
-    for point in points:
+    for i in range(len(points)):
         for k, node in enumerate(nodes):
-            if np.abs(node - point).max() <= tolerance:
+            if close[node, i]:
                 index.append(k)
                 break
         else:
-            nodes.append(point)
+            nodes.append(i)
             index.append(len(nodes) - 1)
-    return np.array(nodes), index
+    return points[nodes], index

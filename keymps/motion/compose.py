@@ -93,24 +93,28 @@ def compose_tool_path(
     position, yaw = home_arr, yaws[0] if yaw_mode == "follow" else home_yaw
     by_id = {o.id: o for o in objects}
     here: int | None = None  # the object the tool is over (None: home)
+    # travel leg k ends at work piece k's start; the last one goes home
+    leg_starts = [home_arr] + [points[-1] for points in work_paths]
+    leg_ends = [points[0] for points in work_paths] + [home_arr]
+    crossings = [_crossed_legs(leg_starts, leg_ends, o.outline_m) for o in objects]
 
-    def leg_z(a: np.ndarray, b: np.ndarray, ends: tuple[int | None, int | None]) -> float:
+    def leg_z(leg: int, ends: tuple[int | None, int | None]) -> float:
         if not by_id:
             return travel_z
         crossed = [by_id[i].height for i in ends if i in by_id]
-        crossed += [o.height for o in objects if _crosses(a[:2], b[:2], o.outline_m)]
+        crossed += [o.height for o, hit in zip(objects, crossings, strict=True) if hit[leg]]
         return max(crossed, default=0.0) + clearance
 
     for index, (points, work_yaw) in enumerate(zip(work_paths, yaws, strict=True)):
         owner = segments[index].object_id
-        z = leg_z(position, points[0], (here, owner))
+        z = leg_z(index, (here, owner))
         travel_points, travel_yaw = _travel(position, points[0], z, yaw, work_yaw)
         pieces.append(Piece("travel", index, travel_points, travel_yaw, float(travel_speed), owner))
         pieces.append(
             Piece("work", index, points, np.full(len(points), work_yaw), float(work_speed), owner)
         )
         position, yaw, here = points[-1], work_yaw, owner
-    z = leg_z(position, home_arr, (here, None))
+    z = leg_z(len(segments), (here, None))
     travel_points, travel_yaw = _travel(position, home_arr, z, yaw, yaw)
     pieces.append(
         Piece(
@@ -163,15 +167,25 @@ def _soft_limit(distance: np.ndarray, reach: float) -> np.ndarray:
     return reach * np.tanh(distance / reach)
 
 
-def _crosses(a: np.ndarray, b: np.ndarray, outline: np.ndarray) -> bool:
-    """Whether the straight line a-b (board xy) passes over the polygon (or within the
-    travel spacing of it)."""
-    from keymps.robot.safety_geometry import outside_distance
-
+def _leg_samples(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Points along a-b (board xy) at most half the travel spacing apart, ends included."""
+    a, b = np.asarray(a, float)[:2], np.asarray(b, float)[:2]
     length = float(np.linalg.norm(b - a))
     count = max(2, math.ceil(length / (TRAVEL_SPACING_M / 2)) + 1)
-    points = a + np.linspace(0.0, 1.0, count)[:, None] * (b - a)
-    return bool((outside_distance(points, np.asarray(outline, float)) <= TRAVEL_SPACING_M).any())
+    return a + np.linspace(0.0, 1.0, count)[:, None] * (b - a)
+
+
+def _crossed_legs(
+    starts: Sequence[np.ndarray], ends: Sequence[np.ndarray], outline: np.ndarray
+) -> np.ndarray:
+    """Per leg starts[k]-ends[k] (board xy), whether it passes over the polygon or within the
+    travel spacing of it: one distance pass over all legs' samples."""
+    from keymps.robot.safety_geometry import outside_distance
+
+    samples = [_leg_samples(a, b) for a, b in zip(starts, ends, strict=True)]
+    first = np.cumsum([0] + [len(points) for points in samples[:-1]])
+    near = outside_distance(np.concatenate(samples), np.asarray(outline, float))
+    return np.logical_or.reduceat(near <= TRAVEL_SPACING_M, first)
 
 
 def _work_yaws(segments: Sequence[Segment], yaw_mode: str, home_yaw: float) -> list[float]:
