@@ -1132,6 +1132,8 @@ def test_row_norms_are_numpys_norms_to_the_bit() -> None:
     for columns in (1, 2, 3, 6):
         vectors = rng.normal(0, 1, (20_000, columns)) * 10.0 ** rng.uniform(-12, 3, (20_000, 1))
         assert np.array_equal(row_norms(vectors), np.linalg.norm(vectors, axis=1))
+
+
 def test_travel_legs_crossing_tests_at_once_match_one_leg_at_a_time() -> None:
     from keymps.motion.compose import TRAVEL_SPACING_M, _crossed_legs
     from keymps.robot.safety_geometry import outside_distance
@@ -1233,3 +1235,29 @@ def test_merging_strokes_from_near_boxes_match_every_pair_of_strokes() -> None:
             assert got[0] == expected[0] and np.array_equal(got[1], expected[1])
             found += 1
     assert 10 < found < 70
+
+
+def test_a_stored_crop_png_has_the_pixels_of_the_deflated_one(tmp_path: Any) -> None:
+    import cv2
+
+    from keymps import load_task, run_task
+    from keymps.planning.prompt import png_bytes
+
+    rng = np.random.default_rng(RNG_SEED + 42)
+    image = np.zeros((90, 140, 3), np.uint8)  # a board with a disc on it, a little noise
+    image[:] = rng.integers(120, 200, 3)
+    cv2.circle(image, (70, 45), 30, [int(v) for v in rng.integers(0, 256, 3)], -1)
+    image = cv2.add(image, rng.integers(0, 4, image.shape, dtype=np.uint8))
+    deflated, stored = png_bytes(image), png_bytes(image, stored=True)
+    assert deflated == cv2.imencode(".png", image)[1].tobytes()  # what models are sent: as ever
+    assert len(stored) > len(deflated)
+    for encoded in (deflated, stored):
+        assert np.array_equal(cv2.imdecode(np.frombuffer(encoded, np.uint8), 1), image)
+    # the offline planner sends nothing: its run keeps the crop stored, pixels unchanged
+    from pathlib import Path
+
+    task = load_task(Path(__file__).resolve().parents[1] / "tasks" / "cake_icing.yaml")
+    run = run_task(task, out=tmp_path / "run", rerun="off", backend="offline", through="ground")
+    kept = (tmp_path / "run" / "vlm" / "crop.png").read_bytes()
+    crop = cv2.imdecode(np.frombuffer(kept, np.uint8), 1)
+    assert kept == png_bytes(crop, stored=True) and run.stages.plan is not None

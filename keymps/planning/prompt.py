@@ -193,11 +193,14 @@ def output_format(step: Step, answer: str, convention: str) -> str:
     )
 
 
-def png_bytes(image: Any) -> bytes:
-    """The image encoded as PNG."""
+def png_bytes(image: Any, *, stored: bool = False) -> bytes:
+    """The image encoded as PNG: deflated as OpenCV does by default, or with `stored` as the
+    run folder's PNGs are (the same pixels, encoded about eight times faster)."""
     import cv2
 
-    ok, encoded = cv2.imencode(".png", image)
+    from keymps.run import stored_png_options
+
+    ok, encoded = cv2.imencode(".png", image, stored_png_options() if stored else [])
     if not ok:
         raise KeympsError("cannot encode the crop as PNG")
     return bytes(encoded.tobytes())
