@@ -10,7 +10,10 @@ time. Figures:
 - `cli_vs_import_floor`: `keymps run tasks/cake_icing.yaml --rerun off` against a bare
   `python -c "import numpy, pinocchio, cv2"` (the imports no run can avoid).
 - `warm_ms_per_trajectory_s_{icing,cutting}`: a second run of the task in one process (models
-  and caches warm), every stage's time summed, per second of trajectory.
+  and caches warm), every stage's time summed, per second of trajectory; with the allocator
+  setting of the keymps command and its eval workers (keymps/_memory.py), and again with the C
+  library's default, as a program calling run_task has it (`..._default_malloc`). No run finds
+  the path grids the run before it built (a new task would not).
 - per stage against its floor, same inputs: closed-form vs iterative IK, numpy vs per-call
   Ruckig sampling, batched vs per-configuration Pinocchio forward kinematics, vectorized vs
   per-point footprint test.
@@ -101,17 +104,28 @@ def startup(repeats: int, folder: Path, baseline: Path | None) -> dict[str, floa
 
 WARM_SCRIPT = """
 import json, sys, tempfile
+if sys.argv[3] == "keymps":  # the allocator setting of the keymps command and eval workers
+    try:
+        from keymps._memory import keep_freed_memory
+        keep_freed_memory()
+    except ImportError:  # a baseline from before it
+        pass
 from keymps import load_task, run_task
+
+def run(task, out):
+    try:  # no run finds the path grids of the run before (a new task would not)
+        from keymps.robot.safety_geometry import _GRIDS
+        _GRIDS.clear()
+    except ImportError:
+        pass
+    return run_task(task, out=out, rerun="off", backend="offline", executor="sim")
+
 out = {}
 with tempfile.TemporaryDirectory() as folder:
     for name, path in json.loads(sys.argv[1]).items():
         task = load_task(path)
-        run_task(task, out=folder + "/cold", rerun="off", backend="offline", executor="sim")
-        runs = [
-            run_task(task, out=f"{folder}/{name}{i}", rerun="off", backend="offline",
-                     executor="sim")
-            for i in range(int(sys.argv[2]))
-        ]
+        run(task, folder + "/cold")
+        runs = [run(task, f"{folder}/{name}{i}") for i in range(int(sys.argv[2]))]
         out[name] = {
             "totals": [sum(run.timings_s.values()) for run in runs],
             "stages": [dict(run.timings_s) for run in runs],
@@ -121,13 +135,16 @@ print(json.dumps(out))
 """
 
 
-def warm_computation(repeats: int, baseline: Path | None) -> dict[str, dict[str, Any]]:
-    """Warm runs of each task in a fresh process (this checkout's or the baseline's)."""
+def warm_computation(
+    repeats: int, baseline: Path | None, allocator: str = "keymps"
+) -> dict[str, dict[str, Any]]:
+    """Warm runs of each task in a fresh process (this checkout's or the baseline's), with the
+    allocator setting of the keymps command ("keymps") or the C library's default."""
     import json
 
     tasks = json.dumps({name: str(path) for name, path in TASKS.items()})
     done = subprocess.run(
-        [str(baseline or sys.executable), "-c", WARM_SCRIPT, tasks, str(repeats)],
+        [str(baseline or sys.executable), "-c", WARM_SCRIPT, tasks, str(repeats), allocator],
         check=True,
         capture_output=True,
         text=True,
@@ -307,24 +324,28 @@ def main() -> None:
             lines += [("baseline_cli_vs_import_floor", f"{before:.2f}")]
 
         sources = {"": None} if baseline is None else {"": None, "baseline_": baseline}
-        warm: dict[str, dict[str, dict[str, Any]]] = {prefix: {} for prefix in sources}
-        for _ in range(2 if baseline is not None else 1):  # interleaved in two halves
-            for prefix, source in sources.items():
-                half = warm_computation(max(1, args.repeats // 2), source)
-                for name, item in half.items():
-                    kept = warm[prefix].setdefault(name, {**item, "all": []})
-                    kept["all"] += item["totals"]
-        for prefix, measured_warm in warm.items():
-            for name, item in measured_warm.items():
-                computation = statistics.median(item["all"])
-                per_second = computation * 1000 / item["duration_s"]
-                stages = " ".join(f"{k} {v * 1000:.1f}" for k, v in item["stages"].items())
-                print(
-                    f"{prefix or 'this '}warm {name} (load {load()}): {computation * 1000:.0f} ms "
-                    f"for {item['duration_s']:.1f} s of trajectory = {per_second:.2f} ms per s; "
-                    f"stages (ms): {stages}"
-                )
-                lines.append((f"{prefix}warm_ms_per_trajectory_s_{name}", f"{per_second:.2f}"))
+        # headline: as the keymps command and eval workers run; then the C library's default
+        # allocator, as a program calling run_task has it (keymps/_memory.py)
+        for allocator, suffix in (("keymps", ""), ("default", "_default_malloc")):
+            warm: dict[str, dict[str, dict[str, Any]]] = {prefix: {} for prefix in sources}
+            for _ in range(2 if baseline is not None else 1):  # interleaved in two halves
+                for prefix, source in sources.items():
+                    half = warm_computation(max(1, args.repeats // 2), source, allocator)
+                    for name, item in half.items():
+                        kept = warm[prefix].setdefault(name, {**item, "all": []})
+                        kept["all"] += item["totals"]
+            for prefix, measured_warm in warm.items():
+                for name, item in measured_warm.items():
+                    computation = statistics.median(item["all"])
+                    per_second = computation * 1000 / item["duration_s"]
+                    stages = " ".join(f"{k} {v * 1000:.1f}" for k, v in item["stages"].items())
+                    print(
+                        f"{prefix or 'this '}warm {name}, {allocator} allocator (load {load()}): "
+                        f"{computation * 1000:.0f} ms for {item['duration_s']:.1f} s of "
+                        f"trajectory = {per_second:.2f} ms per s; stages (ms): {stages}"
+                    )
+                    key = f"{prefix}warm_ms_per_trajectory_s_{name}{suffix}"
+                    lines.append((key, f"{per_second:.2f}"))
 
         floors = stage_floors(warm_runs(folder), args.repeats)
         for name, measured_stages in floors.items():
