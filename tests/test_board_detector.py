@@ -272,3 +272,24 @@ def test_lab_tables_built_on_another_thread_give_opencvs_conversion() -> None:
     threaded, direct = lab("thread"), lab("direct")
     assert threaded[0] == "True"  # the thread was running when the detector was made
     assert threaded[1] == direct[1]  # the same float32 Lab, bit for bit
+
+
+def test_keymps_run_starts_the_lab_tables_before_it_reads_the_task(tmp_path: Path) -> None:
+    import subprocess
+    import sys
+
+    # the task file does not exist: the run stops at loading it, the thread must be running
+    check = (
+        "import sys; from keymps.cli.app import cli; from keymps.perception import board_model\n"
+        "try:\n    cli(['run', sys.argv[1], '--rerun', 'off'])\nexcept SystemExit:\n    pass\n"
+        "print(board_model._lab_tables is not None)"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", check, str(tmp_path / "missing.yaml")],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=tmp_path,
+    )
+    assert done.stdout.split()[-1] == "True", done.stderr
+    assert "missing.yaml" in done.stderr  # it did stop at the task

@@ -72,6 +72,11 @@ def cli() -> None:
 @user_errors
 def run(task_file: Path, rerun_mode: str, rerun_url: str | None, quiet: bool, **given: Any) -> None:
     """Run TASK (a task file) end to end: detect, plan, ground, compose, solve, time, check, execute."""
+    from keymps.perception.board_model import prepare_lab_tables
+
+    # The default detector's OpenCV tables (100 ms) are built on the other core while the task
+    # loads; the board detector would start them only when it is made, too late to be hidden.
+    prepare_lab_tables()
     from keymps.cli.output import RunPrinter
     from keymps.errors import KeympsError
     from keymps.pipeline.engine import run_task
