@@ -34,6 +34,7 @@ import functools
 import multiprocessing
 import os
 import queue
+import sys
 import threading
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -288,13 +289,14 @@ def run_in_processes(
 def fork_here(backend: str) -> bool:
     """Offline runs fork their workers from this process while it has no other thread: each
     starts with what this process has imported (Python, NumPy, pydantic, the suite) instead of
-    a fork server importing it all again, about 0.3-0.5 s later. Runs that wait for a VLM, or
-    a process with threads (a progress bar's), go through a fork server: nothing of this
-    process's threads, locks or connections is copied into the workers."""
+    a fork server importing it all again, about 0.3-0.5 s later. Runs that wait for a VLM, a
+    process with threads (a progress bar's) and other systems than Linux (macOS' libraries are
+    not safe to fork) go through a fork server: nothing of this process's threads, locks or
+    connections is copied into the workers."""
     return (
         backend in OFFLINE_BACKENDS
         and threading.active_count() == 1
-        and "fork" in multiprocessing.get_all_start_methods()
+        and sys.platform.startswith("linux")
     )
 
 
