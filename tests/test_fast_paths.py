@@ -1132,6 +1132,8 @@ def test_row_norms_are_numpys_norms_to_the_bit() -> None:
     for columns in (1, 2, 3, 6):
         vectors = rng.normal(0, 1, (20_000, columns)) * 10.0 ** rng.uniform(-12, 3, (20_000, 1))
         assert np.array_equal(row_norms(vectors), np.linalg.norm(vectors, axis=1))
+
+
 def test_travel_legs_crossing_tests_at_once_match_one_leg_at_a_time() -> None:
     from keymps.motion.compose import TRAVEL_SPACING_M, _crossed_legs
     from keymps.robot.safety_geometry import outside_distance
@@ -1233,3 +1235,34 @@ def test_merging_strokes_from_near_boxes_match_every_pair_of_strokes() -> None:
             assert got[0] == expected[0] and np.array_equal(got[1], expected[1])
             found += 1
     assert 10 < found < 70
+
+
+def test_a_robot_built_again_shares_its_checked_kinematics_and_computes_the_same() -> None:
+    """RobotModel keeps the Pinocchio model, batched FK and closed form per arm, base and tool:
+    a model built again computes exactly what one built from scratch does."""
+    from keymps.robot import model as robot_model
+
+    rng = np.random.default_rng(RNG_SEED + 7)
+    for _ in range(3):
+        first = random_model(rng)
+        again = RobotModel(first.kind, first.base, first.tool)
+        assert again.model is first.model and again.data is not first.data
+        robot_model._KINEMATICS.clear()
+        fresh = RobotModel(first.kind, first.base, first.tool)
+        assert fresh.model is not first.model
+        qs = rng.uniform(-math.pi, math.pi, (40, 6))
+        for q in qs[:5]:
+            for got, expected in zip(again.fk(q), fresh.fk(q), strict=True):
+                assert np.array_equal(got, expected)
+        for got, expected in zip(again.tool_poses(qs), fresh.tool_poses(qs), strict=True):
+            assert np.array_equal(got, expected)
+        poses = np.zeros((len(qs), 4, 4))
+        poses[:, :3, 3], poses[:, :3, :3] = fresh.tool_poses(qs)
+        poses[:, 3, 3] = 1.0
+        assert again.closed_form is not None and fresh.closed_form is not None
+        assert np.array_equal(
+            again.closed_form.solve(poses), fresh.closed_form.solve(poses), equal_nan=True
+        )
+    other_tool = RobotModel(first.kind, first.base, BUILTIN_TOOLS["piping_bag"])
+    assert other_tool.model is not first.model
+    assert not np.allclose(other_tool.fk(qs[0])[0], first.fk(qs[0])[0])

@@ -197,7 +197,7 @@ def run_in_processes(
     from keymps.eval.turn import CpuTurn
 
     forking = fork_here(backend)
-    context = multiprocessing.get_context("fork" if forking else "forkserver")
+    context: Any = multiprocessing.get_context("fork" if forking else "forkserver")
     if not forking:
         preload = ["keymps.eval.preload"]
         if backend == BROKERED_BACKEND:  # its runs build the litellm backend (0.15 s of imports)

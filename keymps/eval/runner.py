@@ -138,7 +138,7 @@ def expected_work(suite: Suite, case: Any) -> float:
 
 
 @functools.lru_cache(maxsize=64)
-def _path_ratio(primitive: str, folder: Path | None) -> float:
+def _path_ratio(primitive: str, folder: Path) -> float:
     """The primitive's path length for a 10 cm stroke over 10 cm (1 when it cannot be read)."""
     from keymps.primitives.dictionary import default_search_dirs, load_primitives
 
