@@ -239,7 +239,7 @@ def test_the_numpy_assignment_is_scipys_on_generated_motions() -> None:
     from scipy.optimize import linear_sum_assignment
     from scipy.spatial.distance import cdist
 
-    from keymps.eval.metric import _prepare, min_cost_assignment
+    from keymps.eval.metric import _prepare, metric_d_both, min_cost_assignment
 
     rng = np.random.default_rng(20261203)
     for _ in range(50):
@@ -250,7 +250,9 @@ def test_the_numpy_assignment_is_scipys_on_generated_motions() -> None:
         cost = cdist(reference, candidates)
         rows, columns = linear_sum_assignment(cost)
         expected = float(cost[rows, columns].mean())
-        assert metric_d_optimal(truth, made, n) == pytest.approx(expected, rel=1e-12, abs=1e-15)
+        both = metric_d_both(truth, made, n)
+        assert both == (metric_d(truth, made, n), metric_d_optimal(truth, made, n))
+        assert both[1] == expected  # (the same pairs summed in the same order)
     for _ in range(100):  # random matrices, square and wide
         rows_n = int(rng.integers(1, 40))
         cost = rng.random((rows_n, rows_n + int(rng.integers(0, 3)) * int(rng.integers(0, 50))))

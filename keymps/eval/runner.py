@@ -336,7 +336,7 @@ def _write_design(folder: Path, output: Any) -> None:
 
 
 def _score(suite: Suite, case: Any, job: Job, output: Any, n: int) -> dict[str, Any]:
-    from keymps.eval.metric import metric_d, metric_d_optimal
+    from keymps.eval.metric import metric_d_both
     from keymps.eval.truth import case_truth
 
     truth = case_truth(suite, case, job.seed, sidecar=output.scene)
@@ -353,10 +353,8 @@ def _score(suite: Suite, case: Any, job: Job, output: Any, n: int) -> dict[str, 
         scored["truth_keyword"] = truth_primitive
         scored["truth_pieces"] = len(truth.pieces)
         if output.work_pieces:
-            scored["d_mm"] = round(1000 * metric_d(truth.pieces, output.work_pieces, n), 3)
-            scored["d_optimal_mm"] = round(
-                1000 * metric_d_optimal(truth.pieces, output.work_pieces, n), 3
-            )
+            d, d_optimal = metric_d_both(truth.pieces, output.work_pieces, n)
+            scored["d_mm"], scored["d_optimal_mm"] = round(1000 * d, 3), round(1000 * d_optimal, 3)
     if case.ground_truths:
         scored.update(_score_objects(case, truth, output, n))
     if suite.kind == "equal_parts" and suite.parts is not None:
