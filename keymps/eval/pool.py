@@ -18,9 +18,8 @@ they start at once with what it has imported and import the rest as their first 
 at the same time as this process. Otherwise workers are forked from a fork server that has
 imported keymps, OpenCV, NumPy and Pinocchio once (keymps.eval.preload): starting one costs
 milliseconds, not the second of those imports, and no worker inherits the parent's threads or
-open connections. Each worker runs with the
-parent's environment as it is when the suite starts (KEYMPS_CACHE_DIR ...) and ignores Ctrl-C:
-the parent stops, then ends them. Records come back to the parent, which alone writes
+open connections. Each worker runs with the parent's environment as it is when the suite starts
+(KEYMPS_CACHE_DIR ...) and ignores Ctrl-C: the parent stops, then ends them. Records come back to the parent, which alone writes
 results.jsonl.
 
 As in any multiprocessing program, a script that runs a suite with processes > 1 needs the
