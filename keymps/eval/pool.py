@@ -19,11 +19,11 @@ at the same time as this process. Otherwise workers are forked from a fork serve
 imported keymps, OpenCV, NumPy and Pinocchio once (keymps.eval.preload): starting one costs
 milliseconds, not the second of those imports, and no worker inherits the parent's threads or
 open connections. Each worker runs with the parent's environment as it is when the suite starts
-(KEYMPS_CACHE_DIR ...) and ignores Ctrl-C: the parent stops, then ends them. Records come back to the parent, which alone writes
-results.jsonl.
+(KEYMPS_CACHE_DIR ...) and ignores Ctrl-C: the parent stops, then ends them. Records come back
+to the parent, which alone writes results.jsonl.
 
 As in any multiprocessing program, a script that runs a suite with processes > 1 needs the
-`if __name__ == "__main__":` guard: the workers import the script's main module.
+`if __name__ == "__main__":` guard: the fork server's workers import the script's main module.
 """
 
 from __future__ import annotations
