@@ -118,12 +118,12 @@ def _distance_blocks(points: np.ndarray, others: np.ndarray) -> Iterator[tuple[i
     rows = max(1, CACHE_BLOCK // max(1, len(others)))
     buffer = np.empty((2, min(rows, len(points)), len(others)))
     for begin in range(0, len(points), rows):
-        block, part = buffer[0, : len(points[begin : begin + rows])], buffer[1]
-        part = part[: len(block)]
-        np.subtract(points[begin : begin + rows, 0, None], columns[0], out=block)
+        chunk = points[begin : begin + rows]
+        block, part = buffer[0, : len(chunk)], buffer[1, : len(chunk)]
+        np.subtract(chunk[:, 0, None], columns[0], out=block)
         np.multiply(block, block, out=block)
         for axis in range(1, points.shape[1]):
-            np.subtract(points[begin : begin + rows, axis, None], columns[axis], out=part)
+            np.subtract(chunk[:, axis, None], columns[axis], out=part)
             np.multiply(part, part, out=part)
             block += part
         yield begin, block
