@@ -341,22 +341,27 @@ def min_cost_assignment(cost: np.ndarray) -> np.ndarray:
     column_of_row = np.full(rows, -1)
     cheapest, first_rows = np.unique(np.argmin(cost, axis=1), return_index=True)
     row_of_column[cheapest], column_of_row[first_rows] = first_rows, cheapest
+    reduced = np.empty(columns)
     for start in range(rows):
         if column_of_row[start] >= 0:
             continue
-        shortest = np.full(columns, np.inf)
+        open_cost = np.full(columns, np.inf)  # path costs of the columns not reached yet
+        reached_cost = np.zeros(columns)  # and of the reached ones, when they were reached
         previous = np.full(columns, -1)
-        reached = np.zeros(columns, dtype=bool)
+        reached = []
         visited = [start]
         row, base = start, 0.0
         while True:
-            reduced = base + cost[row] - row_potential[row] - column_potential
-            better = (reduced < shortest) & ~reached
-            shortest[better] = reduced[better]
+            np.subtract(cost[row], column_potential, out=reduced)
+            reduced += base - row_potential[row]
+            reduced[reached] = np.inf  # (a reached column is never reached again)
+            better = reduced < open_cost
             previous[better] = row
-            column = int(np.argmin(np.where(reached, np.inf, shortest)))
-            base = float(shortest[column])
-            reached[column] = True
+            np.minimum(open_cost, reduced, out=open_cost)
+            column = int(open_cost.argmin())
+            base = float(open_cost[column])
+            reached_cost[column], open_cost[column] = base, np.inf
+            reached.append(column)
             if row_of_column[column] < 0:
                 break
             row = int(row_of_column[column])
@@ -364,8 +369,8 @@ def min_cost_assignment(cost: np.ndarray) -> np.ndarray:
         # potentials: every reduced cost stays >= 0, those along the tree 0
         row_potential[start] += base
         for other in visited[1:]:
-            row_potential[other] += base - shortest[column_of_row[other]]
-        column_potential[reached] -= base - shortest[reached]
+            row_potential[other] += base - reached_cost[column_of_row[other]]
+        column_potential[reached] -= base - reached_cost[reached]
         while True:  # augment: flip the assignment along the path back to `start`
             row = int(previous[column])
             row_of_column[column] = row
