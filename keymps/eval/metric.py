@@ -348,7 +348,7 @@ def min_cost_assignment(cost: np.ndarray) -> np.ndarray:
         open_cost = np.full(columns, np.inf)  # path costs of the columns not reached yet
         reached_cost = np.zeros(columns)  # and of the reached ones, when they were reached
         previous = np.full(columns, -1)
-        reached = []
+        reached: list[int] = []
         visited = [start]
         row, base = start, 0.0
         while True:
