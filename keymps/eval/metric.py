@@ -205,9 +205,9 @@ BOX_SEARCH_PAIRS = 1 << 23
 def _z_order(points: np.ndarray) -> np.ndarray:
     """A permutation of `points` along a Morton (Z-order) curve: consecutive points are near
     each other, so that runs of CHUNK consecutive points have small bounding boxes."""
-    low, high = points.min(axis=0), points.max(axis=0)
-    span = np.where(high > low, high - low, 1.0)
-    bits = 10  # 1024 cells per axis
+    low = points.min(axis=0)
+    span = float((points.max(axis=0) - low).max()) or 1.0
+    bits = 10  # 1024 cubic cells along the longest side (a thin axis gets few)
     cells = ((points - low) / span * ((1 << bits) - 1)).astype(np.uint64)
     code = np.zeros(len(points), dtype=np.uint64)
     for bit in range(bits):
