@@ -341,10 +341,10 @@ def min_cost_assignment(cost: np.ndarray) -> np.ndarray:
     column_of_row = np.full(rows, -1)
     cheapest, first_rows = np.unique(np.argmin(cost, axis=1), return_index=True)
     row_of_column[cheapest], column_of_row[first_rows] = first_rows, cheapest
-    for row in np.flatnonzero(column_of_row < 0):  # another column as cheap (a copy) if free
-        free = np.flatnonzero((cost[row] == row_potential[row]) & (row_of_column < 0))
+    for waiting in np.flatnonzero(column_of_row < 0):  # an equally cheap free column (a copy)
+        free = np.flatnonzero((cost[waiting] == row_potential[waiting]) & (row_of_column < 0))
         if len(free):
-            row_of_column[free[0]], column_of_row[row] = row, free[0]
+            row_of_column[free[0]], column_of_row[waiting] = waiting, free[0]
     reduced = np.empty(columns)
     for start in range(rows):
         if column_of_row[start] >= 0:
