@@ -68,6 +68,47 @@ def test_offline_eval_scores_the_real_pipeline(offline_run: Path) -> None:
         assert not list(run.glob("*.png"))
 
 
+FORKING_EVAL = """
+import multiprocessing, sys
+real = multiprocessing.get_context
+def spy(method=None):
+    print("start method", method, file=sys.stderr, flush=True)
+    return real(method)
+multiprocessing.get_context = spy
+from keymps.cli.app import main
+sys.argv = ["keymps", *sys.argv[1:]]
+main()
+"""
+
+
+def test_a_worker_forked_from_the_eval_process_scores_the_same(
+    offline_run: Path, tmp_path: Path
+) -> None:
+    """`keymps eval` alone in its process forks its offline worker from itself (no fork
+    server); the records are the in-process run's, timings apart."""
+    import os
+    import subprocess
+    import sys
+
+    out = tmp_path / "forked"
+    arguments = ["eval", "cutting_sim", "--case", "5", "--case", "7", "--repeats", "1"]
+    arguments += ["--method", "keymps", "--method", "vlm-keypoint", "--processes", "2"]
+    done = subprocess.run(
+        [sys.executable, "-c", FORKING_EVAL, *arguments, "--out", str(out), "--quiet"],
+        capture_output=True, text=True, timeout=120, env={**os.environ},
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert "start method fork\n" in done.stderr
+
+    def timeless(records: list[dict[str, Any]]) -> dict[tuple[Any, ...], dict[str, Any]]:
+        return {
+            (r["case"], r["method"], r["repeat"]): {k: v for k, v in r.items() if k != "seconds"}
+            for r in records
+        }
+
+    assert timeless(_records(out)) == timeless(_records(offline_run))
+
+
 def test_eval_writes_png_images_when_asked(tmp_path: Path) -> None:
     out = tmp_path / "png"
     result = _eval(

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -232,3 +233,42 @@ def test_ring_cake_hole_is_not_area() -> None:
     areas, total = split_areas(_circle(0.06), _diameters([90]), hole_m=_circle(0.02))
     assert total == pytest.approx(np.pi * (0.06**2 - 0.02**2), rel=0.01)
     assert len(areas) == 2 and areas[0] == pytest.approx(areas[1], rel=0.01)
+
+
+def test_jobs_start_heaviest_first_by_their_ground_truths_work() -> None:
+    """Sawing cuts weigh about three straight ones (the primitive's path for a straight stroke):
+    the sawn baguettes and the banana bread start first, a single straight cut's case last."""
+    from keymps.eval.runner import EvalOptions, expected_work, heaviest_first, plan_jobs
+
+    suite = load_suite("cutting_sim")
+    work = {case.id: expected_work(suite, case) for case in suite.cases}
+    assert 2.5 < (work["15"] - work["14"]) / (work["13"] - work["12"]) < 3.5
+    options = EvalOptions(out=Path("unused"), repeats=2, methods=("keymps", "vlm-keypoint"))
+    order = heaviest_first(suite, plan_jobs(suite, options))
+    assert [job.case_id for job in order[:4]] == ["15"] * 4
+    assert {job.case_id for job in order[-4:]} == {"5"}
+    assert sorted(order, key=lambda job: job.label) == sorted(
+        plan_jobs(suite, options), key=lambda job: job.label
+    )
+    # one scene's methods stay next to each other (they share its rendering)
+    assert [job.method for job in order[:2]] == ["keymps", "vlm-keypoint"]
+
+
+def test_offline_workers_are_forked_only_from_a_process_without_threads() -> None:
+    import subprocess
+    import threading
+
+    from keymps.eval.pool import fork_here
+
+    alone = "from keymps.eval.pool import fork_here; print(fork_here('offline'))"
+    answer = subprocess.run([sys.executable, "-c", alone], capture_output=True, text=True)
+    assert answer.stdout.strip() == str(sys.platform.startswith("linux"))
+    assert not fork_here("litellm")
+    release = threading.Event()
+    other = threading.Thread(target=release.wait)
+    other.start()
+    try:
+        assert not fork_here("offline")
+    finally:
+        release.set()
+        other.join()

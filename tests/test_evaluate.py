@@ -171,3 +171,94 @@ def test_optimal_assignment_never_exceeds_greedy(
 ) -> None:
     generated = [resample_along(p, 30) for p in made]
     assert metric_d_optimal(truth, generated) <= metric_d(truth, generated) + 1e-12
+
+
+# --------------------------------------------------------------------------- against scipy
+
+
+def _scipy_greedy(reference: np.ndarray, candidates: np.ndarray) -> np.ndarray:
+    """The pairing as keymps computed it with scipy's k-d tree, before the numpy search."""
+    from scipy.spatial import cKDTree
+
+    tree, taken, chosen = cKDTree(candidates), np.zeros(len(candidates), dtype=bool), []
+    for point in reference:
+        if taken.all():
+            taken[:] = False
+        k = min(len(candidates), int(taken.sum()) + 1)  # (the k nearest hold a free one)
+        _, order = tree.query(point, k=k)
+        j = int(np.atleast_1d(order)[np.argmax(~taken[np.atleast_1d(order)])])
+        taken[j] = True
+        chosen.append(j)
+    return np.array(chosen)
+
+
+def _generated_case(rng: np.random.Generator) -> tuple[list[np.ndarray], list[np.ndarray], int]:
+    """A ground truth of straight or wavy cuts and a motion that follows it loosely: shifted,
+    noisy, sawing across it, missing pieces or adding some, sparse or dense, 2D or 3D."""
+    dims = int(rng.choice([2, 3]))
+    truth, made = [], []
+    for _ in range(int(rng.integers(1, 7))):
+        start = rng.uniform(0, 0.3, dims)
+        end = start + rng.normal(0, 0.08, dims)
+        s = np.linspace(0, 1, int(rng.integers(2, 40)))[:, None]
+        piece = start + s * (end - start)
+        truth.append(piece)
+        if rng.random() < 0.8:
+            count = int(rng.integers(2, 600))
+            t = np.linspace(0, 1, count)[:, None]
+            wave = np.zeros((count, dims))
+            wave[:, 0] = rng.uniform(0, 0.02) * np.sin(t[:, 0] * rng.uniform(1, 60))
+            noise = rng.normal(0, rng.choice([0.0, 1e-4, 3e-3]), (count, dims))
+            made.append(start + t * (end - start) + wave + noise + rng.normal(0, 0.005, dims))
+    if not made or rng.random() < 0.2:
+        made.append(rng.uniform(0, 0.3, (int(rng.integers(1, 300)), dims)))
+    if rng.random() < 0.2:  # repeated points: equally near candidates
+        made.append(made[0][: len(made[0]) // 2].copy())
+    return truth, made, int(rng.choice([len(truth), 20, 100, 300]))
+
+
+@pytest.mark.parametrize("search", ["lists", "boxes"])
+def test_the_numpy_greedy_pairing_is_scipys_on_generated_motions(search: str) -> None:
+    from keymps.eval.metric import _greedy_by_boxes, _greedy_pairing, _prepare
+
+    pairing = _greedy_pairing if search == "lists" else _greedy_by_boxes
+    rng = np.random.default_rng(20261202)
+    for _ in range(150):
+        truth, made, n = _generated_case(rng)
+        reference, candidates = _prepare(truth, made, n)
+        mine = pairing(reference, candidates)
+        theirs = _scipy_greedy(reference, candidates)
+        mine_d = np.linalg.norm(reference - candidates[mine], axis=1)
+        theirs_d = np.linalg.norm(reference - candidates[theirs], axis=1)
+        assert np.array_equal(mine_d, theirs_d)  # (equal distances: ties may pick other points)
+        if search == "lists":
+            assert metric_d(truth, made, n) == float(theirs_d.mean())
+
+
+def test_the_numpy_assignment_is_scipys_on_generated_motions() -> None:
+    from scipy.optimize import linear_sum_assignment
+    from scipy.spatial.distance import cdist
+
+    from keymps.eval.metric import _prepare, metric_d_both, min_cost_assignment
+
+    rng = np.random.default_rng(20261203)
+    for _ in range(50):
+        truth, made, n = _generated_case(rng)
+        reference, candidates = _prepare(truth, made, n)
+        if len(candidates) < len(reference):
+            candidates = np.tile(candidates, (-(-len(reference) // len(candidates)), 1))
+        cost = cdist(reference, candidates)
+        rows, columns = linear_sum_assignment(cost)
+        expected = float(cost[rows, columns].mean())
+        both = metric_d_both(truth, made, n)
+        assert both == (metric_d(truth, made, n), metric_d_optimal(truth, made, n))
+        assert both[1] == expected  # (the same pairs summed in the same order)
+    for _ in range(100):  # random matrices, square and wide
+        rows_n = int(rng.integers(1, 40))
+        cost = rng.random((rows_n, rows_n + int(rng.integers(0, 3)) * int(rng.integers(0, 50))))
+        _, columns = linear_sum_assignment(cost)
+        mine = min_cost_assignment(cost)
+        assert len(set(mine.tolist())) == rows_n
+        assert cost[np.arange(rows_n), mine].sum() == pytest.approx(
+            cost[np.arange(rows_n), columns].sum(), rel=1e-12
+        )

@@ -1261,3 +1261,32 @@ def test_a_stored_crop_png_has_the_pixels_of_the_deflated_one(tmp_path: Any) -> 
     kept = (tmp_path / "run" / "vlm" / "crop.png").read_bytes()
     crop = cv2.imdecode(np.frombuffer(kept, np.uint8), 1)
     assert kept == png_bytes(crop, stored=True) and run.stages.plan is not None
+def test_a_robot_built_again_shares_its_checked_kinematics_and_computes_the_same() -> None:
+    """RobotModel keeps the Pinocchio model, batched FK and closed form per arm, base and tool:
+    a model built again computes exactly what one built from scratch does."""
+    from keymps.robot import model as robot_model
+
+    rng = np.random.default_rng(RNG_SEED + 7)
+    for _ in range(3):
+        first = random_model(rng)
+        again = RobotModel(first.kind, first.base, first.tool)
+        assert again.model is first.model and again.data is not first.data
+        robot_model._KINEMATICS.clear()
+        fresh = RobotModel(first.kind, first.base, first.tool)
+        assert fresh.model is not first.model
+        qs = rng.uniform(-math.pi, math.pi, (40, 6))
+        for q in qs[:5]:
+            for got, expected in zip(again.fk(q), fresh.fk(q), strict=True):
+                assert np.array_equal(got, expected)
+        for got, expected in zip(again.tool_poses(qs), fresh.tool_poses(qs), strict=True):
+            assert np.array_equal(got, expected)
+        poses = np.zeros((len(qs), 4, 4))
+        poses[:, :3, 3], poses[:, :3, :3] = fresh.tool_poses(qs)
+        poses[:, 3, 3] = 1.0
+        assert again.closed_form is not None and fresh.closed_form is not None
+        assert np.array_equal(
+            again.closed_form.solve(poses), fresh.closed_form.solve(poses), equal_nan=True
+        )
+    other_tool = RobotModel(first.kind, first.base, BUILTIN_TOOLS["piping_bag"])
+    assert other_tool.model is not first.model
+    assert not np.allclose(other_tool.fk(qs[0])[0], first.fk(qs[0])[0])

@@ -173,17 +173,29 @@ def _run(suite: Suite, options: EvalOptions, quiet: bool) -> list[dict[str, Any]
         return run_suite(suite, options, when_idle=import_pyplot)
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn
 
-    with Progress(
+    from keymps.eval.pool import OFFLINE_BACKENDS
+    from keymps.eval.runner import resolve_backend
+
+    progress = Progress(
         "[progress.description]{task.description}",
         BarColumn(),
         MofNCompleteColumn(),
         TimeElapsedColumn(),
         transient=True,
-    ) as progress:
-        bar = progress.add_task(f"{suite.name}", total=total)
+    )
+    bar = progress.add_task(f"{suite.name}", total=total)
+    # The bar's refresh thread starts with the first result for offline runs: their worker
+    # processes are forked from this process, which must have no thread then (fork_here).
+    if resolve_backend(options) not in OFFLINE_BACKENDS:
+        progress.start()
 
-        def advance(job: object, record: dict[str, object]) -> None:
-            status = "ok" if record.get("ok") else "failed"
-            progress.update(bar, advance=1, description=f"{suite.name}: {job.label} {status}")  # type: ignore[attr-defined]
+    def advance(job: object, record: dict[str, object]) -> None:
+        if not progress.live.is_started:
+            progress.start()
+        status = "ok" if record.get("ok") else "failed"
+        progress.update(bar, advance=1, description=f"{suite.name}: {job.label} {status}")  # type: ignore[attr-defined]
 
+    try:
         return run_suite(suite, options, on_result=advance, when_idle=import_pyplot)
+    finally:
+        progress.stop()

@@ -65,7 +65,6 @@ class VlmBroker:
     """Makes VLM calls on the event loop, at most `concurrency` at once."""
 
     def __init__(self, concurrency: int, warm_up: bool = False, turn: CpuTurn | None = None):
-        self.loop = event_loop()
         self.turn = turn
         """Given up while a caller of `complete` waits for its answer (keymps.eval.turn)."""
         self.concurrency = max(1, concurrency)
@@ -79,6 +78,12 @@ class VlmBroker:
             from keymps.default_plugins.litellm.backend import import_litellm
 
             self.loop.call_soon_threadsafe(import_litellm)
+
+    @property
+    def loop(self) -> asyncio.AbstractEventLoop:
+        """The loop's thread starts with the first call: offline runs never start it (and
+        their worker processes can be forked from a process without threads)."""
+        return event_loop()
 
     async def _call(self, backend: Any, request: PlanRequest) -> BackendAnswer:
         """One call, or the answer of the identical call already out (same share key): runs

@@ -13,11 +13,15 @@ exclude. D ignores the order in which the generated points were executed, as the
 When there are fewer generated points than N, pairing restarts once every generated point is
 paired (each may then be used again); pass densely sampled paths (keymps' work pieces are
 sampled every millimetre) to avoid that.
+
+Everything here is numpy: the nearest-free search and the optimal assignment were scipy's
+cKDTree and linear_sum_assignment, whose imports (about 0.5 s) every `keymps eval` process paid;
+tests/test_evaluate.py checks both against scipy on generated motions.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 
 import numpy as np
 
@@ -91,38 +95,169 @@ def resample_ground_truth(ground_truth: Points, n: int = DEFAULT_N) -> np.ndarra
 
 
 FIRST_NEIGHBOURS = 16
-"""Nearest neighbours fetched per ground-truth point up front; more only when all are taken."""
+"""Nearest candidates listed per reference point up front; a full search only when they are
+all paired."""
+CACHE_BLOCK = 1 << 15
+"""Distances computed at once (256 kB, reused: the arithmetic stays in the processor's cache
+and no fresh memory is touched)."""
+
+
+def _squared(difference: np.ndarray) -> np.ndarray:
+    """Squared lengths along the last axis, summed coordinate by coordinate (as scipy does)."""
+    total = difference[..., 0] * difference[..., 0]
+    for axis in range(1, difference.shape[-1]):
+        total += difference[..., axis] * difference[..., axis]
+    return total
+
+
+def _distance_blocks(points: np.ndarray, others: np.ndarray) -> Iterator[tuple[int, np.ndarray]]:
+    """(first row, squared distances of a block of rows to every other point): the same sums as
+    _squared, one coordinate at a time over contiguous columns, in one reused buffer (valid
+    until the next block)."""
+    columns = [np.ascontiguousarray(others[:, axis]) for axis in range(points.shape[1])]
+    rows = max(1, CACHE_BLOCK // max(1, len(others)))
+    buffer = np.empty((2, min(rows, len(points)), len(others)))
+    for begin in range(0, len(points), rows):
+        chunk = points[begin : begin + rows]
+        block, part = buffer[0, : len(chunk)], buffer[1, : len(chunk)]
+        np.subtract(chunk[:, 0, None], columns[0], out=block)
+        np.multiply(block, block, out=block)
+        for axis in range(1, points.shape[1]):
+            np.subtract(chunk[:, axis, None], columns[axis], out=part)
+            np.multiply(part, part, out=part)
+            block += part
+        yield begin, block
+
+
+def _nearest_lists(
+    reference: np.ndarray, candidates: np.ndarray, k: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each reference point's k nearest candidates, nearest first (equally near ones by index),
+    and their squared distances."""
+    n, m = len(reference), len(candidates)
+    indexes, distances = np.empty((n, k), dtype=np.intp), np.empty((n, k))
+    for begin, block in _distance_blocks(reference, candidates):
+        if k < m:
+            near = np.argpartition(block, k - 1, axis=1)[:, :k]
+        else:
+            near = np.broadcast_to(np.arange(m), block.shape)
+        near_d = np.take_along_axis(block, near, axis=1)
+        order = np.lexsort((near, near_d), axis=1)
+        indexes[begin : begin + len(block)] = np.take_along_axis(near, order, axis=1)
+        distances[begin : begin + len(block)] = np.take_along_axis(near_d, order, axis=1)
+    return indexes, distances
 
 
 def _greedy_pairing(reference: np.ndarray, candidates: np.ndarray) -> np.ndarray:
-    """For each reference point in order, the index of the closest candidate not yet paired."""
-    from scipy.spatial import cKDTree
+    """For each reference point in order, the index of the closest candidate not yet paired
+    (of equally close ones the lowest index).
 
+    Each point's FIRST_NEIGHBOURS nearest are listed up front (distances of all pairs, in
+    blocks); the first free one in the list is the answer when it is nearer than the list's
+    last (an equally near candidate left out of the list could have a lower index). Otherwise
+    the point searches all candidates. Many pairs: a search over boxes (_greedy_by_boxes)."""
+    return _greedy_from_lists(reference, candidates)[0]
+
+
+def _greedy_from_lists(
+    reference: np.ndarray, candidates: np.ndarray
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """_greedy_pairing, and each point's smallest squared distance (None after a search over
+    boxes)."""
     n, m = len(reference), len(candidates)
-    tree = cKDTree(candidates)
+    if n * m >= BOX_SEARCH_PAIRS:
+        return _greedy_by_boxes(reference, candidates), None
     k = min(m, FIRST_NEIGHBOURS)
-    _, neighbours = tree.query(reference, k=k)
-    neighbours = np.asarray(neighbours).reshape(n, k)
+    indexes, distances = _nearest_lists(reference, candidates, k)
+    listed, limits = indexes.tolist(), distances[:, -1].tolist()
+    near_d = distances.tolist()
+    taken = bytearray(m)
+    used = 0
+    chosen = np.empty(n, dtype=np.intp)
+    for i in range(n):
+        if used == m:  # every candidate paired: start a new round
+            taken = bytearray(m)
+            used = 0
+        for j, d in zip(listed[i], near_d[i], strict=True):
+            if not taken[j]:
+                if d < limits[i] or k == m:
+                    break
+                j = -1  # as near as the list's last: the whole set decides
+                break
+        else:
+            j = -1
+        if j < 0:
+            row = _squared(candidates - reference[i])
+            row[np.frombuffer(taken, dtype=bool)] = np.inf
+            j = int(np.argmin(row))  # (the first of equal minima: the lowest index)
+        chosen[i] = j
+        taken[j] = 1
+        used += 1
+    return chosen, distances[:, 0]
+
+
+CHUNK = 64
+"""Candidates per box of the search over boxes (consecutive along a Z-order curve)."""
+BOX_SEARCH_PAIRS = 1 << 23
+"""From this many reference x candidate pairs on, each point searches boxes instead."""
+
+
+def _z_order(points: np.ndarray) -> np.ndarray:
+    """A permutation of `points` along a Morton (Z-order) curve: consecutive points are near
+    each other, so that runs of CHUNK consecutive points have small bounding boxes."""
+    low = points.min(axis=0)
+    span = float((points.max(axis=0) - low).max()) or 1.0
+    bits = 10  # 1024 cubic cells along the longest side (a thin axis gets few)
+    cells = ((points - low) / span * ((1 << bits) - 1)).astype(np.uint64)
+    code = np.zeros(len(points), dtype=np.uint64)
+    for bit in range(bits):
+        for axis in range(points.shape[1]):
+            digit = (cells[:, axis] >> np.uint64(bit)) & np.uint64(1)
+            code |= digit << np.uint64(bit * points.shape[1] + axis)
+    return np.argsort(code, kind="stable")
+
+
+def _greedy_by_boxes(reference: np.ndarray, candidates: np.ndarray) -> np.ndarray:
+    """_greedy_pairing for many candidates: branch and bound over boxes of CHUNK candidates.
+    A box is searched only while its distance to the point could still beat the best found
+    (rounding is monotonic: no candidate is nearer than its box's bound), a box with every
+    candidate paired is skipped."""
+    n, m = len(reference), len(candidates)
+    order = _z_order(candidates)
+    points = candidates[order]
+    starts = np.arange(0, m, CHUNK)
+    low = np.minimum.reduceat(points, starts, axis=0)
+    high = np.maximum.reduceat(points, starts, axis=0)
+    size = np.minimum(CHUNK, m - starts)
+    free = size.copy()
     taken = np.zeros(m, dtype=bool)
     used = 0
-    chosen = np.empty(n, dtype=int)
+    chosen = np.empty(n, dtype=np.intp)
     for i in range(n):
         if used == m:  # every candidate paired: start a new round
             taken[:] = False
+            free[:] = size
             used = 0
-        row = neighbours[i]
-        free = ~taken[row]
-        wider = k
-        while not free.any():
-            # Fewer than used + 1 candidates are taken, so the used + 1 nearest hold a free one:
-            # widening the search (doubling) always ends.
-            wider = min(2 * wider, used + 1, m)
-            _, found = tree.query(reference[i], k=wider)
-            row = np.atleast_1d(found)
-            free = ~taken[row]
-        j = int(row[np.argmax(free)])  # the nearest free one
-        chosen[i] = j
-        taken[j] = True
+        point = reference[i]
+        gap = np.maximum(low - point, 0.0) + np.maximum(point - high, 0.0)
+        bounds = np.where(free > 0, _squared(gap), np.inf)
+        best, best_index, best_place = np.inf, m, -1
+        for box in np.argsort(bounds, kind="stable"):
+            if bounds[box] > best:  # (boxes with nothing free come last, at infinity)
+                break
+            begin = box * CHUNK
+            distances = _squared(points[begin : begin + CHUNK] - point)
+            distances[taken[begin : begin + CHUNK]] = np.inf
+            nearest = distances.min()
+            if nearest > best:
+                continue
+            places = begin + np.flatnonzero(distances == nearest)
+            place = places[np.argmin(order[places])]
+            if nearest < best or order[place] < best_index:
+                best, best_index, best_place = nearest, int(order[place]), int(place)
+        chosen[i] = best_index
+        taken[best_place] = True
+        free[best_place // CHUNK] -= 1
         used += 1
     return chosen
 
@@ -158,13 +293,92 @@ def metric_d(ground_truth: Points, generated: Points, n: int = DEFAULT_N) -> flo
 def metric_d_optimal(ground_truth: Points, generated: Points, n: int = DEFAULT_N) -> float:
     """D with the pairing that minimizes the total distance (Hungarian assignment) instead of the
     paper's greedy, order-dependent pairing: a lower bound of D, for comparison."""
-    from scipy.optimize import linear_sum_assignment
-    from scipy.spatial.distance import cdist
+    return metric_d_both(ground_truth, generated, n)[1]
 
+
+def metric_d_both(
+    ground_truth: Points, generated: Points, n: int = DEFAULT_N
+) -> tuple[float, float]:
+    """(metric_d, metric_d_optimal) of the same motion, its nearest candidates listed once."""
     reference, candidates = _prepare(ground_truth, generated, n)
+    greedy, nearest = _greedy_from_lists(reference, candidates)
+    d = float(np.linalg.norm(reference - candidates[greedy], axis=1).mean())
     if len(candidates) < len(reference):  # the same reuse rule as the greedy pairing
-        rounds = -(-len(reference) // len(candidates))
-        candidates = np.tile(candidates, (rounds, 1))
-    cost = cdist(reference, candidates)
-    rows, cols = linear_sum_assignment(cost)
-    return float(cost[rows, cols].mean())
+        candidates = np.tile(candidates, (-(-len(reference) // len(candidates)), 1))
+        greedy, nearest = _greedy_from_lists(reference, candidates)
+    if nearest is None:
+        nearest = np.empty(len(reference))
+        for begin, block in _distance_blocks(reference, candidates):
+            nearest[begin : begin + len(block)] = block.min(axis=1)
+    # Any assignment costs at least the sum of the row minima: a pair costing more than its
+    # row's minimum plus (greedy total - that sum) is in no optimal assignment, so only the
+    # columns of the other pairs are needed (with a margin for rounding).
+    lowest = np.sqrt(nearest)
+    slack = max(0.0, float(np.linalg.norm(reference - candidates[greedy], axis=1).sum()))
+    slack = max(0.0, slack - float(lowest.sum()))
+    limits = (lowest + slack * (1 + 1e-9) + 1e-12)[:, None]
+    needed = np.zeros(len(candidates), dtype=bool)
+    for begin, block in _distance_blocks(reference, candidates):
+        np.sqrt(block, out=block)
+        needed |= (block <= limits[begin : begin + len(block)]).any(axis=0)
+    cost = np.sqrt(_squared(reference[:, None, :] - candidates[needed][None, :, :]))
+    columns = min_cost_assignment(cost)
+    return d, float(cost[np.arange(len(reference)), columns].mean())
+
+
+def min_cost_assignment(cost: np.ndarray) -> np.ndarray:
+    """The column of each row in an assignment of minimal total cost (rows <= columns, each
+    column used at most once): shortest augmenting paths with dual potentials, one row added
+    at a time (Jonker-Volgenant), each path search over all columns at once."""
+    rows, columns = cost.shape
+    if rows > columns:
+        raise ValueError(f"{rows} rows cannot each get one of {columns} columns")
+    # Start from each row's cheapest column (reduced costs >= 0, 0 where assigned, 0 potential
+    # on every free column): only rows that share a cheapest column need a path.
+    row_potential = cost.min(axis=1)
+    column_potential = np.zeros(columns)
+    row_of_column = np.full(columns, -1)
+    column_of_row = np.full(rows, -1)
+    cheapest, first_rows = np.unique(np.argmin(cost, axis=1), return_index=True)
+    row_of_column[cheapest], column_of_row[first_rows] = first_rows, cheapest
+    for waiting in np.flatnonzero(column_of_row < 0):  # an equally cheap free column (a copy)
+        free = np.flatnonzero((cost[waiting] == row_potential[waiting]) & (row_of_column < 0))
+        if len(free):
+            row_of_column[free[0]], column_of_row[waiting] = waiting, free[0]
+    reduced = np.empty(columns)
+    for start in range(rows):
+        if column_of_row[start] >= 0:
+            continue
+        open_cost = np.full(columns, np.inf)  # path costs of the columns not reached yet
+        reached_cost = np.zeros(columns)  # and of the reached ones, when they were reached
+        previous = np.full(columns, -1)
+        reached: list[int] = []
+        visited = [start]
+        row, base = start, 0.0
+        while True:
+            np.subtract(cost[row], column_potential, out=reduced)
+            reduced += base - row_potential[row]
+            reduced[reached] = np.inf  # (a reached column is never reached again)
+            better = reduced < open_cost
+            previous[better] = row
+            np.minimum(open_cost, reduced, out=open_cost)
+            column = int(open_cost.argmin())
+            base = float(open_cost[column])
+            reached_cost[column], open_cost[column] = base, np.inf
+            reached.append(column)
+            if row_of_column[column] < 0:
+                break
+            row = int(row_of_column[column])
+            visited.append(row)
+        # potentials: every reduced cost stays >= 0, those along the tree 0
+        row_potential[start] += base
+        for other in visited[1:]:
+            row_potential[other] += base - reached_cost[column_of_row[other]]
+        column_potential[reached] -= base - reached_cost[reached]
+        while True:  # augment: flip the assignment along the path back to `start`
+            row = int(previous[column])
+            row_of_column[column] = row
+            column_of_row[row], column = column, int(column_of_row[row])
+            if row == start:
+                break
+    return column_of_row

@@ -13,23 +13,27 @@ up never waits for keymps' own work. Within a process one run computes at a time
 calls itself, in the run's thread: its runs in flight are the calls allowed at once, and they
 share the core as threads do.) A worker takes a job only when one of its threads is free.
 
-Workers are forked from a fork server that has imported keymps, OpenCV, NumPy and Pinocchio
-once (keymps.eval.preload): starting one costs milliseconds, not the second of those imports,
-and no worker inherits the parent's threads or open connections. Each worker runs with the
-parent's environment as it is when the suite starts (KEYMPS_CACHE_DIR ...) and ignores Ctrl-C:
-the parent stops, then ends them. Records come back to the parent, which alone writes
-results.jsonl.
+Offline runs fork their workers from this process before it starts any thread (fork_here):
+they start at once with what it has imported and import the rest as their first run needs it,
+at the same time as this process. Otherwise workers are forked from a fork server that has
+imported keymps, OpenCV, NumPy and Pinocchio once (keymps.eval.preload): starting one costs
+milliseconds, not the second of those imports, and no worker inherits the parent's threads or
+open connections. Each worker runs with the parent's environment as it is when the suite starts
+(KEYMPS_CACHE_DIR ...) and ignores Ctrl-C: the parent stops, then ends them. Records come back
+to the parent, which alone writes results.jsonl.
 
 As in any multiprocessing program, a script that runs a suite with processes > 1 needs the
-`if __name__ == "__main__":` guard: the workers import the script's main module.
+`if __name__ == "__main__":` guard: the fork server's workers import the script's main module.
 """
 
 from __future__ import annotations
 
 import contextlib
 import functools
+import multiprocessing
 import os
 import queue
+import sys
 import threading
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -185,28 +189,24 @@ def run_in_processes(
     """Run `jobs` in `processes` processes; call on_record in this process as each one ends.
 
     With an offline backend this process is one of them: it takes jobs from the same queue as
-    its workers from the start, while the fork server imports what the workers need (about a
-    second), so no core waits for the workers to start. With a VLM this process makes the
-    calls (keymps.eval.broker) and every run is a worker's."""
-    import multiprocessing
-
+    its workers from the start (after `when_idle`, its share of the work that is not a run), so
+    no core waits for the workers to start. With a VLM this process makes the calls
+    (keymps.eval.broker) and every run is a worker's."""
     from keymps.eval.broker import BROKERED_BACKEND
     from keymps.eval.turn import CpuTurn
 
-    context = multiprocessing.get_context("forkserver")
-    preload = ["keymps.eval.preload"]
-    if backend == BROKERED_BACKEND:  # its runs build the litellm backend (0.15 s of imports)
-        preload.append("keymps.default_plugins.litellm.backend")
-    context.set_forkserver_preload(preload)
+    forking = fork_here(backend)
+    context: Any = multiprocessing.get_context("fork" if forking else "forkserver")
+    if not forking:
+        preload = ["keymps.eval.preload"]
+        if backend == BROKERED_BACKEND:  # its runs build the litellm backend (0.15 s of imports)
+            preload.append("keymps.default_plugins.litellm.backend")
+        context.set_forkserver_preload(preload)
     job_queue = context.Queue()
     result_queue = context.Queue()
-    for job in jobs:
-        job_queue.put(job)
     runs = runs_in_flight(options.concurrency, processes, backend)
     shares = threads_per_process(runs, processes)
     here = shares.pop(0) if backend in OFFLINE_BACKENDS and len(shares) > 1 else 0
-    for _ in range(len(shares) + (1 if here else 0)):
-        job_queue.put(None)
     environment = dict(os.environ)
     vlm_requests = context.Queue()
     vlm_replies = [context.Queue() for _ in shares]
@@ -222,6 +222,13 @@ def run_in_processes(
         )
         for index, threads in enumerate(shares)
     ]  # fmt: skip
+    if forking:  # before this process has any other thread (a queue's feeder included)
+        for worker in workers:
+            worker.start()
+    for job in jobs:
+        job_queue.put(job)
+    for _ in range(len(shares) + (1 if here else 0)):
+        job_queue.put(None)
     received = 0
     stop_serving = threading.Event()
     stop_computing = threading.Event()
@@ -230,18 +237,19 @@ def run_in_processes(
     # Process.start() waits until the fork server has imported everything: start them aside
     def start_workers() -> None:
         for worker in workers:
-            worker.start()
+            if worker.pid is None:
+                worker.start()
 
     starting = threading.Thread(target=start_workers, name="keymps-eval-start")
 
     def compute_here() -> None:
+        if when_idle is not None:
+            with contextlib.suppress(Exception):  # only ever a head start
+                when_idle()
         _take_jobs(
             suite, options, backend, here, job_queue, result_queue, job_runner,
             CpuTurn(active=False), None, stop_computing,
         )  # fmt: skip
-        if when_idle is not None and not stop_computing.is_set():
-            with contextlib.suppress(Exception):  # only ever a head start
-                when_idle()
 
     computing = threading.Thread(target=compute_here, name="keymps-eval-here", daemon=True)
     try:
@@ -275,6 +283,20 @@ def run_in_processes(
             # (a full pipe nobody reads, or a lock held by a worker ended mid-write).
             channel.cancel_join_thread()
             channel.close()
+
+
+def fork_here(backend: str) -> bool:
+    """Offline runs fork their workers from this process while it has no other thread: each
+    starts with what this process has imported (Python, NumPy, pydantic, the suite) instead of
+    a fork server importing it all again, about 0.3-0.5 s later. Runs that wait for a VLM, a
+    process with threads (a progress bar's) and other systems than Linux (macOS' libraries are
+    not safe to fork) go through a fork server: nothing of this process's threads, locks or
+    connections is copied into the workers."""
+    return (
+        backend in OFFLINE_BACKENDS
+        and threading.active_count() == 1
+        and sys.platform.startswith("linux")
+    )
 
 
 def _check_alive(workers: Sequence[Any]) -> None:

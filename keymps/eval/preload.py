@@ -23,8 +23,6 @@ keep_freed_memory()  # inherited by every worker the fork server starts
 import cv2  # noqa: E402, F401
 import numpy  # noqa: E402, F401
 import pinocchio  # noqa: E402, F401
-import scipy.optimize  # noqa: E402, F401  (the metric's assignment; runs need no scipy)
-import scipy.spatial  # noqa: E402, F401
 
 import keymps.eval.methods  # noqa: E402, F401
 import keymps.eval.runner  # noqa: E402, F401

@@ -225,7 +225,7 @@ def _write_csv(rows: list[Row], path: Path) -> None:
 
 def import_pyplot() -> Any:
     """matplotlib.pyplot on the Agg backend, or None when matplotlib is not installed (0.3-0.7 s
-    of imports: `keymps eval` has it done while the last runs finish, see run_suite's
+    of imports: `keymps eval` has it done while its worker processes compute, see run_suite's
     when_idle)."""
     try:
         import matplotlib

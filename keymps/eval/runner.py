@@ -15,6 +15,7 @@ runs than that are in flight, preparing their calls while the others wait
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import threading
@@ -97,6 +98,56 @@ def plan_jobs(suite: Suite, options: EvalOptions) -> list[Job]:
         for r in range(repeats)
         for method in options.methods
     ]
+
+
+RUN_BASE_CUTS = 2.0
+"""A run's fixed work (scene, detection, plan, files) in straight cuts' worth."""
+
+
+def heaviest_first(suite: Suite, jobs: list[Job]) -> list[Job]:
+    """The jobs in the order they should start: the longest expected first, so that the last
+    ones to finish are short and no process waits for a long run at the end (the methods of
+    one scene stay next to each other)."""
+    estimates = {case.id: expected_work(suite, case) for case in suite.cases}
+    return sorted(jobs, key=lambda job: -estimates.get(job.case_id, 0.0))  # (stable)
+
+
+def expected_work(suite: Suite, case: Any) -> float:
+    """A run's expected computation in straight cuts' worth: its ground truth's cuts, each as
+    long as its primitive's path is for a straight stroke (a sawing cut is about 3), plus
+    RUN_BASE_CUTS. 0 without a ground truth (the suite's order is kept)."""
+    truth = case.ground_truth or next((t for t in case.ground_truths or () if t), None)
+    if truth is None:
+        return 0.0
+    cuts = truth.cuts
+    if cuts.pattern == "parallel":
+        if cuts.parts is not None:
+            count = cuts.parts - 1
+        elif cuts.fractions is not None:
+            count = len(cuts.fractions)
+        else:
+            length = case.scene.length or 0.2
+            count = cuts.count or max(1, int(length / cuts.spacing))
+    elif cuts.pattern == "tips":
+        count = 2
+    elif cuts.pattern == "radial":
+        count = cuts.parts // 2 if cuts.parts % 2 == 0 else cuts.parts
+    else:
+        count = cuts.count
+    return RUN_BASE_CUTS + count * _path_ratio(truth.primitive, suite.folder)
+
+
+@functools.lru_cache(maxsize=64)
+def _path_ratio(primitive: str, folder: Path) -> float:
+    """The primitive's path length for a 10 cm stroke over 10 cm (1 when it cannot be read)."""
+    from keymps.primitives.dictionary import default_search_dirs, load_primitives
+
+    try:
+        found = load_primitives([primitive], default_search_dirs(folder))[primitive]
+        points = np.asarray(found.rollout((0.0, 0.0, 0.0), (0.1, 0.0, 0.0)).y)
+    except Exception:  # only the order of the jobs depends on it: the run reports the problem
+        return 1.0
+    return max(1.0, float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum()) / 0.1)
 
 
 def _job_key(record: dict[str, Any]) -> tuple[Any, ...]:
@@ -285,7 +336,7 @@ def _write_design(folder: Path, output: Any) -> None:
 
 
 def _score(suite: Suite, case: Any, job: Job, output: Any, n: int) -> dict[str, Any]:
-    from keymps.eval.metric import metric_d, metric_d_optimal
+    from keymps.eval.metric import metric_d_both
     from keymps.eval.truth import case_truth
 
     truth = case_truth(suite, case, job.seed, sidecar=output.scene)
@@ -302,10 +353,8 @@ def _score(suite: Suite, case: Any, job: Job, output: Any, n: int) -> dict[str, 
         scored["truth_keyword"] = truth_primitive
         scored["truth_pieces"] = len(truth.pieces)
         if output.work_pieces:
-            scored["d_mm"] = round(1000 * metric_d(truth.pieces, output.work_pieces, n), 3)
-            scored["d_optimal_mm"] = round(
-                1000 * metric_d_optimal(truth.pieces, output.work_pieces, n), 3
-            )
+            d, d_optimal = metric_d_both(truth.pieces, output.work_pieces, n)
+            scored["d_mm"], scored["d_optimal_mm"] = round(1000 * d, 3), round(1000 * d_optimal, 3)
     if case.ground_truths:
         scored.update(_score_objects(case, truth, output, n))
     if suite.kind == "equal_parts" and suite.parts is not None:
@@ -375,9 +424,10 @@ def run_suite(
 ) -> list[dict[str, Any]]:
     """Run every job not yet in out/results.jsonl; return all records for these jobs.
 
-    `when_idle` is called once in this process when, computing runs beside its worker
-    processes, it has none left while the workers finish theirs (the CLI imports the box plots'
-    matplotlib then)."""
+    `when_idle` is called once in this process before it computes runs beside its worker
+    processes, which meanwhile take more of the runs (the CLI imports the box plots'
+    matplotlib then, instead of after the last run). Jobs start heaviest first
+    (heaviest_first): the last to end are short, so neither core waits long for the other."""
     from keymps.eval.broker import BROKERED_BACKEND, VlmBroker
     from keymps.eval.methods import check_runnable, get_method
     from keymps.eval.pool import OFFLINE_BACKENDS, JobRunner, default_processes, run_in_processes
@@ -394,7 +444,7 @@ def run_suite(
     def key(job: Job) -> tuple[Any, ...]:
         return (job.case_id, job.method, job.repeat, backend, options.model)
 
-    todo = [job for job in jobs if key(job) not in done]
+    todo = heaviest_first(suite, [job for job in jobs if key(job) not in done])
     prepare(suite, options)
     records = {key(job): done[key(job)] for job in jobs if key(job) in done}
     if on_result:

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -73,6 +73,23 @@ class IkResult:
         )
 
 
+@dataclass(frozen=True)
+class _Kinematics:
+    """What a RobotModel builds and checks once per arm, base and tool (about 5 ms): the
+    Pinocchio model (read-only; each RobotModel has its own Data), the batched FK and the
+    closed-form IK, each verified against that model."""
+
+    model: Any
+    tcp_frame: int
+    batch: BatchKinematics | None
+    closed_form: ClosedFormIk | None
+
+
+_KINEMATICS: dict[tuple[Any, ...], _Kinematics] = {}
+"""Per process, by (kind, base, tool): `keymps eval` builds the same robot for every run."""
+KINEMATICS_KEPT = 16
+
+
 class RobotModel:
     """A UR arm placed on the board with a tool: FK, IK and limits."""
 
@@ -99,7 +116,12 @@ class RobotModel:
         self.clearance = float(clearance)
         x, y, z, yaw_deg = self.base
         self.base_in_board = se3(rz(math.radians(yaw_deg)), np.array([x, y, z]))
-        self.model, self.tcp_frame = build_pinocchio_model(self.arm, self.base_in_board, tool)
+        key = (kind, self.base, tool)
+        known = _KINEMATICS.get(key)
+        if known is None:
+            self.model, self.tcp_frame = build_pinocchio_model(self.arm, self.base_in_board, tool)
+        else:
+            self.model, self.tcp_frame = known.model, known.tcp_frame
         self.flange_frame = self.model.getFrameId("flange")
         self.data = self.model.createData()
         self.joint_names = JOINT_NAMES
@@ -109,11 +131,19 @@ class RobotModel:
         self.acceleration_limits = np.full(6, float(max_joint_acceleration))
         self.jerk_limits = np.full(6, float(max_joint_jerk))
         self.urdf_path = ur_urdf_path()
-        self.batch = BatchKinematics.for_model(self.model)
-        """Forward kinematics of many configurations at once (None: one Pinocchio call each)."""
         self._tcp_frame = self.model.frames[self.tcp_frame]
         self._flange = self.model.frames[self.flange_frame]
-        self.closed_form = ClosedFormIk.for_model(self.arm, self.base_in_board.homogeneous, self.fk)
+        if known is None:
+            batch = BatchKinematics.for_model(self.model)
+            closed_form = ClosedFormIk.for_model(self.arm, self.base_in_board.homogeneous, self.fk)
+            if len(_KINEMATICS) >= KINEMATICS_KEPT:
+                _KINEMATICS.pop(next(iter(_KINEMATICS)), None)  # the oldest
+            known = _KINEMATICS.setdefault(
+                key, _Kinematics(self.model, self.tcp_frame, batch, closed_form)
+            )
+        self.batch = known.batch
+        """Forward kinematics of many configurations at once (None: one Pinocchio call each)."""
+        self.closed_form = known.closed_form
         """The analytic IK, None when the DH chain does not reproduce this model (then every
         point is solved iteratively)."""
 
