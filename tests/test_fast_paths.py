@@ -1261,6 +1261,8 @@ def test_a_stored_crop_png_has_the_pixels_of_the_deflated_one(tmp_path: Any) -> 
     kept = (tmp_path / "run" / "vlm" / "crop.png").read_bytes()
     crop = cv2.imdecode(np.frombuffer(kept, np.uint8), 1)
     assert kept == png_bytes(crop, stored=True) and run.stages.plan is not None
+
+
 def test_a_robot_built_again_shares_its_checked_kinematics_and_computes_the_same() -> None:
     """RobotModel keeps the Pinocchio model, batched FK and closed form per arm, base and tool:
     a model built again computes exactly what one built from scratch does."""
