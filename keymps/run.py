@@ -125,25 +125,17 @@ def image_file(folder: Path, stem: str, image_format: str) -> Path:
     return folder / f"{stem}.{image_format}"
 
 
-def stored_png_options() -> list[int]:
-    """cv2.imencode options of a run-folder PNG: PNG_COMPRESSION, unfiltered (filtering only
-    helps deflate, which is off)."""
-    import cv2
-
-    return [
-        cv2.IMWRITE_PNG_COMPRESSION, PNG_COMPRESSION,
-        cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_NONE,
-    ]  # fmt: skip
-
-
 def write_image(path: Path, image: Any) -> Path:
     """Write a BGR image atomically; the suffix (.png or .jpg) chooses the format."""
     import cv2
 
     if path.suffix == ".jpg":
         options = [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY]
-    else:
-        options = stored_png_options()
+    else:  # unfiltered: filtering only helps deflate, which is off
+        options = [
+            cv2.IMWRITE_PNG_COMPRESSION, PNG_COMPRESSION,
+            cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_NONE,
+        ]  # fmt: skip
     ok, encoded = cv2.imencode(path.suffix, image, options)
     if not ok:
         raise KeympsError(f"cannot encode {path} as {path.suffix}")

@@ -1237,32 +1237,6 @@ def test_merging_strokes_from_near_boxes_match_every_pair_of_strokes() -> None:
     assert 10 < found < 70
 
 
-def test_a_stored_crop_png_has_the_pixels_of_the_deflated_one(tmp_path: Any) -> None:
-    import cv2
-
-    from keymps import load_task, run_task
-    from keymps.planning.prompt import png_bytes
-
-    rng = np.random.default_rng(RNG_SEED + 42)
-    image = np.zeros((90, 140, 3), np.uint8)  # a board with a disc on it, a little noise
-    image[:] = rng.integers(120, 200, 3)
-    cv2.circle(image, (70, 45), 30, [int(v) for v in rng.integers(0, 256, 3)], -1)
-    image = cv2.add(image, rng.integers(0, 4, image.shape, dtype=np.uint8))
-    deflated, stored = png_bytes(image), png_bytes(image, stored=True)
-    assert deflated == cv2.imencode(".png", image)[1].tobytes()  # what models are sent: as ever
-    assert len(stored) > len(deflated)
-    for encoded in (deflated, stored):
-        assert np.array_equal(cv2.imdecode(np.frombuffer(encoded, np.uint8), 1), image)
-    # the offline planner sends nothing: its run keeps the crop stored, pixels unchanged
-    from pathlib import Path
-
-    task = load_task(Path(__file__).resolve().parents[1] / "tasks" / "cake_icing.yaml")
-    run = run_task(task, out=tmp_path / "run", rerun="off", backend="offline", through="ground")
-    kept = (tmp_path / "run" / "vlm" / "crop.png").read_bytes()
-    crop = cv2.imdecode(np.frombuffer(kept, np.uint8), 1)
-    assert kept == png_bytes(crop, stored=True) and run.stages.plan is not None
-
-
 def test_a_robot_built_again_shares_its_checked_kinematics_and_computes_the_same() -> None:
     """RobotModel keeps the Pinocchio model, batched FK and closed form per arm, base and tool:
     a model built again computes exactly what one built from scratch does."""

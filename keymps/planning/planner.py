@@ -152,10 +152,7 @@ def make_plan(
     )
     in_sent = scaled_objects(in_crop, crop_size, size, sent_mask)
     marked = mark_objects(sent, in_sent)  # several objects: their numbers on the image sent
-    # Encoded once: sent, and kept as vlm/crop.png. What a model is sent stays deflated (its
-    # bytes are in the request's digest: cached answers and cassettes still match); a backend
-    # that asks no model is sent nothing, and the file is stored like the other run images.
-    crop_png = png_bytes(marked, stored=not asks_model)
+    crop_png = png_bytes(marked)  # encoded once: sent, and kept as vlm/crop.png
     image_url = png_data_url(marked, crop_png)
     base = PlanRequest(
         instruction=task.instruction,
