@@ -195,6 +195,9 @@ def run_in_processes(
     from keymps.eval.broker import BROKERED_BACKEND
     from keymps.eval.turn import CpuTurn
 
+    from keymps.perception.board_model import lab_tables_ready
+
+    lab_tables_ready()  # a forked worker inherits the tables, and no thread of their build
     forking = fork_here(backend)
     context: Any = multiprocessing.get_context("fork" if forking else "forkserver")
     if not forking:
