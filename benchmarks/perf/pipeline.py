@@ -25,10 +25,12 @@ with main's checkout), the CLI run, the warm computation, the recording and the 
 measured for that version, interleaved with this one's: before/after figures from one run, on
 one machine load.
 
-Every command runs with keymps' bytecode compiled beforehand, in a temporary PYTHONPYCACHEPREFIX
-(the checkout is not touched), as pip leaves an installed package and as a checkout is after its
+Every command runs with keymps' bytecode compiled beforehand (into the checkout's __pycache__
+folders, which git ignores), as pip leaves an installed package and as a checkout is after its
 first run: without that, PYTHONDONTWRITEBYTECODE and a checkout without __pycache__ make every
-run compile all of keymps again (about 0.1 s). `--no-bytecode` measures that case.
+run compile all of keymps again (about 0.1 s per process). `--no-bytecode` measures that case.
+(A PYTHONPYCACHEPREFIX would also move every installed package's bytecode, which would then be
+compiled again by the first command of each kind.)
 
 Targets: cli_vs_import_floor <= 2.5, warm_ms_per_trajectory_s <= 4, icing_recording_mb < 2,
 eval_cutting_sim_runs_per_s > 8 (2 cores). The last lines are machine-readable `name: value`.
@@ -272,10 +274,10 @@ def eval_rate(folder: Path, repeats: int, baseline: Path | None = None) -> tuple
     return runs / elapsed, runs
 
 
-def cache_bytecode(folder: Path, pythons: list[str]) -> None:
-    """Compile each interpreter's keymps into a private bytecode cache that every child uses."""
+def cache_bytecode(pythons: list[str]) -> None:
+    """Compile each interpreter's keymps where Python keeps bytecode (its __pycache__ folders,
+    ignored by git), and let every child read and write bytecode as on a user's machine."""
     os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
-    os.environ["PYTHONPYCACHEPREFIX"] = str(folder / "pycache")
     compile_keymps = (
         "import compileall, os, keymps; "
         "compileall.compile_dir(os.path.dirname(keymps.__file__), quiet=1)"
@@ -303,7 +305,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as scratch:
         folder = Path(scratch)
         if not args.no_bytecode:
-            cache_bytecode(folder, [sys.executable] + ([str(baseline)] if baseline else []))
+            cache_bytecode([sys.executable] + ([str(baseline)] if baseline else []))
         cached = "not cached" if args.no_bytecode else "cached"
         print(f"load {load()} at start; {os.cpu_count()} cores; keymps bytecode {cached}")
 
