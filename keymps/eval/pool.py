@@ -194,7 +194,6 @@ def run_in_processes(
     (keymps.eval.broker) and every run is a worker's."""
     from keymps.eval.broker import BROKERED_BACKEND
     from keymps.eval.turn import CpuTurn
-
     from keymps.perception.board_model import lab_tables_ready
 
     lab_tables_ready()  # a forked worker inherits the tables, and no thread of their build
