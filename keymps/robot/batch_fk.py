@@ -10,6 +10,7 @@ configurations and refuses (returns None) any model it does not reproduce to 1e-
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -106,35 +107,20 @@ class BatchKinematics:
         """(n, 3) positions and (n, 3, 3) rotations of a frame placed at `placement` on `joint`
         (`cos_sin` as for `joint_poses`)."""
         qs = np.atleast_2d(np.asarray(qs, dtype=float))
-        if len(qs) > CHUNK:
-            parts = [
-                self.frame_poses(
-                    qs[a : a + CHUNK],
-                    joint,
-                    placement,
-                    None
-                    if cos_sin is None
-                    else (cos_sin[0][:, a : a + CHUNK], cos_sin[1][:, a : a + CHUNK]),
-                )
-                for a in range(0, len(qs), CHUNK)
-            ]
-            return np.concatenate([p for p, _ in parts]), np.concatenate([r for _, r in parts])
-        return self._frame(self.joint_poses(qs, cos_sin), joint, placement)
+        return _in_chunks(
+            qs, cos_sin, lambda q, cs: self._frame(self.joint_poses(q, cs), joint, placement)
+        )
 
     def frame_poses_and_origins(
         self, qs: np.ndarray, joint: int, placement: Any, extra: tuple[int, Any] | None = None
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """`frame_poses` and `origins` from one pass over the chain (the same values)."""
-        qs = np.atleast_2d(np.asarray(qs, dtype=float))
-        if len(qs) > CHUNK:
-            parts = [
-                self.frame_poses_and_origins(qs[a : a + CHUNK], joint, placement, extra)
-                for a in range(0, len(qs), CHUNK)
-            ]
-            return tuple(np.concatenate([part[k] for part in parts]) for k in range(3))  # type: ignore[return-value]
-        poses = self.joint_poses(qs)
-        position, rotation = self._frame(poses, joint, placement)
-        return position, rotation, self._origins(poses, extra)
+
+        def both(q: np.ndarray, _: Any) -> tuple[np.ndarray, ...]:
+            poses = self.joint_poses(q)
+            return (*self._frame(poses, joint, placement), self._origins(poses, extra))
+
+        return _in_chunks(np.atleast_2d(np.asarray(qs, dtype=float)), None, both)
 
     def frame_positions_and_x_axes(
         self,
@@ -170,11 +156,7 @@ class BatchKinematics:
     def origins(self, qs: np.ndarray, extra: tuple[int, Any] | None = None) -> np.ndarray:
         """(n, njoints - 1 [+ 1], 3): the joints' origins [and a frame's, (joint, placement)]."""
         qs = np.atleast_2d(np.asarray(qs, dtype=float))
-        if len(qs) > CHUNK:
-            return np.concatenate(
-                [self.origins(qs[a : a + CHUNK], extra) for a in range(0, len(qs), CHUNK)]
-            )
-        return self._origins(self.joint_poses(qs), extra)
+        return _in_chunks(qs, None, lambda q, _: self._origins(self.joint_poses(q), extra))
 
     def _agrees_with(self, model: Any) -> bool:
         import pinocchio as pin
@@ -192,6 +174,26 @@ class BatchKinematics:
                 ):
                     return False
         return True
+
+
+def _in_chunks(qs: np.ndarray, cos_sin: Any, compute: Callable[[np.ndarray, Any], Any]) -> Any:
+    """compute(qs, cos_sin) over chunks of at most CHUNK configurations (fresh memory for one
+    long pass costs more than the arithmetic), the arrays it returns concatenated: an array,
+    or a tuple of arrays."""
+    if len(qs) <= CHUNK:
+        return compute(qs, cos_sin)
+    parts = [
+        compute(
+            qs[a : a + CHUNK],
+            None
+            if cos_sin is None
+            else (cos_sin[0][:, a : a + CHUNK], cos_sin[1][:, a : a + CHUNK]),
+        )
+        for a in range(0, len(qs), CHUNK)
+    ]
+    if isinstance(parts[0], tuple):
+        return tuple(np.concatenate(column) for column in zip(*parts, strict=True))
+    return np.concatenate(parts)
 
 
 def _revolute_axis(joint: Any) -> np.ndarray | None:
