@@ -1,11 +1,15 @@
-"""keymps._memory: the keymps command keeps freed memory for the next arrays (glibc)."""
+"""keymps._memory: the keymps command keeps freed memory for the next arrays (glibc), and its
+garbage collector skips start-up."""
 
 from __future__ import annotations
 
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
+
+TASKS = Path(__file__).resolve().parents[1] / "tasks"
 
 FAULTS_OF_REPEATED_ARRAYS = """
 import resource, sys
@@ -56,3 +60,65 @@ def test_freed_arrays_are_reused_instead_of_faulted_in_again() -> None:
 def test_an_exported_malloc_setting_wins() -> None:
     changed, _ = _faults("keep", MALLOC_TRIM_THRESHOLD_="131072")
     assert changed == "False"
+
+
+def test_the_collector_is_off_for_start_up_and_on_with_start_up_frozen_after() -> None:
+    import gc
+
+    from keymps._memory import collector_paused_for_start_up
+
+    assert gc.isenabled()
+    with collector_paused_for_start_up() as start_up_done:
+        assert not gc.isenabled()
+        made_in_start_up = [[] for _ in range(1000)]
+        start_up_done()
+        assert gc.isenabled()
+        assert gc.get_freeze_count() >= len(made_in_start_up)  # never scanned again
+        start_up_done()  # a second call changes nothing
+        assert gc.isenabled()
+    assert gc.isenabled() and gc.get_freeze_count() == 0  # the process's own collector again
+
+
+def test_start_up_that_fails_leaves_the_collector_as_it_found_it() -> None:
+    import gc
+
+    from keymps._memory import collector_paused_for_start_up
+
+    gc.disable()
+    try:
+        with pytest.raises(RuntimeError), collector_paused_for_start_up():
+            raise RuntimeError("the task file is missing")
+        assert not gc.isenabled() and gc.get_freeze_count() == 0
+    finally:
+        gc.enable()
+    with pytest.raises(RuntimeError), collector_paused_for_start_up():
+        raise RuntimeError("the task file is missing")
+    assert gc.isenabled() and gc.get_freeze_count() == 0
+
+
+def test_keymps_run_collects_garbage_once_started(tmp_path: Path) -> None:
+    import gc
+
+    from click.testing import CliRunner
+
+    from keymps.cli.app import cli
+
+    seen: list[bool] = []
+    gc.callbacks.append(lambda phase, info: seen.append(phase == "start"))
+    try:
+        done = CliRunner().invoke(
+            cli,
+            [
+                "run",
+                str(TASKS / "cake_icing.yaml"),
+                "--rerun",
+                "off",
+                "--out",
+                str(tmp_path / "run"),
+            ],
+        )
+    finally:
+        gc.callbacks.pop()
+    assert done.exit_code == 0, done.output
+    assert any(seen)  # the stages ran with the collector on (start-up's objects frozen)
+    assert gc.isenabled() and gc.get_freeze_count() == 0

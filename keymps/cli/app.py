@@ -8,6 +8,7 @@ import importlib.util
 import os
 import sys
 import warnings
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -72,23 +73,43 @@ def cli() -> None:
 @user_errors
 def run(task_file: Path, rerun_mode: str, rerun_url: str | None, quiet: bool, **given: Any) -> None:
     """Run TASK (a task file) end to end: detect, plan, ground, compose, solve, time, check, execute."""
-    from keymps.perception.board_model import prepare_lab_tables
+    from keymps._memory import collector_paused_for_start_up
 
-    # The default detector's OpenCV tables (100 ms) are built on the other core while the task
-    # loads; the board detector would start them only when it is made, too late to be hidden.
-    prepare_lab_tables()
+    if rerun_mode == "connect" and not rerun_url:
+        raise click.UsageError("--rerun connect needs --rerun-url")
+    with collector_paused_for_start_up() as start_up_done:
+        _run(task_file, rerun_mode, rerun_url, quiet, given, start_up_done)
+
+
+def _run(
+    task_file: Path,
+    rerun_mode: str,
+    rerun_url: str | None,
+    quiet: bool,
+    given: dict[str, Any],
+    start_up_done: Callable[[], None],
+) -> None:
+    from keymps.perception.opencv_warmup import start_opencv_warmup
+
+    # OpenCV's Lab tables and fonts (120 ms; the default detector's colour conversion, the plan
+    # picture's numbers) are built on the other core while the task loads; the board detector
+    # would start them only when it is made, too late to be hidden.
+    start_opencv_warmup()
     from keymps.cli.output import RunPrinter
     from keymps.errors import KeympsError
     from keymps.pipeline.engine import run_task
     from keymps.run import Run
 
-    if rerun_mode == "connect" and not rerun_url:
-        raise click.UsageError("--rerun connect needs --rerun-url")
     printer = RunPrinter(quiet=quiet)
+
+    def stage_done(name: str, seconds: float, result: Any) -> None:
+        start_up_done()  # the first stage has run: from here on the objects are the run's own
+        printer.stage_done(name, seconds, result)
+
     try:
         finished = run_task(
             task_file,
-            on_stage=printer.stage_done,
+            on_stage=stage_done,
             rerun=rerun_mode,
             rerun_url=rerun_url,
             quiet=quiet,

@@ -88,11 +88,11 @@ def eval_command(
     # Runs are the unit of parallelism; set before NumPy loads OpenBLAS, whose helper threads
     # would otherwise spin on the other core after every matrix product.
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-    from keymps.perception.board_model import prepare_lab_tables
+    from keymps.perception.opencv_warmup import start_opencv_warmup
 
-    # OpenCV's Lab tables (100 ms) on the idle core while the suite loads; the worker processes
-    # forked from this one inherit them (keymps.eval.pool waits for the thread before forking)
-    prepare_lab_tables()
+    # OpenCV's Lab tables and fonts (120 ms) on the idle core while the suite loads; the worker
+    # processes forked from this one inherit them (keymps.eval.pool waits before forking)
+    start_opencv_warmup()
     from keymps.eval.report import markdown_table, write_summary
     from keymps.eval.runner import EvalOptions
     from keymps.eval.suites import load_suite

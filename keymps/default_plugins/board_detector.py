@@ -26,10 +26,10 @@ from keymps.perception.board_model import (
     distance_to_board,
     fit_board,
     lab_planes,
-    prepare_lab_tables,
     to_lab,
 )
 from keymps.perception.image_io import to_bgr8
+from keymps.perception.opencv_warmup import start_opencv_warmup
 from keymps.perception.search_area import (
     SearchArea,
     comparable_object_warnings,
@@ -51,7 +51,7 @@ TEXTURE_CONTRAST = 1.6
 class BoardOptions(BaseModel):
     """The detector section of a task file (every key but `name`)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(defer_build=True, extra="forbid", frozen=True)
 
     threshold: float | None = Field(default=None, gt=0, le=200)
     """Lab distance (Delta E) a pixel must be from the board model to be object; automatic
@@ -405,7 +405,7 @@ def _warnings(chosen: Region, pick: int, objects: list[Region], options: BoardOp
 
 def make_detector(options: dict[str, Any]) -> BoardDetector:
     detector = BoardDetector(parse_options(options))
-    prepare_lab_tables()  # OpenCV's first Lab conversion, on the other core while the run starts
+    start_opencv_warmup()  # OpenCV's Lab tables, on the other core while the run starts
     return detector
 
 

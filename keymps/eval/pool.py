@@ -194,9 +194,9 @@ def run_in_processes(
     (keymps.eval.broker) and every run is a worker's."""
     from keymps.eval.broker import BROKERED_BACKEND
     from keymps.eval.turn import CpuTurn
-    from keymps.perception.board_model import lab_tables_ready
+    from keymps.perception.opencv_warmup import opencv_ready
 
-    lab_tables_ready()  # a forked worker inherits the tables, and no thread of their build
+    opencv_ready()  # a forked worker inherits the tables and fonts, and no thread of their build
     forking = fork_here(backend)
     context: Any = multiprocessing.get_context("fork" if forking else "forkserver")
     if not forking:

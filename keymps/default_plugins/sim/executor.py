@@ -27,6 +27,7 @@ from keymps.default_plugins.sim.cut_sweep import (
     covered_length,
     edge_segments,
 )
+from keymps.perception.opencv_warmup import opencv_ready
 from keymps.plugin import RegisterExecutor, hookimpl, parse_options, require_validated
 from keymps.robot.safety_geometry import distance_to_polylines, row_norms
 from keymps.types import ExecutionReport, SceneImage, ToolPath, ValidatedTrajectory
@@ -52,7 +53,7 @@ CONTACT_COLOUR = (0, 0, 255)
 class SimOptions(BaseModel):
     """The executor section of a task file for `sim` (every key but `name`)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(defer_build=True, extra="forbid", frozen=True)
 
     replay_rate_hz: float = Field(1000.0, ge=10, le=10_000)
     """Forward kinematics is evaluated this often (joints interpolated between samples)."""
@@ -273,6 +274,7 @@ def _number_objects(image: np.ndarray, outlines_px: list[np.ndarray]) -> None:
     """Write 1, 2, ... (the object ids, in order) above each outline's top-left corner."""
     import cv2
 
+    opencv_ready()
     height, width = image.shape[:2]
     scale = max(0.45, min(width, height) / 700)
     thick = max(1, round(min(width, height) / 300))
