@@ -17,7 +17,7 @@ if TYPE_CHECKING:
 class FileOptions(BaseModel):
     """The executor section of a task file for `file` (every key but `name`)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True, populate_by_name=True)
+    model_config = ConfigDict(defer_build=True, extra="forbid", frozen=True, populate_by_name=True)
 
     csv: Path | None = Path("trajectory.csv")
     """Relative paths are inside the run folder; null skips the file."""

@@ -25,7 +25,7 @@ MAX_CAMERA_SIDE_PX = 2**16
 
 
 class FileOptions(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(defer_build=True, extra="forbid", frozen=True)
     path: Path | None = None
     """Read this file instead of scene.image (relative to the task file)."""
 
@@ -46,7 +46,7 @@ class FileSource:
 
 
 class SyntheticOptions(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(defer_build=True, extra="forbid", frozen=True)
     object: str | Annotated[list[str], Field(max_length=MAX_OBJECTS)] = "round_cake"
     """One object kind, or several (placed left to right)."""
     seed: int = Field(default=0, ge=0, le=2**63 - 1)
@@ -105,7 +105,7 @@ class SyntheticSource:
 
 
 class OpenCvOptions(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(defer_build=True, extra="forbid", frozen=True)
     camera: int | str = 0
     """A camera index (0, 1 ...), a video file, or a stream URL OpenCV can open."""
     warmup_frames: int = Field(default=5, ge=0, le=300)

@@ -21,7 +21,7 @@ if TYPE_CHECKING:
 
 
 class ReplayOptions(BaseModel):
-    model_config = ConfigDict(extra="allow")
+    model_config = ConfigDict(defer_build=True, extra="allow")
     cassette: str | None = None
 
 

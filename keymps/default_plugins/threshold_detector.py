@@ -24,7 +24,7 @@ from keymps.types import DetectedObject, Detection, SceneImage
 class ThresholdOptions(BaseModel):
     """The detector section of a task file (every key but `name`)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(defer_build=True, extra="forbid", frozen=True)
 
     threshold: int = Field(default=30, ge=1, le=254)
     """A pixel is object when its blurred intensity differs from the background by more."""

@@ -38,7 +38,7 @@ _ENVIRONMENT_SIGNED = {"bedrock", "sagemaker", "vertex_ai", "vertex_ai_beta"}
 
 
 class LitellmOptions(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(defer_build=True, extra="forbid")
     model: str | None = None
     api_base: str | None = None
     api_key_env: str | None = None
