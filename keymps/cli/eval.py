@@ -170,12 +170,11 @@ def _perception(folder: Path, hundreds: int) -> None:
 
 def _run(suite: Suite, options: EvalOptions, quiet: bool) -> list[dict[str, Any]]:
     """Every run of the suite, with a progress bar unless quiet."""
-    from keymps.eval.report import import_pyplot
     from keymps.eval.runner import plan_jobs, run_suite
 
     total = len(plan_jobs(suite, options))
     if quiet:
-        return run_suite(suite, options, when_idle=import_pyplot)
+        return run_suite(suite, options)
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn
 
     from keymps.eval.pool import OFFLINE_BACKENDS
@@ -201,6 +200,6 @@ def _run(suite: Suite, options: EvalOptions, quiet: bool) -> list[dict[str, Any]
         progress.update(bar, advance=1, description=f"{suite.name}: {job.label} {status}")  # type: ignore[attr-defined]
 
     try:
-        return run_suite(suite, options, on_result=advance, when_idle=import_pyplot)
+        return run_suite(suite, options, on_result=advance)
     finally:
         progress.stop()

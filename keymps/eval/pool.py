@@ -28,8 +28,8 @@ As in any multiprocessing program, a script that runs a suite with processes > 1
 
 from __future__ import annotations
 
-import contextlib
 import functools
+import gc
 import multiprocessing
 import os
 import queue
@@ -184,14 +184,12 @@ def run_in_processes(
     on_record: Callable[[Job, dict[str, Any]], None],
     broker: VlmBroker,
     job_runner: JobRunner,
-    when_idle: Callable[[], Any] | None = None,
 ) -> None:
     """Run `jobs` in `processes` processes; call on_record in this process as each one ends.
 
     With an offline backend this process is one of them: it takes jobs from the same queue as
-    its workers from the start (after `when_idle`, its share of the work that is not a run), so
-    no core waits for the workers to start. With a VLM this process makes the calls
-    (keymps.eval.broker) and every run is a worker's."""
+    its workers from the start, so no core waits for the workers to start. With a VLM this
+    process makes the calls (keymps.eval.broker) and every run is a worker's."""
     from keymps.eval.broker import BROKERED_BACKEND
     from keymps.eval.turn import CpuTurn
     from keymps.perception.opencv_warmup import opencv_ready
@@ -225,6 +223,9 @@ def run_in_processes(
         for index, threads in enumerate(shares)
     ]  # fmt: skip
     if forking:  # before this process has any other thread (a queue's feeder included)
+        # Python's recipe for a fork without exec: what this process made so far is never
+        # scanned by a worker's garbage collector, so its pages stay shared, not copied
+        gc.freeze()
         for worker in workers:
             worker.start()
     for job in jobs:
@@ -245,9 +246,6 @@ def run_in_processes(
     starting = threading.Thread(target=start_workers, name="keymps-eval-start")
 
     def compute_here() -> None:
-        if when_idle is not None:
-            with contextlib.suppress(Exception):  # only ever a head start
-                when_idle()
         _take_jobs(
             suite, options, backend, here, job_queue, result_queue, job_runner,
             CpuTurn(active=False), None, stop_computing,
@@ -267,6 +265,8 @@ def run_in_processes(
             on_record(job, record)
             received += 1
     finally:
+        if forking:
+            gc.unfreeze()  # this process's collector as it was (a caller's process goes on)
         stop_computing.set()
         starting.join()  # a worker still starting reads the end of the queue and leaves
         for worker in workers:

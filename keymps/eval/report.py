@@ -167,7 +167,7 @@ def _overall(rows: list[Row], suite: Suite) -> list[str]:
 
 
 def write_summary(records: list[dict[str, Any]], suite: Suite, out: Path) -> list[Row]:
-    """summary.md, summary.csv, box plots (when matplotlib is installed) and gallery.html."""
+    """summary.md, summary.csv, the box plot and gallery.html."""
     rows = summarize(records, suite)
     errors = [f"- case {r.case} / {r.method}: {e}" for r in rows for e in r.errors]
     text = [
@@ -223,22 +223,10 @@ def _write_csv(rows: list[Row], path: Path) -> None:
             )
 
 
-def import_pyplot() -> Any:
-    """matplotlib.pyplot on the Agg backend, or None when matplotlib is not installed (0.3-0.7 s
-    of imports: `keymps eval` has it done while its worker processes compute, see run_suite's
-    when_idle)."""
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        return None
-    return plt
-
-
 def write_box_plots(records: list[dict[str, Any]], suite: Suite, out: Path) -> list[Path]:
-    """One PNG per method: D per case as box plots, in the style of the paper's Figs. 9-12."""
+    """d_boxplot.png (keymps.eval.box_plot): D per case, one box per method; none without D."""
+    from keymps.eval.box_plot import write_box_plot
+
     values: dict[str, dict[str, list[float]]] = {}
     for record in records:
         if record.get("d_mm") is not None:
@@ -247,44 +235,9 @@ def write_box_plots(records: list[dict[str, Any]], suite: Suite, out: Path) -> l
             )
     if not values:
         return []
-    plt = import_pyplot()
-    if plt is None:
-        return []
-    order = [c.id for c in suite.cases]
-    methods = sorted(values)
-    cases = [c for c in order if any(c in values[m] for m in methods)]
-    figure, axis = plt.subplots(
-        figsize=(min(16.0, max(6.0, 0.45 * len(cases) * len(methods) + 2)), 4.0)
-    )
-    width = 0.8 / len(methods)
-    for index, method in enumerate(methods):
-        data = [values[method].get(c, []) for c in cases]
-        positions = [i + (index - (len(methods) - 1) / 2) * width for i in range(len(cases))]
-        kept = [(p, d) for p, d in zip(positions, data, strict=True) if d]
-        boxes = axis.boxplot(
-            [d for _, d in kept],
-            positions=[p for p, _ in kept],
-            widths=width * 0.9,
-            patch_artist=True,
-            manage_ticks=False,
-        )
-        colour = plt.get_cmap("tab10")(index)
-        for patch in boxes["boxes"]:
-            patch.set_facecolor(colour)
-            patch.set_alpha(0.6)
-        axis.plot([], [], color=colour, linewidth=6, alpha=0.6, label=method)
-    axis.set_xticks(range(len(cases)))
-    axis.set_xticklabels(cases)
-    axis.set_xlabel("case")
-    axis.set_ylabel("D (mm)")
-    axis.set_title(f"{suite.name}: average error to the nearest unique ground-truth point")
-    axis.grid(axis="y", alpha=0.3)
-    axis.legend(fontsize=8)
-    figure.tight_layout()
-    path = out / "d_boxplot.png"
-    figure.savefig(path, dpi=120)
-    plt.close(figure)
-    return [path]
+    cases = [c.id for c in suite.cases if any(c.id in by_case for by_case in values.values())]
+    title = f"{suite.name}: average error to the nearest unique ground-truth point"
+    return [write_box_plot(values, cases, title, out / "d_boxplot.png")]
 
 
 def write_gallery(records: list[dict[str, Any]], suite: Suite, out: Path) -> Path:

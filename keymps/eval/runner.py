@@ -420,14 +420,11 @@ def run_suite(
     suite: Suite,
     options: EvalOptions,
     on_result: ProgressCallback | None = None,
-    when_idle: Callable[[], Any] | None = None,
 ) -> list[dict[str, Any]]:
     """Run every job not yet in out/results.jsonl; return all records for these jobs.
 
-    `when_idle` is called once in this process before it computes runs beside its worker
-    processes, which meanwhile take more of the runs (the CLI imports the box plots'
-    matplotlib then, instead of after the last run). Jobs start heaviest first
-    (heaviest_first): the last to end are short, so neither core waits long for the other."""
+    Jobs start heaviest first (heaviest_first): the last to end are short, so neither core
+    waits long for the other."""
     from keymps.eval.broker import BROKERED_BACKEND, VlmBroker
     from keymps.eval.methods import check_runnable, get_method
     from keymps.eval.pool import OFFLINE_BACKENDS, JobRunner, default_processes, run_in_processes
@@ -469,9 +466,7 @@ def run_suite(
     try:
         if processes > 1:
             runner = JobRunner(run=run_job, record=job_record)
-            run_in_processes(
-                suite, todo, options, backend, processes, finished, broker, runner, when_idle
-            )
+            run_in_processes(suite, todo, options, backend, processes, finished, broker, runner)
         else:
             _run_in_threads(suite, todo, options, backend, finished, broker, turn)
     finally:
