@@ -88,55 +88,62 @@ def eval_command(
     # Runs are the unit of parallelism; set before NumPy loads OpenBLAS, whose helper threads
     # would otherwise spin on the other core after every matrix product.
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-    from keymps.perception.opencv_warmup import start_opencv_warmup
+    from keymps._memory import collector_paused_for_start_up
 
-    # OpenCV's Lab tables and fonts (120 ms) on the idle core while the suite loads; the worker
-    # processes forked from this one inherit them (keymps.eval.pool waits before forking)
-    start_opencv_warmup()
-    from keymps.eval.report import markdown_table, write_summary
-    from keymps.eval.runner import EvalOptions
-    from keymps.eval.suites import load_suite
+    with collector_paused_for_start_up() as start_up_done:
+        from keymps.perception.opencv_warmup import start_opencv_warmup
 
-    suite = load_suite(suite_file)
-    chosen = methods or ("keymps",)
-    folder = out or Path("eval") / "-".join([suite.name, *([m for m in chosen] if methods else [])])
-    options = EvalOptions(
-        out=folder,
-        methods=tuple(dict.fromkeys(chosen)),
-        repeats=repeats,
-        concurrency=concurrency,
-        processes=processes,
-        backend=backend,
-        model=model,
-        api_base=api_base,
-        cases=cases,
-        no_cache=no_cache,
-        image_format=image_format,
-    )
-    try:
-        records = _run(suite, options, quiet)
-    except KeyboardInterrupt:
-        from keymps.eval.runner import RESULTS_FILE, read_results
+        # OpenCV's Lab tables and fonts (120 ms) on the idle core while the suite loads; the worker
+        # processes forked from this one inherit them (keymps.eval.pool waits before forking)
+        start_opencv_warmup()
+        from keymps.eval.report import markdown_table, write_summary
+        from keymps.eval.runner import EvalOptions
+        from keymps.eval.suites import load_suite
 
-        kept = len(read_results(folder / RESULTS_FILE))
-        click.echo(
-            f"interrupted: {kept} finished runs are in {folder / RESULTS_FILE}; run the same "
-            "command again to resume",
-            err=True,
+        suite = load_suite(suite_file)
+        chosen = methods or ("keymps",)
+        folder = out or Path("eval") / "-".join(
+            [suite.name, *([m for m in chosen] if methods else [])]
         )
-        sys.exit(130)
-    rows = write_summary(records, suite, folder)
-    click.echo(markdown_table(rows, suite))
-    failed = sum(1 for r in records if not r.get("ok"))
-    click.echo(
-        f"{len(records)} runs ({failed} failed); results in {folder}/ "
-        "(results.jsonl, summary.md, summary.csv, gallery.html)"
-    )
-    from keymps.cli.app import everything_written
+        options = EvalOptions(
+            out=folder,
+            methods=tuple(dict.fromkeys(chosen)),
+            repeats=repeats,
+            concurrency=concurrency,
+            processes=processes,
+            backend=backend,
+            model=model,
+            api_base=api_base,
+            cases=cases,
+            no_cache=no_cache,
+            image_format=image_format,
+        )
+        # start-up's objects frozen: never scanned again, here or in the forked workers
+        start_up_done()
+        try:
+            records = _run(suite, options, quiet)
+        except KeyboardInterrupt:
+            from keymps.eval.runner import RESULTS_FILE, read_results
 
-    # results.jsonl is synced record by record, the summaries are written and closed and the
-    # workers have ended (skipping the teardown saves 0.3-0.5 s here)
-    everything_written()
+            kept = len(read_results(folder / RESULTS_FILE))
+            click.echo(
+                f"interrupted: {kept} finished runs are in {folder / RESULTS_FILE}; run the same "
+                "command again to resume",
+                err=True,
+            )
+            sys.exit(130)
+        rows = write_summary(records, suite, folder)
+        click.echo(markdown_table(rows, suite))
+        failed = sum(1 for r in records if not r.get("ok"))
+        click.echo(
+            f"{len(records)} runs ({failed} failed); results in {folder}/ "
+            "(results.jsonl, summary.md, summary.csv, gallery.html)"
+        )
+        from keymps.cli.app import everything_written
+
+        # results.jsonl is synced record by record, the summaries are written and closed and the
+        # workers have ended (skipping the teardown saves 0.3-0.5 s here)
+        everything_written()
 
 
 PERCEPTION = "perception"
