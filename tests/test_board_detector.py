@@ -237,60 +237,52 @@ def test_every_object_of_a_pair_is_found_whatever_their_contrasts() -> None:
     assert not missed, f"{len(missed)} of 156 scenes: " + "; ".join(missed[:5])
 
 
-OPENCV_FIRST_USES = """
+LAB_OF_A_RANDOM_IMAGE = """
 import hashlib, sys, threading
 import numpy as np
 image = np.random.default_rng(7).integers(0, 256, (240, 320, 3), dtype=np.uint8)
-canvas = np.zeros((60, 200, 3), np.uint8)
 if sys.argv[1] == "thread":
     from keymps.plugin.manager import create_component
-    create_component("detector", "board", {})  # starts OpenCV's warm-up on another thread
-    print(any(t.name == "keymps-opencv-warmup" for t in threading.enumerate()))
+    create_component("detector", "board", {})  # starts OpenCV's Lab tables on another thread
+    print(any(t.name == "keymps-lab-tables" for t in threading.enumerate()))
     from keymps.perception.board_model import to_lab
     lab = to_lab(image)
-    from keymps.perception.opencv_warmup import opencv_ready
-    opencv_ready()
 else:
+    import cv2
     print(True)
-import cv2
-if sys.argv[1] == "direct":
     lab = cv2.cvtColor(image.astype(np.float32) / 255.0, cv2.COLOR_BGR2Lab)
-cv2.putText(canvas, "1 2 3", (5, 40), cv2.FONT_HERSHEY_SIMPLEX, 1.2, (0, 255, 0), 2, cv2.LINE_AA)
-size = cv2.getTextSize("10", cv2.FONT_HERSHEY_PLAIN, 0.8, 1)
 print(hashlib.sha256(np.ascontiguousarray(lab).tobytes()).hexdigest())
-print(hashlib.sha256(canvas.tobytes()).hexdigest(), size)
 """
 
 
-def test_opencv_warmed_up_on_another_thread_converts_and_writes_as_opencv_does() -> None:
+def test_lab_tables_built_on_another_thread_give_opencvs_conversion() -> None:
     import subprocess
     import sys
 
-    def first_uses(how: str) -> list[str]:
+    def lab(how: str) -> list[str]:
         done = subprocess.run(
-            [sys.executable, "-c", OPENCV_FIRST_USES, how],
+            [sys.executable, "-c", LAB_OF_A_RANDOM_IMAGE, how],
             capture_output=True,
             text=True,
             check=True,
             timeout=60,
         )
-        return done.stdout.splitlines()
+        return done.stdout.split()
 
-    threaded, direct = first_uses("thread"), first_uses("direct")
+    threaded, direct = lab("thread"), lab("direct")
     assert threaded[0] == "True"  # the thread was running when the detector was made
     assert threaded[1] == direct[1]  # the same float32 Lab, bit for bit
-    assert threaded[2] == direct[2]  # the same text pixels and text size
 
 
-def test_keymps_run_starts_opencvs_warmup_before_it_reads_the_task(tmp_path: Path) -> None:
+def test_keymps_run_starts_the_lab_tables_before_it_reads_the_task(tmp_path: Path) -> None:
     import subprocess
     import sys
 
     # the task file does not exist: the run stops at loading it, the thread must be running
     check = (
-        "import sys; from keymps.cli.app import cli; from keymps.perception import opencv_warmup\n"
+        "import sys; from keymps.cli.app import cli; from keymps.perception import board_model\n"
         "try:\n    cli(['run', sys.argv[1], '--rerun', 'off'])\nexcept SystemExit:\n    pass\n"
-        "print(opencv_warmup._thread is not None)"
+        "print(board_model._lab_tables is not None)"
     )
     done = subprocess.run(
         [sys.executable, "-c", check, str(tmp_path / "missing.yaml")],

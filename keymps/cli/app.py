@@ -89,12 +89,11 @@ def _run(
     given: dict[str, Any],
     start_up_done: Callable[[], None],
 ) -> None:
-    from keymps.perception.opencv_warmup import start_opencv_warmup
+    from keymps.perception.board_model import prepare_lab_tables
 
-    # OpenCV's Lab tables and fonts (120 ms; the default detector's colour conversion, the plan
-    # picture's numbers) are built on the other core while the task loads; the board detector
-    # would start them only when it is made, too late to be hidden.
-    start_opencv_warmup()
+    # The default detector's OpenCV tables (100 ms) are built on the other core while the task
+    # loads; the board detector would start them only when it is made, too late to be hidden.
+    prepare_lab_tables()
     from keymps.cli.output import RunPrinter
     from keymps.errors import KeympsError
     from keymps.pipeline.engine import run_task

@@ -91,11 +91,11 @@ def eval_command(
     from keymps._memory import collector_paused_for_start_up
 
     with collector_paused_for_start_up() as start_up_done:
-        from keymps.perception.opencv_warmup import start_opencv_warmup
+        from keymps.perception.board_model import prepare_lab_tables
 
-        # OpenCV's Lab tables and fonts (120 ms) on the idle core while the suite loads; the worker
+        # OpenCV's Lab tables (100 ms) on the idle core while the suite loads; the worker
         # processes forked from this one inherit them (keymps.eval.pool waits before forking)
-        start_opencv_warmup()
+        prepare_lab_tables()
         from keymps.eval.report import markdown_table, write_summary
         from keymps.eval.runner import EvalOptions
         from keymps.eval.suites import load_suite

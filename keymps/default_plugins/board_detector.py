@@ -26,10 +26,10 @@ from keymps.perception.board_model import (
     distance_to_board,
     fit_board,
     lab_planes,
+    prepare_lab_tables,
     to_lab,
 )
 from keymps.perception.image_io import to_bgr8
-from keymps.perception.opencv_warmup import start_opencv_warmup
 from keymps.perception.search_area import (
     SearchArea,
     comparable_object_warnings,
@@ -405,7 +405,7 @@ def _warnings(chosen: Region, pick: int, objects: list[Region], options: BoardOp
 
 def make_detector(options: dict[str, Any]) -> BoardDetector:
     detector = BoardDetector(parse_options(options))
-    start_opencv_warmup()  # OpenCV's Lab tables, on the other core while the run starts
+    prepare_lab_tables()  # OpenCV's first Lab conversion, on the other core while the run starts
     return detector
 
 

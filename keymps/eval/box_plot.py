@@ -90,9 +90,6 @@ def draw_box_plot(
     """The box plot as a BGR image, DPI pixels per inch, HEIGHT_PX high."""
     import cv2
 
-    from keymps.perception.opencv_warmup import opencv_ready
-
-    opencv_ready()
     methods = sorted(values)
     width_in = min(16.0, max(6.0, 0.45 * len(cases) * len(methods) + 2))
     width, height = round(width_in * DPI), HEIGHT_PX

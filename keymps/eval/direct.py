@@ -15,7 +15,6 @@ import numpy as np
 
 from keymps.eval.context import MethodContext, MethodOutput
 from keymps.eval.vlm import Seen, ask, look
-from keymps.perception.opencv_warmup import opencv_ready
 from keymps.planning.answer import strict_object_schema
 
 
@@ -31,7 +30,6 @@ def _finish(
 
     frame = ImageFrame.from_task(seen.task, seen.scene.size_px)
     image = seen.scene.image.copy()
-    opencv_ready()
     for index, piece in enumerate(output.work_pieces):
         pixels = np.round(frame.to_pixels(np.asarray(piece)[:, :2])).astype(np.int32)
         cv2.polylines(image, [pixels.reshape(-1, 1, 2)], False, (0, 0, 255), 2, cv2.LINE_AA)

@@ -192,9 +192,9 @@ def run_in_processes(
     process makes the calls (keymps.eval.broker) and every run is a worker's."""
     from keymps.eval.broker import BROKERED_BACKEND
     from keymps.eval.turn import CpuTurn
-    from keymps.perception.opencv_warmup import opencv_ready
+    from keymps.perception.board_model import lab_tables_ready
 
-    opencv_ready()  # a forked worker inherits the tables and fonts, and no thread of their build
+    lab_tables_ready()  # a forked worker inherits the tables, and no thread of their build
     forking = fork_here(backend)
     context: Any = multiprocessing.get_context("fork" if forking else "forkserver")
     if not forking:

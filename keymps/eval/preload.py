@@ -30,7 +30,7 @@ import keymps.eval.truth  # noqa: E402, F401
 import keymps.pipeline.engine  # noqa: E402, F401
 import keymps.planning.planner  # noqa: E402, F401
 import keymps.scenes.render  # noqa: E402, F401
-from keymps.perception.opencv_warmup import opencv_ready, start_opencv_warmup  # noqa: E402
+from keymps.perception.board_model import lab_tables_ready, prepare_lab_tables  # noqa: E402
 
 LAZY_MODULES = (
     # what a run's stages and the default plugins import when first used
@@ -61,10 +61,12 @@ def _preload() -> None:
         # a plugin that is not installed is imported by nobody
         with contextlib.suppress(ImportError):
             importlib.import_module(name)
-    # what every worker's first run would otherwise pay: OpenCV's Lab tables and fonts (about
-    # 120 ms), the board and noise field of the default 0.30 x 0.18 m board at 2000 px/m (25 ms)
-    start_opencv_warmup()
-    opencv_ready()
+    # what every worker's first run would otherwise pay: OpenCV's first text (its font, 20 ms),
+    # the board and noise field of the default 0.30 x 0.18 m board at 2000 px/m (25 ms)
+    cv2.getTextSize("0", cv2.FONT_HERSHEY_SIMPLEX, 0.5, 1)
+    # OpenCV's Lab tables (about 100 ms): built once here, not in every worker's first detection
+    prepare_lab_tables()
+    lab_tables_ready()
     keymps.scenes.render.render_scene(keymps.scenes.render.SceneSpec.from_kinds(["round_cake"]))
 
 

@@ -14,21 +14,53 @@ full. Units are Lab (Delta E 1976): about 2.3 is the smallest difference a perso
 
 from __future__ import annotations
 
+import contextlib
+import threading
 from dataclasses import dataclass
 
 import numpy as np
 
-from keymps.perception.opencv_warmup import opencv_ready
-
 MAX_SAMPLES = 12_000
 """Board pixels used for one fit (drawn evenly); more change the surface by nothing visible."""
+
+_lab_tables: threading.Thread | None = None
+_lab_tables_lock = threading.Lock()
+
+
+def prepare_lab_tables() -> None:
+    """Have OpenCV build its Lab conversion tables on another thread (once per process).
+
+    OpenCV builds them on a process's first conversion to or from Lab: about 100 ms of software
+    floating point, with the GIL released, so on a second core it costs the run nothing. The
+    board detector starts it when it is made, well before the run detects."""
+    global _lab_tables
+    with _lab_tables_lock:
+        if _lab_tables is None:
+            _lab_tables = threading.Thread(
+                target=_build_lab_tables, name="keymps-lab-tables", daemon=True
+            )
+            _lab_tables.start()
+
+
+def lab_tables_ready() -> None:
+    """Wait for prepare_lab_tables' thread, if any. OpenCV's table build is not thread-safe:
+    every Lab conversion calls this first (after a fork the thread is gone and this returns)."""
+    if _lab_tables is not None:
+        _lab_tables.join()
+
+
+def _build_lab_tables() -> None:
+    with contextlib.suppress(Exception):  # the conversion itself will report any problem
+        import cv2
+
+        cv2.cvtColor(np.zeros((1, 1, 3), np.float32), cv2.COLOR_BGR2Lab)
 
 
 def to_lab(image: np.ndarray) -> np.ndarray:
     """BGR uint8 (H x W x 3) -> float32 CIE Lab: L in [0, 100], a and b about [-128, 127]."""
     import cv2
 
-    opencv_ready()
+    lab_tables_ready()
     scaled = np.divide(image, np.float32(255.0), dtype=np.float32)  # one pass: astype, then / 255
     return np.asarray(cv2.cvtColor(scaled, cv2.COLOR_BGR2Lab))
 

@@ -13,7 +13,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from keymps.errors import KeympsError
-from keymps.perception.opencv_warmup import opencv_ready
 
 DICTIONARY_NAME = "DICT_4X4_50"
 CORNER_NAMES = ("bottom-left", "bottom-right", "top-right", "top-left")
@@ -120,7 +119,6 @@ def marker_sheet(marker_mm: float, dpi: int = 300) -> np.ndarray:
     """A printable page (A4 portrait at dpi) of markers 0-3, each labelled with its corner."""
     import cv2
 
-    opencv_ready()
     px_per_mm = dpi / 25.4
     page = np.full((round(297 * px_per_mm), round(210 * px_per_mm)), 255, np.uint8)
     side = round(marker_mm * px_per_mm)

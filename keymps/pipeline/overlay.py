@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from keymps.perception.opencv_warmup import opencv_ready
 from keymps.types import Detection, Plan, SceneImage
 
 RED = (0, 0, 255)
@@ -39,7 +38,6 @@ def draw_plan(
     """
     import cv2
 
-    opencv_ready()  # its fonts may still be being built on the warm-up thread
     canvas = _as_bgr(image)
     if scale != 1.0:
         size = (round(canvas.shape[1] * scale), round(canvas.shape[0] * scale))

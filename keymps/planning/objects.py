@@ -13,7 +13,6 @@ import math
 import numpy as np
 
 from keymps.errors import KeympsError
-from keymps.perception.opencv_warmup import opencv_ready
 from keymps.perception.scene_objects import SceneObject, object_mask
 from keymps.types import PlanObject
 
@@ -109,7 +108,6 @@ def mark_objects(crop: np.ndarray, objects: tuple[PlanObject, ...]) -> np.ndarra
 
     if len(objects) <= 1:
         return crop
-    opencv_ready()
     marked = np.ascontiguousarray(crop.copy())
     height, width = marked.shape[:2]
     scale = max(0.4, min(width, height) / 500)

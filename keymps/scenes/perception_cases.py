@@ -59,9 +59,9 @@ def lab_to_bgr(lab: np.ndarray) -> np.ndarray:
     """Float Lab (..., 3) -> float BGR 0-255."""
     import cv2
 
-    from keymps.perception.opencv_warmup import opencv_ready
+    from keymps.perception.board_model import lab_tables_ready
 
-    opencv_ready()  # a board detector made before may be building OpenCV's Lab tables
+    lab_tables_ready()  # a board detector made before may be building OpenCV's Lab tables
     lab = np.asarray(lab, np.float32).reshape(-1, 1, 3)
     return np.clip(cv2.cvtColor(lab, cv2.COLOR_Lab2BGR).reshape(-1, 3) * 255.0, 0, 255)
 

@@ -27,7 +27,6 @@ from keymps.default_plugins.sim.cut_sweep import (
     covered_length,
     edge_segments,
 )
-from keymps.perception.opencv_warmup import opencv_ready
 from keymps.plugin import RegisterExecutor, hookimpl, parse_options, require_validated
 from keymps.robot.safety_geometry import distance_to_polylines, row_norms
 from keymps.types import ExecutionReport, SceneImage, ToolPath, ValidatedTrajectory
@@ -274,7 +273,6 @@ def _number_objects(image: np.ndarray, outlines_px: list[np.ndarray]) -> None:
     """Write 1, 2, ... (the object ids, in order) above each outline's top-left corner."""
     import cv2
 
-    opencv_ready()
     height, width = image.shape[:2]
     scale = max(0.45, min(width, height) / 700)
     thick = max(1, round(min(width, height) / 300))
