@@ -359,13 +359,20 @@ def _near_bound(points: np.ndarray, polygon: np.ndarray) -> float | None:
     """A bound on the points' distances to the polygon (the farthest point's distance to the
     nearest of 64 of the corners) when it is small beside the polygon (the grid pass then
     answers for every point with few segments per cell), else None."""
+    low, high = polygon.min(axis=0), polygon.max(axis=0)
+    small = float((high - low).max()) / 16
+    # no corner is nearer than the polygon's box: one point that far from the box decides
+    off_box = np.maximum(np.maximum(low - points, points - high), 0.0)
+    if float((off_box * off_box).sum(axis=1).max()) > small * small:
+        return None
     corners = polygon[:: max(1, len(polygon) // 64)]
     bound = 0.0
     for start in range(0, len(points), 1024):
         gaps = points[start : start + 1024, None, :] - corners[None]
         bound = max(bound, float(np.sqrt((gaps**2).sum(axis=2)).min(axis=1).max()))
-    extent = float((polygon.max(axis=0) - polygon.min(axis=0)).max())
-    return bound if bound <= extent / 16 else None
+        if bound > small:  # (the rest cannot make it small again)
+            return None
+    return bound
 
 
 def inside_polygon(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
