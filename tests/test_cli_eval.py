@@ -75,6 +75,12 @@ def spy(method=None):
     print("start method", method, file=sys.stderr, flush=True)
     return real(method)
 multiprocessing.get_context = spy
+import gc, os
+real_fork = os.fork
+def fork():  # the worker never scans (nor copies the pages of) what this process made
+    print("frozen at fork", gc.get_freeze_count() > 10_000, file=sys.stderr, flush=True)
+    return real_fork()
+os.fork = fork
 from keymps.cli.app import main
 sys.argv = ["keymps", *sys.argv[1:]]
 main()
@@ -99,6 +105,7 @@ def test_a_worker_forked_from_the_eval_process_scores_the_same(
     )  # fmt: skip
     assert done.returncode == 0, done.stderr
     assert "start method fork\n" in done.stderr
+    assert "frozen at fork True\n" in done.stderr
 
     def timeless(records: list[dict[str, Any]]) -> dict[tuple[Any, ...], dict[str, Any]]:
         return {
@@ -119,6 +126,15 @@ def test_eval_writes_png_images_when_asked(tmp_path: Path) -> None:
     plan = out / record["images"]["plan"]
     assert plan.name == "plan.png" and plan.read_bytes().startswith(b"\x89PNG")
     assert "plan.png" in (out / "gallery.html").read_text()
+
+
+def test_an_eval_in_this_process_leaves_its_garbage_collector_as_it_was(
+    offline_run: Path,
+) -> None:
+    import gc
+
+    assert offline_run.is_dir()  # (an eval has run in this process)
+    assert gc.isenabled() and gc.get_freeze_count() == 0
 
 
 def test_offline_eval_writes_the_summary_files(offline_run: Path) -> None:
