@@ -262,3 +262,28 @@ def test_the_numpy_assignment_is_scipys_on_generated_motions() -> None:
         assert cost[np.arange(rows_n), mine].sum() == pytest.approx(
             cost[np.arange(rows_n), columns].sum(), rel=1e-12
         )
+
+
+def test_the_numpy_assignment_with_capacities_is_scipys_on_copied_columns() -> None:
+    """A column taking k rows is the same as k copies of it (how metric_d_both merges copies
+    of a point), also when the rows are copies of each other."""
+    from scipy.optimize import linear_sum_assignment
+
+    from keymps.eval.metric import min_cost_assignment
+
+    rng = np.random.default_rng(20261204)
+    for _ in range(150):
+        rows_n, columns_n = int(rng.integers(1, 40)), int(rng.integers(1, 30))
+        capacity = rng.integers(1, 5, columns_n)
+        while capacity.sum() < rows_n:
+            capacity += 1
+        cost = rng.random((rows_n, columns_n))
+        if rng.random() < 0.3:  # repeated rows, and ties
+            cost = np.round(cost[rng.integers(0, max(1, rows_n // 3), rows_n)], 1)
+        copies = np.repeat(np.arange(columns_n), capacity)
+        _, expected = linear_sum_assignment(cost[:, copies])
+        mine = min_cost_assignment(cost, capacity)
+        assert (np.bincount(mine, minlength=columns_n) <= capacity).all()
+        assert cost[np.arange(rows_n), mine].sum() == pytest.approx(
+            cost[np.arange(rows_n), copies[expected]].sum(), rel=1e-12, abs=1e-15
+        )

@@ -302,10 +302,11 @@ def metric_d_both(
     """(metric_d, metric_d_optimal) of the same motion, its nearest candidates listed once."""
     reference, candidates = _prepare(ground_truth, generated, n)
     greedy, nearest = _greedy_from_lists(reference, candidates)
-    d = float(np.linalg.norm(reference - candidates[greedy], axis=1).mean())
-    if len(candidates) < len(reference):  # the same reuse rule as the greedy pairing
-        candidates = np.tile(candidates, (-(-len(reference) // len(candidates)), 1))
-        greedy, nearest = _greedy_from_lists(reference, candidates)
+    lengths = np.linalg.norm(reference - candidates[greedy], axis=1)
+    d = float(lengths.mean())
+    # Fewer candidates than reference points: each may serve ceil(n / m) of them, as in the
+    # greedy pairing's rounds (whose total is then still that of a feasible assignment).
+    rounds = -(-len(reference) // len(candidates))
     if nearest is None:
         nearest = np.empty(len(reference))
         for begin, block in _distance_blocks(reference, candidates):
@@ -314,71 +315,96 @@ def metric_d_both(
     # row's minimum plus (greedy total - that sum) is in no optimal assignment, so only the
     # columns of the other pairs are needed (with a margin for rounding).
     lowest = np.sqrt(nearest)
-    slack = max(0.0, float(np.linalg.norm(reference - candidates[greedy], axis=1).sum()))
-    slack = max(0.0, slack - float(lowest.sum()))
+    slack = max(0.0, float(lengths.sum()) - float(lowest.sum()))
     limits = (lowest + slack * (1 + 1e-9) + 1e-12)[:, None]
     needed = np.zeros(len(candidates), dtype=bool)
     for begin, block in _distance_blocks(reference, candidates):
         np.sqrt(block, out=block)
         needed |= (block <= limits[begin : begin + len(block)]).any(axis=0)
-    cost = np.sqrt(_squared(reference[:, None, :] - candidates[needed][None, :, :]))
-    columns = min_cost_assignment(cost)
+    # Copies of a point (adjacent: candidates are sorted) become one column taking as many.
+    points = candidates[needed]
+    new = np.ones(len(points), dtype=bool)
+    new[1:] = (points[1:] != points[:-1]).any(axis=1)
+    starts = np.flatnonzero(new)
+    capacity = np.diff(np.append(starts, len(points))) * rounds
+    cost = np.sqrt(_squared(reference[:, None, :] - points[starts][None, :, :]))
+    columns = min_cost_assignment(cost, capacity)
     return d, float(cost[np.arange(len(reference)), columns].mean())
 
 
-def min_cost_assignment(cost: np.ndarray) -> np.ndarray:
-    """The column of each row in an assignment of minimal total cost (rows <= columns, each
-    column used at most once): shortest augmenting paths with dual potentials, one row added
-    at a time (Jonker-Volgenant), each path search over all columns at once."""
+def min_cost_assignment(cost: np.ndarray, capacity: np.ndarray | None = None) -> np.ndarray:
+    """The column of each row in an assignment of minimal total cost, each column j used at
+    most capacity[j] times (default once): shortest augmenting paths with dual potentials, one
+    row added at a time (Jonker-Volgenant), each path search over all columns at once."""
     rows, columns = cost.shape
-    if rows > columns:
-        raise ValueError(f"{rows} rows cannot each get one of {columns} columns")
-    # Start from each row's cheapest column (reduced costs >= 0, 0 where assigned, 0 potential
-    # on every free column): only rows that share a cheapest column need a path.
+    room = np.ones(columns, dtype=np.intp) if capacity is None else np.array(capacity)
+    if rows > room.sum():
+        raise ValueError(f"{rows} rows cannot each get one of {room.sum()} column places")
+    # Start from each row's cheapest column while it has room (reduced costs >= 0, 0 where
+    # assigned, 0 potential on every column with room): only the other rows need a path.
     row_potential = cost.min(axis=1)
     column_potential = np.zeros(columns)
-    row_of_column = np.full(columns, -1)
     column_of_row = np.full(rows, -1)
-    cheapest, first_rows = np.unique(np.argmin(cost, axis=1), return_index=True)
-    row_of_column[cheapest], column_of_row[first_rows] = first_rows, cheapest
-    for waiting in np.flatnonzero(column_of_row < 0):  # an equally cheap free column (a copy)
-        free = np.flatnonzero((cost[waiting] == row_potential[waiting]) & (row_of_column < 0))
-        if len(free):
-            row_of_column[free[0]], column_of_row[waiting] = waiting, free[0]
+    cheapest = np.argmin(cost, axis=1)
+    order = np.argsort(cheapest, kind="stable")
+    grouped = cheapest[order]
+    rank = np.arange(rows) - np.searchsorted(grouped, grouped)
+    fits = rank < room[grouped]
+    column_of_row[order[fits]] = grouped[fits]
+    room -= np.bincount(grouped[fits], minlength=columns)
+    rows_on: list[list[int]] = [[] for _ in range(columns)]
+    for row, column in enumerate(column_of_row.tolist()):
+        if column >= 0:
+            rows_on[column].append(row)
+    open_cost = np.empty(columns)  # path costs of the columns not reached yet
+    reached_cost = np.zeros(columns)  # and of the reached ones, when they were reached
+    previous = np.zeros(columns, dtype=np.intp)
+    blocked = column_potential.copy()  # -inf on reached columns: their reduced cost is inf
     reduced = np.empty(columns)
-    for start in range(rows):
-        if column_of_row[start] >= 0:
-            continue
-        open_cost = np.full(columns, np.inf)  # path costs of the columns not reached yet
-        reached_cost = np.zeros(columns)  # and of the reached ones, when they were reached
-        previous = np.full(columns, -1)
+    better = np.empty(columns, dtype=bool)
+    for start in np.flatnonzero(column_of_row < 0).tolist():
+        open_cost.fill(np.inf)
         reached: list[int] = []
         visited = [start]
-        row, base = start, 0.0
+        expand, base = [start], 0.0
         while True:
-            np.subtract(cost[row], column_potential, out=reduced)
-            reduced += base - row_potential[row]
-            reduced[reached] = np.inf  # (a reached column is never reached again)
-            better = reduced < open_cost
-            previous[better] = row
+            if len(expand) == 1:
+                row = expand[0]
+                np.subtract(cost[row], blocked, out=reduced)
+                reduced += base - row_potential[row]
+                np.less(reduced, open_cost, out=better)
+                np.putmask(previous, better, row)
+            else:  # the rows sharing a column: all reached at once
+                block = cost[expand] - blocked
+                block += (base - row_potential[expand])[:, None]
+                best = block.argmin(axis=0)
+                reduced = block[best, np.arange(columns)]
+                np.less(reduced, open_cost, out=better)
+                np.putmask(previous, better, np.asarray(expand)[best])
             np.minimum(open_cost, reduced, out=open_cost)
             column = int(open_cost.argmin())
             base = float(open_cost[column])
             reached_cost[column], open_cost[column] = base, np.inf
+            blocked[column] = -np.inf
             reached.append(column)
-            if row_of_column[column] < 0:
+            if room[column] > 0:
                 break
-            row = int(row_of_column[column])
-            visited.append(row)
+            expand = rows_on[column]
+            visited.extend(expand)
         # potentials: every reduced cost stays >= 0, those along the tree 0
         row_potential[start] += base
         for other in visited[1:]:
             row_potential[other] += base - reached_cost[column_of_row[other]]
         column_potential[reached] -= base - reached_cost[reached]
-        while True:  # augment: flip the assignment along the path back to `start`
+        blocked[reached] = column_potential[reached]
+        room[column] -= 1
+        while True:  # augment: move each row along the path back to `start` one column on
             row = int(previous[column])
-            row_of_column[column] = row
-            column_of_row[row], column = column, int(column_of_row[row])
+            left = int(column_of_row[row])
+            column_of_row[row] = column
+            rows_on[column].append(row)
             if row == start:
                 break
+            rows_on[left].remove(row)
+            column = left
     return column_of_row
