@@ -174,6 +174,7 @@ def _greedy_from_lists(
     taken = bytearray(m)
     used = 0
     chosen = np.empty(n, dtype=np.intp)
+    search: _FullSearch | None = None
     for i in range(n):
         if used == m:  # every candidate paired: start a new round
             taken = bytearray(m)
@@ -187,13 +188,33 @@ def _greedy_from_lists(
         else:
             j = -1
         if j < 0:
-            row = _squared(candidates - reference[i])
-            row[np.frombuffer(taken, dtype=bool)] = np.inf
-            j = int(np.argmin(row))  # (the first of equal minima: the lowest index)
+            if search is None:
+                search = _FullSearch(candidates)
+            j = search.nearest_free(reference[i], np.frombuffer(taken, dtype=bool))
         chosen[i] = j
         taken[j] = 1
         used += 1
     return chosen, distances[:, 0]
+
+
+class _FullSearch:
+    """The nearest free candidate of one point among all, in buffers reused from point to
+    point (the same sums as _squared, over contiguous coordinate columns)."""
+
+    def __init__(self, candidates: np.ndarray) -> None:
+        self.columns = [np.ascontiguousarray(c) for c in candidates.T]
+        self.total, self.part = np.empty(len(candidates)), np.empty(len(candidates))
+
+    def nearest_free(self, point: np.ndarray, taken: np.ndarray) -> int:
+        total, part = self.total, self.part
+        np.subtract(self.columns[0], point[0], out=total)
+        np.multiply(total, total, out=total)
+        for axis in range(1, len(self.columns)):
+            np.subtract(self.columns[axis], point[axis], out=part)
+            np.multiply(part, part, out=part)
+            total += part
+        np.putmask(total, taken, np.inf)
+        return int(total.argmin())  # (the first of equal minima: the lowest index)
 
 
 CHUNK = 64
