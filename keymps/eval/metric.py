@@ -263,19 +263,26 @@ def _greedy_by_boxes(reference: np.ndarray, candidates: np.ndarray) -> np.ndarra
         gap = np.maximum(low - point, 0.0) + np.maximum(point - high, 0.0)
         bounds = np.where(free > 0, _squared(gap), np.inf)
         best, best_index, best_place = np.inf, m, -1
-        for box in np.argsort(bounds, kind="stable"):
-            if bounds[box] > best:  # (boxes with nothing free come last, at infinity)
-                break
+        # The box nearest first; then, in order, only those within its nearest free point
+        # (ordering all boxes for each point would cost more than searching them).
+        box, later = int(bounds.argmin()), None
+        while True:
             begin = box * CHUNK
             distances = _squared(points[begin : begin + CHUNK] - point)
             distances[taken[begin : begin + CHUNK]] = np.inf
             nearest = distances.min()
-            if nearest > best:
-                continue
-            places = begin + np.flatnonzero(distances == nearest)
-            place = places[np.argmin(order[places])]
-            if nearest < best or order[place] < best_index:
-                best, best_index, best_place = nearest, int(order[place]), int(place)
+            if nearest <= best:
+                places = begin + np.flatnonzero(distances == nearest)
+                place = places[np.argmin(order[places])]
+                if nearest < best or order[place] < best_index:
+                    best, best_index, best_place = nearest, int(order[place]), int(place)
+            if later is None:
+                within = np.flatnonzero(bounds <= best)
+                within = within[np.argsort(bounds[within], kind="stable")].tolist()
+                later = iter([b for b in within if b != box])
+            box = next(later, -1)
+            if box < 0 or bounds[box] > best:
+                break
         chosen[i] = best_index
         taken[best_place] = True
         free[best_place // CHUNK] -= 1
