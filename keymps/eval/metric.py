@@ -161,14 +161,15 @@ def _greedy_pairing(reference: np.ndarray, candidates: np.ndarray) -> np.ndarray
 
 def _greedy_from_lists(
     reference: np.ndarray, candidates: np.ndarray
-) -> tuple[np.ndarray, np.ndarray | None]:
-    """_greedy_pairing, and each point's smallest squared distance (None after a search over
-    boxes)."""
+) -> tuple[np.ndarray, np.ndarray]:
+    """_greedy_pairing, and each point's smallest squared distance."""
     n, m = len(reference), len(candidates)
-    if n * m >= BOX_SEARCH_PAIRS:
-        return _greedy_by_boxes(reference, candidates), None
     k = min(m, FIRST_NEIGHBOURS)
-    indexes, distances = _nearest_lists(reference, candidates, k)
+    boxes = _Boxes(candidates) if m >= BOX_SEARCH_CANDIDATES else None
+    if boxes is not None:
+        indexes, distances = boxes.nearest_lists(reference, k)
+    else:
+        indexes, distances = _nearest_lists(reference, candidates, k)
     listed, limits = indexes.tolist(), distances[:, -1].tolist()
     near_d = distances.tolist()
     taken = bytearray(m)
@@ -179,6 +180,8 @@ def _greedy_from_lists(
         if used == m:  # every candidate paired: start a new round
             taken = bytearray(m)
             used = 0
+            if boxes is not None:
+                boxes.free_all()
         for j, d in zip(listed[i], near_d[i], strict=True):
             if not taken[j]:
                 if d < limits[i] or k == m:
@@ -188,11 +191,15 @@ def _greedy_from_lists(
         else:
             j = -1
         if j < 0:
-            if search is None:
-                search = _FullSearch(candidates)
-            j = search.nearest_free(reference[i], np.frombuffer(taken, dtype=bool))
+            if boxes is not None:
+                j = boxes.nearest_free(reference[i])
+            else:
+                search = search or _FullSearch(candidates)
+                j = search.nearest_free(reference[i], np.frombuffer(taken, dtype=bool))
         chosen[i] = j
         taken[j] = 1
+        if boxes is not None:
+            boxes.take(j)
         used += 1
     return chosen, distances[:, 0]
 
@@ -219,8 +226,8 @@ class _FullSearch:
 
 CHUNK = 64
 """Candidates per box of the search over boxes (consecutive along a Z-order curve)."""
-BOX_SEARCH_PAIRS = 1 << 23
-"""From this many reference x candidate pairs on, each point searches boxes instead."""
+BOX_SEARCH_CANDIDATES = 1024
+"""From this many candidates on, searches go over boxes."""
 
 
 def _z_order(points: np.ndarray) -> np.ndarray:
@@ -238,33 +245,84 @@ def _z_order(points: np.ndarray) -> np.ndarray:
     return np.argsort(code, kind="stable")
 
 
-def _greedy_by_boxes(reference: np.ndarray, candidates: np.ndarray) -> np.ndarray:
-    """_greedy_pairing for many candidates: branch and bound over boxes of CHUNK candidates.
-    A box is searched only while its distance to the point could still beat the best found
-    (rounding is monotonic: no candidate is nearer than its box's bound), a box with every
-    candidate paired is skipped."""
-    n, m = len(reference), len(candidates)
-    order = _z_order(candidates)
-    points = candidates[order]
-    starts = np.arange(0, m, CHUNK)
-    low = np.minimum.reduceat(points, starts, axis=0)
-    high = np.maximum.reduceat(points, starts, axis=0)
-    size = np.minimum(CHUNK, m - starts)
-    free = size.copy()
-    taken = np.zeros(m, dtype=bool)
-    used = 0
-    chosen = np.empty(n, dtype=np.intp)
-    for i in range(n):
-        if used == m:  # every candidate paired: start a new round
-            taken[:] = False
-            free[:] = size
-            used = 0
-        point = reference[i]
-        gap = np.maximum(low - point, 0.0) + np.maximum(point - high, 0.0)
-        bounds = np.where(free > 0, _squared(gap), np.inf)
-        best, best_index, best_place = np.inf, m, -1
-        # The box nearest first; then, in order, only those within its nearest free point
-        # (ordering all boxes for each point would cost more than searching them).
+class _Boxes:
+    """The candidates in boxes of CHUNK consecutive ones along a Z-order curve, for searches
+    that skip the boxes too far away: rounding is monotonic, so no candidate is nearer than its
+    box's bound. Keeps which candidates are paired (`take`)."""
+
+    def __init__(self, candidates: np.ndarray) -> None:
+        m = len(candidates)
+        self.order = _z_order(candidates)
+        self.place = np.empty(m, dtype=np.intp)
+        self.place[self.order] = np.arange(m)
+        self.points = candidates[self.order]
+        starts = np.arange(0, m, CHUNK)
+        self.low = np.minimum.reduceat(self.points, starts, axis=0)
+        self.high = np.maximum.reduceat(self.points, starts, axis=0)
+        self.size = np.minimum(CHUNK, m - starts)
+        self.free = self.size.copy()
+        self.taken = np.zeros(m, dtype=bool)
+        # each box's points and indexes padded to CHUNK (far away: never among the nearest)
+        padded = len(self.low) * CHUNK
+        self.by_box = np.full((padded, candidates.shape[1]), np.inf)
+        self.by_box[:m] = self.points
+        self.by_box = self.by_box.reshape(len(self.low), CHUNK, -1)
+        self.index_by_box = np.append(self.order, np.full(padded - m, m)).reshape(-1, CHUNK)
+
+    def bounds(self, points: np.ndarray) -> np.ndarray:
+        """Squared distances of (rows of) points to each box, at most those to its members."""
+        gap = np.maximum(self.low - points[..., None, :], 0.0)
+        gap += np.maximum(points[..., None, :] - self.high, 0.0)
+        return _squared(gap)
+
+    def nearest_lists(self, reference: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """_nearest_lists: the k nearest among the candidates of each point's two nearest boxes
+        bound its k-th nearest; only the boxes within that bound are searched, each for its k
+        nearest first."""
+        n, m = len(reference), len(self.points)
+        indexes, distances = np.empty((n, k), dtype=np.intp), np.empty((n, k))
+        rows = max(1, CACHE_BLOCK // len(self.low))
+        for begin in range(0, n, rows):
+            chunk = reference[begin : begin + rows]
+            lower = self.bounds(chunk)
+            two = np.argpartition(lower, 1, axis=1)[:, :2]  # (at least k + 1 candidates)
+            near = _squared(chunk[:, None, None, :] - self.by_box[two]).reshape(len(chunk), -1)
+            bound = np.partition(near, k - 1, axis=1)[:, k - 1 : k]
+            at, boxes = np.nonzero(lower <= bound)  # (grouped by point)
+            block = _squared(chunk[at][:, None, :] - self.by_box[boxes])
+            best = np.argpartition(block, k - 1, axis=1)[:, :k]
+            count = np.bincount(at, minlength=len(chunk))
+            slot = np.arange(len(at)) - np.repeat(np.cumsum(count) - count, count)
+            listed_d = np.full((len(chunk), int(count.max()), k), np.inf)
+            listed_i = np.full((len(chunk), int(count.max()), k), m)
+            listed_d[at, slot] = np.take_along_axis(block, best, axis=1)
+            listed_i[at, slot] = np.take_along_axis(self.index_by_box[boxes], best, axis=1)
+            listed_d = listed_d.reshape(len(chunk), -1)
+            listed_i = listed_i.reshape(len(chunk), -1)
+            nearest = np.argpartition(listed_d, k - 1, axis=1)[:, :k]
+            near_d = np.take_along_axis(listed_d, nearest, axis=1)
+            near_i = np.take_along_axis(listed_i, nearest, axis=1)
+            order = np.lexsort((near_i, near_d), axis=1)
+            indexes[begin : begin + len(chunk)] = np.take_along_axis(near_i, order, axis=1)
+            distances[begin : begin + len(chunk)] = np.take_along_axis(near_d, order, axis=1)
+        return indexes, distances
+
+    def take(self, index: int) -> None:
+        place = self.place[index]
+        self.taken[place] = True
+        self.free[place // CHUNK] -= 1
+
+    def free_all(self) -> None:
+        self.taken[:] = False
+        self.free[:] = self.size
+
+    def nearest_free(self, point: np.ndarray) -> int:
+        """The nearest candidate not taken (of equally near ones the lowest index): the box
+        nearest first, then in order only those within its nearest free candidate (ordering
+        all boxes would cost more than searching them) while they could hold a nearer one."""
+        order, points, taken = self.order, self.points, self.taken
+        bounds = np.where(self.free > 0, self.bounds(point), np.inf)
+        best, best_index = np.inf, len(order)
         box, later = int(bounds.argmin()), None
         while True:
             begin = box * CHUNK
@@ -273,19 +331,30 @@ def _greedy_by_boxes(reference: np.ndarray, candidates: np.ndarray) -> np.ndarra
             nearest = distances.min()
             if nearest <= best:
                 places = begin + np.flatnonzero(distances == nearest)
-                place = places[np.argmin(order[places])]
-                if nearest < best or order[place] < best_index:
-                    best, best_index, best_place = nearest, int(order[place]), int(place)
+                index = int(order[places].min())
+                if nearest < best or index < best_index:
+                    best, best_index = nearest, index
             if later is None:
                 within = np.flatnonzero(bounds <= best)
                 within = within[np.argsort(bounds[within], kind="stable")].tolist()
                 later = iter([b for b in within if b != box])
             box = next(later, -1)
             if box < 0 or bounds[box] > best:
-                break
-        chosen[i] = best_index
-        taken[best_place] = True
-        free[best_place // CHUNK] -= 1
+                return best_index
+
+
+def _greedy_by_boxes(reference: np.ndarray, candidates: np.ndarray) -> np.ndarray:
+    """_greedy_pairing by branch and bound over _Boxes for every point (no lists)."""
+    n, m = len(reference), len(candidates)
+    boxes = _Boxes(candidates)
+    used = 0
+    chosen = np.empty(n, dtype=np.intp)
+    for i in range(n):
+        if used == m:  # every candidate paired: start a new round
+            boxes.free_all()
+            used = 0
+        chosen[i] = boxes.nearest_free(reference[i])
+        boxes.take(int(chosen[i]))
         used += 1
     return chosen
 
@@ -335,10 +404,6 @@ def metric_d_both(
     # Fewer candidates than reference points: each may serve ceil(n / m) of them, as in the
     # greedy pairing's rounds (whose total is then still that of a feasible assignment).
     rounds = -(-len(reference) // len(candidates))
-    if nearest is None:
-        nearest = np.empty(len(reference))
-        for begin, block in _distance_blocks(reference, candidates):
-            nearest[begin : begin + len(block)] = block.min(axis=1)
     # Any assignment costs at least the sum of the row minima: a pair costing more than its
     # row's minimum plus (greedy total - that sum) is in no optimal assignment, so only the
     # columns of the other pairs are needed (with a margin for rounding).
