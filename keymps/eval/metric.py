@@ -230,19 +230,27 @@ BOX_SEARCH_CANDIDATES = 1024
 """From this many candidates on, searches go over boxes."""
 
 
+_SPREAD = {
+    2: ((8, 0x00FF00FF), (4, 0x0F0F0F0F), (2, 0x33333333), (1, 0x55555555)),
+    3: ((16, 0x030000FF), (8, 0x0300F00F), (4, 0x030C30C3), (2, 0x09249249)),
+}
+"""Shifts and masks moving bit b of a 10-bit number to bit b * dims (2 or 3 dimensions)."""
+
+
 def _z_order(points: np.ndarray) -> np.ndarray:
     """A permutation of `points` along a Morton (Z-order) curve: consecutive points are near
     each other, so that runs of CHUNK consecutive points have small bounding boxes."""
     low = points.min(axis=0)
     span = float((points.max(axis=0) - low).max()) or 1.0
     bits = 10  # 1024 cubic cells along the longest side (a thin axis gets few)
-    cells = ((points - low) / span * ((1 << bits) - 1)).astype(np.uint64)
-    code = np.zeros(len(points), dtype=np.uint64)
-    for bit in range(bits):
-        for axis in range(points.shape[1]):
-            digit = (cells[:, axis] >> np.uint64(bit)) & np.uint64(1)
-            code |= digit << np.uint64(bit * points.shape[1] + axis)
-    return np.argsort(code, kind="stable")
+    cells = ((points - low) / span * ((1 << bits) - 1)).astype(np.uint32)
+    code = np.zeros(len(points), dtype=np.uint32)
+    for axis in range(points.shape[1]):  # bit b of an axis goes to bit b * dims + axis
+        spread = np.ascontiguousarray(cells[:, axis])
+        for shift, mask in _SPREAD[points.shape[1]]:
+            spread = (spread | (spread << np.uint32(shift))) & np.uint32(mask)
+        code |= spread << np.uint32(axis)
+    return np.argsort(code)  # (any order of points in one cell is as good)
 
 
 class _Boxes:
