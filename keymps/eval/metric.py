@@ -495,10 +495,9 @@ def min_cost_assignment(cost: np.ndarray, capacity: np.ndarray | None = None) ->
             rows_on[column].append(row)
     open_cost = np.empty(columns)  # path costs of the columns not reached yet
     reached_cost = np.zeros(columns)  # and of the reached ones, when they were reached
-    previous = np.zeros(columns, dtype=np.intp)
+    rows_before = np.zeros(columns, dtype=np.intp)  # rows searched when a column was reached
     blocked = column_potential.copy()  # -inf on reached columns: their reduced cost is inf
     reduced = np.empty(columns)
-    better = np.empty(columns, dtype=bool)
     for start in np.flatnonzero(column_of_row < 0).tolist():
         open_cost.fill(np.inf)
         reached: list[int] = []
@@ -509,39 +508,46 @@ def min_cost_assignment(cost: np.ndarray, capacity: np.ndarray | None = None) ->
                 row = expand[0]
                 np.subtract(cost[row], blocked, out=reduced)
                 reduced += base - row_potential[row]
-                np.less(reduced, open_cost, out=better)
-                np.putmask(previous, better, row)
+                np.minimum(open_cost, reduced, out=open_cost)
             else:  # the rows sharing a column: all reached at once
                 block = cost[expand] - blocked
                 block += (base - row_potential[expand])[:, None]
-                best = block.argmin(axis=0)
-                reduced = block[best, np.arange(columns)]
-                np.less(reduced, open_cost, out=better)
-                np.putmask(previous, better, np.asarray(expand)[best])
-            np.minimum(open_cost, reduced, out=open_cost)
+                np.minimum(open_cost, block.min(axis=0), out=open_cost)
             column = int(open_cost.argmin())
             base = float(open_cost[column])
             reached_cost[column], open_cost[column] = base, np.inf
+            rows_before[column] = len(visited)
             blocked[column] = -np.inf
             reached.append(column)
             if room[column] > 0:
                 break
             expand = rows_on[column]
             visited.extend(expand)
+        # the path back to `start`: each column's row is the first searched row that reached
+        # it at its cost (the same sums as the search's)
+        searched = np.array(visited)
+        distance = np.zeros(len(visited))
+        distance[1:] = reached_cost[column_of_row[searched[1:]]]
+        offset = distance - row_potential[searched]
+        path = []
+        while True:
+            count = rows_before[column]
+            via = (cost[searched[:count], column] - column_potential[column]) + offset[:count]
+            row = int(searched[int(via.argmin())])
+            path.append((row, column))
+            if row == start:
+                break
+            column = int(column_of_row[row])
         # potentials: every reduced cost stays >= 0, those along the tree 0
         row_potential[start] += base
         for other in visited[1:]:
             row_potential[other] += base - reached_cost[column_of_row[other]]
         column_potential[reached] -= base - reached_cost[reached]
         blocked[reached] = column_potential[reached]
-        room[column] -= 1
-        while True:  # augment: move each row along the path back to `start` one column on
-            row = int(previous[column])
-            left = int(column_of_row[row])
+        room[path[0][1]] -= 1
+        for row, column in path:  # augment: each row along the path moves one column on
+            if row != start:
+                rows_on[column_of_row[row]].remove(row)
             column_of_row[row] = column
             rows_on[column].append(row)
-            if row == start:
-                break
-            rows_on[left].remove(row)
-            column = left
     return column_of_row
