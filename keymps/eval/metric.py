@@ -408,13 +408,21 @@ def _prepare(ground_truth: Points, generated: Points, n: int) -> tuple[np.ndarra
 
 
 def _lexicographic_order(points: np.ndarray) -> np.ndarray:
-    """The order of the points by x, then y, then z: when no two x are equal (the common
-    case) the sort by x alone, three times faster than np.lexsort's."""
+    """An order of the points by x, then y, then z (np.lexsort's but for the order among equal
+    points): sorted by x, and only the runs of equal x sorted again by all three."""
     xs = np.ascontiguousarray(points[:, 0])
     order = np.argsort(xs)
     xs = xs[order]
-    if (xs[1:] == xs[:-1]).any():
-        return np.lexsort(points.T[::-1])
+    same = xs[1:] == xs[:-1]
+    if not same.any():
+        return order
+    tied = np.zeros(len(xs), dtype=bool)
+    tied[1:] |= same
+    tied[:-1] |= same
+    at = np.flatnonzero(tied)
+    run = np.cumsum(np.append(True, ~same))[at]  # (the runs stay in place, in order)
+    keys = [points[order[at], axis] for axis in range(points.shape[1] - 1, 0, -1)]
+    order[at] = order[at][np.lexsort([*keys, run])]
     return order
 
 
