@@ -287,3 +287,47 @@ def test_the_numpy_assignment_with_capacities_is_scipys_on_copied_columns() -> N
         assert cost[np.arange(rows_n), mine].sum() == pytest.approx(
             cost[np.arange(rows_n), copies[expected]].sum(), rel=1e-12, abs=1e-15
         )
+
+
+def test_the_box_search_lists_the_same_nearest_as_all_pairs_on_dense_motions() -> None:
+    """From 1024 candidates on, the nearest lists and full searches go over boxes: the same
+    distances as over all pairs, and the pairing is still scipy's."""
+    from keymps.eval.metric import (
+        FIRST_NEIGHBOURS,
+        _Boxes,
+        _greedy_pairing,
+        _nearest_lists,
+        _prepare,
+    )
+
+    rng = np.random.default_rng(20261205)
+    for _ in range(40):
+        truth, made, n = _generated_case(rng)
+        dense = [np.repeat(p, int(rng.integers(2, 12)), axis=0) for p in made]
+        dense = [p + rng.normal(0, rng.choice([0.0, 1e-4, 2e-3]), p.shape) for p in dense]
+        dense.append(rng.uniform(0, 0.3, (1024, dense[0].shape[1])))  # (always boxes)
+        reference, candidates = _prepare(truth, dense, n)
+        _, expected = _nearest_lists(reference, candidates, FIRST_NEIGHBOURS)
+        _, found = _Boxes(candidates).nearest_lists(reference, FIRST_NEIGHBOURS)
+        assert np.array_equal(found, expected)
+        mine = _greedy_pairing(reference, candidates)
+        theirs = _scipy_greedy(reference, candidates)
+        assert np.array_equal(
+            np.linalg.norm(reference - candidates[mine], axis=1),
+            np.linalg.norm(reference - candidates[theirs], axis=1),
+        )
+
+
+def test_the_canonical_order_is_lexsorts() -> None:
+    from keymps.eval.metric import _lexicographic_order
+
+    rng = np.random.default_rng(20261206)
+    for case in range(300):
+        points = rng.normal(size=(int(rng.integers(1, 2000)), int(rng.choice([2, 3]))))
+        if case % 3 == 0:  # many equal coordinates, and equal points
+            points = np.round(points, 1)
+        if case % 4 == 0:
+            points[: len(points) // 2, 0] = 0.0
+        order = _lexicographic_order(points)
+        assert np.array_equal(np.sort(order), np.arange(len(points)))
+        assert np.array_equal(points[order], points[np.lexsort(points.T[::-1])])

@@ -273,7 +273,9 @@ class _Boxes:
         self.points = np.full((boxes * CHUNK, dims), np.inf)
         self.points[:m] = candidates[self.order]
         self.by_box = self.points.reshape(boxes, CHUNK, dims)
-        self.axes = [np.ascontiguousarray(self.points[:, a]).reshape(boxes, CHUNK) for a in range(dims)]
+        self.axes = [
+            np.ascontiguousarray(self.points[:, a]).reshape(boxes, CHUNK) for a in range(dims)
+        ]
         last = self.size[-1]
         self.low = np.array([axis.min(axis=1) for axis in self.axes])
         self.high = np.array([axis.max(axis=1) for axis in self.axes])
