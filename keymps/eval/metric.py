@@ -328,12 +328,12 @@ class _Boxes:
             best = np.argpartition(block, k - 1, axis=1)[:, :k]
             count = np.bincount(at, minlength=len(chunk))
             slot = np.arange(len(at)) - np.repeat(np.cumsum(count) - count, count)
-            listed_d = np.full((len(chunk), int(count.max()), k), np.inf)
-            listed_i = np.full((len(chunk), int(count.max()), k), m)
-            listed_d[at, slot] = np.take_along_axis(block, best, axis=1)
-            listed_i[at, slot] = np.take_along_axis(self.index_by_box[boxes], best, axis=1)
-            listed_d = listed_d.reshape(len(chunk), -1)
-            listed_i = listed_i.reshape(len(chunk), -1)
+            by_slot_d = np.full((len(chunk), int(count.max()), k), np.inf)
+            by_slot_i = np.full((len(chunk), int(count.max()), k), m)
+            by_slot_d[at, slot] = np.take_along_axis(block, best, axis=1)
+            by_slot_i[at, slot] = np.take_along_axis(self.index_by_box[boxes], best, axis=1)
+            listed_d = by_slot_d.reshape(len(chunk), -1)
+            listed_i = by_slot_i.reshape(len(chunk), -1)
             nearest = np.argpartition(listed_d, k - 1, axis=1)[:, :k]
             near_d = np.take_along_axis(listed_d, nearest, axis=1)
             near_i = np.take_along_axis(listed_i, nearest, axis=1)
