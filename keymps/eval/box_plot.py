@@ -136,10 +136,14 @@ def draw_box_plot(
             if box is not None:
                 centre = number + (index - (len(methods) - 1) / 2) * box_w
                 _draw_box(image, box, to_x(centre), to_x(box_w * 0.45) - to_x(0), to_y, fill)
+    # every case has its tick; labels are written every `stride` cases if they would overlap
+    label_w = max(cv2.getTextSize(c, FONT, tick_scale, 1)[0][0] for c in cases) + 8
+    stride = max(1, math.ceil(label_w / (to_x(1) - to_x(0))))
     for number, case in enumerate(cases):
         x = to_x(number)
         cv2.line(image, (round(x), top + plot_h), (round(x), top + plot_h + 5), INK_BGR, 1)
-        text(case, x, top + plot_h + 18, tick_scale, "centre")
+        if number % stride == 0:
+            text(case, x, top + plot_h + 18, tick_scale, "centre")
     cv2.rectangle(image, (left, top), (left + plot_w, top + plot_h), INK_BGR, 1)
     text("case", left + plot_w / 2, height - 16, label_scale, "centre")
     text(title, width / 2, 16 + label_h / 2 + 4, title_scale, "centre")
