@@ -137,7 +137,7 @@ def draw_box_plot(
                 centre = number + (index - (len(methods) - 1) / 2) * box_w
                 _draw_box(image, box, to_x(centre), to_x(box_w * 0.45) - to_x(0), to_y, fill)
     # every case has its tick; labels are written every `stride` cases if they would overlap
-    label_w = max(cv2.getTextSize(c, FONT, tick_scale, 1)[0][0] for c in cases) + 8
+    label_w = max((cv2.getTextSize(c, FONT, tick_scale, 1)[0][0] for c in cases), default=0) + 8
     stride = max(1, math.ceil(label_w / (to_x(1) - to_x(0))))
     for number, case in enumerate(cases):
         x = to_x(number)
