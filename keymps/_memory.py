@@ -53,12 +53,14 @@ def collector_paused_for_start_up() -> Iterator[Callable[[], None]]:
 
     Start-up (imports, pydantic's schemas, the plugin manager, the robot model) makes about
     50,000 container objects that live as long as the process, and next to no garbage in
-    cycles: the collector's 120 passes over them cost `keymps run` 30-45 ms and free nothing. Ending start-up freezes every
-    object made so far (gc.freeze: the collector never scans them again) and turns the collector
-    back on for the stages; leaving the block unfreezes them, so that a process that goes on
-    (a test calling the command in-process) has its normal collector again.
+    cycles: the collector's 120 passes over them cost `keymps run` 30-45 ms and free nothing.
+    Ending start-up freezes every object made so far (gc.freeze: the collector never scans them
+    again) and turns the collector back on for the stages; leaving the block unfreezes them
+    (unless something had frozen objects before), so that a process that goes on (a test
+    calling the command in-process) has its collector as it was.
     """
     was_enabled = gc.isenabled()
+    was_frozen = gc.get_freeze_count() > 0
     gc.disable()
     ended = False
 
@@ -74,4 +76,5 @@ def collector_paused_for_start_up() -> Iterator[Callable[[], None]]:
         yield end_start_up
     finally:
         end_start_up()
-        gc.unfreeze()
+        if not was_frozen:
+            gc.unfreeze()

@@ -96,6 +96,21 @@ def test_start_up_that_fails_leaves_the_collector_as_it_found_it() -> None:
     assert gc.isenabled() and gc.get_freeze_count() == 0
 
 
+def test_objects_someone_else_froze_stay_frozen() -> None:
+    import gc
+
+    from keymps._memory import collector_paused_for_start_up
+
+    gc.freeze()
+    try:
+        frozen = gc.get_freeze_count()
+        with collector_paused_for_start_up() as start_up_done:
+            start_up_done()
+        assert gc.get_freeze_count() >= frozen  # not unfrozen behind its owner's back
+    finally:
+        gc.unfreeze()
+
+
 def test_keymps_run_collects_garbage_once_started(tmp_path: Path) -> None:
     import gc
 

@@ -222,6 +222,7 @@ def run_in_processes(
         )
         for index, threads in enumerate(shares)
     ]  # fmt: skip
+    unfreeze_after = forking and gc.get_freeze_count() == 0  # (else who froze first unfreezes)
     if forking:  # before this process has any other thread (a queue's feeder included)
         # Python's recipe for a fork without exec: what this process made so far is never
         # scanned by a worker's garbage collector, so its pages stay shared, not copied
@@ -265,7 +266,7 @@ def run_in_processes(
             on_record(job, record)
             received += 1
     finally:
-        if forking:
+        if unfreeze_after:
             gc.unfreeze()  # this process's collector as it was (a caller's process goes on)
         stop_computing.set()
         starting.join()  # a worker still starting reads the end of the queue and leaves
