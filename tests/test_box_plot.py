@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -118,3 +119,20 @@ def test_a_case_without_values_leaves_a_gap_and_the_legend_has_a_swatch() -> Non
     middle = (boxes[0] + boxes[1]) // 2  # where case 2 would be
     column = image[:, middle - 3 : middle + 3]
     assert not np.all(column == np.array(fill, np.uint8), axis=2).any()
+
+
+def test_records_without_a_finite_d_are_left_out_of_the_plot(tmp_path: Path) -> None:
+    from keymps.eval.report import write_box_plots
+    from keymps.eval.suites import load_suite
+
+    suite = load_suite("cutting_sim")
+    broken = [
+        {"method": "keymps", "case": "1", "d_mm": float("nan")},
+        {"method": "keymps", "case": "2", "d_mm": None},
+        {"method": "keymps", "case": "3", "d_mm": float("inf")},
+    ]
+    assert write_box_plots(broken, suite, tmp_path) == []  # nothing to draw: no file
+    kept = write_box_plots(
+        [*broken, {"method": "keymps", "case": "1", "d_mm": 1.5}], suite, tmp_path
+    )
+    assert kept == [tmp_path / "d_boxplot.png"] and kept[0].stat().st_size > 1000

@@ -229,10 +229,9 @@ def write_box_plots(records: list[dict[str, Any]], suite: Suite, out: Path) -> l
 
     values: dict[str, dict[str, list[float]]] = {}
     for record in records:
-        if record.get("d_mm") is not None:
-            values.setdefault(record["method"], {}).setdefault(record["case"], []).append(
-                record["d_mm"]
-            )
+        d_mm = record.get("d_mm")
+        if isinstance(d_mm, int | float) and math.isfinite(d_mm):  # (a hand-edited file's NaN)
+            values.setdefault(record["method"], {}).setdefault(record["case"], []).append(d_mm)
     if not values:
         return []
     cases = [c.id for c in suite.cases if any(c.id in by_case for by_case in values.values())]
