@@ -155,7 +155,7 @@ def _greedy_pairing(reference: np.ndarray, candidates: np.ndarray) -> np.ndarray
     Each point's FIRST_NEIGHBOURS nearest are listed up front (distances of all pairs, in
     blocks); the first free one in the list is the answer when it is nearer than the list's
     last (an equally near candidate left out of the list could have a lower index). Otherwise
-    the point searches all candidates. Many pairs: a search over boxes (_greedy_by_boxes)."""
+    the point searches all candidates (over _Boxes from BOX_SEARCH_CANDIDATES candidates on)."""
     return _greedy_from_lists(reference, candidates)[0]
 
 
@@ -376,22 +376,6 @@ class _Boxes:
             box = next(later, -1)
             if box < 0 or bounds[box] > best:
                 return best_index
-
-
-def _greedy_by_boxes(reference: np.ndarray, candidates: np.ndarray) -> np.ndarray:
-    """_greedy_pairing by branch and bound over _Boxes for every point (no lists)."""
-    n, m = len(reference), len(candidates)
-    boxes = _Boxes(candidates)
-    used = 0
-    chosen = np.empty(n, dtype=np.intp)
-    for i in range(n):
-        if used == m:  # every candidate paired: start a new round
-            boxes.free_all()
-            used = 0
-        chosen[i] = boxes.nearest_free(reference[i])
-        boxes.take(int(chosen[i]))
-        used += 1
-    return chosen
 
 
 def _prepare(ground_truth: Points, generated: Points, n: int) -> tuple[np.ndarray, np.ndarray]:

@@ -61,9 +61,9 @@ def _preload() -> None:
         # a plugin that is not installed is imported by nobody
         with contextlib.suppress(ImportError):
             importlib.import_module(name)
-    # what every worker's first run would otherwise pay: OpenCV's first text (its font, 20 ms),
-    # the board and noise field of the default 0.30 x 0.18 m board at 2000 px/m (25 ms)
-    cv2.getTextSize("0", cv2.FONT_HERSHEY_SIMPLEX, 0.5, 1)
+    # what every worker's first run would otherwise pay: the board and noise field of the
+    # default 0.30 x 0.18 m board at 2000 px/m (25 ms). (Not OpenCV's fonts: it sets up its
+    # text renderer once per thread, and a worker's runs are on threads of their own.)
     # OpenCV's Lab tables (about 100 ms): built once here, not in every worker's first detection
     prepare_lab_tables()
     lab_tables_ready()
