@@ -642,7 +642,8 @@ def _corner_indexes_point_by_point(points: np.ndarray, yaw: np.ndarray) -> list[
         while end + 1 < n and sharp[end + 1] and arc[end + 1] - arc[index] <= 2 * chord:
             end += 1
         middle = (arc[index] + arc[end]) / 2
-        corners.append(index + int(np.argmin(np.abs(arc[index : end + 1] - middle))))
+        distance = np.abs(arc[index : end + 1] - middle)  # the first of those equally near
+        corners.append(index + int(np.flatnonzero(distance <= distance.min() + strokes.TIE_M)[0]))
         index = end + 1
     return corners
 

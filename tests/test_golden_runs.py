@@ -3,7 +3,10 @@
 Each case runs the offline planner and the sim executor on a shipped scene and compares the
 timed joint trajectory sample by sample, the tool path, the validation report and the
 executor's report with tests/data/golden/, recorded from main at 91cb8e4 (before issue 21's
-fast paths for recordings, warm stages, start-up and eval). A faster implementation must give
+fast paths for recordings, warm stages, start-up and eval). icing_spiral and icing_star were
+recorded again from 91cb8e4 with one change, the corner rule that breaks a tie between two points
+the same way on every CPU (keymps.motion.strokes._nearest_first): before it, which of them ended
+a stroke followed the last bit of NumPy's rounding. A faster implementation must give
 the same motion and the same verdicts; if an output changes on purpose, record again with
 `python tests/test_golden_runs.py --record` and say why in the commit.
 """
@@ -12,6 +15,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import sys
 from pathlib import Path
 from typing import Any
@@ -149,6 +153,35 @@ def test_run_matches_the_recorded_run(
     assert np.abs(result["t"] - np.arange(len(result["t"])) / rate_hz).max() < 1e-9
     assert np.abs(kept(result["q"]) - arrays["q"]).max() < JOINT_TOLERANCE_RAD
     assert np.abs(kept(result["tool_xyz"]) - arrays["tool_xyz"]).max() < POSITION_TOLERANCE_M
+
+
+@pytest.mark.parametrize("name", ["icing_spiral", "icing_star"])
+def test_the_same_run_with_numpy_on_its_baseline_instructions(name: str, tmp_path: Path) -> None:
+    """NumPy picks AVX2 or AVX-512 loops by CPU, and they round differently in the last bit.
+    The star and the spiral once ended strokes at other points on another CPU (a tie broken
+    by that bit): here NumPy runs with every optional instruction set off, in a subprocess,
+    and the motion must still be the recorded one."""
+    import subprocess
+
+    import numpy._core._multiarray_umath as umath
+
+    case = next(c for c in CASES if c[0] == name)
+    script = (
+        "import json, sys; from pathlib import Path; sys.path.insert(0, sys.argv[1]);"
+        "import test_golden_runs as g;"
+        "r = g.run_case(*json.loads(sys.argv[2]), Path(sys.argv[3]));"
+        "print(json.dumps(g.comparable_record(r['record'])))"
+    )
+    environment = {**os.environ, "NPY_DISABLE_CPU_FEATURES": " ".join(umath.__cpu_dispatch__)}
+    done = subprocess.run(
+        [sys.executable, "-c", script, str(REPO / "tests"), json.dumps(case[1:]), str(tmp_path)],
+        capture_output=True,
+        text=True,
+        env=environment,
+        check=True,
+    )
+    want = json.loads((GOLDEN / f"{name}.json").read_text())
+    assert_close(json.loads(done.stdout.splitlines()[-1]), want, name)
 
 
 def test_the_cases_cover_both_tools_and_several_designs() -> None:

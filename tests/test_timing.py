@@ -157,3 +157,39 @@ def test_a_work_piece_that_never_moves_is_skipped_not_a_crash() -> None:
     assert not (trajectory.kind == "work").any()
     reached = np.linalg.norm(trajectory.tool_xyz - still[0], axis=1).min()
     assert reached < 1e-6  # the travel move still brings the nozzle to the dot
+
+
+def test_of_two_corner_points_equally_near_the_middle_the_first_is_the_corner() -> None:
+    """Their distances to the middle differ only in the last bit of a sum, which differs
+    between CPUs (NumPy's AVX-512 and AVX2 loops): the choice must not follow that bit."""
+    from keymps.motion.strokes import _nearest_first
+
+    rng = np.random.default_rng(7)
+    for _ in range(200):
+        a = float(rng.uniform(0.0, 0.2))
+        b = a + float(rng.uniform(2e-4, 4e-4))
+        middle = (a + b) / 2
+        for nudge in (-2, -1, 0, 1, 2):
+            shifted = float(np.nextafter(middle, np.inf if nudge > 0 else -np.inf))
+            shifted = middle if nudge == 0 else shifted
+            assert _nearest_first([a, b], 0, 1, shifted) == 0
+    assert _nearest_first([0.0, 1e-4, 3e-4], 0, 2, 2.9e-4) == 2  # a clear nearest still wins
+
+
+def test_where_a_stroke_ends_at_a_corner_does_not_follow_the_last_bit_of_rounding() -> None:
+    """Sharp Vs sampled unevenly: perturbing every coordinate by a few units in the last place
+    (what another CPU's rounding does) never moves a corner to another point. (With the
+    nearest point to the middle chosen by the bare minimum, most of these paths move it.)"""
+    from keymps.motion.strokes import _corner_indexes
+
+    rng = np.random.default_rng(3)
+    step = 2.5e-4
+    for _ in range(100):
+        x = (np.arange(-40, 40) + 0.5) * step + rng.uniform(-2e-5, 2e-5, 80)
+        points = np.column_stack([0.1 + x, 0.054 - np.abs(x), np.full(len(x), 0.06)])
+        yaw = np.zeros(len(points))
+        corners = _corner_indexes(points, yaw)
+        assert len(corners) == 1 and abs(corners[0] - 39.5) < 3  # at the tip
+        for _ in range(10):
+            ulps = rng.integers(-4, 5, size=points.shape)
+            assert _corner_indexes(points + ulps * np.spacing(points), yaw) == corners

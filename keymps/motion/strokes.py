@@ -68,6 +68,21 @@ def _corner_indexes(points: np.ndarray, yaw: np.ndarray) -> list[int]:
     return _corner_indexes_all([(points, yaw)])[0]
 
 
+TIE_M = 1e-9
+"""Arc positions this close count as equally far (a nanometre: far above rounding, far below
+any path's detail)."""
+
+
+def _nearest_first(arc_m: list[float], first: int, last: int, middle: float) -> int:
+    """Of points first..last, the first of those nearest to `middle`.
+
+    A run of two corner points has both equally near its middle, up to the last bit of a sum;
+    that bit differs between CPUs (NumPy's AVX-512 and AVX2 loops round differently), and the
+    stroke must not end at another point on another machine."""
+    nearest = min(abs(arc_m[k] - middle) for k in range(first, last + 1))
+    return next(k for k in range(first, last + 1) if abs(arc_m[k] - middle) <= nearest + TIE_M)
+
+
 def _geometry_of_all(
     parts: list[tuple[np.ndarray, np.ndarray]],
 ) -> tuple[np.ndarray, np.ndarray, list[int]]:
@@ -124,7 +139,7 @@ def _corner_indexes_all(parts: list[tuple[np.ndarray, np.ndarray]]) -> list[list
                 while end + 1 in sharp and arc_m[end + 1] - arc_m[index] <= 2 * CORNER_CHORD_M:
                     end += 1
                 middle = (arc_m[index] + arc_m[end]) / 2  # a reversal's cluster: its tip
-                corners.append(min(range(index, end + 1), key=lambda k: abs(arc_m[k] - middle)))
+                corners.append(_nearest_first(arc_m, index, end, middle))
         out.append(corners)
     return out
 
