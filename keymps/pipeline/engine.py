@@ -366,6 +366,7 @@ def run_task(
     from keymps.pipeline.folder_lock import FolderLock
     from keymps.planning.backend_choice import untrusted_api_base_warning
     from keymps.planning.planner import choose_backend
+    from keymps.text_drawing import prepare_text_drawing
 
     if not isinstance(task, Task):
         task = load_task(task)
@@ -393,6 +394,7 @@ def run_task(
     backend, reason = choose_backend(
         task, overrides.get("backend"), overrides.get("model"), overrides.get("api_base")
     )
+    prepare_text_drawing()  # OpenCV's font set-up, on the other core until plan.png is drawn
     parts = Components(task, backend, through)
     folder = _new_run_folder(task, Path(out) if out else None)
     lock = FolderLock(folder).acquire()  # a second run into this folder refuses here

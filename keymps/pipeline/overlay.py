@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from keymps.text_drawing import on_text_thread
 from keymps.types import Detection, Plan, SceneImage
 
 RED = (0, 0, 255)
@@ -36,6 +37,10 @@ def draw_plan(
     A pair whose start and end coincide (an icing dot) is a small red circle. Lines end in an
     arrow head to show the direction. `scale` enlarges the picture (the numbers stay legible).
     """
+    return on_text_thread(_draw_plan, image, detection, plan, scale)
+
+
+def _draw_plan(image: np.ndarray, detection: Detection, plan: Plan, scale: float) -> np.ndarray:
     import cv2
 
     canvas = _as_bgr(image)

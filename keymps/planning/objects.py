@@ -14,6 +14,7 @@ import numpy as np
 
 from keymps.errors import KeympsError
 from keymps.perception.scene_objects import SceneObject, object_mask
+from keymps.text_drawing import on_text_thread
 from keymps.types import PlanObject
 
 SAMPLES_PER_PAIR = 65
@@ -104,10 +105,14 @@ def describe_objects(objects: tuple[PlanObject, ...]) -> str:
 def mark_objects(crop: np.ndarray, objects: tuple[PlanObject, ...]) -> np.ndarray:
     """The crop with each object's id written at its box's top-left corner (several objects
     only: one object's crop is sent unmarked, as always)."""
-    import cv2
-
     if len(objects) <= 1:
         return crop
+    return on_text_thread(_mark_objects, crop, objects)
+
+
+def _mark_objects(crop: np.ndarray, objects: tuple[PlanObject, ...]) -> np.ndarray:
+    import cv2
+
     marked = np.ascontiguousarray(crop.copy())
     height, width = marked.shape[:2]
     scale = max(0.4, min(width, height) / 500)

@@ -29,6 +29,7 @@ from keymps.default_plugins.sim.cut_sweep import (
 )
 from keymps.plugin import RegisterExecutor, hookimpl, parse_options, require_validated
 from keymps.robot.safety_geometry import distance_to_polylines, row_norms
+from keymps.text_drawing import on_text_thread
 from keymps.types import ExecutionReport, SceneImage, ToolPath, ValidatedTrajectory
 
 if TYPE_CHECKING:
@@ -271,6 +272,10 @@ def render_outcome(
 
 def _number_objects(image: np.ndarray, outlines_px: list[np.ndarray]) -> None:
     """Write 1, 2, ... (the object ids, in order) above each outline's top-left corner."""
+    on_text_thread(_write_numbers, image, outlines_px)
+
+
+def _write_numbers(image: np.ndarray, outlines_px: list[np.ndarray]) -> None:
     import cv2
 
     height, width = image.shape[:2]
