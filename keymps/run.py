@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-import secrets
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
@@ -150,7 +149,7 @@ def open_atomically(path: Path, text: bool = True) -> Iterator[IO[Any]]:
     full disk or a Ctrl-C never leaves a half-written or empty file (the old one, if any,
     stays). An OSError always names the path (a full disk's write error names none).
     """
-    temporary = path.with_name(f".{path.name}.{os.getpid()}-{secrets.token_hex(4)}.tmp")
+    temporary = path.with_name(f".{path.name}.{os.getpid()}-{os.urandom(4).hex()}.tmp")
     try:
         descriptor = os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
         with os.fdopen(descriptor, "w" if text else "wb", encoding="utf-8" if text else None) as f:
