@@ -272,6 +272,8 @@ class GroundedObject:
 
 @dataclass(frozen=True)
 class Grounding:
+    """The plan in the board frame: the segments and the heights the motion works at."""
+
     segments: tuple[Segment, ...]
     object_height: float
     """The tallest object's height (every object's, with one object), metres."""
@@ -359,6 +361,8 @@ class Trajectory:
 
 @dataclass(frozen=True)
 class ValidationReport:
+    """The safety check's verdict, its problems (one line each) and its figures."""
+
     ok: bool
     problems: tuple[str, ...]
     figures: dict[str, float]
@@ -374,6 +378,8 @@ class ValidatedTrajectory:
 
 @dataclass(frozen=True)
 class ExecutionReport:
+    """What an executor did: its verdict, message, the files it wrote and its figures."""
+
     executor: str
     ok: bool
     message: str = ""

@@ -202,3 +202,46 @@ def test_trace_plugins_prints_each_hook_call() -> None:
     )
     assert traced.stdout.strip() == "['threshold']"
     assert "keymps: hook register_detectors() -> 1 plugin(s)" in traced.stderr
+
+
+def _distribution(folder: Path, name: str, entry_points: str) -> None:
+    """An installed distribution as pip leaves one: a dist-info folder with entry points."""
+    info = folder / f"{name}-0.1.dist-info"
+    info.mkdir(parents=True)
+    (info / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {name}\nVersion: 0.1\n")
+    (info / "entry_points.txt").write_text(textwrap.dedent(entry_points))
+
+
+def test_pydantic_is_spared_its_plugin_scan_only_when_no_distribution_has_a_plugin(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from keymps.plugin.manager import skip_pydantic_plugin_scan
+
+    monkeypatch.delenv("PYDANTIC_DISABLE_PLUGINS", raising=False)
+    assert skip_pydantic_plugin_scan()
+    assert os.environ["PYDANTIC_DISABLE_PLUGINS"] == "__all__"
+
+    monkeypatch.setenv("PYDANTIC_DISABLE_PLUGINS", "my_plugin")  # the user's own choice wins
+    assert not skip_pydantic_plugin_scan()
+    assert os.environ["PYDANTIC_DISABLE_PLUGINS"] == "my_plugin"
+
+    monkeypatch.delenv("PYDANTIC_DISABLE_PLUGINS")
+    _distribution(tmp_path, "pydantic_logging", "[pydantic]\nlog = pydantic_logging:plugin\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assert not skip_pydantic_plugin_scan()
+    assert "PYDANTIC_DISABLE_PLUGINS" not in os.environ
+    build_manager()  # uses up the read
+
+
+def test_the_entry_points_read_ahead_serve_one_manager_and_a_later_one_reads_again(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from keymps.plugin.manager import skip_pydantic_plugin_scan
+
+    monkeypatch.delenv("PYDANTIC_DISABLE_PLUGINS", raising=False)
+    skip_pydantic_plugin_scan()
+    _distribution(tmp_path, "keymps_late", "[keymps]\nlate = keymps_late_plugin\n")
+    (tmp_path / "keymps_late_plugin.py").write_text("")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assert not build_manager().has_plugin("late")  # installed after the read it was given
+    assert build_manager().has_plugin("late")

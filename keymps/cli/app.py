@@ -94,6 +94,9 @@ def _run(
     # The default detector's OpenCV tables (100 ms) are built on the other core while the task
     # loads; the board detector would start them only when it is made, too late to be hidden.
     prepare_lab_tables()
+    from keymps.plugin.manager import skip_pydantic_plugin_scan
+
+    skip_pydantic_plugin_scan()  # before the task models: the plugin scan is read once
     from keymps.cli.output import RunPrinter
     from keymps.errors import KeympsError
     from keymps.pipeline.engine import run_task

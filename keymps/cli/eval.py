@@ -96,6 +96,9 @@ def eval_command(
         # OpenCV's Lab tables (100 ms) on the idle core while the suite loads; the worker
         # processes forked from this one inherit them (keymps.eval.pool waits before forking)
         prepare_lab_tables()
+        from keymps.plugin.manager import skip_pydantic_plugin_scan
+
+        skip_pydantic_plugin_scan()  # before the suite's models: the plugin scan is read once
         from keymps.eval.report import markdown_table, write_summary
         from keymps.eval.runner import EvalOptions
         from keymps.eval.suites import load_suite

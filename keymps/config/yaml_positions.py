@@ -13,6 +13,8 @@ Location = tuple[int, int]
 
 @dataclass(frozen=True)
 class PositionedYaml:
+    """Parsed YAML and where each value and key is written in the text."""
+
     data: Any
     positions: dict[tuple[Any, ...], Location]
     """Maps a path of keys/indices to where its value starts in the file."""

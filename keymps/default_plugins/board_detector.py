@@ -94,6 +94,8 @@ def parse_options(options: dict[str, Any]) -> BoardOptions:
 
 @dataclass(frozen=True)
 class Region:
+    """One connected area that differs from the board."""
+
     contour: np.ndarray
     """(N, 2) boundary pixel indices (OpenCV's external contour)."""
     mask: np.ndarray

@@ -56,6 +56,8 @@ def parse_options(options: dict[str, Any]) -> ThresholdOptions:
 
 @dataclass(frozen=True)
 class Region:
+    """One thresholded blob: its contour, area and box (pixels)."""
+
     contour: np.ndarray
     area: float
     bbox: tuple[int, int, int, int]

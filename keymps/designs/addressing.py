@@ -67,6 +67,8 @@ class Target:
 
 @dataclass(frozen=True)
 class Clause:
+    """One part of a sentence and the objects it is about."""
+
     text: str
     """The design words, the object phrase replaced by 'it' (what the grammar reads)."""
     objects: tuple[int, ...]
@@ -76,6 +78,8 @@ class Clause:
 
 @dataclass(frozen=True)
 class _Mention:
+    """Words of a sentence that name objects, and which ones."""
+
     start: int
     end: int
     phrase: str

@@ -91,6 +91,8 @@ class UnreadableInstruction(KeympsError):
 
 @dataclass(frozen=True)
 class Intent:
+    """What a sentence asks for: the family, the design and its numbers."""
+
     family: Family
     design: Design
     count: int | None = None
@@ -133,6 +135,8 @@ class Intent:
 
 @dataclass
 class _Reader:
+    """A sentence being read, with the spans and words understood so far."""
+
     text: str
     understood: list[str] = field(default_factory=list)
     spans: list[tuple[int, int]] = field(default_factory=list)

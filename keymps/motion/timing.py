@@ -54,6 +54,8 @@ class Limits:
 
 @dataclass
 class TimedStroke:
+    """A stroke with its Ruckig profile of s, duration and the limits it was timed at."""
+
     stroke: Stroke
     profile: Any
     """ruckig.Trajectory of s."""

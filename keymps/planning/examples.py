@@ -16,6 +16,8 @@ Pixels = tuple[tuple[tuple[float, float], tuple[float, float]], ...]
 
 @dataclass(frozen=True)
 class Example:
+    """One worked example in a prompt: a sentence, what it asks for, the pairs that answer it."""
+
     sentence: str
     what: str
     pairs: Pixels
@@ -23,6 +25,8 @@ class Example:
 
 @dataclass(frozen=True)
 class ExampleImage:
+    """An example object image of a prompt and the sentences answered on it."""
+
     size: tuple[int, int]
     describe: str
     """The object in this image; {0}, {1} ... are `points`, written in the convention."""

@@ -20,6 +20,8 @@ ORIENTATIONS = ("vertical", "horizontal", "lengthwise", "crosswise")
 
 @dataclass(frozen=True)
 class CatalogueEntry:
+    """A named design the offline catalogue offers to a VLM, with its parameters."""
+
     name: str
     family: str
     """cutting or icing (the primitive family it needs)."""

@@ -36,6 +36,8 @@ def _without_image(value: Any, image_url: str, reference: str) -> Any:
 
 @dataclass
 class PlanSession:
+    """One plan stage's conversation with a backend: requests, repairs, cache and records."""
+
     task: Task
     run: Run
     backend_name: str

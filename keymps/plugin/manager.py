@@ -45,6 +45,8 @@ class PluginLoadWarning(UserWarning):
 
 @dataclass(frozen=True)
 class PluginInfo:
+    """One plugin as `keymps plugins` lists it."""
+
     name: str
     provides: tuple[str, ...]
     """e.g. ("detector threshold", "observer")."""
@@ -115,7 +117,7 @@ def build_manager() -> KeympsPluginManager:
             manager.register(importlib.import_module(module_name), name=name)
         except Exception as error:  # a broken plugin must not break unrelated commands
             manager.failures[name] = _warn_broken(name, error)
-    for entry_point in metadata.entry_points(group=ENTRY_POINT_GROUP):
+    for entry_point in _keymps_entry_points():
         dist = entry_point.dist
         if not _selected(entry_point.name, dist) or manager.has_plugin(entry_point.name):
             continue
@@ -128,6 +130,44 @@ def build_manager() -> KeympsPluginManager:
     if os.environ.get("KEYMPS_TRACE_PLUGINS"):
         _trace_hook_calls(manager)
     return manager
+
+
+PYDANTIC_PLUGIN_GROUP = "pydantic"
+
+_read_ahead: dict[str, metadata.EntryPoints] | None = None
+
+
+def _read_entry_points() -> dict[str, metadata.EntryPoints]:
+    """keymps' and pydantic's entry points of every installed distribution, in one read (it
+    opens every distribution's metadata: several milliseconds)."""
+    everything = metadata.entry_points()
+    return {
+        group: everything.select(group=group)
+        for group in (ENTRY_POINT_GROUP, PYDANTIC_PLUGIN_GROUP)
+    }
+
+
+def _keymps_entry_points() -> metadata.EntryPoints:
+    """Read now, or the read `skip_pydantic_plugin_scan` made just before (used once: a manager
+    built later reads again, and sees a plugin installed since)."""
+    global _read_ahead
+    found, _read_ahead = _read_ahead or _read_entry_points(), None
+    return found[ENTRY_POINT_GROUP]
+
+
+def skip_pydantic_plugin_scan() -> bool:
+    """Spare pydantic its own read of every distribution's entry points when none declares a
+    pydantic plugin: the documented PYDANTIC_DISABLE_PLUGINS, set to what pydantic would find
+    (nothing). For the keymps command's own process, before its first pydantic model; a value
+    the user exported wins. True when it was set."""
+    global _read_ahead
+    if "PYDANTIC_DISABLE_PLUGINS" in os.environ:
+        return False
+    _read_ahead = _read_entry_points()
+    if _read_ahead[PYDANTIC_PLUGIN_GROUP]:
+        return False
+    os.environ["PYDANTIC_DISABLE_PLUGINS"] = "__all__"
+    return True
 
 
 _manager: pluggy.PluginManager | None = None

@@ -26,6 +26,8 @@ CHUNK = 4096
 
 @dataclass(frozen=True)
 class _Joint:
+    """One revolute joint of the chain: its parent, placement and axis."""
+
     parent: int
     q_index: int
     rotation: np.ndarray

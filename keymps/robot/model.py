@@ -60,6 +60,8 @@ if TYPE_CHECKING:
 
 @dataclass(frozen=True)
 class IkResult:
+    """One inverse-kinematics solution and how far its pose is from the asked one."""
+
     q: np.ndarray
     position_error_m: float
     rotation_error_rad: float

@@ -41,6 +41,8 @@ STAGE_ORDER: tuple[str, ...] = ("image", *STAGES, "finished")
 
 @dataclass
 class _Session:
+    """One run's recording: its stream, mode and where it goes."""
+
     stream: Any
     """rerun.RecordingStream of this run (never the global one)."""
     mode: str
