@@ -1,6 +1,6 @@
 """A whole run against its floors: start-up, warm computation, each stage, recording, eval.
 
-Run: python benchmarks/perf/pipeline.py [--repeats 5] [--eval-repeats 1] [--skip-eval]
+Run: python benchmarks/perf/pipeline.py [--repeats 5] [--eval-repeats 1] [--eval-times 3] [--skip-eval]
          [--baseline-python /path/to/venv/bin/python]
 
 Everything is measured in this one run, interleaved (A, B, A, B ...) so that a busy machine
@@ -18,7 +18,8 @@ time. Figures:
   Ruckig sampling, batched vs per-configuration Pinocchio forward kinematics, vectorized vs
   per-point footprint test.
 - `icing_recording_mb`: run.rrd of the icing run with the recording on.
-- `eval_cutting_sim_runs_per_s`: `keymps eval cutting_sim` (offline, default processes).
+- `eval_cutting_sim_runs_per_s`: `keymps eval cutting_sim` (offline, default processes), the
+  median of --eval-times whole commands.
 
 With --baseline-python (an interpreter with another version of keymps installed, e.g. a venv
 with main's checkout), the CLI run, the warm computation, the recording and the eval are also
@@ -263,8 +264,11 @@ def recording_size(folder: Path, baseline: Path | None = None) -> float:
     return (target / "run.rrd").stat().st_size / 1e6
 
 
-def eval_rate(folder: Path, repeats: int, baseline: Path | None = None) -> tuple[float, int]:
-    out = folder / ("eval-baseline" if baseline else "eval")
+def eval_rate(
+    folder: Path, repeats: int, baseline: Path | None = None, attempt: int = 0
+) -> tuple[float, int]:
+    """Runs per second of one whole `keymps eval cutting_sim` (a new results folder)."""
+    out = folder / f"{'eval-baseline' if baseline else 'eval'}-{attempt}"
     arguments = [*keymps(baseline), "eval", "cutting_sim", "--quiet"]
     arguments += ["--out", str(out), "--repeats", str(repeats), "--backend", "offline"]
     started = time.perf_counter()
@@ -290,6 +294,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--eval-repeats", type=int, default=1, help="cutting_sim repeats per case")
+    parser.add_argument(
+        "--eval-times", type=int, default=3, help="whole eval commands measured (the median)"
+    )
     parser.add_argument("--skip-eval", action="store_true")
     parser.add_argument(
         "--baseline-python", type=Path, help="an interpreter with another keymps to compare with"
@@ -371,12 +378,21 @@ def main() -> None:
             lines.append((f"{prefix}icing_recording_mb", f"{size:.2f}"))
 
         if not args.skip_eval:
-            for prefix, source in sources.items():
-                rate, runs = eval_rate(folder, args.eval_repeats, source)
+            rates: dict[str, list[float]] = {prefix: [] for prefix in sources}
+            runs = 0
+            for attempt in range(max(1, args.eval_times)):  # interleaved, as everything else
+                for prefix, source in sources.items():
+                    rate, runs = eval_rate(folder, args.eval_repeats, source, attempt)
+                    rates[prefix].append(rate)
+            for prefix, measured in rates.items():
+                shown = ", ".join(f"{rate:.2f}" for rate in measured)
                 print(
-                    f"{prefix or 'this '}eval cutting_sim (load {load()}): {runs} runs, {rate:.2f} runs/s"
+                    f"{prefix or 'this '}eval cutting_sim (load {load()}): {runs} runs, "
+                    f"median {statistics.median(measured):.2f} runs/s ({shown})"
                 )
-                lines.append((f"{prefix}eval_cutting_sim_runs_per_s", f"{rate:.2f}"))
+                lines.append(
+                    (f"{prefix}eval_cutting_sim_runs_per_s", f"{statistics.median(measured):.2f}")
+                )
         lines.append(("bytecode_cached", str(int(not args.no_bytecode))))
         lines.append(("load_average", load()))
     for name, value in lines:
