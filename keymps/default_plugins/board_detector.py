@@ -38,6 +38,7 @@ from keymps.perception.search_area import (
 )
 from keymps.plugin import DetectionError, RegisterDetector, hookimpl
 from keymps.plugin import parse_options as plugin_options
+from keymps.sorted_values import median, percentile
 from keymps.types import DetectedObject, Detection, SceneImage
 
 NOISE_FACTOR = 1.5
@@ -280,9 +281,9 @@ class BoardDetector:
         else:
             board_pixels = band
         samples = distance[board_pixels]
-        typical = float(np.median(samples))
+        typical = float(median(samples))
         inliers = samples[samples <= 3.0 * typical + 1.0]
-        noise = float(np.percentile(inliers, 99.5)) if inliers.size else typical
+        noise = percentile(inliers, 99.5) if inliers.size else typical
         distance[~area.mask] = 0.0
         return distance, model, surface, noise
 
@@ -323,7 +324,7 @@ class BoardDetector:
                         float((inside_box & band).sum()) / pixels
                         for band, pixels in zip(bands_box, band_pixels, strict=True)
                     ),
-                    contrast=float(np.median(distance[box][inside_box & mask[box]])),
+                    contrast=float(median(distance[box][inside_box & mask[box]])),
                     edge_contrast=_edge_contrast(filled, distance, (x, y, x + w, y + h)),
                 )
             )
@@ -344,7 +345,7 @@ def _edge_contrast(
     ring = (outer > 0) & (inner == 0)
     if not ring.any():
         ring = part > 0
-    return float(np.median(distance[y0:y1, x0:x1][ring]))
+    return float(median(distance[y0:y1, x0:x1][ring]))
 
 
 MAX_ALONG_SIDE = 0.5

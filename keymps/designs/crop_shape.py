@@ -9,6 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from keymps.designs.outline import Outline, ShapeKind, polygon_area, polygon_centroid
+from keymps.sorted_values import median
 
 ELONGATED_ASPECT = 1.35
 """Length / width at or above which an object is elongated (a loaf, an eggplant)."""
@@ -49,7 +50,7 @@ def segment_crop(crop: np.ndarray) -> np.ndarray | None:
     border = np.concatenate(
         [blurred[0], blurred[-1], blurred[:, 0], blurred[:, -1]], axis=0
     ).reshape(-1, blurred.shape[2])
-    background = np.median(border, axis=0)
+    background = median(border, axis=0)
     difference = np.abs(blurred - background).max(axis=2)
     mask = difference > BACKGROUND_THRESHOLD
     if mask.sum() < 0.01 * mask.size:

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from keymps.errors import KeympsError
+from keymps.sorted_values import distinct
 from keymps.types import JointPath, Piece, ToolPath
 
 if TYPE_CHECKING:
@@ -278,7 +279,7 @@ def _every_few(points: np.ndarray, yaw: np.ndarray) -> np.ndarray:
     arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(_parameter_steps(points, yaw), axis=1))])
     bins = np.floor(arc / CARRY_SPACING_M)
     keep = np.flatnonzero(np.diff(bins, prepend=-1.0) > 0)
-    return np.union1d(keep, [0, len(points) - 1])
+    return distinct(np.concatenate([keep, [0, len(points) - 1]]))
 
 
 def _densify(

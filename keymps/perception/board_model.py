@@ -20,6 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from keymps.sorted_values import median
+
 MAX_SAMPLES = 12_000
 """Board pixels used for one fit (drawn evenly); more change the surface by nothing visible."""
 
@@ -166,8 +168,8 @@ def fit_board(
     design = _monomials(x, y, degree)
     # start from the median colour: where the border is mostly board, that is the board's,
     # even with something else along part of it (the table, an object's edge)
-    residual = _row_norms(values - np.median(values, axis=0))
-    inliers = residual <= 3.0 * float(np.median(residual)) + 1.0
+    residual = _row_norms(values - median(values, axis=0))
+    inliers = residual <= 3.0 * float(median(residual)) + 1.0
     coefficients = np.zeros((design.shape[1], 3))
     for _ in range(iterations):
         if inliers.sum() < design.shape[1] * 4:
@@ -179,14 +181,14 @@ def fit_board(
             used.T @ used + 1e-9 * np.eye(used.shape[1]), used.T @ values.take(kept, axis=0)
         )
         residual = _row_norms(values - design @ coefficients)
-        typical = float(np.median(residual[inliers]))
+        typical = float(median(residual[inliers]))
         inliers = residual <= 3.0 * typical + 1.0
     return BoardModel(
         coefficients.astype(np.float32),
         degree,
         (width, height),
         int(inliers.sum()),
-        float(np.median(residual[inliers])) if inliers.any() else 0.0,
+        float(median(residual[inliers])) if inliers.any() else 0.0,
     )
 
 

@@ -7,6 +7,8 @@ from typing import Any
 
 import numpy as np
 
+from keymps.sorted_values import distinct
+
 
 def row_norms(vectors: np.ndarray) -> np.ndarray:
     """(n,) Euclidean norms of (n, k) vectors: np.linalg.norm(vectors, axis=1) summed in the
@@ -119,7 +121,7 @@ def distance_to_polylines(
             out[mine], near[mine] = found, found_near
     if near.all():
         return out
-    for line in np.unique(which[~near]):
+    for line in distinct(which[~near]):
         rest = np.flatnonzero((which == line) & ~near)
         out[rest] = distance_to_polyline(points[rest], polylines[line])
     return out

@@ -18,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+from keymps.sorted_values import distinct
+
 TOLERANCE_M = 0.0002
 """An edge is merged while the merged vertex stays this close (RMS) to the surface it replaces."""
 BORDER_WEIGHT = 10.0
@@ -246,7 +248,7 @@ def _kept_faces(faces: np.ndarray) -> np.ndarray:
 def _edges(faces: np.ndarray, count: int) -> np.ndarray:
     """The mesh's edges (a < b), each once, sorted."""
     pairs = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
-    key = np.unique(pairs[:, 0].astype(np.int64) * count + pairs[:, 1])
+    key = distinct(pairs[:, 0].astype(np.int64) * count + pairs[:, 1])
     return np.column_stack([key // count, key % count])
 
 
@@ -361,7 +363,7 @@ def collapse_edges(
         faces = remap[faces]
         kept = _kept_faces(faces)
         faces, labels = faces[kept], labels[kept]
-    used = np.unique(faces)
+    used = distinct(faces)
     index = np.full(len(points), -1)
     index[used] = np.arange(len(used))
     return points[used], index[faces], labels

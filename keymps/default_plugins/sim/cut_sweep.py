@@ -12,6 +12,7 @@ import math
 import numpy as np
 
 from keymps.robot.safety_geometry import row_norms
+from keymps.sorted_values import distinct
 
 SWEEP_STEP_M = 0.0005
 """The blade's position is taken each time its tip or far end has moved this far."""
@@ -169,7 +170,7 @@ def _inside_runs(
     too only when the cells round them are not all of one kind (near the footprint's edge):
     runs begin and end only there, or at a segment's ends."""
     n = len(fractions)
-    coarse = np.unique(np.append(np.arange(0, n, COARSE_SAMPLES), n - 1))
+    coarse = distinct(np.append(np.arange(0, n, COARSE_SAMPLES), n - 1))
     gaps = np.diff(coarse)
     cell_column = footprint.cells(starts[:, 0, None] + fractions[coarse] * steps[:, 0, None], 0)
     cell_row = footprint.cells(starts[:, 1, None] + fractions[coarse] * steps[:, 1, None], 1)

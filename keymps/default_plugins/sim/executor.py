@@ -29,6 +29,7 @@ from keymps.default_plugins.sim.cut_sweep import (
 )
 from keymps.plugin import RegisterExecutor, hookimpl, parse_options, require_validated
 from keymps.robot.safety_geometry import distance_to_polylines, row_norms
+from keymps.sorted_values import distinct
 from keymps.text_drawing import on_text_thread
 from keymps.types import ExecutionReport, SceneImage, ToolPath, ValidatedTrajectory
 
@@ -168,7 +169,7 @@ def marks(result: Replay, object_top: float | np.ndarray, blade_length: float = 
     sample), icing where work stayed on it."""
     work = result.kind == "work"
     below_top = result.tool_xyz[:, 2] < object_top - 1e-4
-    cutting_pieces = np.unique(result.piece_index[work & below_top])
+    cutting_pieces = distinct(result.piece_index[work & below_top])
     cutting = work & np.isin(result.piece_index, cutting_pieces)
     cut_runs = [(a, b) for a, b in _runs(cutting & below_top) if b - a >= 2]
     cuts = [result.tool_xyz[a:b, :2] for a, b in cut_runs]
@@ -206,7 +207,7 @@ def _by_piece(pieces: np.ndarray) -> list[tuple[int, np.ndarray | None]]:
     when there is one piece only (the common case: no copies needed)."""
     if len(pieces) and (pieces == pieces[0]).all():
         return [(int(pieces[0]), None)]
-    return [(int(piece), pieces == piece) for piece in np.unique(pieces)]
+    return [(int(piece), pieces == piece) for piece in distinct(pieces)]
 
 
 def render_outcome(
