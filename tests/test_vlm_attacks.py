@@ -271,6 +271,26 @@ def test_a_prompt_the_task_names_must_be_a_small_file_in_its_folder(
 
 
 @pytest.mark.parametrize(
+    ("written", "expected"),
+    [(r'"a\nb.md"', "file not found: '"), (r'"a\0b.md"', "not a valid file name: '")],
+)
+def test_a_prompt_name_with_a_newline_or_a_nul_is_refused_in_one_located_line(
+    written: str, expected: str, tmp_path: Path
+) -> None:
+    """YAML's escapes put any character in a name: the message quotes it (no second line), and
+    a NUL, which no file name can hold, is refused rather than crashing the path lookup."""
+    task = hostile_task(tmp_path / "task", prompt=written)
+    result = CliRunner().invoke(cli, ["validate", str(task)])
+    assert result.exit_code == 1, result.output
+    lines = result.output.strip().splitlines()
+    assert len(lines) == 1 and "planner.prompt:" in lines[0] and expected in lines[0], lines
+    with pytest.raises(KeympsError) as caught:
+        run(task, tmp_path / "run")
+    assert_clean_error(caught.value)
+    assert RecordingExecutor.calls == []
+
+
+@pytest.mark.parametrize(
     ("case", "expected"),
     [("link to /dev/zero", "kernel or device"), ("link out", "outside"), ("fifo", "regular")],
 )

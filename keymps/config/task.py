@@ -347,7 +347,9 @@ def parse_task(text: str, source: str = "<task>", path: Path | None = None) -> T
 
 def file_problem(path: Path) -> str | None:
     """Why `path` cannot be read as an input file (None when it is a regular file)."""
-    shown = str(path) if str(path).isprintable() else repr(str(path))
+    from keymps.config.trust import shown_path
+
+    shown = shown_path(path)
     try:
         mode = path.stat().st_mode
     except ValueError:  # a NUL character: no file can have this name

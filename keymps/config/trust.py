@@ -41,14 +41,28 @@ def api_key_env_problem(name: str, allowed: Sequence[str] = ()) -> str | None:
     )
 
 
+def shown_path(path: Path) -> str:
+    """A path for a one-line message: as it is, or quoted with escapes when it holds a newline
+    or another character that is not printable (a task file can write any)."""
+    text = str(path)
+    return text if text.isprintable() else repr(text)
+
+
 def readable_file_problem(path: Path, roots: Sequence[Path], max_bytes: int) -> str | None:
     """Why `path` may not be read on a task's behalf (None when it may): it must be a regular
     file, at most `max_bytes`, whose real path (symlinks followed) is inside one of `roots`."""
+    problem = _readable_file_problem(path, roots, max_bytes)
+    return None if problem is None else problem.replace(str(path), shown_path(path))
+
+
+def _readable_file_problem(path: Path, roots: Sequence[Path], max_bytes: int) -> str | None:
     try:
         real = path.resolve(strict=True)
         info = real.stat()
     except FileNotFoundError:
         return f"file not found: {path}"
+    except ValueError:  # a NUL character: no file can have this name
+        return f"not a valid file name: {path}"
     except RuntimeError:  # a symlink loop (Python < 3.13)
         return f"cannot resolve {path}: a symlink loop"
     except OSError as error:
