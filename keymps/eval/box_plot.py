@@ -16,6 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
+from keymps.sorted_values import percentile
+
 WHISKER = 1.5
 """Whiskers reach the furthest value within WHISKER x the interquartile range of the box."""
 DPI = 120
@@ -48,7 +50,7 @@ class BoxStats:
 def box_stats(values: Sequence[float]) -> BoxStats:
     """The statistics one box shows (at least one value)."""
     data = np.sort(np.asarray(values, dtype=float))
-    q1, median, q3 = (float(v) for v in np.percentile(data, [25, 50, 75]))
+    q1, median, q3 = (percentile(data, q) for q in (25, 50, 75))  # NumPy's, without numpy.ma
     reach = WHISKER * (q3 - q1)
     inside = data[(data >= q1 - reach) & (data <= q3 + reach)]
     low = float(inside[0]) if len(inside) else q1
