@@ -2,10 +2,10 @@
 
 OpenCV 5 renders every font (the Hershey names included) with FreeType from gzipped built-in
 fonts, and sets that up once per thread: a thread's first getTextSize or putText costs about
-25 ms. Every picture with text (plan.png's pair numbers, the outcome's object numbers, the
-marked crop a VLM sees) is drawn here, on one thread that `prepare_text_drawing` starts early:
-its set-up then runs on the other core while the run's first stages compute, and no later run
-thread pays it again.
+25 ms. The pictures runs and evals write with text (plan.png's pair numbers, the outcome's
+object numbers, the marked crop a VLM sees, the direct method's plan, the eval's box plot) are
+drawn here, on one thread that `prepare_text_drawing` starts early: its set-up then runs on
+the other core while the run's first stages compute, and no later run thread pays it again.
 """
 
 from __future__ import annotations

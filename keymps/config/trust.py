@@ -51,36 +51,32 @@ def shown_path(path: Path) -> str:
 def readable_file_problem(path: Path, roots: Sequence[Path], max_bytes: int) -> str | None:
     """Why `path` may not be read on a task's behalf (None when it may): it must be a regular
     file, at most `max_bytes`, whose real path (symlinks followed) is inside one of `roots`."""
-    problem = _readable_file_problem(path, roots, max_bytes)
-    return None if problem is None else problem.replace(str(path), shown_path(path))
-
-
-def _readable_file_problem(path: Path, roots: Sequence[Path], max_bytes: int) -> str | None:
+    shown = shown_path(path)
     try:
         real = path.resolve(strict=True)
         info = real.stat()
     except FileNotFoundError:
-        return f"file not found: {path}"
+        return f"file not found: {shown}"
     except ValueError:  # a NUL character: no file can have this name
-        return f"not a valid file name: {path}"
+        return f"not a valid file name: {shown}"
     except RuntimeError:  # a symlink loop (Python < 3.13)
-        return f"cannot resolve {path}: a symlink loop"
+        return f"cannot resolve {shown}: a symlink loop"
     except OSError as error:
-        return f"cannot resolve {path}: {error.strerror or error}"
+        return f"cannot resolve {shown}: {error.strerror or error}"
     if any(real == p or p in real.parents for p in NEVER_READ):
-        return f"{path} is a kernel or device file ({real}); not read"
+        return f"{shown} is a kernel or device file ({real}); not read"
     if not stat.S_ISREG(info.st_mode):
-        return f"{path} is not a regular file (a folder, device, pipe or socket)"
+        return f"{shown} is not a regular file (a folder, device, pipe or socket)"
     real_roots = [_real(root) for root in roots]
     if not any(real == root or root in real.parents for root in real_roots):
-        shown = ", ".join(str(r) for r in real_roots)
+        searched = ", ".join(str(r) for r in real_roots)
         return (
-            f"{path} is outside the task's folder and the search folders ({shown}); "
+            f"{shown} is outside the task's folder and the search folders ({searched}); "
             "copy it next to the task"
         )
     if info.st_size > max_bytes:
         return (
-            f"{path}: {info.st_size} bytes, more than the {max_bytes} a file of its kind may have"
+            f"{shown}: {info.st_size} bytes, more than the {max_bytes} a file of its kind may have"
         )
     return None
 

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from keymps.sorted_values import percentile
+from keymps.text_drawing import on_text_thread
 
 WHISKER = 1.5
 """Whiskers reach the furthest value within WHISKER x the interquartile range of the box."""
@@ -90,6 +91,12 @@ def draw_box_plot(
     values: dict[str, dict[str, list[float]]], cases: Sequence[str], title: str
 ) -> np.ndarray:
     """The box plot as a BGR image, DPI pixels per inch, HEIGHT_PX high."""
+    return on_text_thread(_draw_box_plot, values, cases, title)
+
+
+def _draw_box_plot(
+    values: dict[str, dict[str, list[float]]], cases: Sequence[str], title: str
+) -> np.ndarray:
     import cv2
 
     methods = sorted(values)

@@ -16,6 +16,7 @@ import numpy as np
 from keymps.eval.context import MethodContext, MethodOutput
 from keymps.eval.vlm import Seen, ask, look
 from keymps.planning.answer import strict_object_schema
+from keymps.text_drawing import on_text_thread
 
 
 def _finish(
@@ -23,21 +24,27 @@ def _finish(
 ) -> MethodOutput:
     """Attach the calls, draw the generated motion over the scene (the plan image), keep the
     sidecar."""
-    import cv2
-
     from keymps.perception.frames import ImageFrame
     from keymps.run import image_file, write_image
 
     frame = ImageFrame.from_task(seen.task, seen.scene.size_px)
-    image = seen.scene.image.copy()
-    for index, piece in enumerate(output.work_pieces):
-        pixels = np.round(frame.to_pixels(np.asarray(piece)[:, :2])).astype(np.int32)
+    pieces_px = [frame.to_pixels(np.asarray(piece)[:, :2]) for piece in output.work_pieces]
+    image = on_text_thread(_draw_motion, seen.scene.image.copy(), pieces_px)
+    path = write_image(image_file(context.folder, "plan", context.image_format), image)
+    return replace(output, calls=tuple(calls), images={"plan": str(path)}, scene=seen.truth)
+
+
+def _draw_motion(image: np.ndarray, pieces_px: list[np.ndarray]) -> np.ndarray:
+    """Each work piece as a red line over the scene, numbered in green at its start."""
+    import cv2
+
+    for index, piece in enumerate(pieces_px):
+        pixels = np.round(piece).astype(np.int32)
         cv2.polylines(image, [pixels.reshape(-1, 1, 2)], False, (0, 0, 255), 2, cv2.LINE_AA)
         x, y = (int(v) for v in pixels[0])
         cv2.putText(image, str(index + 1), (x + 4, y - 4), cv2.FONT_HERSHEY_SIMPLEX, 0.5,
                     (0, 160, 0), 1, cv2.LINE_AA)  # fmt: skip
-    path = write_image(image_file(context.folder, "plan", context.image_format), image)
-    return replace(output, calls=tuple(calls), images={"plan": str(path)}, scene=seen.truth)
+    return image
 
 
 def _number_list(value: Any, length: int, what: str) -> tuple[list[float] | None, str | None]:

@@ -61,10 +61,9 @@ def _preload() -> None:
         # a plugin that is not installed is imported by nobody
         with contextlib.suppress(ImportError):
             importlib.import_module(name)
-    # what every worker's first run would otherwise pay: the board and noise field of the
-    # default 0.30 x 0.18 m board at 2000 px/m (25 ms). (Not OpenCV's fonts: it sets up its
-    # text renderer once per thread, and a worker's runs are on threads of their own.)
-    # OpenCV's Lab tables (about 100 ms): built once here, not in every worker's first detection
+    # what every worker's first run would otherwise pay: OpenCV's Lab tables (about 100 ms) and
+    # the board and noise field of the default 0.30 x 0.18 m board at 2000 px/m (25 ms). (Not
+    # OpenCV's fonts: they are set up per thread, and a worker starts its own text thread.)
     prepare_lab_tables()
     lab_tables_ready()
     keymps.scenes.render.render_scene(keymps.scenes.render.SceneSpec.from_kinds(["round_cake"]))
