@@ -293,3 +293,27 @@ def test_keymps_run_starts_the_lab_tables_before_it_reads_the_task(tmp_path: Pat
     )
     assert done.stdout.split()[-1] == "True", done.stderr
     assert "missing.yaml" in done.stderr  # it did stop at the task
+
+
+def test_a_process_ending_while_the_lab_tables_are_built_exits_cleanly() -> None:
+    """The build was a daemon thread: a process done before it (`keymps validate`, which makes
+    a detector) aborted in OpenCV's exit-time destructors, 5 times in 6 here, exit code 134."""
+    import subprocess
+    import sys
+
+    end_at_once = (
+        "import cv2\n"
+        "from keymps.perception.board_model import prepare_lab_tables\n"
+        "prepare_lab_tables()\n"
+    )
+    validate = (
+        "import sys\nfrom keymps.cli.app import main\n"
+        "sys.argv = ['keymps', 'validate', sys.argv[1]]\nmain()\n"
+    )
+    task = str(Path(__file__).parents[1] / "tasks" / "cake_icing.yaml")
+    for code, arguments in [(end_at_once, [])] * 6 + [(validate, [task])] * 2:
+        done = subprocess.run(
+            [sys.executable, "-c", code, *arguments], capture_output=True, text=True, timeout=60
+        )
+        assert done.returncode == 0, done.stderr
+        assert "terminate" not in done.stderr

@@ -34,13 +34,15 @@ def prepare_lab_tables() -> None:
 
     OpenCV builds them on a process's first conversion to or from Lab: about 100 ms of software
     floating point, with the GIL released, so on a second core it costs the run nothing. The
-    board detector starts it when it is made, well before the run detects."""
+    board detector starts it when it is made, well before the run detects.
+
+    Not a daemon: a process ending while the build is inside OpenCV (`keymps validate` makes a
+    detector and is done in milliseconds) aborted in OpenCV's exit-time destructors
+    ("terminate called without an active exception"); the interpreter now waits for it."""
     global _lab_tables
     with _lab_tables_lock:
         if _lab_tables is None:
-            _lab_tables = threading.Thread(
-                target=_build_lab_tables, name="keymps-lab-tables", daemon=True
-            )
+            _lab_tables = threading.Thread(target=_build_lab_tables, name="keymps-lab-tables")
             _lab_tables.start()
 
 
