@@ -171,12 +171,103 @@ def test_a_plugin_bug_is_one_line_and_nothing_runs_after_it(
         keymps.run_task(path, executor="recording", out=tmp_path / "run", rerun="off")
     assert str(caught.value) == (
         "detect: unexpected ZeroDivisionError: plugin bug "
-        "(a bug in keymps or a plugin; KEYMPS_DEBUG=1 shows the traceback)"
+        "(a bug in keymps or the detector 'crashing'; KEYMPS_DEBUG=1 shows the traceback)"
     )
     assert RecordingExecutor.calls == []
     monkeypatch.setenv("KEYMPS_DEBUG", "1")
     with pytest.raises(ZeroDivisionError):
         keymps.run_task(path, executor="recording", out=tmp_path / "run2", rerun="off")
+
+
+class _Misbehaving:
+    """An image source, detector and executor returning `what` (or raising it) instead of
+    their result: what a stranger's plugin may do. (No arm exists here: nothing moves.)"""
+
+    what: object = None
+
+    def __init__(self, options: dict) -> None:
+        pass
+
+    def _misbehave(self) -> object:
+        if isinstance(_Misbehaving.what, BaseException):
+            raise _Misbehaving.what
+        return _Misbehaving.what
+
+    def load(self, run):
+        return self._misbehave()
+
+    def detect(self, scene):
+        return self._misbehave()
+
+    def execute(self, validated, run):
+        RecordingExecutor.calls.append(validated)
+        return self._misbehave()
+
+
+class _MisbehavingPlugin:
+    @hookimpl
+    def register_image_sources(self, register):
+        register("odd-source", _Misbehaving)
+
+    @hookimpl
+    def register_detectors(self, register):
+        register("odd-detector", _Misbehaving)
+
+    @hookimpl
+    def register_executors(self, register):
+        register("odd-executor", _Misbehaving)
+
+
+@pytest.mark.parametrize(
+    ("stage", "replace", "returned", "message"),
+    [
+        ("execute", None, None, "executor 'odd-executor' returned None, not an ExecutionReport"),
+        (
+            "execute",
+            None,
+            {"ok": True},
+            "executor 'odd-executor' returned dict, not an ExecutionReport",
+        ),
+        (
+            "detect",
+            ("detector: {name: board}", "detector: {name: odd-detector}"),
+            None,
+            "detector 'odd-detector' returned None, not a Detection",
+        ),
+        (
+            "image",
+            ("scene:\n", "scene:\n  source: odd-source\n"),
+            "photo.png",
+            "image source 'odd-source' returned str, not a SceneImage",
+        ),
+        (
+            "image",
+            ("scene:\n", "scene:\n  source: odd-source\n"),
+            OSError("camera unplugged"),
+            "camera unplugged",
+        ),
+    ],
+)
+def test_a_plugin_returning_something_else_is_one_line_recorded_in_run_json(
+    tmp_path: Path,
+    observer: EnginePlugin,
+    keymps_plugins,
+    stage: str,
+    replace: tuple[str, str] | None,
+    returned: object,
+    message: str,
+) -> None:
+    keymps_plugins.register(_MisbehavingPlugin(), name="misbehaving")
+    _Misbehaving.what = returned
+    path = _task_copy(tmp_path, replace)
+    with pytest.raises(StageError) as caught:
+        keymps.run_task(path, executor="odd-executor", out=tmp_path / "run", rerun="off")
+    assert str(caught.value) == f"{stage}: {message}"
+    record = json.loads((tmp_path / "run/run.json").read_text())
+    assert record["status"] == "failed"
+    assert message in record["error"]
+    if stage != "execute":
+        assert RecordingExecutor.calls == []  # nothing after the failed stage ran
 
 
 def test_an_image_that_does_not_span_the_workspace_is_a_warning(

@@ -11,7 +11,7 @@ import warnings
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from keymps.config.overrides import apply_overrides
 from keymps.config.task import Task, load_task
@@ -19,7 +19,9 @@ from keymps.errors import KeympsError, RunInterrupted, StageError, TaskFileError
 from keymps.planning.backend_choice import NO_SERVER
 from keymps.plugin.manager import create_component, get_manager
 from keymps.run import IMAGE_FORMATS, STAGES, Run, RunOptions
-from keymps.types import Detection, SceneImage
+from keymps.types import Detection, ExecutionReport, SceneImage
+
+Result = TypeVar("Result")
 
 StageCallback = Callable[[str, float, Any], None]
 """on_stage(stage, seconds, result): called after each stage (the CLI shows progress with it)."""
@@ -180,6 +182,9 @@ class _Pipeline:
         except KeympsError as error:
             raise StageError(name, str(error), detail=error) from None
         except OSError as error:  # a full disk, a read-only folder ...: the path, in one line
+            if error.errno is None:  # raised by a plugin with its own words ("camera unplugged")
+                message = " ".join(str(error).split()) or type(error).__name__
+                raise StageError(name, message, detail=error) from None
             if error.filename is None:  # a failed write() names no file
                 error = OSError(error.errno, error.strerror, f"a file in {self.run.folder}")
             raise StageError(name, os_error_message(error), detail=error) from None
@@ -189,10 +194,12 @@ class _Pipeline:
             if os.environ.get("KEYMPS_DEBUG"):
                 raise
             detail = " ".join(str(error).split()) or "no message"
+            plugin = self.plugin_of(name)
+            suspects = f"keymps or the {plugin}" if plugin else "keymps or a plugin"
             raise StageError(
                 name,
                 f"unexpected {type(error).__name__}: {detail} "
-                "(a bug in keymps or a plugin; KEYMPS_DEBUG=1 shows the traceback)",
+                f"(a bug in {suspects}; KEYMPS_DEBUG=1 shows the traceback)",
             ) from error
         seconds = time.perf_counter() - started
         self.current, self.done = None, name
@@ -202,6 +209,26 @@ class _Pipeline:
             self.on_stage(name, seconds, result)
         self.announce(name, result)
         return result
+
+    def returned(self, stage: str, result: Result, expected: type[Result]) -> Result:
+        """A plugin's result, refused in one line unless it is of the documented type (an
+        executor returning None must not pass as a finished run)."""
+        if not isinstance(result, expected):
+            got = "None" if result is None else type(result).__name__
+            wanted = expected.__name__
+            article = "an" if wanted[0] in "AEIOU" else "a"
+            raise KeympsError(f"{self.plugin_of(stage)} returned {got}, not {article} {wanted}")
+        return result
+
+    def plugin_of(self, stage: str) -> str | None:
+        """The plugin whose code a stage calls ("executor 'sim'"), for a bug's one line."""
+        task = self.run.task
+        return {
+            "image": f"image source {task.scene.source!r}",
+            "detect": f"detector {task.detector.name!r}",
+            "plan": f"planner backend {self.parts.backend!r}",
+            "execute": f"executor {task.executor.name!r}",
+        }.get(stage)
 
     def announce(self, name: str, result: Any) -> None:
         """Tell the observers; a broken observer is reported, never fatal to the run."""
@@ -233,7 +260,10 @@ class _Pipeline:
         run, parts, task = self.run, self.parts, self.run.task
         # with board corners, every later stage works in the rectified top-down image
         scene: SceneImage = self.stage(
-            "image", lambda: rectify_scene(parts.image_source.load(run), task)
+            "image",
+            lambda: rectify_scene(
+                self.returned("image", parts.image_source.load(run), SceneImage), task
+            ),
         )
         size = scene.size_px
         pixel_shape = geometry.pixel_shape_warning(task, size)
@@ -243,7 +273,8 @@ class _Pipeline:
         found: dict[str, Any] = {}
 
         def detect() -> Detection:
-            detection = top_surface(refuse_the_board(parts.detector.detect(scene), size), scene)
+            detected = self.returned("detect", parts.detector.detect(scene), Detection)
+            detection = top_surface(refuse_the_board(detected, size), scene)
             detection = crop_covering_objects(detection, scene.image)
             frame = geometry.ImageFrame.for_scene(task, scene)
             objects = scene_objects(detection, task, frame)  # a count mismatch stops here
@@ -303,7 +334,10 @@ class _Pipeline:
             "check", lambda: validate(robot, trajectory, tool_path, grounding.objects, task)
         )
         _write_file(lambda: write_trajectory_csv(validated.trajectory, run.path("trajectory.csv")))
-        report = self.stage("execute", lambda: executor.execute(validated, run))
+        report = self.stage(
+            "execute",
+            lambda: self.returned("execute", executor.execute(validated, run), ExecutionReport),
+        )
         if not report.ok:
             raise StageError("execute", report.message or f"executor {report.executor} failed")
 
