@@ -147,6 +147,31 @@ def test_a_failing_observer_is_a_warning_not_a_failed_run(tmp_path: Path, keymps
     assert any("observer bug" in w for w in run.warnings)
 
 
+def test_a_failing_observer_hides_no_stage_from_the_others(
+    tmp_path: Path, observer: EnginePlugin, keymps_plugins
+) -> None:
+    """pluggy stops a hook call at its first exception: the observers are called one by one,
+    so one registered after (called before) the others does not blind them, the recorder too."""
+
+    class Exploding:
+        @hookimpl
+        def keymps_stage_done(self, stage, result, run):
+            if stage == "detect":
+                raise RuntimeError("observer bug")
+
+    keymps_plugins.register(Exploding(), name="exploding")
+    with pytest.warns(RuntimeWarning) as caught:
+        run = keymps.run_task(
+            _task_copy(tmp_path), executor="recording", out=tmp_path / "run", rerun="off"
+        )
+    assert [stage for stage, _ in observer.events] == ["image", *STAGES, "finished"]
+    expected = (
+        "an observer of stage 'detect' failed (plugin 'exploding'): RuntimeError: observer bug"
+    )
+    assert [str(w.message) for w in caught if "observer" in str(w.message)] == [expected]
+    assert expected in run.warnings
+
+
 class _CrashingDetector:
     def __init__(self, options: dict) -> None:
         pass

@@ -231,13 +231,22 @@ class _Pipeline:
         }.get(stage)
 
     def announce(self, name: str, result: Any) -> None:
-        """Tell the observers; a broken observer is reported, never fatal to the run."""
-        try:
-            self.manager.hook.keymps_stage_done(stage=name, result=result, run=self.run)
-        except Exception as error:
-            message = f"an observer of stage {name!r} failed: {type(error).__name__}: {error}"
-            self.run.warnings.append(message)
-            warnings.warn(message, RuntimeWarning, stacklevel=2)
+        """Tell the observers, each on its own: one that raises is reported (by name) and the
+        others, the Rerun recorder among them, still see the stage."""
+        observers = [impl.plugin for impl in self.manager.hook.keymps_stage_done.get_hookimpls()]
+        for observer in reversed(observers):  # pluggy's order: the last registered first
+            others = [plugin for plugin in observers if plugin is not observer]
+            only = self.manager.subset_hook_caller("keymps_stage_done", remove_plugins=others)
+            try:
+                only(stage=name, result=result, run=self.run)
+            except Exception as error:
+                plugin = self.manager.get_name(observer)
+                message = (
+                    f"an observer of stage {name!r} failed (plugin {plugin!r}): "
+                    f"{type(error).__name__}: {error}"
+                )
+                self.run.warnings.append(message)
+                warnings.warn(message, RuntimeWarning, stacklevel=2)
 
     def execute_all(self) -> None:
         from keymps.config.limits import check_duration, check_tool_path
