@@ -124,7 +124,9 @@ def test_sim_draws_icing_dots_on_the_cake(tmp_path: Path) -> None:
 def test_file_executor_writes_csv_and_ros_joint_trajectory(tmp_path: Path) -> None:
     validated, run = validated_run("icing", tmp_path)
     elsewhere = tmp_path / "exports" / "plan.json"
-    report = create_component("executor", "file", {"json": str(elsewhere)}).execute(validated, run)
+    report = create_component("executor", "file", {"json": "exports/plan.json"}).execute(
+        validated, run
+    )
     assert report.ok
     assert report.files == (str(tmp_path / "trajectory.csv"), str(elsewhere))
     trajectory = validated.trajectory
@@ -148,6 +150,28 @@ def test_file_executor_writes_csv_and_ros_joint_trajectory(tmp_path: Path) -> No
         assert points[i]["positions"] == pytest.approx(list(trajectory.q[i]))
         assert points[i]["velocities"] == pytest.approx(list(trajectory.qd[i]))
         assert points[i]["accelerations"] == pytest.approx(list(trajectory.qdd[i]))
+
+
+@pytest.mark.parametrize(
+    "options",
+    [
+        {"csv": "/etc/cron.d/evil"},
+        {"json": "../../../../tmp/escape.json"},
+        {"csv": "exports/../../outside.csv"},
+        {"json": "."},
+    ],
+)
+def test_a_task_file_cannot_make_the_file_executor_write_outside_the_run_folder(
+    tmp_path: Path, options: dict
+) -> None:
+    """A shared task file once wrote /etc/cron.d/evil as root (docs/security.md)."""
+    key, value = next(iter(options.items()))
+    with pytest.raises(KeympsError) as caught:
+        create_component("executor", "file", options)
+    assert str(caught.value) == (
+        f"executor file: option {key!r}: {value!r} leads out of the run folder: name a file "
+        "in it (--out chooses the folder) (options: csv, json)"
+    )
 
 
 def test_file_executor_writes_the_runs_csv_once_and_a_stale_one_again(tmp_path: Path) -> None:

@@ -136,6 +136,22 @@ BROKEN = [
         ["task.yaml:2:14: instruction: instruction contains control characters"],
     ),
     (
+        "a name leading the run folder out of runs/",
+        VALID.replace("name: demo", "name: ../../../../tmp/escape"),
+        [
+            "task.yaml:1:7: name: the name starts the run folder's name (runs/<name>-<time>): "
+            "no '/', '\\' or control characters, and no '.' first"
+        ],
+    ),
+    (
+        "a hidden run folder's name",
+        VALID.replace("name: demo", "name: .hidden"),
+        [
+            "task.yaml:1:7: name: the name starts the run folder's name (runs/<name>-<time>): "
+            "no '/', '\\' or control characters, and no '.' first"
+        ],
+    ),
+    (
         "tool with a short TCP",
         VALID + "robot: {tool: {name: spatula, tcp: [0, 0]}}\n",
         ["task.yaml:10:36: robot.tool.tcp[2]: field required"],

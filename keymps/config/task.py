@@ -244,6 +244,17 @@ class Task(StrictModel):
     """planner.api_base as the task file wrote it: a server no key is sent to unless the user
     names it too (--api-base, user config; keymps.planning.backend_choice)."""
 
+    @field_validator("name")
+    @classmethod
+    def _one_folder_name(cls, value: str) -> str:
+        # runs/<name>-<time>: a shared task file's name must not lead the run folder elsewhere
+        if value.startswith(".") or any(c in "/\\" or ord(c) < 32 or ord(c) == 127 for c in value):
+            raise ValueError(
+                "the name starts the run folder's name (runs/<name>-<time>): "
+                "no '/', '\\' or control characters, and no '.' first"
+            )
+        return value
+
     @field_validator("instruction")
     @classmethod
     def _printable(cls, value: str) -> str:

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from keymps.plugin import RegisterExecutor, hookimpl, parse_options, require_validated
 from keymps.types import ExecutionReport, ValidatedTrajectory
@@ -20,9 +20,20 @@ class FileOptions(BaseModel):
     model_config = ConfigDict(defer_build=True, extra="forbid", frozen=True, populate_by_name=True)
 
     csv: Path | None = Path("trajectory.csv")
-    """Relative paths are inside the run folder; null skips the file."""
+    """A file in the run folder (subfolders allowed); null skips the file."""
     json_path: Path | None = Field(Path("trajectory.json"), alias="json")
     """The task file's `json` key: the ROS JointTrajectory file."""
+
+    @field_validator("csv", "json_path")
+    @classmethod
+    def _inside_the_run_folder(cls, path: Path | None) -> Path | None:
+        # A task file may come from a stranger: it writes nothing outside the run folder.
+        if path is not None and (path.is_absolute() or ".." in path.parts or not path.name):
+            raise ValueError(
+                f"{str(path)!r} leads out of the run folder: name a file in it "
+                "(--out chooses the folder)"
+            )
+        return path
 
 
 class FileExecutor:
@@ -58,7 +69,7 @@ class FileExecutor:
 
     @staticmethod
     def _target(run: Run, path: Path) -> Path:
-        return path if path.is_absolute() else run.path(str(path))
+        return run.path(str(path))
 
     @staticmethod
     def _written_by_run(validated: ValidatedTrajectory, run: Run, target: Path) -> bool:

@@ -24,7 +24,7 @@ def parse_options(model: type[Options], options: dict[str, Any] | None, componen
         for item in error.errors(include_url=False):
             key = ".".join(str(part) for part in item["loc"]) or "(options)"
             problems.append(f"option {key!r}: {_describe(model, key, item)}")
-        known = ", ".join(model.model_fields) or "none"
+        known = ", ".join(f.alias or name for name, f in model.model_fields.items()) or "none"
         raise KeympsError(f"{component}: {'; '.join(problems)} (options: {known})") from None
 
 
