@@ -59,3 +59,27 @@ def test_each_sentence_reads_as_expected(group: dict[str, Any], sentence: str) -
         assert reading == group["expect"]
     else:
         assert reading.startswith("refused: ") and group["refuse"] in reading, reading
+
+
+QUALIFIERS = [
+    ("{}, but not near the edge", "not"),
+    ("{} on the left half", "left half"),
+    ("{}, of different sizes", "of different sizes"),
+    ("{} except the crust", "except"),
+    ("only the top half: {}", "top half"),
+    ("{}, don't touch the candle", "don't"),
+    ("{} without the corners", "without"),
+]
+
+
+def test_every_readable_sentence_with_a_word_no_design_models_is_refused() -> None:
+    """Each sentence the corpus reads, with a negation, an exception, unequal parts or a part
+    of the object added before or after it: refused naming that word, never read as the
+    sentence without it (the design on the whole object is then a confident wrong motion)."""
+    readable = [s for g, s in CASES if "expect" in g and "tool" not in g]
+    assert len(readable) > 200
+    for sentence in readable:
+        for template, word in QUALIFIERS:
+            reading = _reading(template.format(sentence))
+            assert reading.startswith("refused: "), (template.format(sentence), reading)
+            assert f"cannot follow {word!r}" in reading or "has no design" in reading, reading

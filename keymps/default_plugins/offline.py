@@ -259,7 +259,11 @@ def _lay_out(
             line_width_mm=request.line_width_mm,
         )
     except KeympsError as error:
-        raise KeympsError(f"the offline planner {error}") from None
+        if str(error).startswith("the offline planner"):
+            raise
+        raise KeympsError(
+            f"the offline planner cannot lay out {intent.describe()} on this object: {error}"
+        ) from None
 
 
 def _factory(options: dict[str, Any]) -> OfflineBackend:

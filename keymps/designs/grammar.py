@@ -80,6 +80,27 @@ CUT_VERBS = (
     r"\b(?:cut\w*|slic\w+|chop\w*|split\w*|divid\w+|halve\w*|quarter\w*|carv\w+|trim\w*|"
     r"portion\w*|wedges?|pieces?|parts?|tips?|ends?)\b"
 )
+UNMODELLED = (
+    (
+        r"\b(?:not|don't|dont|do not|never|without|except|instead of)\b",
+        "a negation or an exception",
+    ),
+    (
+        r"\b(?:unequal\w*|uneven\w*|irregular\w*|different[- ]sized|of different sizes|"
+        r"varying|various sizes)\b",
+        "parts of different sizes",
+    ),
+    (
+        r"\b(?:left|right|top|bottom|upper|lower|front|back|other)\s+"
+        r"(?:half|halves|side|part|third|quarter|corner|end|portion)\b|"
+        r"\b(?:one|1)\s+(?:half|side|third|quarter|corner)\b|\bhalf of\b|\bcorners?\b",
+        "a design on part of the object",
+    ),
+    (r"(?<![\w.])-\s?\d", "a negative number"),
+)
+"""Words that change what a sentence asks for in ways no design here models: anywhere in the
+sentence, they stop the plan instead of being skipped ("8 unequal slices" is not 8 equal ones,
+"the left half" is not the whole cake; "cut it in half" is a design and matches none)."""
 STRONG_ICING = (
     r"\b(?:icing|icings|pip(?:e|es|ed|ing)|frost\w*|decorat\w*|dots?|rosettes?|draw|write)\b"
 )
@@ -422,6 +443,7 @@ def read_instruction(sentence: str) -> Intent:
     _refuse_unknown_design(sentence, text, family, reader.understood)
     if intent is None:
         raise UnreadableInstruction(unreadable_message(sentence, reader.understood))
+    _refuse_unmodelled(sentence, text, intent)
     loose = reader.unattached_numbers()
     if loose:
         raise UnreadableInstruction(
@@ -432,6 +454,17 @@ def read_instruction(sentence: str) -> Intent:
     intent = replace(intent, understood=tuple(reader.understood))
     _check_numbers(intent)
     return intent
+
+
+def _refuse_unmodelled(sentence: str, text: str, intent: Intent) -> None:
+    for pattern, what in UNMODELLED:
+        match = re.search(pattern, text)
+        if match:
+            raise UnreadableInstruction(
+                f"the offline planner read {sentence.strip()!r} as {intent.describe()}, but "
+                f"cannot follow {match.group(0).strip()!r} ({what}); it never guesses. Rephrase "
+                f"(it reads {CAPABILITIES}), or {VLM_HINT}"
+            )
 
 
 def _refuse_unknown_design(

@@ -146,7 +146,11 @@ def _width_slices(intent: Intent, shape: CropShape, over: float) -> tuple[np.nda
             f"({measured / 10:.1f} cm along the cut direction)"
         )
     if intent.count is not None and len(offsets) < intent.count:
-        note += f"; only {len(offsets)} of the {intent.count} slices fit"
+        raise KeympsError(
+            f"only {len(offsets)} of the {intent.count} slices {intent.slice_width_mm / 10:g} cm "
+            f"wide fit the object ({measured / 10:.1f} cm along the cut direction): ask for fewer "
+            "or thinner slices"
+        )
     pairs = patterns.parallel_cuts(o, angle, offsets, over)
     return pairs, (
         f"{shape.describe()}: {len(offsets)} cuts {intent.slice_width_mm / 10:g} cm apart from "
