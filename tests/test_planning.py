@@ -124,6 +124,37 @@ def test_validation_rules():
     assert problems and problems[0].startswith("pairs.0")
 
 
+def test_cuts_need_two_points_apart_and_no_pair_is_given_twice():
+    """A VLM's zero-length cut has no blade direction; a repeated pair cuts (or pipes) twice."""
+
+    def problems(pairs, family="cutting", convention="pixels", keyword="sawing"):
+        text = json.dumps({"keyword": keyword, "pairs": pairs})
+        keys = ["sawing", "line"]
+        return parse_and_validate(
+            text, "combined", keys, (200, 100), 64, "pairs", convention, family
+        )[1]
+
+    assert problems([[[150, 50], [150, 50]]]) == [
+        "pair 1 is a cut 0 long from [150.0, 50.0] to [150.0, 50.0]: a cut needs its start "
+        "and end apart (at least 2)"
+    ]
+    assert problems([[[150, 50], [151, 50.5]]])[0].startswith("pair 1 is a cut 1.11803 long")
+    assert problems([[[10, 10], [90, 90]], [[90, 90], [10, 10]], [[10, 10], [90, 90]]]) == [
+        "pair 2 repeats pair 1: give each once",
+        "pair 3 repeats pair 1: give each once",
+    ]
+    assert problems([[[500, 500], [500, 505]]], convention="xy_1000")[0].startswith(
+        "pair 1 is a cut 5 long"
+    )
+    # icing: a dot is a pair whose ends meet; the same dot twice, or a line both ways, is not
+    assert problems([[[150, 50], [150, 50]], [[20, 20], [20, 20]]], "icing", keyword="line") == []
+    assert problems([[[150, 50], [150, 50]], [[150, 50], [150, 50]]], "icing", keyword="line") == [
+        "pair 2 repeats pair 1: give each once"
+    ]
+    assert problems([[[10, 10], [90, 90]], [[90, 90], [10, 10]]], "icing", keyword="line") == []
+    assert problems([[[10, 10], [90, 90]], [[12, 10], [92, 90]]]) == []
+
+
 def test_schema_lists_the_primitives_and_is_strict():
     schema = answer_schema("combined", ["line"], 64)
     body = schema["schema"]

@@ -159,10 +159,12 @@ def parse_and_validate(
     max_pairs: int,
     answer_mode: AnswerMode = "pairs",
     convention: str = "pixels",
+    family: str = "cutting",
 ) -> tuple[BaseModel | None, list[str]]:
     """(answer, []) when valid, else (None, the problems in words a model can act on).
 
     `crop_size_px` is the size of the image sent; points are checked in `convention`.
+    `family` (cutting, icing): a cut needs its two points apart; no family repeats a pair.
     """
     longest = max_answer_chars(max_pairs)
     if len(text) > longest:
@@ -198,6 +200,8 @@ def parse_and_validate(
     pairs = getattr(answer, "pairs", None)
     if pairs is not None:
         problems += _pair_problems(pairs, crop_size_px, max_pairs, convention)
+        if not problems:
+            problems += _geometry_problems(pairs, crop_size_px, convention, family)
     design = getattr(answer, "design", None)
     if design is not None:
         from keymps.planning.named_design import to_intent
@@ -247,6 +251,38 @@ def _pair_problems(
                     f"pair {index + 1} {which} ({x:g}, {y:g}) is outside the image: "
                     f"x must be in 0..{width}, y in 0..{height}"
                 )
+        if len(problems) > 12:
+            problems.append("... (more problems not listed)")
+            break
+    return problems
+
+
+MIN_CUT_SHARE = 0.02
+"""A cut shorter than this share of the image's shorter side has no direction to cut along."""
+
+
+def _geometry_problems(
+    pairs: list[Pair], crop_size_px: tuple[int, int], convention: str, family: str
+) -> list[str]:
+    """Pairs no motion can follow: a cut whose start and end (nearly) coincide, and a pair
+    given twice (the same cut, either way round, or the same dot: icing piled on icing)."""
+    scale = 1000.0 if convention != "pixels" else float(min(crop_size_px))
+    shortest = MIN_CUT_SHARE * scale
+    first_of: dict[tuple[float, ...], int] = {}
+    problems = []
+    for index, (start, end) in enumerate(pairs):
+        length = math.dist(start, end)
+        if family == "cutting" and length < shortest:
+            problems.append(
+                f"pair {index + 1} is a cut {length:g} long from {list(start)} to {list(end)}: "
+                f"a cut needs its start and end apart (at least {shortest:g})"
+            )
+        key = tuple(round(v) for v in (*start, *end))  # the same to a pixel (or 1/1000)
+        turned = tuple(round(v) for v in (*end, *start))
+        earlier = first_of.get(key, first_of.get(turned) if family == "cutting" else None)
+        if earlier is not None:
+            problems.append(f"pair {index + 1} repeats pair {earlier + 1}: give each once")
+        first_of.setdefault(key, index)
         if len(problems) > 12:
             problems.append("... (more problems not listed)")
             break

@@ -133,6 +133,7 @@ class PlanSession:
                 self.base.max_pairs,
                 self.answer_mode,  # type: ignore[arg-type]
                 self.convention,
+                self.family,
             )
             return _on_one_object_each(parsed, problems, self.base, self.convention)
 
