@@ -317,3 +317,67 @@ def test_a_process_ending_while_the_lab_tables_are_built_exits_cleanly() -> None
         )
         assert done.returncode == 0, done.stderr
         assert "terminate" not in done.stderr
+
+
+def _shadowed_scene(seed: int, with_object: bool) -> tuple[np.ndarray, tuple[int, int, int, int]]:
+    """A board of a random colour and lighting gradient, and a shadow of random shape, softness
+    and darkness (a band, a blob, or the object's own shadow cast aside); with an object of a
+    random colour on top when `with_object`. Returns the image and the object's box."""
+    rng = np.random.default_rng(seed)
+    width, height = 600, 360
+    lab = np.array(list(BOARDS.values())[seed % len(BOARDS)]) + rng.normal(0, 3, 3)
+    image = board(tuple(lab)) * np.linspace(1 - 0.15 * rng.random(), 1, width)[None, :, None]
+    centre = (int(rng.integers(180, 420)), int(rng.integers(130, 230)))
+    radius = int(rng.integers(50, 100))
+    shape = np.zeros((height, width), np.float32)
+    cv2.circle(shape, centre, radius, 1.0, -1)
+    kind = rng.integers(3) if not with_object else 2
+    shade = np.zeros((height, width), np.float32)
+    if kind == 0:  # a band across the whole board (a shelf's shadow)
+        x = int(rng.integers(80, 400))
+        shade[:, x : x + int(rng.integers(60, 180))] = 1.0
+    elif kind == 1:  # a blob (a hand, a jug out of the picture)
+        shade = shape.copy()
+    else:  # the object's own shadow, cast aside
+        shift = rng.uniform(10, 40) * np.array([np.cos(a := rng.uniform(0, 6.3)), np.sin(a)])
+        shade = cv2.warpAffine(
+            shape, np.float32([[1, 0, shift[0]], [0, 1, shift[1]]]), (width, height)
+        )
+    shade = cv2.GaussianBlur(shade, (0, 0), rng.uniform(2, 20))
+    image = image * (1 - rng.uniform(0.2, 0.6) * shade)[..., None]
+    box = (0, 0, 0, 0)
+    if with_object:
+        while True:
+            colour = np.array([rng.uniform(15, 95), rng.uniform(-40, 60), rng.uniform(-40, 70)])
+            if np.linalg.norm(colour - lab) >= 25:
+                break
+        drawn = np.zeros((height, width), np.uint8)
+        cv2.circle(drawn, centre, radius, 255, -1)
+        image = np.where(drawn[..., None] > 0, lab_to_bgr(colour)[0], image)
+        ys, xs = np.nonzero(drawn)
+        box = (int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1)
+    return finish(image), box
+
+
+def test_a_shadow_is_never_an_object() -> None:
+    """An empty board with a shadow was planned on (a band across it: 7 cuts; a soft blob: 4),
+    and an object's cast shadow widened its box by the shadow (an off-centre plan). A shadow
+    darkens the board and keeps its colour: 60 empty boards with a random shadow are refused,
+    saying so, and 60 objects with their cast shadow are found to 3 px of their own box."""
+    refused = found = 0
+    for seed in range(60):
+        image, _ = _shadowed_scene(seed, with_object=False)
+        with pytest.raises(KeympsError, match="taken for shadow"):
+            BoardDetector().detect(image)
+        refused += 1
+    misses = []
+    for seed in range(60):
+        image, box = _shadowed_scene(1000 + seed, with_object=True)
+        detected = BoardDetector().detect(image)
+        error = max(abs(a - b) for a, b in zip(detected.bbox_px, box, strict=True))
+        if error <= 3:
+            found += 1
+        else:
+            misses.append((seed, detected.bbox_px, box))
+    assert refused == 60
+    assert found == 60, misses

@@ -23,6 +23,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from keymps.perception.board_model import (
     BoardModel,
+    board_in_shadow,
     distance_to_board,
     fit_board,
     lab_planes,
@@ -143,7 +144,7 @@ class BoardDetector:
         kernel = self.options.blur
         blurred = cv2.GaussianBlur(image, (kernel, kernel), 0) if kernel > 1 else image
         lab = to_lab(blurred)
-        distance, board, board_image, noise = self._board_distance(lab, area)
+        distance, board, board_image, noise, shadow_px = self._board_distance(lab, area)
         min_area = self.min_area(area)
         # a region touches a side when it reaches the first 1.5 px inside the left-out edge
         bands = area.side_bands(1.5 + self.options.edge)
@@ -179,6 +180,7 @@ class BoardDetector:
             "searched_area": {"polygon_px": area.polygon.round(2).tolist(), "pixels": area.pixels},
             "board_model": board.describe(board_image) | {"noise_p995": round(noise, 3)},
             "threshold": {"value": round(threshold, 3), "how": how},
+            "shadow_px": shadow_px,
             "min_area_px": min_area,
             "regions": [],
         }
@@ -202,10 +204,17 @@ class BoardDetector:
         if board_like:
             raise DetectionError(_board_message(board_like[0], self.options))
         if not objects:
+            shade = (
+                f"; {shadow_px} px darker than the board in the board's own colour were taken "
+                "for shadow (an object of exactly the board's colour, only darker, cannot be "
+                "told from one)"
+                if shadow_px >= min_area
+                else ""
+            )
             raise DetectionError(
                 f"no object found: nothing of at least {min_area} px differs from the board's "
-                f"colour model by more than {threshold:.1f} (Lab; {how}); if an object is "
-                "there, lower detector.threshold, or check the image and scene.camera"
+                f"colour model by more than {threshold:.1f} (Lab; {how}){shade}; if an object "
+                "is there, lower detector.threshold, or check the image and scene.camera"
             )
         objects.sort(key=lambda r: r.area, reverse=True)
         pick = self.options.pick
@@ -257,9 +266,9 @@ class BoardDetector:
 
     def _board_distance(
         self, lab: np.ndarray, area: SearchArea
-    ) -> tuple[np.ndarray, BoardModel, np.ndarray, float]:
-        """Distance to the board model, the model (and its planes), and the board's noise
-        (99.5th percentile)."""
+    ) -> tuple[np.ndarray, BoardModel, np.ndarray, float, int]:
+        """Distance to the board model (0 on the board in shadow), the model (and its planes),
+        the board's noise (99.5th percentile) and how many pixels were board in shadow."""
         import cv2
 
         height, width = area.mask.shape
@@ -285,7 +294,17 @@ class BoardDetector:
         inliers = samples[samples <= 3.0 * typical + 1.0]
         noise = percentile(inliers, 99.5) if inliers.size else typical
         distance[~area.mask] = 0.0
-        return distance, model, surface, noise
+        # a shadow darkens the board and keeps its colour: no object, however dark (an empty
+        # board with a shadow was planned on; a cast shadow widened the object's box)
+        t_noise = max(MIN_THRESHOLD, NOISE_FACTOR * noise)
+        different = distance > t_noise
+        shadowed = board_in_shadow(planes, surface, t_noise) & different
+        # an object's blurred edge mixes it with the board, which can look like darkened
+        # board: the pixels next to the object proper stay the object's
+        proper = (different & ~shadowed).astype(np.uint8)
+        shadowed &= cv2.dilate(proper, np.ones((3, 3), np.uint8)) == 0
+        distance[shadowed] = 0.0
+        return distance, model, surface, noise, int(np.count_nonzero(shadowed))
 
     def _regions(
         self,

@@ -194,6 +194,23 @@ def fit_board(
     )
 
 
+def board_in_shadow(lab: np.ndarray, model: np.ndarray, tolerance: float) -> np.ndarray:
+    """Bool H x W: pixels darker than the board whose colour is the board's own, darkened.
+
+    Less light scales (L + 16, a, b) alike (the cube root of the luminance, for the board's
+    colour as for any): a pixel whose chroma is the model's scaled by its lightness ratio, to
+    within `tolerance` (Lab), is board in shadow, however dark, and never an object. An object
+    of exactly the board's colour, only darker, is then taken for shadow too: such a scene is
+    refused ("no object found"), never planned on its shadow. Planes as distance_to_board's."""
+    ratio = np.add(lab[0], 16.0)
+    ratio /= np.maximum(np.add(model[0], 16.0), 1.0)
+    np.clip(ratio, 0.0, 1.0, out=ratio)
+    da = np.subtract(lab[1], ratio * model[1])
+    db = np.subtract(lab[2], ratio * model[2])
+    chroma = np.sqrt(da * da + db * db)
+    return (chroma <= tolerance) & (lab[0] < model[0])
+
+
 def _row_norms(vectors: np.ndarray) -> np.ndarray:
     """Euclidean norm of each row of (N, 3): np.linalg.norm(axis=1)'s sum of squares, bit for
     bit, without its reduction over rows of three."""
