@@ -136,6 +136,18 @@ BROKEN = [
         ["task.yaml:2:14: instruction: instruction contains control characters"],
     ),
     (
+        "booleans where numbers go",
+        VALID.replace("object_height: 0.02", "object_height: true").replace(
+            "work_speed: 0.02", "work_speed: 0.02\n  clearance: yes"
+        )
+        + "planner: {temperature: false}\n",
+        [
+            "task.yaml:6:18: scene.object_height: a number is needed here, not true",
+            "task.yaml:10:14: motion.clearance: a number is needed here, not true",
+            "task.yaml:11:24: planner.temperature: a number is needed here, not false",
+        ],
+    ),
+    (
         "a name leading the run folder out of runs/",
         VALID.replace("name: demo", "name: ../../../../tmp/escape"),
         [

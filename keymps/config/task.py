@@ -8,6 +8,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import (
     BaseModel,
+    BeforeValidator,
     ConfigDict,
     Field,
     PrivateAttr,
@@ -19,8 +20,19 @@ from pydantic import (
 from keymps.config.yaml_positions import PositionedYaml, YamlSyntaxError, load_yaml_with_positions
 from keymps.errors import TaskFileError
 
-PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
-FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
+
+def _not_a_boolean(value: Any) -> Any:
+    # YAML's true/false would pass as 1 and 0 (object_height: true was a 1 m tall object)
+    if isinstance(value, bool):
+        raise ValueError(f"a number is needed here, not {str(value).lower()}")
+    return value
+
+
+NUMBER = BeforeValidator(_not_a_boolean)
+"""In every numeric field of a task file: a boolean is an error, not 1 or 0."""
+
+PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False), NUMBER]
+FiniteFloat = Annotated[float, Field(allow_inf_nan=False), NUMBER]
 Point2 = tuple[FiniteFloat, FiniteFloat]
 
 
@@ -44,17 +56,17 @@ class PluginSection(BaseModel):
 MAX_BOARD_M = 3.0
 """No tabletop arm works on a board larger than this, or from further away: a bigger number in
 a task file is millimetres, caught where it is written."""
-BoardSide = Annotated[float, Field(gt=0, le=MAX_BOARD_M, allow_inf_nan=False)]
+BoardSide = Annotated[float, Field(gt=0, le=MAX_BOARD_M, allow_inf_nan=False), NUMBER]
 """A side of the imaged board, metres."""
-BaseOffset = Annotated[float, Field(ge=-MAX_BOARD_M, le=MAX_BOARD_M, allow_inf_nan=False)]
+BaseOffset = Annotated[float, Field(ge=-MAX_BOARD_M, le=MAX_BOARD_M, allow_inf_nan=False), NUMBER]
 """A coordinate of the robot base (or of the board frame's origin) on the board, metres."""
 MAX_PIXEL_COORDINATE = 2**20
 """OpenCV reads no image wider or taller than this (OPENCV_IO_MAX_IMAGE_WIDTH's default)."""
 PixelCoordinate = Annotated[
-    float, Field(ge=-MAX_PIXEL_COORDINATE, le=MAX_PIXEL_COORDINATE, allow_inf_nan=False)
+    float, Field(ge=-MAX_PIXEL_COORDINATE, le=MAX_PIXEL_COORDINATE, allow_inf_nan=False), NUMBER
 ]
-Degrees = Annotated[float, Field(ge=-360, le=360, allow_inf_nan=False)]
-ToolOffset = Annotated[float, Field(ge=-1.0, le=1.0, allow_inf_nan=False)]
+Degrees = Annotated[float, Field(ge=-360, le=360, allow_inf_nan=False), NUMBER]
+ToolOffset = Annotated[float, Field(ge=-1.0, le=1.0, allow_inf_nan=False), NUMBER]
 """A tool tip coordinate in the flange frame, metres: no UR3 tool is a metre long."""
 MAX_IMAGE_PIXELS_LIMIT = 2**30
 """OpenCV's own ceiling (OPENCV_IO_MAX_IMAGE_PIXELS' default): scene.max_image_pixels' bound."""
@@ -68,9 +80,9 @@ class Workspace(StrictModel):
 
 
 PixelPoint = tuple[PixelCoordinate, PixelCoordinate]
-FocalLength = Annotated[float, Field(gt=0, le=1e6, allow_inf_nan=False)]
+FocalLength = Annotated[float, Field(gt=0, le=1e6, allow_inf_nan=False), NUMBER]
 """Pixels: a million is a telephoto lens on a 20000-pixel sensor, beyond any table camera."""
-DistortionCoefficient = Annotated[float, Field(ge=-1e4, le=1e4, allow_inf_nan=False)]
+DistortionCoefficient = Annotated[float, Field(ge=-1e4, le=1e4, allow_inf_nan=False), NUMBER]
 
 
 class Intrinsics(StrictModel):
@@ -96,7 +108,7 @@ class Intrinsics(StrictModel):
 class Camera(StrictModel):
     board_corners_px: tuple[PixelPoint, PixelPoint, PixelPoint, PixelPoint] | None = None
     """Pixels of the workspace corners: bottom-left, bottom-right, top-right, top-left."""
-    mm_per_px: Annotated[float, Field(ge=0.05, le=10, allow_inf_nan=False)] = 0.5
+    mm_per_px: Annotated[float, Field(ge=0.05, le=10, allow_inf_nan=False), NUMBER] = 0.5
     """Resolution of the rectified top-down image the stages work in (with board corners)."""
     intrinsics: Intrinsics | None = None
     """With board corners: undistort, find the camera's pose, ground on the object's top."""
@@ -107,7 +119,7 @@ class SceneObjectSpec(StrictModel):
 
     name: str = Field(min_length=1, max_length=60, pattern=r"^[A-Za-z][A-Za-z0-9 _-]*$")
     """What it is ("banana"); the offline planner reads it ("cut the banana in half")."""
-    height: Annotated[float, Field(ge=0, le=1.0, allow_inf_nan=False)] | None = None
+    height: Annotated[float, Field(ge=0, le=1.0, allow_inf_nan=False), NUMBER] | None = None
     """Its top surface above the board, metres; scene.object_height when omitted."""
     at: tuple[BaseOffset, BaseOffset] | None = None
     """A board point (metres, within MAX_BOARD_M) on or near it: pins it to the detected object nearest there
@@ -120,12 +132,12 @@ class Scene(StrictModel):
     """Image source plugin: file, synthetic, opencv, or one from a plugin package."""
     source_options: dict[str, Any] = Field(default_factory=dict)
     workspace: Workspace = Workspace()
-    object_height: Annotated[float, Field(ge=0, le=1.0, allow_inf_nan=False)] = 0.05
+    object_height: Annotated[float, Field(ge=0, le=1.0, allow_inf_nan=False), NUMBER] = 0.05
     objects: list[SceneObjectSpec] | None = Field(default=None, min_length=1, max_length=32)
     """The objects on the board, left to right (keymps.perception.scene_objects matches them
     to the detected ones); without it every object has object_height."""
     camera: Camera = Camera()
-    max_image_pixels: Annotated[int, Field(ge=1, le=MAX_IMAGE_PIXELS_LIMIT)] = 64_000_000
+    max_image_pixels: Annotated[int, Field(ge=1, le=MAX_IMAGE_PIXELS_LIMIT), NUMBER] = 64_000_000
     """Larger images are refused from their header, before decoding (keymps.config.limits)."""
 
     @model_validator(mode="after")
@@ -150,10 +162,10 @@ class Planner(StrictModel):
     api_base: str | None = None
     api_key_env: str | None = None
     """Name of the environment variable holding the key (never the key itself)."""
-    temperature: Annotated[float, Field(ge=0, le=2, allow_inf_nan=False)] = 0.0
-    timeout_s: Annotated[float, Field(gt=0, le=3600, allow_inf_nan=False)] = 60.0
-    max_pairs: Annotated[int, Field(ge=1, le=10_000)] = 64
-    attempts: Annotated[int, Field(ge=1, le=10)] = 2
+    temperature: Annotated[float, Field(ge=0, le=2, allow_inf_nan=False), NUMBER] = 0.0
+    timeout_s: Annotated[float, Field(gt=0, le=3600, allow_inf_nan=False), NUMBER] = 60.0
+    max_pairs: Annotated[int, Field(ge=1, le=10_000), NUMBER] = 64
+    attempts: Annotated[int, Field(ge=1, le=10), NUMBER] = 2
     combined: bool = True
     """One VLM call for keyword and pairs (the paper's choice) or two calls."""
     cache: bool = True
@@ -166,7 +178,7 @@ class Planner(StrictModel):
 
 class Height(StrictModel):
     mode: Literal["both", "start", "end"] = "both"
-    margin: Annotated[float, Field(ge=-0.05, le=0.1, allow_inf_nan=False)] = 0.005
+    margin: Annotated[float, Field(ge=-0.05, le=0.1, allow_inf_nan=False), NUMBER] = 0.005
     """Added to the object's top surface wherever the height is integrated, metres."""
 
 
@@ -177,13 +189,17 @@ MAX_DURATION_S = 4 * 3600.0
 
 
 class Motion(StrictModel):
-    clearance: Annotated[float, Field(ge=0.005, le=0.3, allow_inf_nan=False)] = 0.03
+    clearance: Annotated[float, Field(ge=0.005, le=0.3, allow_inf_nan=False), NUMBER] = 0.03
     """Travel moves rise this far above the object's top, metres."""
-    work_speed: Annotated[float, Field(gt=0, le=0.5, allow_inf_nan=False)] = 0.03
-    travel_speed: Annotated[float, Field(gt=0, le=1.0, allow_inf_nan=False)] = 0.15
-    max_path_length: Annotated[float, Field(gt=0, le=MAX_PATH_LENGTH_M, allow_inf_nan=False)] = 50.0
+    work_speed: Annotated[float, Field(gt=0, le=0.5, allow_inf_nan=False), NUMBER] = 0.03
+    travel_speed: Annotated[float, Field(gt=0, le=1.0, allow_inf_nan=False), NUMBER] = 0.15
+    max_path_length: Annotated[
+        float, Field(gt=0, le=MAX_PATH_LENGTH_M, allow_inf_nan=False), NUMBER
+    ] = 50.0
     """Longer tool paths are refused before inverse kinematics, metres (keymps.config.limits)."""
-    max_duration_s: Annotated[float, Field(gt=0, le=MAX_DURATION_S, allow_inf_nan=False)] = 1800.0
+    max_duration_s: Annotated[
+        float, Field(gt=0, le=MAX_DURATION_S, allow_inf_nan=False), NUMBER
+    ] = 1800.0
     """Longer motions are refused (estimated before IK, measured after timing), seconds."""
 
 
@@ -195,10 +211,10 @@ class ToolSpec(StrictModel):
     """Tool tip in the flange frame, metres; None takes the built-in tool's."""
     yaw: Literal["follow", "fixed"] | None = None
     """'follow': the blade turns with the cut direction (knife); None takes the built-in's."""
-    blade_length: Annotated[float, Field(gt=0, le=0.4, allow_inf_nan=False)] | None = None
+    blade_length: Annotated[float, Field(gt=0, le=0.4, allow_inf_nan=False), NUMBER] | None = None
     """A knife's straight edge, from the tip back along the cut, metres; None takes the
     built-in's (knife 0.16, piping_bag none; a custom tool has none)."""
-    line_width: Annotated[float, Field(gt=0, le=0.05, allow_inf_nan=False)] | None = None
+    line_width: Annotated[float, Field(gt=0, le=0.05, allow_inf_nan=False), NUMBER] | None = None
     """Width of the icing line the tool draws, metres; None takes the built-in's (piping_bag
     0.004, knife none). The offline planner refuses designs whose strokes would merge."""
 
@@ -208,14 +224,18 @@ class Robot(StrictModel):
     base: tuple[BaseOffset, BaseOffset, BaseOffset, Degrees] = (0.15, -0.20, 0.0, 90.0)
     """x, y, z in metres and yaw in degrees of the robot base in the board frame."""
     tool: ToolSpec = ToolSpec(name="knife")
-    rate_hz: Annotated[float, Field(ge=10, le=1000, allow_inf_nan=False)] | None = None
+    rate_hz: Annotated[float, Field(ge=10, le=1000, allow_inf_nan=False), NUMBER] | None = None
     """Controller rate: 125 Hz for CB3, 500 Hz for e-Series when omitted."""
-    max_joint_acceleration: Annotated[float, Field(ge=0.05, le=50, allow_inf_nan=False)] = 3.0
+    max_joint_acceleration: Annotated[float, Field(ge=0.05, le=50, allow_inf_nan=False), NUMBER] = (
+        3.0
+    )
     """rad/s^2, every joint (the maker publishes none; a conservative default)."""
-    max_joint_jerk: Annotated[float, Field(ge=0.5, le=5000, allow_inf_nan=False)] = 100.0
-    max_tool_acceleration: Annotated[float, Field(ge=0.01, le=10, allow_inf_nan=False)] = 0.5
+    max_joint_jerk: Annotated[float, Field(ge=0.5, le=5000, allow_inf_nan=False), NUMBER] = 100.0
+    max_tool_acceleration: Annotated[float, Field(ge=0.01, le=10, allow_inf_nan=False), NUMBER] = (
+        0.5
+    )
     """m/s^2; the lower bounds keep one stroke's timing within minutes, not years."""
-    max_tool_jerk: Annotated[float, Field(ge=0.05, le=1000, allow_inf_nan=False)] = 20.0
+    max_tool_jerk: Annotated[float, Field(ge=0.05, le=1000, allow_inf_nan=False), NUMBER] = 20.0
 
     @field_validator("tool", mode="before")
     @classmethod
@@ -309,7 +329,8 @@ def _pydantic_loc_to_yaml_path(loc: tuple[Any, ...]) -> tuple[Any, ...]:
 
 
 def _format_problems(source: str, parsed: PositionedYaml, error: ValidationError) -> list[str]:
-    lines = []
+    """One located line per problem, in the order of the file (pydantic's is the models')."""
+    lines: list[tuple[int, int, str]] = []
     for item in error.errors(include_url=False):
         path = _pydantic_loc_to_yaml_path(tuple(item["loc"]))
         line, column = parsed.locate(path, at_key=item["type"] == "extra_forbidden")
@@ -320,8 +341,9 @@ def _format_problems(source: str, parsed: PositionedYaml, error: ValidationError
             message = "field required"
         elif message.startswith("Value error, "):
             message = message.removeprefix("Value error, ")
-        lines.append(f"{source}:{line}:{column}: {_field_name(path)}: {_one_line(message)}")
-    return lines
+        text = f"{source}:{line}:{column}: {_field_name(path)}: {_one_line(message)}"
+        lines.append((line, column, text))
+    return [text for _, _, text in sorted(lines, key=lambda entry: entry[:2])]
 
 
 def _display_path(path: Path) -> str:
