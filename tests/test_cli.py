@@ -63,10 +63,12 @@ def test_validate_reports_each_problem_on_one_line_and_exits_1(tmp_path: Path) -
     assert result.exit_code == 1
     lines = result.output.strip().splitlines()
     assert [line.split(": ", 1)[1] for line in lines] == [
+        f"scene.image: an empty file (0 bytes), not an image: {tmp_path / 'scene.png'}",
         "motion.work_speed: Input should be greater than 0",
         "motion.clearence: unknown key",
     ]
-    assert all(line.startswith(f"{path}:5:") for line in lines)
+    assert lines[0].startswith(f"{path}:3:")
+    assert all(line.startswith(f"{path}:5:") for line in lines[1:])
 
 
 def test_validate_checks_plugin_names_with_their_location(tmp_path: Path) -> None:

@@ -26,7 +26,7 @@ motion:
 
 
 def _write(tmp_path: Path, text: str) -> Path:
-    (tmp_path / "scene.png").write_bytes(b"png placeholder: only its existence is checked here")
+    (tmp_path / "scene.png").write_bytes(b"\x89PNG\r\n\x1a\n placeholder: only its signature is read")
     path = tmp_path / "task.yaml"
     path.write_text(textwrap.dedent(text), encoding="utf-8")
     return path
@@ -114,6 +114,14 @@ BROKEN = [
         "missing image file",
         VALID.replace("image: scene.png", "image: nowhere.png"),
         ["task.yaml:4:10: scene.image: file not found: {folder}/nowhere.png"],
+    ),
+    (
+        "an image file that is no image (a text file named as the scene)",
+        VALID.replace("image: scene.png", "image: task.yaml"),
+        [
+            "task.yaml:4:10: scene.image: not an image file (no PNG, JPEG, TIFF, BMP, WebP ... "
+            "signature in its first bytes): task.yaml"
+        ],
     ),
     (
         "YAML syntax",

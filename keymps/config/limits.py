@@ -36,6 +36,36 @@ def max_answer_chars(max_pairs: int) -> int:
     return ANSWER_BASE_CHARS + ANSWER_CHARS_PER_PAIR * max_pairs
 
 
+IMAGE_SIGNATURES = (
+    b"\x89PNG\r\n\x1a\n",  # PNG
+    b"\xff\xd8",  # JPEG
+    b"BM",  # BMP
+    b"II*\x00",  # TIFF, little-endian
+    b"MM\x00*",  # TIFF, big-endian
+    b"GIF87a",
+    b"GIF89a",
+    b"\x59\xa6\x6a\x95",  # Sun raster
+    b"\x00\x00\x00\x0cjP  ",  # JPEG 2000 (JP2)
+    b"\xff\x4f\xff\x51",  # JPEG 2000 codestream
+    b"\x76\x2f\x31\x01",  # OpenEXR
+    b"#?RADIANCE",
+    b"#?RGBE",  # Radiance HDR
+)
+"""The first bytes of the files OpenCV decodes (with RIFF WebP, PNM/PFM and ISO-BMFF below)."""
+
+
+def looks_like_an_image(head: bytes) -> bool:
+    """Whether a file's first 16 bytes begin an image format OpenCV reads (a text file renamed
+    .png, an empty file, a PDF do not): a cheap check before anything is decoded."""
+    if head.startswith(IMAGE_SIGNATURES):
+        return True
+    if head[:4] == b"RIFF" and head[8:12] == b"WEBP":
+        return True
+    if head[4:8] == b"ftyp":  # AVIF, HEIF
+        return True
+    return re.match(rb"P[1-7Ff]\s", head[:3]) is not None  # PNM, PAM, PFM
+
+
 def image_size_from_header(data: bytes) -> tuple[int, int] | None:
     """(width, height) from a PNG, JPEG, GIF, BMP, WebP, TIFF or PNM header; None if unrecognised.
 

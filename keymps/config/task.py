@@ -398,6 +398,26 @@ def file_problem(path: Path) -> str | None:
     return None
 
 
+def _image_file_problem(path: Path) -> str | None:
+    """Why a regular file is no image (its first bytes), before a run makes its folder."""
+    from keymps.config.limits import looks_like_an_image
+    from keymps.config.trust import shown_path
+
+    try:
+        with path.open("rb") as handle:
+            head = handle.read(16)
+    except OSError as error:
+        return f"cannot read {shown_path(path)}: {error.strerror}"
+    if not head:
+        return f"an empty file (0 bytes), not an image: {shown_path(path)}"
+    if not looks_like_an_image(head):
+        return (
+            f"not an image file (no PNG, JPEG, TIFF, BMP, WebP ... signature in its first "
+            f"bytes): {shown_path(path)}"
+        )
+    return None
+
+
 def _check_referenced_files(task: Task, source: str, parsed: PositionedYaml) -> list[str]:
     checks: list[tuple[tuple[str, ...], Path | None]] = [
         (("scene", "image"), task.scene.image if task.scene.source == "file" else None),
@@ -407,7 +427,7 @@ def _check_referenced_files(task: Task, source: str, parsed: PositionedYaml) -> 
         if relative is None:
             continue
         resolved = task.resolve(relative)
-        problem = file_problem(resolved)
+        problem = file_problem(resolved) or _image_file_problem(resolved)
         if problem:
             line, column = parsed.locate(key_path)
             problems.append(f"{source}:{line}:{column}: {'.'.join(key_path)}: {problem}")
