@@ -86,7 +86,8 @@ def _keymps(*args: str, env_extra: dict[str, str] | None = None) -> subprocess.C
 
 @pytest.fixture(scope="module")
 def installed_plugin_packages(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """Two tiny plugin distributions really installed with pip into a target folder."""
+    """Tiny plugin distributions really installed with pip into a target folder: one that
+    works, one broken on import, and two with a stranger's mistakes."""
     root = tmp_path_factory.mktemp("plugin-packages")
     target = root / "site"
     for dist, module, body in [
@@ -109,6 +110,42 @@ def installed_plugin_packages(tmp_path_factory: pytest.TempPathFactory) -> Path:
             "keymps-broken",
             "keymps_broken",
             "raise RuntimeError('this plugin is broken on purpose')",
+        ),
+        (
+            "keymps-mischief",
+            "keymps_mischief",
+            """
+            from keymps.plugin.hookspecs import hookimpl
+
+            print("mischief loaded")  # on stdout, as it is imported
+
+            class Replacement:
+                def __init__(self, options):
+                    self.options = options
+
+            @hookimpl
+            def register_executors(register):
+                register("sim", Replacement)
+
+            @hookimpl
+            def register_executor(register):  # a typo: the hook is register_executors
+                register("never", Replacement)
+            """,
+        ),
+        (
+            "keymps-wrongargs",
+            "keymps_wrongargs",
+            """
+            from keymps.plugin.hookspecs import hookimpl
+
+            @hookimpl
+            def register_detectors(register):
+                register("half-registered", object)
+
+            @hookimpl
+            def keymps_stage_done(stage, result, run, extra):
+                pass
+            """,
         ),
     ]:
         source = root / dist
@@ -168,6 +205,42 @@ def test_entry_point_plugin_is_listed_and_a_broken_one_only_warns(
         "RuntimeError: this plugin is broken on purpose"
     ]
     assert "Traceback" not in result.stderr
+
+
+def test_a_strangers_plugin_mistakes_are_named_not_silent(installed_plugin_packages: Path) -> None:
+    """A plugin printing as it loads, a misspelled hook, a component named as a built-in one,
+    a hook with an argument keymps does not pass: each said once, in one line."""
+    check = (
+        "import warnings; warnings.simplefilter('always')\n"
+        "from keymps.plugin.manager import components\n"
+        "print(components('executor')['sim'].__name__)\n"
+        "print('half-registered' in components('detector'))\n"
+    )
+    env = {"PYTHONPATH": str(installed_plugin_packages)}
+    listing = _keymps("plugins", "--json", env_extra=env)
+    assert listing.returncode == 0, listing.stderr
+    listed = {item["name"]: item for item in json.loads(listing.stdout)}  # the print on stderr
+    assert "mischief loaded" in listing.stderr
+    assert [item["name"] for item in json.loads(listing.stdout)].count("keymps_wrongargs") == 1
+    assert listed["keymps_wrongargs"]["provides"] == []
+    assert "PluginValidationError" in listed["keymps_wrongargs"]["error"]
+    assert (
+        "warning: keymps: plugin 'keymps_mischief' implements 'register_executor', which is no "
+        "keymps hook (did you mean 'register_executors'?): it is never called"
+    ) in listing.stderr.splitlines()
+    done = subprocess.run(
+        [sys.executable, "-c", check],
+        capture_output=True,
+        text=True,
+        env={**os.environ, **env},
+        timeout=120,
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split()[-2:] == ["Replacement", "False"]  # the plugin's sim is used
+    replaced = (
+        "executor 'sim' of plugin 'keymps_mischief' replaces the one of plugin 'sim_executor'"
+    )
+    assert sum(replaced in line for line in done.stderr.splitlines()) == 1
 
 
 def test_load_plugins_env_selects_packages(installed_plugin_packages: Path) -> None:

@@ -95,9 +95,13 @@ class RunPrinter:
 
 
 def print_plugins(as_json: bool) -> None:
+    import contextlib
+    import sys
+
     from keymps.plugin.manager import plugin_infos
 
-    infos = plugin_infos()
+    with contextlib.redirect_stdout(sys.stderr):  # a plugin printing as it loads stays out
+        infos = plugin_infos()
     if as_json:
         click.echo(json.dumps([info.__dict__ for info in infos], indent=2, default=list))
         return

@@ -116,6 +116,7 @@ def build_manager() -> KeympsPluginManager:
         try:
             manager.register(importlib.import_module(module_name), name=name)
         except Exception as error:  # a broken plugin must not break unrelated commands
+            _forget(manager, name)
             manager.failures[name] = _warn_broken(name, error)
     for entry_point in _keymps_entry_points():
         dist = entry_point.dist
@@ -126,10 +127,38 @@ def build_manager() -> KeympsPluginManager:
         try:
             manager.register(entry_point.load(), name=entry_point.name)
         except Exception as error:
+            _forget(manager, entry_point.name)
             manager.failures[entry_point.name] = _warn_broken(entry_point.name, error)
+    _warn_unknown_hooks(manager)
     if os.environ.get("KEYMPS_TRACE_PLUGINS"):
         _trace_hook_calls(manager)
     return manager
+
+
+def _forget(manager: KeympsPluginManager, name: str) -> None:
+    """Unregister a plugin pluggy refused half-way (hooks before the bad one were added)."""
+    if manager.has_plugin(name):
+        manager.unregister(name=name)
+
+
+def _warn_unknown_hooks(manager: KeympsPluginManager) -> None:
+    """A @hookimpl whose name is no keymps hook (a typo: register_executor) is never called:
+    say so instead of ignoring the plugin's work in silence."""
+    import difflib
+
+    known = [name for name in dir(hookspecs) if name.startswith(("register_", "keymps_"))]
+    for name, caller in vars(manager.hook).items():
+        if getattr(caller, "spec", True) is not None:
+            continue
+        close = difflib.get_close_matches(name, known, n=1)
+        hint = f" (did you mean {close[0]!r}?)" if close else ""
+        for impl in caller.get_hookimpls():
+            warnings.warn(
+                f"keymps: plugin {impl.plugin_name!r} implements {name!r}, which is no keymps "
+                f"hook{hint}: it is never called",
+                PluginLoadWarning,
+                stacklevel=3,
+            )
 
 
 PYDANTIC_PLUGIN_GROUP = "pydantic"
@@ -193,12 +222,47 @@ def components(
     """Every registered factory of one kind ('detector', 'vlm_backend', ...), by name."""
     manager = manager or get_manager()
     found: dict[str, Callable[..., Any]] = {}
+    clashes: list[str] = []
 
     def register(name: str, factory: Callable[..., Any]) -> None:
-        found[name] = factory
+        # pluggy calls the plugin registered last first: an installed plugin's component
+        # replaces a built-in of the same name (what docs/plugins.md promises)
+        if name in found and found[name] is not factory:
+            clashes.append(name)
+        found.setdefault(name, factory)
 
-    getattr(manager.hook, COMPONENT_HOOKS[kind])(register=register)
+    hook = getattr(manager.hook, COMPONENT_HOOKS[kind])
+    hook(register=register)
+    if clashes:
+        _warn_replaced(kind, clashes, hook)
     return found
+
+
+def _warn_replaced(kind: str, names: list[str], hook: Any) -> None:
+    """Say once which plugin's component replaces which (asking each plugin on its own)."""
+    owners: dict[str, list[str]] = {}
+    for impl in reversed(hook.get_hookimpls()):
+        impl.function(
+            register=lambda name, _factory, by=impl.plugin_name: owners.setdefault(name, []).append(
+                by
+            )
+        )
+    for name in names:
+        used, *others = owners.get(name, ["?"])
+        for other in others:
+            if (kind, name, other) in _replaced or other == used:
+                continue
+            _replaced.add((kind, name, other))
+            warnings.warn(
+                f"keymps: {kind.replace('_', ' ')} {name!r} of plugin {used!r} replaces the one "
+                f"of plugin {other!r}",
+                PluginLoadWarning,
+                stacklevel=3,
+            )
+
+
+_replaced: set[tuple[str, str, str]] = set()
+"""The replacements already reported in this process."""
 
 
 def create_component(
