@@ -312,3 +312,22 @@ def test_an_image_that_does_not_span_the_workspace_is_a_warning(
     assert any(expected in warning for warning in record["warnings"])
     same_shape = keymps.run_task(_task_copy(tmp_path), out=tmp_path / "plain", rerun="off")
     assert not any("a pixel is" in warning for warning in same_shape.warnings)
+
+
+def test_out_is_a_new_or_empty_folder_or_an_earlier_runs(tmp_path: Path, observer) -> None:
+    """`--out tasks` wrote run.json, plan.png and trajectory.csv among the task files."""
+    others = tmp_path / "tasks"
+    others.mkdir()
+    (others / "mine.yaml").write_text("name: mine\n")
+    with pytest.raises(KeympsError) as caught:
+        keymps.run_task(_task_copy(tmp_path), executor="recording", out=others, rerun="off")
+    assert str(caught.value) == (
+        f"--out {others}: the folder holds other files and no run.json (it is no run folder): "
+        "name a new or empty folder, or an earlier run's"
+    )
+    assert sorted(p.name for p in others.iterdir()) == ["mine.yaml"]
+    assert RecordingExecutor.calls == []
+    again = tmp_path / "run"
+    for _ in range(2):  # an earlier run's folder is a run folder: its files are replaced
+        keymps.run_task(_task_copy(tmp_path), executor="recording", out=again, rerun="off")
+    assert len(RecordingExecutor.calls) == 2

@@ -465,3 +465,5 @@ def test_ctrl_c_while_the_run_closes_still_writes_run_json(
     assert record["status"] == "interrupted" and record["execution"]["ok"]
     assert "after stage 'execute'" in record["error"]
     assert len(RecordingExecutor.calls) == 1
+    # the observers after the one pressing Ctrl-C still heard "finished": the recording closed
+    assert (out / "run.rrd").is_file()

@@ -132,6 +132,20 @@ def _create(
         raise KeympsError(f"{task.where(*field_path)}: {'.'.join(field_path)}: {error}") from None
 
 
+def _refuse_a_folder_of_other_files(out: Path) -> None:
+    """--out names a run folder: a new or empty one, or an earlier run's (run.json in it, its
+    files replaced); never a folder of other files (`--out tasks`, `--out ""` for the cwd)."""
+    try:
+        names = {entry.name for entry in out.iterdir()}
+    except OSError as error:
+        raise KeympsError(f"--out {out}: cannot list the run folder: {error.strerror}") from None
+    if names - {".keymps.lock"} and "run.json" not in names:
+        raise KeympsError(
+            f"--out {str(out) or '.'}: the folder holds other files and no run.json (it is no "
+            "run folder): name a new or empty folder, or an earlier run's"
+        )
+
+
 def _new_run_folder(task: Task, out: Path | None) -> Path:
     if out is not None:
         try:
@@ -141,6 +155,7 @@ def _new_run_folder(task: Task, out: Path | None) -> Path:
             if out.is_symlink() and not out.exists():
                 reason = "a symbolic link that leads nowhere (a loop or a missing target)"
             raise KeympsError(f"--out {out}: cannot create the run folder: {reason}") from None
+        _refuse_a_folder_of_other_files(out)
         return out
     stamp = time.strftime("%Y%m%d-%H%M%S")
     base = Path("runs") / f"{task.name}-{stamp}"
@@ -234,11 +249,14 @@ class _Pipeline:
         """Tell the observers, each on its own: one that raises is reported (by name) and the
         others, the Rerun recorder among them, still see the stage."""
         observers = [impl.plugin for impl in self.manager.hook.keymps_stage_done.get_hookimpls()]
+        pressed: KeyboardInterrupt | None = None
         for observer in reversed(observers):  # pluggy's order: the last registered first
             others = [plugin for plugin in observers if plugin is not observer]
             only = self.manager.subset_hook_caller("keymps_stage_done", remove_plugins=others)
             try:
                 only(stage=name, result=result, run=self.run)
+            except KeyboardInterrupt as interrupt:  # the others still hear of it (the recorder
+                pressed = interrupt  # closes run.rrd at "finished"); the Ctrl-C then goes on
             except Exception as error:
                 plugin = self.manager.get_name(observer)
                 message = (
@@ -247,6 +265,8 @@ class _Pipeline:
                 )
                 self.run.warnings.append(message)
                 warnings.warn(message, RuntimeWarning, stacklevel=2)
+        if pressed is not None:
+            raise pressed
 
     def execute_all(self) -> None:
         from keymps.config.limits import check_duration, check_tool_path
