@@ -123,7 +123,7 @@ def test_every_object_is_listed_and_pick_keeps_one_naming_the_other() -> None:
     (warning,) = picked.warnings
     assert "two objects of comparable size" in warning
     assert str(list(picked.bbox_px)) in warning and str(list(picked.others_px[0])) in warning
-    assert "detector.pick to 1" in warning
+    assert "detector.pick: 1 (by decreasing area, from 0) uses that one" in warning
     assert len(picked.objects) == 1
 
     second = ThresholdDetector(ThresholdOptions(pick=1)).detect(image)

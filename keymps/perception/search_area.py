@@ -40,11 +40,14 @@ def roi_polygon(value: Any) -> Any:
 def comparable_object_warnings(regions: Sequence[Any], pick: int, comparable: float) -> list[str]:
     """A warning per region (with .bbox and .area) at least `comparable` times the area of the
     one at index `pick`: the detector may have kept the wrong object."""
+    # no '#' numbers here: the planner numbers objects 1, 2 ... from the left (#1 (left)),
+    # while detector.pick counts from 0 by decreasing area
     chosen = regions[pick]
     return [
-        f"detect: two objects of comparable size: #{pick} box {list(chosen.bbox)} "
-        f"({chosen.area:.0f} px, used) and #{index} box {list(region.bbox)} "
-        f"({region.area:.0f} px); set detector.pick to {index} to use the other"
+        f"detect: two objects of comparable size: the one in box {list(chosen.bbox)} "
+        f"({chosen.area:.0f} px) is used, not the one in box {list(region.bbox)} "
+        f"({region.area:.0f} px); detector.pick: {index} (by decreasing area, from 0) uses "
+        "that one"
         for index, region in enumerate(regions)
         if index != pick and region.area >= comparable * chosen.area
     ]
