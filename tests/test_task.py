@@ -26,7 +26,9 @@ motion:
 
 
 def _write(tmp_path: Path, text: str) -> Path:
-    (tmp_path / "scene.png").write_bytes(b"\x89PNG\r\n\x1a\n placeholder: only its signature is read")
+    (tmp_path / "scene.png").write_bytes(
+        b"\x89PNG\r\n\x1a\n placeholder: only its signature is read"
+    )
     path = tmp_path / "task.yaml"
     path.write_text(textwrap.dedent(text), encoding="utf-8")
     return path
@@ -202,3 +204,20 @@ def test_parse_task_from_text_names_the_source() -> None:
     with pytest.raises(TaskFileError) as caught:
         parse_task("name: x\n", source="inline.yaml")
     assert all(line.startswith("inline.yaml:") for line in caught.value.problems)
+
+
+def test_yaml_merge_keys_take_the_anchors_keys_unless_given(tmp_path: Path) -> None:
+    """`<<: *defaults` was refused with PyYAML's 'could not determine a constructor'."""
+    from keymps.config.yaml_positions import load_yaml_with_positions
+
+    data = load_yaml_with_positions(
+        "a: &a {x: 1, y: 2}\nb: &b {y: 3, z: 4}\nc: {<<: [*a, *b], z: 5}\nd: {<<: *b}\n"
+    ).data
+    assert data["c"] == {"x": 1, "y": 2, "z": 5}  # the first named wins, the mapping's own win
+    assert data["d"] == {"y": 3, "z": 4}
+    text = VALID.replace("motion:\n  work_speed: 0.02\n", "motion: &m\n  work_speed: 0.02\n")
+    text += "robot: {<<: {max_joint_jerk: 50.0}, max_joint_acceleration: 2.0}\n"
+    task = load_task(_write(tmp_path, text))
+    assert task.robot.max_joint_jerk == 50.0 and task.robot.max_joint_acceleration == 2.0
+    with pytest.raises(TaskFileError, match=r"task.yaml:10:13: invalid YAML: '<<' merges mappings"):
+        load_task(_write(tmp_path, VALID + "robot: {<<: 3}\n"))

@@ -74,7 +74,11 @@ class _Walker:
         self.positions[path] = _mark(node)
         if isinstance(node, yaml.MappingNode):
             result: dict[Any, Any] = {}
+            merged: dict[Any, Any] = {}
             for key_node, value_node in node.value:
+                if key_node.tag == MERGE_TAG:  # `<<: *defaults`: their keys, unless given here
+                    merged.update(self._merge(value_node, path))
+                    continue
                 if not isinstance(key_node, yaml.ScalarNode):
                     raise YamlSyntaxError("a key must be a plain value", _mark(key_node))
                 key = self.scalar(key_node)
@@ -84,10 +88,23 @@ class _Walker:
                     raise YamlSyntaxError(f"duplicate key {key!r}", _mark(key_node))
                 self.key_positions[(*path, key)] = _mark(key_node)
                 result[key] = self.walk(value_node, (*path, key))
-            return result
+            return {**merged, **result}
         if isinstance(node, yaml.SequenceNode):
             return [self.walk(item, (*path, i)) for i, item in enumerate(node.value)]
         return self.scalar(node)
+
+    def _merge(self, node: yaml.Node, path: tuple[Any, ...]) -> dict[Any, Any]:
+        """The mapping(s) a merge key names: one alias, or a list of them (the first wins)."""
+        sources = node.value if isinstance(node, yaml.SequenceNode) else [node]
+        merged: dict[Any, Any] = {}
+        for source in reversed(sources):
+            if not isinstance(source, yaml.MappingNode):
+                raise YamlSyntaxError("'<<' merges mappings only (an alias of one)", _mark(source))
+            merged.update(self.walk(source, path))
+        return merged
+
+
+MERGE_TAG = "tag:yaml.org,2002:merge"
 
 
 def _not_a_name(node: yaml.ScalarNode, key: Any) -> str:
