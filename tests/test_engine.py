@@ -331,3 +331,14 @@ def test_out_is_a_new_or_empty_folder_or_an_earlier_runs(tmp_path: Path, observe
     for _ in range(2):  # an earlier run's folder is a run folder: its files are replaced
         keymps.run_task(_task_copy(tmp_path), executor="recording", out=again, rerun="off")
     assert len(RecordingExecutor.calls) == 2
+
+
+def test_an_api_base_override_that_is_no_url_stops_before_the_run(tmp_path: Path) -> None:
+    """`--api-base not-a-url` was retried for 18 s and reported as 'HTTP 500'."""
+    with pytest.raises(KeympsError) as caught:
+        keymps.run_task(_task_copy(tmp_path), api_base="not-a-url", out=tmp_path / "run")
+    assert str(caught.value) == (
+        "override planner.api_base: 'not-a-url' is not an http(s) URL with a host "
+        "(e.g. http://127.0.0.1:8000/v1)"
+    )
+    assert not (tmp_path / "run").exists()

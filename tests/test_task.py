@@ -158,6 +158,14 @@ BROKEN = [
         ],
     ),
     (
+        "a server that is no URL",
+        VALID + "planner: {api_base: localhost-8000}\n",
+        [
+            "task.yaml:10:21: planner.api_base: 'localhost-8000' is not an http(s) URL with a "
+            "host (e.g. http://127.0.0.1:8000/v1)"
+        ],
+    ),
+    (
         "a name leading the run folder out of runs/",
         VALID.replace("name: demo", "name: ../../../../tmp/escape"),
         [

@@ -51,7 +51,8 @@ def apply_overrides(task: Task, overrides: dict[str, Any]) -> Task:
     except ValidationError as error:
         first = error.errors(include_url=False)[0]
         field = ".".join(str(p) for p in first["loc"])
-        raise KeympsError(f"override {field}: {first['msg']}") from None
+        message = str(first["msg"]).removeprefix("Value error, ")
+        raise KeympsError(f"override {field}: {message}") from None
     updated._source = task._source
     updated._yaml = task._yaml
     # an api_base given here is the user's own: the one the file wrote no longer applies

@@ -175,6 +175,25 @@ class Planner(StrictModel):
     answer: Literal["pairs", "design", "either"] = "either"
     """Keypoint pairs, a named design from the offline catalogue, or either of them."""
 
+    @field_validator("api_base")
+    @classmethod
+    def _a_server_url(cls, value: str | None) -> str | None:
+        # litellm would retry a scheme-less or host-less base for seconds, then report HTTP 500
+        from urllib.parse import urlsplit
+
+        if value is None:
+            return value
+        try:
+            parts = urlsplit(value.strip())
+            usable = parts.scheme in ("http", "https") and bool(parts.hostname)
+        except ValueError:  # a malformed IPv6 host, a port that is no number
+            usable = False
+        if not usable:
+            raise ValueError(
+                f"{value!r} is not an http(s) URL with a host (e.g. http://127.0.0.1:8000/v1)"
+            )
+        return value
+
 
 class Height(StrictModel):
     mode: Literal["both", "start", "end"] = "both"
