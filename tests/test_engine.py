@@ -342,3 +342,17 @@ def test_an_api_base_override_that_is_no_url_stops_before_the_run(tmp_path: Path
         "(e.g. http://127.0.0.1:8000/v1)"
     )
     assert not (tmp_path / "run").exists()
+
+
+def test_rerun_connect_to_an_address_that_is_no_viewer_stops_before_the_run(
+    tmp_path: Path,
+) -> None:
+    """`--rerun connect --rerun-url http://...` ran on, warning at every stage, exit 0."""
+    with pytest.raises(KeympsError, match=r"--rerun-url 'http://127.0.0.1:9' is no Rerun viewer"):
+        keymps.run_task(
+            _task_copy(tmp_path),
+            rerun="connect",
+            rerun_url="http://127.0.0.1:9",
+            out=tmp_path / "run",
+        )
+    assert not (tmp_path / "run").exists()

@@ -23,6 +23,9 @@ from keymps.types import Detection, ExecutionReport, SceneImage
 
 Result = TypeVar("Result")
 
+RERUN_SCHEMES = ("rerun+http://", "rerun+https://", "rerun://")
+"""How a Rerun viewer's address begins (--rerun connect)."""
+
 StageCallback = Callable[[str, float, Any], None]
 """on_stage(stage, seconds, result): called after each stage (the CLI shows progress with it)."""
 
@@ -449,6 +452,13 @@ def run_task(
     if options.image_format not in IMAGE_FORMATS:
         raise KeympsError(
             f"image_format {options.image_format!r} is not one of: {', '.join(IMAGE_FORMATS)}"
+        )
+    if options.rerun == "connect" and not str(options.rerun_url or "").startswith(RERUN_SCHEMES):
+        # else the run went on, recording nothing, with a warning per stage
+        raise KeympsError(
+            f"--rerun-url {options.rerun_url!r} is no Rerun viewer URL: one starts with "
+            f"{', '.join(RERUN_SCHEMES)} (the viewer prints it, e.g. "
+            "rerun+http://127.0.0.1:9876/proxy)"
         )
     if through not in ("ground", "execute"):
         raise KeympsError(f"through={through!r}: a run goes through 'ground' or 'execute'")
