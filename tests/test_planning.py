@@ -386,6 +386,12 @@ def test_a_model_named_on_the_command_line_never_falls_back_silently(scene, no_k
         KeympsError, match=r"--model openai/gpt-4o: no credentials \(\$OPENAI_API_KEY"
     ):
         choose_backend(task, None, "openai/gpt-4o", None)
+    with pytest.raises(KeympsError) as caught:  # a provider keymps has no key variable for
+        choose_backend(task, None, "notaprovider/xyz", None)
+    assert str(caught.value).startswith(
+        "--model notaprovider/xyz: no credentials (no key variable known for provider "
+        "'notaprovider', no api_base); set the key's environment variable"
+    )
     assert choose_backend(task, None, "ollama/llava", None)[0] == "litellm"
     in_file = make_task("Cut it in half", scene, CUTTING, model="ollama/llava")
     assert choose_backend(in_file, None, None, None)[0] == "offline"  # needs $OLLAMA_API_BASE

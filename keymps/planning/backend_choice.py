@@ -151,19 +151,22 @@ def choose_backend(
     wanted = ((task.planner.api_key_env,) if task.planner.api_key_env else ()) + PROVIDER_KEYS.get(
         model_provider(model), ()
     )
-    need = " or ".join(f"${n}" for n in wanted) or "an api_base"
+    # "$OPENAI_API_KEY unset" for a provider keymps knows; else no key it could look for
+    missing = (
+        f"{' or '.join(f'${n}' for n in wanted)} unset, no api_base"
+        if wanted
+        else f"no key variable known for provider {model_provider(model)!r}, no api_base"
+    )
     if model_override:
         # a model asked for on the command line is meant: never fall back silently
         if model_provider(model) in ("ollama", "ollama_chat"):
             return AUTO_VLM, f"model {model} from Ollama at its default address{overridden}"
         raise KeympsError(
-            f"--model {model}: no credentials ({need} unset, no --api-base); set the key's "
-            "environment variable, or drop --model to plan offline"
+            f"--model {model}: no credentials ({missing}); set the key's environment variable "
+            "(planner.api_key_env names it), pass --api-base for a server of your own, or drop "
+            "--model to plan offline"
         )
-    return (
-        AUTO_OFFLINE,
-        f"model {model} has no credentials ({need} unset, no api_base): offline planner",
-    )
+    return AUTO_OFFLINE, f"model {model} has no credentials ({missing}): offline planner"
 
 
 def _check_backend(task: Task, backend: str, model: str | None) -> None:
