@@ -314,23 +314,28 @@ def test_an_image_that_does_not_span_the_workspace_is_a_warning(
     assert not any("a pixel is" in warning for warning in same_shape.warnings)
 
 
-def test_out_is_a_new_or_empty_folder_or_an_earlier_runs(tmp_path: Path, observer) -> None:
-    """`--out tasks` wrote run.json, plan.png and trajectory.csv among the task files."""
+def test_out_is_a_new_or_empty_folder_or_an_earlier_runs(tmp_path: Path) -> None:
+    """`keymps run --out tasks` wrote run.json, plan.png and trajectory.csv among the task
+    files; run_task itself writes where it is told (eval reruns interrupted folders)."""
+    from click.testing import CliRunner
+
+    from keymps.cli.app import cli
+
     others = tmp_path / "tasks"
     others.mkdir()
     (others / "mine.yaml").write_text("name: mine\n")
-    with pytest.raises(KeympsError) as caught:
-        keymps.run_task(_task_copy(tmp_path), executor="recording", out=others, rerun="off")
-    assert str(caught.value) == (
+    task = str(_task_copy(tmp_path))
+    result = CliRunner().invoke(cli, ["run", task, "--rerun", "off", "--out", str(others)])
+    assert result.exit_code == 1
+    assert result.output.strip().endswith(
         f"--out {others}: the folder holds other files and no run.json (it is no run folder): "
         "name a new or empty folder, or an earlier run's"
     )
     assert sorted(p.name for p in others.iterdir()) == ["mine.yaml"]
-    assert RecordingExecutor.calls == []
     again = tmp_path / "run"
     for _ in range(2):  # an earlier run's folder is a run folder: its files are replaced
-        keymps.run_task(_task_copy(tmp_path), executor="recording", out=again, rerun="off")
-    assert len(RecordingExecutor.calls) == 2
+        result = CliRunner().invoke(cli, ["run", task, "--rerun", "off", "--out", str(again)])
+        assert result.exit_code == 0, result.output
 
 
 def test_an_api_base_override_that_is_no_url_stops_before_the_run(tmp_path: Path) -> None:

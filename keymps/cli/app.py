@@ -99,9 +99,11 @@ def _run(
     skip_pydantic_plugin_scan()  # before the task models: the plugin scan is read once
     from keymps.cli.output import RunPrinter
     from keymps.errors import KeympsError
-    from keymps.pipeline.engine import run_task
+    from keymps.pipeline.engine import refuse_a_folder_of_other_files, run_task
     from keymps.run import Run
 
+    if given.get("out") is not None:
+        refuse_a_folder_of_other_files(Path(given["out"]))
     printer = RunPrinter(quiet=quiet)
 
     def stage_done(name: str, seconds: float, result: Any) -> None:

@@ -135,9 +135,13 @@ def _create(
         raise KeympsError(f"{task.where(*field_path)}: {'.'.join(field_path)}: {error}") from None
 
 
-def _refuse_a_folder_of_other_files(out: Path) -> None:
-    """--out names a run folder: a new or empty one, or an earlier run's (run.json in it, its
-    files replaced); never a folder of other files (`--out tasks`, `--out ""` for the cwd)."""
+def refuse_a_folder_of_other_files(out: Path) -> None:
+    """The keymps command's --out names a run folder: a new or empty one, or an earlier run's
+    (run.json in it, its files replaced); never a folder of other files (`--out tasks`, `--out
+    ""` for the cwd). run_task itself writes where it is told (eval reruns an interrupted run's
+    folder in place)."""
+    if not out.is_dir():
+        return
     try:
         names = {entry.name for entry in out.iterdir()}
     except OSError as error:
@@ -158,7 +162,6 @@ def _new_run_folder(task: Task, out: Path | None) -> Path:
             if out.is_symlink() and not out.exists():
                 reason = "a symbolic link that leads nowhere (a loop or a missing target)"
             raise KeympsError(f"--out {out}: cannot create the run folder: {reason}") from None
-        _refuse_a_folder_of_other_files(out)
         return out
     stamp = time.strftime("%Y%m%d-%H%M%S")
     base = Path("runs") / f"{task.name}-{stamp}"
