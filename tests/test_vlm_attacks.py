@@ -132,6 +132,20 @@ def test_a_trusted_entry_covers_only_its_own_server(
     fuzz_counter.add("VLM attacks/trust", ("near-miss trusted entry", trusted), "keyless run")
 
 
+@pytest.mark.parametrize("climb", ["x/..", "x/./..", "x/%2e%2e"])
+def test_dot_segments_do_not_climb_out_of_a_trusted_path(
+    climb: str, server: Any, tmp_path: Path, fuzz_counter: Any
+) -> None:
+    """'/v1/x/..' is below a trusted '/v1/x' as text and is '/v1' once resolved: a stranger's
+    task file sent the key to a sibling path of the trusted one."""
+    (tmp_path / "user-config.yaml").write_text(f"trusted_api_bases: ['{server.openai_base}/x']\n")
+    task = hostile_task(tmp_path, f"api_base: {server.openai_base}/{climb}")
+    with pytest.warns(UserWarning, match="no API key is sent"):
+        run(task, tmp_path / "run")
+    assert all(header == "Bearer no-key-needed" for header in authorization(server))
+    fuzz_counter.add("VLM attacks/trust", ("dot segments", climb), "keyless run")
+
+
 def test_the_providers_own_endpoint_is_trusted_from_a_task_file(tmp_path: Path) -> None:
     from keymps.planning.backend_choice import api_base_trusted
 

@@ -152,6 +152,10 @@ def same_server(api_base: str, trusted: str) -> bool:
         return False
     if ports[0] != ports[1]:
         return False
+    # "/v1/../other" is below "/v1" as text, and a sibling once the server resolves it: a path
+    # with dot segments (or an encoded dot) is never the trusted one
+    if any(step in (".", "..") for step in a.path.split("/")) or "%2e" in a.path.lower():
+        return False
     path, prefix = a.path.rstrip("/"), b.path.rstrip("/")
     return path == prefix or path.startswith(prefix + "/")
 
