@@ -144,12 +144,12 @@ def _forget(manager: KeympsPluginManager, name: str) -> None:
 def _warn_unknown_hooks(manager: KeympsPluginManager) -> None:
     """A @hookimpl whose name is no keymps hook (a typo: register_executor) is never called:
     say so instead of ignoring the plugin's work in silence."""
-    import difflib
-
-    known = [name for name in dir(hookspecs) if name.startswith(("register_", "keymps_"))]
     for name, caller in vars(manager.hook).items():
         if getattr(caller, "spec", True) is not None:
             continue
+        import difflib  # only for a plugin with a misspelled hook: not on every run's start
+
+        known = [hook for hook in dir(hookspecs) if hook.startswith(("register_", "keymps_"))]
         close = difflib.get_close_matches(name, known, n=1)
         hint = f" (did you mean {close[0]!r}?)" if close else ""
         for impl in caller.get_hookimpls():
