@@ -453,6 +453,39 @@ def test_credentials_in_an_api_base_are_redacted_wherever_they_appear() -> None:
     )
 
 
+@pytest.mark.parametrize(
+    "before", ["", " ", "(", "1", "x", "a.b-", "_", "@", "é", "said:"], ids=repr
+)
+def test_url_userinfo_is_redacted_whatever_stands_before_the_scheme(before: str) -> None:
+    from keymps.planning.redaction import redact_text
+
+    text = redact_text(f"{before}https://lab:pw-zz@h/v1 and {before}ftp://u@h", [])
+    assert "pw-" not in text and "u@h" not in text, text
+    assert text.count("[redacted]@h") == 2
+
+
+HOSTILE_SHAPES = {
+    "a word": "a" * 400_000,
+    "digits and letters": "1a" * 200_000,
+    "dots": "a." * 200_000,
+    "a scheme with no userinfo end": "a://" + "b" * 400_000,
+    "a query name": "?" + "w" * 400_000,
+    "query parameters": "?key=" * 80_000,
+}
+
+
+@pytest.mark.parametrize("text", HOSTILE_SHAPES.values(), ids=HOSTILE_SHAPES.keys())
+def test_redacting_a_huge_hostile_answer_takes_linear_time(text: str) -> None:
+    """Every answer is redacted before it is checked: a server's 2 MB answer of one long word
+    took minutes when the URL pattern was tried from each of its letters. Linear, 400 k
+    characters take milliseconds; the bound is generous so that only a quadratic search fails."""
+    from keymps.planning.redaction import redact_text
+
+    started = time.perf_counter()
+    redact_text(text, ["a-secret-of-this-test"])
+    assert time.perf_counter() - started < 3.0
+
+
 KEYISH = st.text(
     alphabet=st.sampled_from(string.ascii_uppercase + 'bfghijklmnopqsuvwxyz0123456789-_.+=/"\\é'),
     min_size=3,

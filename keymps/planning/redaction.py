@@ -43,7 +43,9 @@ SECRET_ENV_NAME = re.compile(
 )
 """Names of credential-like environment variables (OPENAI_API_KEY, MY_VLM_KEY, GITHUB_TOKEN,
 AWS_SECRET_ACCESS_KEY ...), matched by whole words so that KEYMPS_CACHE_DIR is not one."""
-_URL_USERINFO = re.compile(r"(?P<scheme>[a-zA-Z][a-zA-Z0-9+.-]*://)[^/\s@\"'<>]+@")
+# The scheme is matched from the start of its run of scheme characters only: tried from every
+# letter of a long word, the search was quadratic (a 2 MB answer took minutes to redact).
+_URL_USERINFO = re.compile(r"(?<![a-zA-Z0-9+.-])(?P<scheme>[a-zA-Z0-9+.-]*://)[^/\s@\"'<>]+@")
 _KEY_QUERY = re.compile(
     r"(?P<name>[?&;](?:[\w.-]*api[_-]?key|key|token|access[_-]?token|auth|secret|password|"
     r"sig|signature|x-goog-api-key)=)[^&#\s\"'<>]+?(?=[:,;.)\]]?(?:[&#\s\"'<>]|$))",
