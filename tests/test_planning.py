@@ -100,6 +100,16 @@ def test_json_is_found_in_fences_and_prose():
     assert extract_json('Sure. {"a": {"b": "}"}} Hope it helps {') == {"a": {"b": "}"}}
     with pytest.raises(ValueError):
         extract_json("no object here")
+    assert extract_json('```json\n{"a": 1}\n``` Again: ```{"a": 1}```') == {"a": 1}
+
+
+@pytest.mark.parametrize(
+    "text",
+    ['{"a": 1} or {"a": 2}', '```json\n{"a": 1}\n```\n```json\n{"b": 2}\n```', '{"a":1}{"a":[2]}'],
+)
+def test_an_answer_with_two_different_objects_is_refused(text: str) -> None:
+    with pytest.raises(ValueError, match="2 different JSON objects"):
+        extract_json(text)
 
 
 def test_validation_rules():

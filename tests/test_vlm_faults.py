@@ -176,6 +176,24 @@ def test_an_html_page_is_not_json_and_not_retried(task: Any, warm: None, tmp_pat
     assert _HtmlPage.requests == 1  # a web page will not turn into an API by asking again
 
 
+def test_an_answer_with_two_different_objects_is_sent_back_not_read_by_its_first(
+    task: Any, server: Any, warm: None, tmp_path: Path
+) -> None:
+    moved = {**DOT, "pairs": [[[90, 90], [90, 90]]]}
+    server.script(Reply.text_answer(f"{json.dumps(moved)}\nOr, better:\n{json.dumps(DOT)}"))
+    run = run_with(task, server.openai_base, tmp_path / "run")
+    first, second = vlm_records(run.folder)
+    assert not first["valid"] and second["valid"]
+    assert "2 different JSON objects, and only one is read" in first["errors"][0]
+    repair = server.chat_requests[-1].body["messages"][-1]["content"]
+    assert "only one is read" in str(repair)
+    assert len(RecordingExecutor.calls) == 1  # the repaired answer, not a guess between two
+    # the same object twice is one answer
+    server.script(Reply.text_answer(f"{json.dumps(DOT)} (again: {json.dumps(DOT)})"))
+    again = run_with(task, server.openai_base, tmp_path / "again")
+    assert [r["valid"] for r in vlm_records(again.folder)] == [True]
+
+
 def test_a_server_that_resets_every_connection_is_named(
     task: Any, server: Any, warm: None, tmp_path: Path
 ) -> None:

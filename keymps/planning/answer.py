@@ -11,8 +11,7 @@ from __future__ import annotations
 
 import json
 import math
-import re
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
@@ -124,31 +123,46 @@ def strict_object_schema(name: str, properties: dict[str, Any]) -> dict[str, Any
     }
 
 
-_FENCE = re.compile(r"```(?:json|JSON)?\s*(.*?)```", re.DOTALL)
-
-
 def extract_json(text: str) -> Any:
-    """The JSON object in a model's text: plain, in a code fence, or surrounded by prose."""
-    candidates = [text.strip()]
-    candidates += [m.group(1).strip() for m in _FENCE.finditer(text)]
+    """The one JSON object in a model's text: plain, in a code fence, or surrounded by prose.
+
+    An answer holding two different objects is refused, not read by its first: which of them
+    the model meant is a guess (a repeat of the same object is one answer).
+    """
     try:
-        for candidate in candidates:
-            try:
-                return json.loads(candidate)
-            except json.JSONDecodeError:
-                pass
-        # the first "{" that starts a complete JSON value; raw_decode keeps this linear-ish
-        # (a scan per "{" in Python was quadratic: 100 KB of braces took minutes)
-        decoder = json.JSONDecoder()
-        start = text.find("{")
-        while start != -1:
-            try:
-                return decoder.raw_decode(text, start)[0]
-            except json.JSONDecodeError:
-                start = text.find("{", start + 1)
+        try:
+            return json.loads(text)
+        except json.JSONDecodeError:
+            pass
+        found: list[Any] = []
+        for value in _top_level_objects(text):
+            if value not in found:
+                found.append(value)
     except RecursionError:
         raise ValueError("the JSON is nested too deeply") from None
-    raise ValueError("no JSON object found in the answer")
+    if not found:
+        raise ValueError("no JSON object found in the answer")
+    if len(found) > 1:
+        raise ValueError(f"it holds {len(found)} different JSON objects, and only one is read")
+    return found[0]
+
+
+def _top_level_objects(text: str) -> Iterator[Any]:
+    """Every complete JSON value that starts at a "{" outside the values found before it.
+
+    raw_decode from each "{" keeps this linear-ish (a scan per "{" in Python was quadratic:
+    100 KB of braces took minutes); code fences are prose around the object like any other.
+    """
+    decoder = json.JSONDecoder()
+    start = text.find("{")
+    while start != -1:
+        try:
+            value, end = decoder.raw_decode(text, start)
+        except json.JSONDecodeError:
+            start = text.find("{", start + 1)
+            continue
+        yield value
+        start = text.find("{", end)
 
 
 def parse_and_validate(
