@@ -378,3 +378,23 @@ def test_no_cache_asks_the_vlm_for_every_run(tmp_path: Path) -> None:
     assert result.exit_code == 0, result.output
     records = _records(out)
     assert requests == 2 and [r["cached"] for r in records] == [0, 0]
+
+
+def test_a_task_file_given_to_eval_and_a_suite_given_to_run_say_which_command_they_need() -> None:
+    repo = Path(__file__).resolve().parents[1]
+    task, suite = repo / "tasks/cake_icing.yaml", repo / "benchmarks/suites/cutting_sim.yaml"
+    runner = CliRunner()
+    done = runner.invoke(cli, ["eval", str(task)])
+    assert done.exit_code == 1
+    assert done.output.splitlines() == [
+        f"error: {task}:1:1: a task file (it has an instruction and no cases), not an eval "
+        f"suite: run it with `keymps run {task}`, or make it a case of a suite "
+        "(docs/benchmarks.md)"
+    ]
+    for command in (["run", "--rerun", "off"], ["validate"]):
+        done = runner.invoke(cli, [*command, str(suite)])
+        assert done.exit_code == 1 and len(done.output.splitlines()) == 1, done.output
+        assert (
+            f"an eval suite (it lists cases), not a task file: run it with `keymps eval {suite}`"
+            in (done.output)
+        )

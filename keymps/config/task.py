@@ -383,6 +383,13 @@ def parse_task(text: str, source: str = "<task>", path: Path | None = None) -> T
         ) from None
     if not isinstance(parsed.data, dict):
         raise TaskFileError([f"{source}:1:1: (task): expected a mapping of task fields"])
+    if "cases" in parsed.data and "instruction" not in parsed.data:
+        raise TaskFileError(
+            [
+                f"{source}:1:1: (task): an eval suite (it lists cases), not a task file: run it "
+                f"with `keymps eval {source}` (docs/benchmarks.md)"
+            ]
+        )
     data = {k: v for k, v in parsed.data.items() if k != "path"}
     try:
         task = Task.model_validate({**data, "path": path})

@@ -253,6 +253,11 @@ def parse_suite(text: str, source: str = "<suite>", path: Path | None = None) ->
         raise SuiteError(f"{source}:{line}:{column}: invalid YAML: {error}") from None
     if not isinstance(parsed.data, dict):
         raise SuiteError(f"{source}:1:1: expected a mapping with name, primitives and cases")
+    if "instruction" in parsed.data and "cases" not in parsed.data:
+        raise SuiteError(
+            f"{source}:1:1: a task file (it has an instruction and no cases), not an eval suite: "
+            f"run it with `keymps run {source}`, or make it a case of a suite (docs/benchmarks.md)"
+        )
     try:
         suite = Suite.model_validate({**parsed.data, "path": path})
     except ValidationError as error:
