@@ -134,17 +134,21 @@ def extract_json(text: str) -> Any:
             return json.loads(text)
         except json.JSONDecodeError:
             pass
-        found: list[Any] = []
-        for value in _top_level_objects(text):
-            if value not in found:
-                found.append(value)
+        objects = _top_level_objects(text)
+        first = next(objects, _NONE)
+        # the first that differs settles it: counting every distinct one compared them pairwise
+        differs = any(value != first for value in objects)
     except RecursionError:
         raise ValueError("the JSON is nested too deeply") from None
-    if not found:
+    if first is _NONE:
         raise ValueError("no JSON object found in the answer")
-    if len(found) > 1:
-        raise ValueError(f"it holds {len(found)} different JSON objects, and only one is read")
-    return found[0]
+    if differs:
+        raise ValueError("it holds at least 2 different JSON objects, and only one is read")
+    return first
+
+
+_NONE = object()
+"""No JSON value in the text (null is a value)."""
 
 
 def _top_level_objects(text: str) -> Iterator[Any]:
