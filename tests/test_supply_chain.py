@@ -21,7 +21,7 @@ tomllib = pytest.importorskip("tomllib")  # Python 3.11+
 REPO = Path(__file__).resolve().parents[1]
 KNOWN_BAD = {"litellm": {Version("1.82.7"), Version("1.82.8")}}
 PLUGINS = ("keymps-ur-rtde", "keymps-mujoco")
-PIN = re.compile(r"^([A-Za-z0-9_.\-]+)==([^\s;\\]+)")
+PIN = re.compile(r"^([A-Za-z0-9_.\-]+)(?:\[([^\]]*)\])?==([^\s;\\]+)")
 
 
 def _lock() -> dict[str, tuple[Version, int]]:
@@ -32,11 +32,24 @@ def _lock() -> dict[str, tuple[Version, int]]:
         found = PIN.match(line)
         if found:
             current = canonicalize_name(found.group(1))
-            pins[current] = (Version(found.group(2)), 0)
+            pins[current] = (Version(found.group(3)), 0)
         elif current and line.strip().startswith("--hash=sha256:"):
             version, hashes = pins[current]
             pins[current] = (version, hashes + 1)
     return pins
+
+
+def _locked_extras() -> dict[str, set[str]]:
+    """Package -> the extras its pin names (``httpx[http2]==0.28.1`` -> {"http2"})."""
+    extras: dict[str, set[str]] = {}
+    for line in (REPO / "requirements/lock.txt").read_text().splitlines():
+        found = PIN.match(line)
+        if found:
+            names = found.group(2) or ""
+            extras[canonicalize_name(found.group(1))] = {
+                canonicalize_name(extra) for extra in names.split(",") if extra.strip()
+            }
+    return extras
 
 
 def _requirements(pyproject: Path, extras: tuple[str, ...] = ()) -> list[Requirement]:
@@ -80,6 +93,30 @@ def test_the_lock_pins_every_package_ci_installs_with_hashes() -> None:
         assert hashes >= 1, f"{name}=={version} has no hash"
         assert version not in KNOWN_BAD.get(name, set()), f"the lock pins {name}=={version}"
     assert "mujoco" in pins  # the MuJoCo plugin's engine
+
+
+def test_the_lock_pins_every_extra_a_locked_package_asks_for() -> None:
+    """pip 23.2 in hash mode resolves `httpx[http2]` (asked for by litellm) on its own, takes the
+    newest release from PyPI instead of the pin, and refuses the whole install as unpinned (seen
+    the day httpx 0.29.0 came out): such a pin names its extras, `httpx[http2]==0.28.1`."""
+    extras = _locked_extras()
+    missing = []
+    for name in extras:
+        try:
+            requires = metadata.requires(name) or []
+        except metadata.PackageNotFoundError:
+            continue  # not for this platform
+        for text in requires:
+            requirement = Requirement(text)
+            wanted = canonicalize_name(requirement.name)
+            if not requirement.extras or wanted not in extras:
+                continue
+            if requirement.marker and not requirement.marker.evaluate({"extra": ""}):
+                continue  # only with an extra of `name` that CI does not install
+            asked = {canonicalize_name(extra) for extra in requirement.extras}
+            if not asked <= extras[wanted]:
+                missing.append(f"{name} needs {requirement}")
+    assert not missing, "write the extras into the lock's pin: " + "; ".join(missing)
 
 
 def test_ci_installs_from_the_lock_with_hashes_required() -> None:
