@@ -165,6 +165,10 @@ def _scene_files(folder: Path) -> dict[str, bytes]:
     rgba = cv2.cvtColor(scene, cv2.COLOR_BGR2BGRA)
     rgba[..., 3] = 0  # fully transparent: the colour channels are still the scene
     deep = scene.astype(np.uint16) * 257
+    twelve = ((scene.astype(np.uint32) * 4095 + 127) // 255).astype(np.uint16)  # unscaled
+    twelve_png = cv2.imencode(".png", twelve)[1].tobytes()
+    sbit = b"sBIT" + bytes([12, 12, 12])
+    sbit_chunk = struct.pack(">I", 3) + sbit + struct.pack(">I", zlib.crc32(sbit))
     return {
         "empty.png": b"",
         "one-pixel.png": cv2.imencode(".png", np.full((1, 1, 3), 200, np.uint8))[1].tobytes(),
@@ -172,6 +176,10 @@ def _scene_files(folder: Path) -> dict[str, bytes]:
         "rgba.png": cv2.imencode(".png", rgba)[1].tobytes(),
         "16-bit.png": cv2.imencode(".png", deep)[1].tobytes(),
         "16-bit.tiff": cv2.imencode(".tiff", deep)[1].tobytes(),
+        "12-bit-sbit.png": twelve_png[:33] + sbit_chunk + twelve_png[33:],
+        "12-bit.ppm": cv2.imencode(".ppm", twelve)[1].tobytes().replace(b"65535", b"4095", 1),
+        "12-bit-unscaled.png": twelve_png,
+        "12-bit-unscaled.tiff": cv2.imencode(".tiff", twelve)[1].tobytes(),
         "corrupt.png": cv2.imencode(".png", scene)[1].tobytes()[:-4000],
         "garbage.jpg": bytes(range(256)) * 8,
         "20000x20000.png": png_header(20000, 20000),
@@ -186,6 +194,8 @@ EXPECTED = {
     "one-pixel.png": "no object found",
     "corrupt.png": None,  # PNG decoders may keep the rows they got: a scene, or a clean refusal
     "garbage.jpg": "cannot decode scene image",
+    "12-bit-unscaled.png": "is 16-bit, but no sample reaches 4096",
+    "12-bit-unscaled.tiff": "is 16-bit, but no sample reaches 4096",
     "20000x20000.png": "20000 x 20000 pixels (400.0 MP), more than scene.max_image_pixels",
     "20000x20000.jpg": "20000 x 20000 pixels (400.0 MP), more than scene.max_image_pixels",
     "huge-bmp.bmp": "more than scene.max_image_pixels",
@@ -224,6 +234,9 @@ def test_named_images_in_full_runs(keymps_plugins: Any, tmp_path: Path, fuzz_cou
             assert EXPECTED.get(name) is None, f"{name} should have been refused"
             assert len(RecordingExecutor.calls) == 1
             assert run.stages.image.image.shape[2] == 3
+            if name.startswith("12-bit"):  # the scene itself, not a nearly black one
+                scene = cv2.imread(str(REPO / "tasks/scenes/round_cake.png"))
+                assert np.abs(run.stages.image.image.astype(int) - scene).max() <= 1, name
             fuzz_counter.add("images/named, full runs", name, "executed")
         assert time.perf_counter() - started < 5.0, name
 

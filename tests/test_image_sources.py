@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import struct
+import zlib
 from pathlib import Path
 from typing import Any
 
@@ -116,3 +118,69 @@ def test_opencv_source_grabs_a_frame_from_a_video(tmp_path: Path) -> None:
         missing.load(make_run(tmp_path, source="opencv"))
     with pytest.raises(KeympsError, match=r"opencv image source: .*'warmup_frames'"):
         create_component("image_source", "opencv", {"warmup_frames": -2})
+
+
+# --------------------------------------------------------------------- camera data below 16 bits
+
+
+def _with_sbit(png: bytes, bits: list[int]) -> bytes:
+    """The PNG with an sBIT chunk (significant bits per channel) right after its IHDR."""
+    chunk = b"sBIT" + bytes(bits)
+    crc = struct.pack(">I", zlib.crc32(chunk))
+    return png[:33] + struct.pack(">I", len(bits)) + chunk + crc + png[33:]
+
+
+def _deep_case(rng: np.random.Generator) -> tuple[str, bytes, np.ndarray]:
+    """A scene as a camera of 9-15 bits stores it: unscaled in a 16-bit PNG that says so (sBIT),
+    or in a PGM/PPM with its maxval; gray, colour or with alpha; lit anywhere from dim to
+    bright. Returns the file's suffix, its bytes and the 8-bit image it must read as."""
+    height, width = int(rng.integers(1, 80)), int(rng.integers(1, 80))
+    channels = int(rng.choice([1, 3, 4]))
+    netpbm = channels != 4 and rng.random() < 0.5  # (Netpbm's PAM would hold alpha)
+    bits = int(rng.integers(9, 16))
+    top = int(rng.choice([2**bits - 1, 1000, 3000, 10_000])) if netpbm else 2**bits - 1
+    light = rng.uniform(0.05, 1.0)
+    colour = rng.uniform(0, light, (height, width, min(channels, 3)))
+    samples = np.round(colour * top).astype(np.uint16)
+    expected = (samples.astype(np.int64) * 255 + top // 2) // top
+    if channels == 4:
+        samples = np.concatenate([samples, rng.integers(0, top + 1, (height, width, 1))], axis=2)
+    stored = samples[:, :, 0] if channels == 1 else samples.astype(np.uint16)
+    bgr = np.repeat(expected, 3, axis=2) if channels == 1 else expected
+    if netpbm:
+        data = cv2.imencode(".pgm" if channels == 1 else ".ppm", stored)[1].tobytes()
+        return ".pnm", data.replace(b"65535", str(top).encode(), 1), bgr
+    png = cv2.imencode(".png", stored)[1].tobytes()
+    return ".png", _with_sbit(png, [bits] * channels), bgr
+
+
+def test_camera_data_below_16_bits_reads_as_its_own_range(tmp_path: Path) -> None:
+    """300 generated scenes stored by cameras of 9-15 bits (a PNG's sBIT, a Netpbm maxval): each
+    reads as the 8-bit image of its own range (before: divided by 65535, a 12-bit scene was
+    nearly black, its brightest pixel 16 of 255)."""
+    rng = np.random.default_rng(20261202)
+    for case in range(300):
+        suffix, data, expected = _deep_case(rng)
+        (tmp_path / f"scene{suffix}").write_bytes(data)
+        loaded = load(tmp_path, options={"path": f"scene{suffix}"}).image
+        assert loaded.dtype == np.uint8 and loaded.shape == expected.shape, case
+        np.testing.assert_array_equal(loaded, expected, err_msg=f"case {case} ({suffix})")
+
+
+def test_a_png_scaled_to_16_bits_as_its_sbit_asks_reads_as_16_bits(tmp_path: Path) -> None:
+    """The PNG standard's way: 12 significant bits, stored scaled up to the full 16."""
+    bgr = np.random.default_rng(1).integers(0, 256, (30, 40, 3)).astype(np.uint8)
+    png = cv2.imencode(".png", bgr.astype(np.uint16) * 257)[1].tobytes()
+    (tmp_path / "scene.png").write_bytes(_with_sbit(png, [12, 12, 12]))
+    np.testing.assert_array_equal(load(tmp_path).image, bgr)
+
+
+@pytest.mark.parametrize("suffix", [".png", ".tiff"])
+def test_unscaled_12_bit_data_that_does_not_say_so_is_refused(tmp_path: Path, suffix: str) -> None:
+    samples = np.random.default_rng(2).integers(0, 4096, (30, 40, 3)).astype(np.uint16)
+    assert cv2.imwrite(str(tmp_path / f"scene{suffix}"), samples)
+    with pytest.raises(KeympsError) as refused:
+        load(tmp_path, options={"path": f"scene{suffix}"})
+    message = str(refused.value)
+    assert "is 16-bit, but no sample reaches 4096 (the largest is 4095)" in message
+    assert f"scene{suffix}" in message and "\n" not in message

@@ -2,21 +2,32 @@
 
 from __future__ import annotations
 
+import re
+import struct
 from pathlib import Path
 
 import numpy as np
 
 from keymps.errors import ImageSourceError, KeympsError
 
+UNSCALED_BELOW = 4096
+"""A 16-bit image none of whose colour samples reaches this holds 12-bit (or fewer) camera data
+stored without scaling: divided by 65535 it would be nearly black."""
 
-def to_bgr8(image: np.ndarray) -> np.ndarray:
+
+def to_bgr8(image: np.ndarray, sample_max: int | None = None) -> np.ndarray:
     """Any decoded image (gray, BGR, BGRA; 8 or 16 bit; float in [0, 1]) -> BGR uint8.
 
-    An alpha channel is dropped (its colour channels are kept as they are).
+    Integer samples run from 0 to `sample_max` (default: the type's largest value, 255 or
+    65535). An alpha channel is dropped (its colour channels are kept as they are).
     """
     import cv2
 
-    if image.dtype == np.uint16:
+    if sample_max is not None and image.dtype in (np.uint8, np.uint16):
+        top = np.uint32(sample_max)
+        wide = np.minimum(image.astype(np.uint32), top)
+        image = (wide * 255 + top // 2) // top
+    elif image.dtype == np.uint16:
         image = (image.astype(np.uint32) * 255 + 32767) // 65535
     elif np.issubdtype(image.dtype, np.floating):
         image = np.clip(image, 0.0, 1.0) * 255.0 + 0.5
@@ -74,7 +85,64 @@ def read_image(path: Path, max_pixels: int | None = None) -> np.ndarray:
         )
     if max_pixels is not None:  # a format whose header keymps does not read
         _check_pixels((decoded.shape[1], decoded.shape[0]), max_pixels, path)
-    return to_bgr8(decoded)
+    return to_bgr8(decoded, _sample_max(decoded, data, path))
+
+
+def _sample_max(decoded: np.ndarray, data: bytes, path: Path) -> int | None:
+    """The largest value the samples can take, when it is not the type's own: stated by the
+    file (a PNG's sBIT chunk, a Netpbm maxval) and not exceeded. A 16-bit image that states
+    nothing and stays below UNSCALED_BELOW is refused: which depth it had is a guess."""
+    stated = declared_sample_max(data)
+    if decoded.dtype != np.uint16 and (decoded.dtype != np.uint8 or stated is None):
+        return None
+    colour = decoded if decoded.ndim == 2 else decoded[:, :, : min(3, decoded.shape[2])]
+    largest = int(colour.max())
+    if stated is not None and 0 < stated < np.iinfo(decoded.dtype).max and largest <= stated:
+        return stated
+    if decoded.dtype == np.uint16 and largest < UNSCALED_BELOW and stated is None:
+        raise ImageSourceError(
+            f"scene image {path} is 16-bit, but no sample reaches {UNSCALED_BELOW} (the largest "
+            f"is {largest}): camera data of 12 bits or fewer stored unscaled, which would read "
+            "as nearly black; scale it to 16 bits (times 16 for 12-bit data), save it as 8-bit, "
+            "or state its depth (a PNG sBIT chunk, a PGM or PPM maxval)"
+        )
+    return None
+
+
+def declared_sample_max(data: bytes) -> int | None:
+    """The largest colour sample a file says it holds: 2**bits - 1 from a PNG's sBIT chunk
+    (significant bits, the most of the colour channels), a Netpbm file's maxval; else None."""
+    try:
+        if data[:8] == b"\x89PNG\r\n\x1a\n":
+            return _png_significant_max(data)
+        if data[:1] == b"P" and data[1:2] in (b"2", b"3", b"5", b"6", b"7"):
+            return _netpbm_maxval(data[:4096])
+    except (struct.error, ValueError, IndexError):
+        return None  # a header cut short: the decoder has read what it could
+    return None
+
+
+def _png_significant_max(data: bytes) -> int | None:
+    colour_type = data[25]
+    colour_bytes = {0: 1, 2: 3, 3: 3, 4: 1, 6: 3}.get(colour_type)
+    at = 8
+    while at + 8 <= len(data):
+        length, kind = struct.unpack(">I4s", data[at : at + 8])
+        if kind in (b"IDAT", b"IEND"):  # sBIT comes before the image data
+            return None
+        if kind == b"sBIT" and colour_bytes is not None and length >= colour_bytes:
+            bits = max(data[at + 8 : at + 8 + colour_bytes])
+            return 2**bits - 1 if 1 <= bits <= 16 else None
+        at += 12 + length
+    return None
+
+
+def _netpbm_maxval(head: bytes) -> int | None:
+    fields = re.sub(rb"#[^\n]*", b" ", head[2:]).split()
+    if head[1:2] == b"7":
+        named = dict(zip(fields[::2], fields[1::2], strict=False))
+        return int(named[b"MAXVAL"]) if b"MAXVAL" in named else None
+    return int(fields[2]) if len(fields) >= 3 and fields[2].isdigit() else None
 
 
 def _check_pixels(size_px: tuple[int, int], max_pixels: int, path: Path) -> None:
