@@ -209,6 +209,11 @@ class BackendAnswer:
     model: str | None = None
     retries: tuple[str, ...] = ()
     """Failed tries before this answer (rate limits, server errors ...), one line each."""
+    finish_reason: str | None = None
+    """Why the answer ended before the model meant it to: "length" (its output token limit),
+    "content_filter" or "tool_calls"; None for a natural end, or when the backend cannot tell."""
+    refusal: str | None = None
+    """The model's refusal message, when it refused instead of answering."""
     shared: bool = False
     """The answer to an identical request of another run, out at the same time: no call of its
     own (recorded as cached)."""

@@ -296,6 +296,60 @@ def test_faults_that_persist_end_in_one_clean_line(
     assert expected in vlm_records(tmp_path / "run")[-1]["errors"][0]
 
 
+CUT_OFF = json.dumps(DOT)[:30]
+TOOL_CALL = {"id": "call_1", "type": "function", "function": {"name": "draw", "arguments": "{}"}}
+
+
+@pytest.mark.parametrize(
+    ("ended", "expected"),
+    [
+        (
+            Reply.ended(CUT_OFF, "length"),
+            "the answer stopped at the model's output token limit (finish_reason 'length') "
+            "before it was complete: raise planner.max_tokens (unset: the server's own limit)",
+        ),
+        (Reply.ended(None, "stop", refusal="I can't help with that."), 'the model refused: "I'),
+        (
+            Reply.ended(None, "tool_calls", tool_calls=[TOOL_CALL]),
+            "the model called a tool instead of answering in text",
+        ),
+        (Reply.ended("", "content_filter"), "the provider's content filter stopped the answer"),
+    ],
+    ids=["length", "refusal", "tool call", "content filter"],
+)
+def test_an_answer_that_ended_early_says_why(
+    ended: Reply, expected: str, task: Any, server: Any, warm: None, tmp_path: Path
+) -> None:
+    """Before: all four read "no JSON object" (or broken JSON), which sent users looking at
+    their prompt instead of the server's token limit or the model's refusal."""
+    server.script(ended, ended)
+    with pytest.raises(KeympsError) as caught:
+        run_with(task, server.openai_base, tmp_path / "run")
+    assert_clean_error(caught.value)
+    message = str(caught.value)
+    assert expected in message and "no valid combined answer in 2 attempt(s)" in message
+    assert RecordingExecutor.calls == []
+    first, second = vlm_records(tmp_path / "run")
+    assert expected in first["errors"][0] and expected in second["errors"][0]
+    repair = str(server.chat_requests[-1].body["messages"][-1]["content"])
+    assert expected.replace('"', "'")[:40] in repair.replace('"', "'")  # the model is told
+    assert "max_tokens" not in server.chat_requests[-1].body  # unset: the server's own limit
+
+
+def test_planner_max_tokens_is_sent_and_named_when_reached(
+    task: Any, server: Any, warm: None, tmp_path: Path
+) -> None:
+    limited = task.model_copy(
+        update={"planner": task.planner.model_copy(update={"max_tokens": 300})}
+    )
+    server.script(Reply.ended(CUT_OFF, "length"), Reply.json_answer(DOT))
+    run = run_with(limited, server.openai_base, tmp_path / "run")
+    assert [r.body.get("max_tokens") for r in server.chat_requests[-2:]] == [300, 300]
+    first, second = vlm_records(run.folder)
+    assert "raise planner.max_tokens (now 300)" in first["errors"][0] and second["valid"]
+    assert len(RecordingExecutor.calls) == 1
+
+
 FAULTS = {
     "reset": Reply.reset(),
     "truncated": Reply.truncated(),

@@ -32,6 +32,9 @@ class Reply:
     status: int = 200
     headers: dict[str, str] = field(default_factory=dict)
     delay_s: float = 0.0
+    finish_reason: str = "stop"
+    message: dict[str, Any] = field(default_factory=dict)
+    """Fields of the answer's message beside its content (refusal, tool_calls ...)."""
 
     @staticmethod
     def text_answer(text: str, delay_s: float = 0.0) -> Reply:
@@ -40,6 +43,14 @@ class Reply:
     @staticmethod
     def json_answer(data: Any, delay_s: float = 0.0) -> Reply:
         return Reply("answer", text=json.dumps(data), delay_s=delay_s)
+
+    @staticmethod
+    def ended(text: str | None, finish_reason: str, **message: Any) -> Reply:
+        """An answer that ended as `finish_reason` says ("length" for Ollama's done_reason too),
+        its message carrying `message` beside `text` (None: "content": null)."""
+        if text is None:
+            message = {"content": None, **message}
+        return Reply("answer", text=text or "", finish_reason=finish_reason, message=message)
 
     @staticmethod
     def error(status: int, retry_after: float | None = None, message: str = "") -> Reply:
@@ -84,7 +95,9 @@ class Recorded:
 Responder = Callable[[Recorded], str]
 
 
-def _openai_completion(text: str, model: str) -> dict[str, Any]:
+def _openai_completion(
+    text: str | None, model: str, finish_reason: str = "stop", message: dict[str, Any] | None = None
+) -> dict[str, Any]:
     return {
         "id": "chatcmpl-test",
         "object": "chat.completion",
@@ -93,20 +106,22 @@ def _openai_completion(text: str, model: str) -> dict[str, Any]:
         "choices": [
             {
                 "index": 0,
-                "message": {"role": "assistant", "content": text},
-                "finish_reason": "stop",
+                "message": {"role": "assistant", "content": text, **(message or {})},
+                "finish_reason": finish_reason,
             }
         ],
         "usage": {"prompt_tokens": 321, "completion_tokens": 45, "total_tokens": 366},
     }
 
 
-def _ollama_completion(text: str, model: str, chat: bool) -> dict[str, Any]:
+def _ollama_completion(
+    text: str, model: str, chat: bool, done_reason: str = "stop"
+) -> dict[str, Any]:
     reply: dict[str, Any] = {
         "model": model,
         "created_at": "2026-01-01T00:00:00Z",
         "done": True,
-        "done_reason": "stop",
+        "done_reason": done_reason,
         "prompt_eval_count": 321,
         "eval_count": 45,
     }
@@ -282,11 +297,13 @@ class VlmServer:
                     self.wfile.flush()
                     self.close_connection = True
                     return
+                ended = reply.finish_reason
                 if self.path.endswith("/api/chat"):
-                    self._send_json(200, _ollama_completion(reply.text, model, chat=True))
+                    self._send_json(200, _ollama_completion(reply.text, model, True, ended))
                 elif self.path.endswith("/api/generate"):
-                    self._send_json(200, _ollama_completion(reply.text, model, chat=False))
+                    self._send_json(200, _ollama_completion(reply.text, model, False, ended))
                 else:
-                    self._send_json(200, _openai_completion(reply.text, model))
+                    completion = _openai_completion(reply.text, model, ended, reply.message)
+                    self._send_json(200, completion)
 
         return Handler

@@ -164,6 +164,8 @@ class Planner(StrictModel):
     """Name of the environment variable holding the key (never the key itself)."""
     temperature: Annotated[float, Field(ge=0, le=2, allow_inf_nan=False), NUMBER] = 0.0
     timeout_s: Annotated[float, Field(gt=0, le=3600, allow_inf_nan=False), NUMBER] = 60.0
+    max_tokens: Annotated[int | None, Field(ge=1, le=1_000_000), NUMBER] = None
+    """The longest answer asked for, in tokens; none: the server's own limit."""
     max_pairs: Annotated[int, Field(ge=1, le=10_000), NUMBER] = 64
     attempts: Annotated[int, Field(ge=1, le=10), NUMBER] = 2
     combined: bool = True

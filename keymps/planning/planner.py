@@ -44,6 +44,7 @@ def backend_options(task: Task) -> dict[str, Any]:
         "api_key_env": planner.api_key_env,
         "temperature": planner.temperature,
         "timeout_s": planner.timeout_s,
+        "max_tokens": planner.max_tokens,
         "cassette": str(task.resolve(planner.cassette)) if planner.cassette else None,
         "api_base_trusted": api_base_trusted(task),
     }

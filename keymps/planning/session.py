@@ -161,6 +161,8 @@ class PlanSession:
             request = request_for(history)
             answer, cached = self._complete(request)
             parsed, problems = validate(answer.text)
+            if parsed is None:  # what the model said about its answer comes first
+                problems = [*ended_early(answer, self.task.planner.max_tokens), *problems]
             self._record(request, answer, problems, cached)
             if parsed is not None:
                 if request.share_key is not None and not cached:
@@ -311,3 +313,21 @@ def _on_one_object_each(
     except KeympsError as error:
         return None, [str(error)]
     return parsed, problems
+
+
+def ended_early(answer: BackendAnswer, max_tokens: int | None) -> list[str]:
+    """Why an answer that is no valid plan ended where it did, when the backend says: the first
+    problem named, to the user and in the repair request (else it reads as "no JSON object")."""
+    if answer.refusal:
+        return [f"the model refused: {answer.refusal!r}"]
+    if answer.finish_reason == "length":
+        limit = f"now {max_tokens}" if max_tokens else "unset: the server's own limit"
+        return [
+            "the answer stopped at the model's output token limit (finish_reason 'length') "
+            f"before it was complete: raise planner.max_tokens ({limit})"
+        ]
+    if answer.finish_reason == "content_filter":
+        return ["the provider's content filter stopped the answer (finish_reason 'content_filter')"]
+    if answer.finish_reason == "tool_calls":
+        return ["the model called a tool instead of answering in text (keymps offers no tools)"]
+    return []

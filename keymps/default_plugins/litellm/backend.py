@@ -44,6 +44,7 @@ class LitellmOptions(BaseModel):
     api_key_env: str | None = None
     temperature: float = Field(default=0.0, ge=0, le=2)
     timeout_s: float = Field(default=60.0, gt=0)
+    max_tokens: int | None = Field(default=None, ge=1)
     cassette: str | None = None
     retries: int = Field(default=MAX_RETRIES, ge=0, le=10)
     backoff_s: float = Field(default=BACKOFF_S, ge=0, le=60)
@@ -217,6 +218,8 @@ class LitellmBackend:
             "max_retries": 0,
             "drop_params": True,
         }
+        if self.options.max_tokens is not None:
+            arguments["max_tokens"] = self.options.max_tokens
         if self.options.api_base:
             arguments["api_base"] = self.options.api_base
         key = self._key_for(provider)
@@ -252,8 +255,11 @@ class LitellmBackend:
                 cost = None
         if cost is None and call.local:
             cost = 0.0
+        finish_reason, refusal = _how_it_ended(response)
         return BackendAnswer(
             text=_answer_text(response),
+            finish_reason=finish_reason,
+            refusal=refusal,
             prompt_tokens=getattr(usage, "prompt_tokens", None),
             completion_tokens=getattr(usage, "completion_tokens", None),
             latency_s=latency,
@@ -298,6 +304,28 @@ def _answer_text(response: Any) -> str:
     if isinstance(content, list):  # some providers answer in parts
         return "".join(str(part.get("text", "")) for part in content if isinstance(part, dict))
     return content or ""
+
+
+_EARLY_ENDS = {"length", "content_filter", "tool_calls", "function_call"}
+"""finish_reason values that end an answer before the model meant to (OpenAI's, which litellm
+maps every provider's to)."""
+
+
+def _how_it_ended(response: Any) -> tuple[str | None, str | None]:
+    """(finish_reason when the answer ended early, the model's refusal message if it refused)."""
+    try:
+        choice = response.choices[0]
+    except (AttributeError, IndexError, TypeError):
+        return None, None
+    reason = getattr(choice, "finish_reason", None)
+    message = getattr(choice, "message", None)
+    if getattr(message, "tool_calls", None) or getattr(message, "function_call", None):
+        reason = "tool_calls"  # some servers call a tool and still say "stop"
+    refusal = getattr(message, "refusal", None)
+    return (
+        str(reason) if reason in _EARLY_ENDS else None,
+        str(refusal)[:500] if isinstance(refusal, str) and refusal.strip() else None,
+    )
 
 
 def make_backend(options: dict[str, Any]) -> LitellmBackend:
