@@ -16,7 +16,10 @@ import os
 import secrets
 import socket
 import string
+import subprocess
+import sys
 import time
+import zlib
 from pathlib import Path
 from typing import Any
 
@@ -586,3 +589,148 @@ def test_folders_other_users_may_write_are_not_searched_outside_the_task(tmp_pat
     if os.geteuid() == 0:  # only root can make a folder another user's (CI runs as root)
         os.chown(shared, 12345, 12345)
         assert shared.resolve() not in default_search_dirs(task_folder)
+
+
+# ----------------------------------------------------------------------------- answer size
+
+BOMB_MB = 512
+
+
+def _compressed(chunks: list[bytes] | bytes, wbits: int = 16 + zlib.MAX_WBITS) -> bytes:
+    """gzip (default), zlib (wbits 15) or raw deflate (-15) of the chunks, as one stream."""
+    compressor = zlib.compressobj(1, zlib.DEFLATED, wbits)
+    parts = [compressor.compress(c) for c in ([chunks] if isinstance(chunks, bytes) else chunks)]
+    return b"".join([*parts, compressor.flush()])
+
+
+@pytest.fixture(scope="module")
+def gzip_bomb() -> bytes:
+    """512 MB of zeros inside a completion's content, as 2.3 MB of gzip (built in about 0.6 s)."""
+    zeros = bytes(2**20)
+    return _compressed([b'{"choices": [{"message": {"content": "', *[zeros] * BOMB_MB])
+
+
+def _completion(text: str) -> bytes:
+    from vlm_server import _openai_completion
+
+    return json.dumps(_openai_completion(text, "test-vlm")).encode()
+
+
+CHILD_RUN = """
+import json, resource, sys, time
+import keymps
+from keymps.errors import KeympsError
+started, error = time.perf_counter(), None
+try:
+    task = keymps.load_task(sys.argv[1])
+    keymps.run_task(task, api_base=sys.argv[2], out=sys.argv[3], rerun="off", executor="sim")
+except KeympsError as caught:
+    error = str(caught)
+peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+print(json.dumps({"error": error, "peak_mb": peak_mb, "s": time.perf_counter() - started}))
+"""
+
+
+def test_a_gzip_bomb_is_refused_after_8_mb_in_little_memory(
+    server: Any, gzip_bomb: bytes, tmp_path: Path, fuzz_counter: Any
+) -> None:
+    """Before: a bomb was inflated and read whole, and the call tried 4 times (a 1 GB bomb took
+    one try to 2.3 GB). The run is a child process, so that its peak memory is its own."""
+    server.script(Reply.raw(gzip_bomb, {"Content-Encoding": "gzip"}))
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            CHILD_RUN,
+            str(hostile_task(tmp_path)),
+            server.openai_base,
+            str(tmp_path / "run"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        cwd=tmp_path,
+    )
+    outcome = json.loads(done.stdout.strip().splitlines()[-1])
+    assert f"127.0.0.1:{server.port} sent an answer larger than 8 MB: refused unread" in (
+        outcome["error"] or ""
+    )
+    assert len(server.chat_requests) == 1  # not retried
+    assert outcome["peak_mb"] < 600, outcome  # litellm and the run alone: about 300 MB
+    fuzz_counter.add("VLM attacks/answer size", "gzip bomb, 512 MB", "refused unread")
+
+
+HUGE_OR_UNREADABLE = {
+    "40 MB, plain": (Reply.raw(b" " * 40 * 2**20), "sent an answer larger than 8 MB"),
+    "brotli": (
+        Reply.raw(b"\x1b\x03\x00", {"Content-Encoding": "br"}),
+        "sent its answer compressed as 'br', which keymps did not ask for",
+    ),
+    "gzip twice": (
+        Reply.raw(_compressed(_compressed(b"{}")), {"Content-Encoding": "gzip, gzip"}),
+        "compressed as 'gzip, gzip'",
+    ),
+    "corrupt gzip": (
+        Reply.raw(  # a gzip header, then a deflate block of the reserved type 3
+            b"\x1f\x8b\x08\x00\x00\x00\x00\x00\x00\x03\xff\xff\xff", {"Content-Encoding": "gzip"}
+        ),
+        "sent corrupt gzip data",
+    ),
+}
+
+
+@pytest.mark.parametrize("name", sorted(HUGE_OR_UNREADABLE))
+def test_a_huge_or_unreadable_answer_is_refused_unread_and_not_retried(
+    name: str, server: Any, tmp_path: Path, fuzz_counter: Any
+) -> None:
+    reply, expected = HUGE_OR_UNREADABLE[name]
+    server.script(reply)
+    started = time.perf_counter()
+    with pytest.raises(KeympsError) as caught:
+        run(hostile_task(tmp_path), tmp_path / "run", api_base=server.openai_base)
+    assert_clean_error(caught.value)
+    assert expected in str(caught.value) and "refused unread" in str(caught.value)
+    assert time.perf_counter() - started < 5.0
+    assert len(server.chat_requests) == 1 and RecordingExecutor.calls == []
+    assert server.chat_requests[0].headers["accept-encoding"] == "gzip, deflate"
+    fuzz_counter.add("VLM attacks/answer size", name, "refused unread")
+
+
+@pytest.mark.parametrize("wbits", [16 + zlib.MAX_WBITS, zlib.MAX_WBITS, -zlib.MAX_WBITS])
+def test_a_compressed_answer_of_a_normal_size_is_read(
+    wbits: int, server: Any, tmp_path: Path
+) -> None:
+    coding = "gzip" if wbits > zlib.MAX_WBITS else "deflate"  # HTTP's deflate: zlib, or raw
+    server.script(
+        Reply.raw(_compressed(_completion(json.dumps(DOT)), wbits), {"Content-Encoding": coding})
+    )
+    run(hostile_task(tmp_path), tmp_path / "run", api_base=server.openai_base)
+    assert len(RecordingExecutor.calls) == 1
+
+
+def test_the_async_call_of_keymps_eval_has_the_same_cap(server: Any, gzip_bomb: bytes) -> None:
+    from keymps.default_plugins.litellm.backend import LitellmBackend, LitellmOptions
+
+    backend = LitellmBackend(
+        LitellmOptions(model="openai/test-vlm", api_base=server.openai_base, timeout_s=30)
+    )
+    server.script(Reply.raw(gzip_bomb, {"Content-Encoding": "gzip"}))
+    with pytest.raises(KeympsError, match="sent an answer larger than 8 MB: refused unread"):
+        asyncio.run(backend.acomplete(_request(30)))
+    assert len(server.chat_requests) == 1
+
+
+def test_outside_keymps_calls_httpx_reads_as_its_own() -> None:
+    """The cap holds only inside keymps' own calls: other code using httpx is unaffected."""
+    import httpx
+
+    from keymps.default_plugins.litellm.response_cap import answers_capped, install
+
+    install()
+    body = _compressed(bytes(9 * 2**20))
+    request = httpx.Request("GET", "http://127.0.0.1/")
+    plain = httpx.Response(200, headers={"Content-Encoding": "gzip"}, content=body, request=request)
+    assert len(plain.read()) == 9 * 2**20
+    with answers_capped(), pytest.raises(Exception, match="larger than 8 MB"):
+        # (a Response given its content reads it at once)
+        httpx.Response(200, headers={"Content-Encoding": "gzip"}, content=body, request=request)

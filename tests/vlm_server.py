@@ -35,6 +35,7 @@ class Reply:
     finish_reason: str = "stop"
     message: dict[str, Any] = field(default_factory=dict)
     """Fields of the answer's message beside its content (refusal, tool_calls ...)."""
+    body: bytes = b""
 
     @staticmethod
     def text_answer(text: str, delay_s: float = 0.0) -> Reply:
@@ -51,6 +52,12 @@ class Reply:
         if text is None:
             message = {"content": None, **message}
         return Reply("answer", text=text or "", finish_reason=finish_reason, message=message)
+
+    @staticmethod
+    def raw(body: bytes, headers: dict[str, str] | None = None) -> Reply:
+        """These bytes as the whole body of a 200 answer, with these headers (Content-Encoding
+        ...): a compressed answer, a huge one, a bomb."""
+        return Reply("raw", headers=headers or {}, body=body)
 
     @staticmethod
     def error(status: int, retry_after: float | None = None, message: str = "") -> Reply:
@@ -269,6 +276,15 @@ class VlmServer:
                         },
                         reply.headers,
                     )
+                    return
+                if reply.kind == "raw":
+                    self.send_response(200)
+                    self.send_header("Content-Type", "application/json")
+                    self.send_header("Content-Length", str(len(reply.body)))
+                    for key, value in reply.headers.items():
+                        self.send_header(key, value)
+                    self.end_headers()
+                    self.wfile.write(reply.body)
                     return
                 if reply.kind == "reset":
                     linger = struct.pack("ii", 1, 0)  # close with RST, not FIN

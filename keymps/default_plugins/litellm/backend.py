@@ -57,6 +57,9 @@ def import_litellm() -> Any:
     os.environ.setdefault("LITELLM_LOCAL_MODEL_COST_MAP", "True")
     import litellm
 
+    from keymps.default_plugins.litellm import response_cap
+
+    response_cap.install()
     litellm.suppress_debug_info = True
     litellm.telemetry = False
     return litellm
@@ -179,18 +182,26 @@ class LitellmBackend:
 
     def _within_deadline(self, call: _Call) -> Any:
         """One try, ended by planner.timeout_s whatever the server does (deadline.py)."""
+        from keymps.default_plugins.litellm.response_cap import answers_capped
+
+        def capped() -> Any:
+            with answers_capped():  # in the worker thread, which reads the answer
+                return call.litellm.completion(**call.arguments)
+
         try:
-            return call_within(
-                self.options.timeout_s, lambda: call.litellm.completion(**call.arguments)
-            )
+            return call_within(self.options.timeout_s, capped)
         except DeadlineExceeded:
             raise _timeout(call) from None
 
     async def _awaited_within_deadline(self, call: _Call) -> Any:
+        from keymps.default_plugins.litellm.response_cap import answers_capped
+
+        async def capped() -> Any:
+            with answers_capped():
+                return await call.litellm.acompletion(**call.arguments)
+
         try:
-            return await await_within(
-                self.options.timeout_s, call.litellm.acompletion(**call.arguments)
-            )
+            return await await_within(self.options.timeout_s, capped())
         except DeadlineExceeded:
             raise _timeout(call) from None
 
@@ -217,6 +228,8 @@ class LitellmBackend:
             "num_retries": 0,
             "max_retries": 0,
             "drop_params": True,
+            # what response_cap inflates (httpx would also offer br and zstd where installed)
+            "extra_headers": {"Accept-Encoding": "gzip, deflate"},
         }
         if self.options.max_tokens is not None:
             arguments["max_tokens"] = self.options.max_tokens

@@ -15,7 +15,15 @@ from typing import Literal
 from urllib.parse import urlparse
 
 Kind = Literal[
-    "refused", "unresolved", "reset", "closed", "not_http", "html", "bad_json", "credentials"
+    "refused",
+    "unresolved",
+    "reset",
+    "closed",
+    "not_http",
+    "html",
+    "bad_json",
+    "credentials",
+    "unread",
 ]
 
 
@@ -72,8 +80,14 @@ def _host_port(url: str) -> str:
 def classify(error: BaseException, api_base: str | None) -> Failure | None:
     """The failure in words, or None when the chain holds nothing more specific than litellm's
     own class (an HTTP status from a real answer, a timeout ...)."""
+    from keymps.default_plugins.litellm.response_cap import AnswerRefused
+
     errors = chain(error)
     where = endpoint(errors, api_base)
+    for e in errors:
+        if isinstance(e, AnswerRefused):  # too large, or compressed as keymps does not read
+            at = _host_port(e.url) if e.url else where
+            return Failure("unread", f"{at} {e.reason}: refused unread", "no", http=True)
     messages = " | ".join(str(e) for e in errors)
     if (
         any(isinstance(e, ConnectionRefusedError) for e in errors)
