@@ -45,11 +45,18 @@ from keymps.run import Run, RunOptions
 
 @st.composite
 def answers_on_the_object(
-    draw: Any, keywords: list[str], spread: float, most_pairs: int = 4, edges: bool = False
+    draw: Any,
+    keywords: list[str],
+    spread: float,
+    most_pairs: int = 4,
+    edges: bool = False,
+    dots: bool = True,
 ) -> Any:
     """A function of the request giving K pairs on a round object (crop-relative), as JSON.
 
-    `spread` > 1 lets points leave the object (then the footprint check should refuse).
+    `spread` > 1 lets points leave the object (then the footprint check should refuse). With
+    `dots`, half the answers are dots (each pair's end at its start): for a knife, a cut 0 long,
+    which the planner sends back (tests/test_fuzz_vlm_answers.py covers that refusal).
     """
     count = draw(st.integers(min_value=1, max_value=most_pairs))
     # crop edges and centre lines are drawn often: objects near the image border live there
@@ -59,7 +66,7 @@ def answers_on_the_object(
     relative = [
         [[draw(offsets) for _ in range(2)], [draw(offsets) for _ in range(2)]] for _ in range(count)
     ]
-    dot = draw(st.booleans())
+    dot = draw(st.booleans()) if dots else False
     keyword = draw(st.sampled_from(keywords))
 
     def answer(request: Any) -> str:
@@ -147,7 +154,9 @@ def test_valid_icing_answers_give_safe_trajectories(
 
 
 @settings(FAST, max_examples=30)
-@given(answer=answers_on_the_object(["straight", "sawing"], 1.0, most_pairs=2, edges=True))
+@given(
+    answer=answers_on_the_object(["straight", "sawing"], 1.0, most_pairs=2, edges=True, dots=False)
+)
 def test_valid_cutting_answers_give_safe_trajectories(
     answer: Any, tasks: dict[str, Any], keymps_plugins: Any, tmp_path: Path, fuzz_counter: Any
 ) -> None:
@@ -236,8 +245,11 @@ def test_full_run_counts_are_meaningful(fuzz_counter: Any) -> None:
     """Valid answers on the object really reach the executor, so the invariants are checked on
     executed trajectories, not only on refusals.
 
-    About 55 % of the random cutting answers execute (the rest are refused by the safety check,
-    e.g. a sawing stroke overshooting the workspace): 9 to 21 of 30 in ten full runs. Asking
+    About half of the random cutting answers execute (the rest are refused by the safety check,
+    e.g. a sawing stroke overshooting the workspace, or, where hypothesis draws a pair's two ends
+    alike, by the planner: a cut 0 long): 8 to 15 of 30 in four full runs. (With half the
+    answers drawn as dots, all of them refused as cuts 0 long since 309671c, 2 of 30 executed
+    once in four runs here: the generator draws no dots for knives now.) Asking
     for a third (10 of 30) failed by chance in 0.5-2 % of runs (binomial tail; seen once);
     a sixth (5 of 30) fails by chance with a probability of about 3e-6, and still catches a
     change that refuses nearly everything."""
