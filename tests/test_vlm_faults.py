@@ -296,6 +296,82 @@ def test_faults_that_persist_end_in_one_clean_line(
     assert expected in vlm_records(tmp_path / "run")[-1]["errors"][0]
 
 
+def _body(text: str, **fields: Any) -> bytes:
+    return json.dumps({"choices": [{"message": {"content": text}}], **fields}).encode()
+
+
+NAMED_FAILURES = {
+    "not utf-8": (
+        [Reply.raw(_body("x").replace(b'"x"', b'"\xff\xfe"'))],
+        "answered with bytes that are not UTF-8 text",
+        1,
+    ),
+    "server-sent events": (
+        [
+            Reply.raw(
+                b'data: {"choices": [{"delta": {"content": "hi"}}]}\n\ndata: [DONE]\n\n',
+                {"Content-Type": "text/event-stream"},
+            )
+        ],
+        "answered with a stream of server-sent events, though keymps asked for one JSON answer",
+        1,
+    ),
+    "bad chunks": (
+        [Reply.bad_chunks()] * (RETRIES + 1),
+        "sent a malformed chunked answer",
+        RETRIES + 1,
+    ),
+    "301 to a GET": (
+        [Reply.redirect(301, "/v2/chat/completions")],
+        "redirected the request (HTTP 301) to http://127.0.0.1:{port}/v2/chat/completions, which "
+        "turned the POST into a GET: set planner.api_base to http://127.0.0.1:{port}/v2",
+        1,
+    ),
+    "5000 digits": (
+        [Reply.raw(_body("x", usage={"prompt_tokens": 7}).replace(b"7", b"9" * 5000))],
+        "answered with a number of over 4300 digits",
+        1,
+    ),
+    "400": (
+        [Reply.error(400, message="image too large")],
+        "(openai/test-vlm at http://127.0.0.1:{port}/v1) refused the request",
+        1,
+    ),
+}
+
+
+@pytest.mark.parametrize("name", sorted(NAMED_FAILURES))
+def test_failures_litellm_calls_http_500_are_named(
+    name: str, task: Any, server: Any, warm: None, tmp_path: Path, fuzz_counter: Any
+) -> None:
+    """Before: all but the 400 read "failed after 4 tries (the last one: HTTP 500)" with
+    litellm's text (Python's own int-conversion advice among them), and the 400 named no
+    server."""
+    replies, expected, tries = NAMED_FAILURES[name]
+    server.script(*replies)
+    with pytest.raises(KeympsError) as caught:
+        run_with(task, server.openai_base, tmp_path / "run")
+    assert_clean_error(caught.value)
+    message = str(caught.value)
+    assert expected.format(port=server.port) in message
+    assert "HTTP 500" not in message and "set_int_max_str_digits" not in message
+    assert len(server.chat_requests) == tries
+    assert RecordingExecutor.calls == []
+    fuzz_counter.add("VLM faults/named", name, "clean error")
+
+
+def test_a_redirect_that_keeps_the_post_is_followed(
+    task: Any, server: Any, warm: None, tmp_path: Path
+) -> None:
+    server.script(Reply.redirect(307, "/v2/chat/completions"))
+    run_with(task, server.openai_base, tmp_path / "run")
+    assert [r.path for r in server.chat_requests[-2:]] == [
+        "/v1/chat/completions",
+        "/v2/chat/completions",
+    ]
+    assert len(RecordingExecutor.calls) == 1
+
+
 CUT_OFF = json.dumps(DOT)[:30]
 TOOL_CALL = {"id": "call_1", "type": "function", "function": {"name": "draw", "arguments": "{}"}}
 

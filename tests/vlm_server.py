@@ -60,6 +60,16 @@ class Reply:
         return Reply("raw", headers=headers or {}, body=body)
 
     @staticmethod
+    def redirect(status: int, to_path: str) -> Reply:
+        """A redirect (301, 302, 307 ...) to this path on the same server."""
+        return Reply("redirect", status=status, text=to_path)
+
+    @staticmethod
+    def bad_chunks() -> Reply:
+        """A chunked answer whose second chunk header is not a number."""
+        return Reply("bad_chunks")
+
+    @staticmethod
     def error(status: int, retry_after: float | None = None, message: str = "") -> Reply:
         headers = {"Retry-After": f"{retry_after:g}"} if retry_after is not None else {}
         return Reply("error", status=status, headers=headers, text=message or f"error {status}")
@@ -277,9 +287,25 @@ class VlmServer:
                         reply.headers,
                     )
                     return
-                if reply.kind == "raw":
+                if reply.kind == "redirect":
+                    self.send_response(reply.status)
+                    self.send_header("Location", f"{server.url}{reply.text}")
+                    self.send_header("Content-Length", "0")
+                    self.end_headers()
+                    return
+                if reply.kind == "bad_chunks":
                     self.send_response(200)
                     self.send_header("Content-Type", "application/json")
+                    self.send_header("Transfer-Encoding", "chunked")
+                    self.end_headers()
+                    self.wfile.write(b'5\r\n{"cho\r\nZZZ\r\n')
+                    self.wfile.flush()
+                    self.close_connection = True
+                    return
+                if reply.kind == "raw":
+                    self.send_response(200)
+                    if "Content-Type" not in reply.headers:
+                        self.send_header("Content-Type", "application/json")
                     self.send_header("Content-Length", str(len(reply.body)))
                     for key, value in reply.headers.items():
                         self.send_header(key, value)

@@ -24,6 +24,10 @@ Kind = Literal[
     "bad_json",
     "credentials",
     "unread",
+    "not_utf8",
+    "stream",
+    "bad_chunks",
+    "redirected",
 ]
 
 
@@ -77,6 +81,35 @@ def _host_port(url: str) -> str:
     return f"{host}:{port}" if port else host
 
 
+def redirected(error: BaseException) -> Failure | None:
+    """The redirect behind a failed call, if the server redirected it (see _redirect)."""
+    return _redirect(chain(error))
+
+
+def _redirect(errors: list[BaseException]) -> Failure | None:
+    """A failure that came after the server redirected the request: the redirect is the cause
+    (a 301 or 302 turns the POST into a GET, which the target then refuses)."""
+    for e in errors:
+        response = getattr(e, "response", None)
+        history = getattr(response, "history", None)
+        if not history:
+            continue
+        first = history[0]
+        to = str(first.headers.get("location", "another address"))
+        method = getattr(getattr(response, "request", None), "method", "POST")
+        turned = ", which turned the POST into a GET" if method == "GET" else ""
+        base = to.removesuffix("/chat/completions")
+        fix = f"set planner.api_base to {base}" if base != to else "check planner.api_base"
+        return Failure(
+            "redirected",
+            f"{_host_port(str(first.request.url))} redirected the request (HTTP "
+            f"{first.status_code}) to {to}{turned}: {fix}",
+            "no",
+            http=True,
+        )
+    return None
+
+
 def classify(error: BaseException, api_base: str | None) -> Failure | None:
     """The failure in words, or None when the chain holds nothing more specific than litellm's
     own class (an HTTP status from a real answer, a timeout ...)."""
@@ -105,6 +138,27 @@ def classify(error: BaseException, api_base: str | None) -> Failure | None:
             return Failure("closed", f"{where} closed the connection mid-answer", "yes")
         if name == "RemoteProtocolError" and "illegal status line" in text:
             return Failure("not_http", f"{where} did not answer in HTTP", "yes", http=False)
+        if name == "RemoteProtocolError" and "chunk" in text:
+            return Failure("bad_chunks", f"{where} sent a malformed chunked answer", "yes")
+        if isinstance(e, UnicodeDecodeError):
+            return Failure(
+                "not_utf8", f"{where} answered with bytes that are not UTF-8 text", "no", http=True
+            )
+        if isinstance(e, ValueError) and "integer string conversion" in text:
+            return Failure(
+                "bad_json", f"{where} answered with a number of over 4300 digits", "no", http=True
+            )
+    redirect = _redirect(errors)
+    if redirect is not None:
+        return redirect
+    if re.search(r"invalid response from LLM endpoint\. Received: '?data:", messages):
+        return Failure(
+            "stream",
+            f"{where} answered with a stream of server-sent events, though keymps asked for one "
+            "JSON answer (stream: false): is planner.api_base an OpenAI-compatible chat API?",
+            "no",
+            http=True,
+        )
     received = re.search(r"Received:? '?\s*(<)", messages)
     if received or re.search(r"<!doctype html|<html", messages, re.IGNORECASE):
         return Failure(

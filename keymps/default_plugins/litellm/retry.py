@@ -16,7 +16,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
-from keymps.default_plugins.litellm.failures import classify
+from keymps.default_plugins.litellm.failures import classify, redirected
 from keymps.errors import KeympsError
 from keymps.planning.redaction import known_secrets, redact_text, remember
 
@@ -97,6 +97,9 @@ class Retrying:
         """Seconds to wait before the next try; None for an error that is not litellm's; a
         KeympsError (one line) when the call has failed for good."""
         litellm, model = self.litellm, self.arguments["model"]
+        moved = redirected(error)  # whatever the target then said (404, 405 ...), this is why
+        if moved is not None:
+            raise KeympsError(f"{self.label()}: {moved.text}")
         if isinstance(error, litellm.Timeout):
             raise KeympsError(
                 f"{self.label()} gave no answer within {self.timeout_s:g} s (planner.timeout_s)"
@@ -139,7 +142,7 @@ class Retrying:
             self.wait *= 2
             return self._note(attempt, what, min(pause, MAX_WAIT_S))
         if isinstance(error, litellm.BadRequestError):
-            raise KeympsError(f"the VLM ({model}) refused the request: {what}")
+            raise KeympsError(f"{self.label()} refused the request: {what}")
         raise KeympsError(f"{self.label()} failed: {what}")
 
     def _note(self, attempt: int, what: str, pause: float) -> float:
