@@ -617,7 +617,7 @@ def _completion(text: str) -> bytes:
 
 
 CHILD_RUN = """
-import json, resource, sys, time
+import json, sys, time
 import keymps
 from keymps.errors import KeympsError
 started, error = time.perf_counter(), None
@@ -626,7 +626,9 @@ try:
     keymps.run_task(task, api_base=sys.argv[2], out=sys.argv[3], rerun="off", executor="sim")
 except KeympsError as caught:
     error = str(caught)
-peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+# VmHWM: this process's own peak (ru_maxrss would start from the forking parent's size)
+status = open("/proc/self/status").read().split("VmHWM:")[1]
+peak_mb = int(status.split()[0]) / 1024
 print(json.dumps({"error": error, "peak_mb": peak_mb, "s": time.perf_counter() - started}))
 """
 
