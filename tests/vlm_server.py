@@ -229,6 +229,17 @@ class VlmServer:
                 self.end_headers()
                 self.wfile.write(payload)
 
+            def _cut_short(self, headers: dict[str, str], start: bytes) -> None:
+                """A 200 with these headers and the first bytes of a body, then the close."""
+                self.send_response(200)
+                self.send_header("Content-Type", "application/json")
+                for key, value in headers.items():
+                    self.send_header(key, value)
+                self.end_headers()
+                self.wfile.write(start)
+                self.wfile.flush()
+                self.close_connection = True
+
             def _trickle(self, reply: Reply, model: str) -> None:
                 payload = json.dumps(_openai_completion(reply.text, model)).encode()
                 self.send_response(200)
@@ -293,14 +304,8 @@ class VlmServer:
                     self.send_header("Content-Length", "0")
                     self.end_headers()
                     return
-                if reply.kind == "bad_chunks":
-                    self.send_response(200)
-                    self.send_header("Content-Type", "application/json")
-                    self.send_header("Transfer-Encoding", "chunked")
-                    self.end_headers()
-                    self.wfile.write(b'5\r\n{"cho\r\nZZZ\r\n')
-                    self.wfile.flush()
-                    self.close_connection = True
+                if reply.kind == "bad_chunks":  # a chunk header that is not a number
+                    self._cut_short({"Transfer-Encoding": "chunked"}, b'5\r\n{"cho\r\nZZZ\r\n')
                     return
                 if reply.kind == "raw":
                     self.send_response(200)
@@ -330,14 +335,10 @@ class VlmServer:
                     self.wfile.flush()
                     self.close_connection = True
                     return
-                if reply.kind == "truncated":
-                    self.send_response(200)
-                    self.send_header("Content-Type", "application/json")
-                    self.send_header("Content-Length", "4096")
-                    self.end_headers()
-                    self.wfile.write(b'{"id": "chatcmpl-test", "choices": [{"mess')
-                    self.wfile.flush()
-                    self.close_connection = True
+                if reply.kind == "truncated":  # 4096 bytes announced, 42 sent
+                    self._cut_short(
+                        {"Content-Length": "4096"}, b'{"id": "chatcmpl-test", "choices": [{"mess'
+                    )
                     return
                 ended = reply.finish_reason
                 if self.path.endswith("/api/chat"):
