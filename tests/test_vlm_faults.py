@@ -316,6 +316,11 @@ NAMED_FAILURES = {
         "answered with a stream of server-sent events, though keymps asked for one JSON answer",
         1,
     ),
+    "server-sent events, labelled JSON": (
+        [Reply.raw(b'data: {"choices": [{"delta": {"content": "hi"}}]}\n\ndata: [DONE]\n\n')],
+        "answered with a stream of server-sent events, though keymps asked for one JSON answer",
+        1,
+    ),
     "bad chunks": (
         [Reply.bad_chunks()] * (RETRIES + 1),
         "sent a malformed chunked answer",

@@ -151,7 +151,12 @@ def classify(error: BaseException, api_base: str | None) -> Failure | None:
     redirect = _redirect(errors)
     if redirect is not None:
         return redirect
-    if re.search(r"invalid response from LLM endpoint\. Received: '?data:", messages):
+    # litellm quotes the stream when it is labelled text/event-stream; the JSON parser holds it
+    # when it is labelled JSON
+    streamed = [e.doc for e in errors if isinstance(e, json.JSONDecodeError)]
+    if re.search(r"invalid response from LLM endpoint\. Received: '?data:", messages) or any(
+        re.match(r"\s*(data|event):", doc) for doc in streamed
+    ):
         return Failure(
             "stream",
             f"{where} answered with a stream of server-sent events, though keymps asked for one "
