@@ -23,6 +23,7 @@ import zlib
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 from click.testing import CliRunner
 from fuzz_support import REPO, RecordingExecutor, assert_clean_error, install, task_copy
@@ -736,3 +737,46 @@ def test_outside_keymps_calls_httpx_reads_as_its_own() -> None:
     with answers_capped(), pytest.raises(Exception, match="larger than 8 MB"):
         # (a Response given its content reads it at once)
         httpx.Response(200, headers={"Content-Encoding": "gzip"}, content=body, request=request)
+
+
+def test_the_capped_inflater_gives_back_every_byte_however_the_body_is_chunked() -> None:
+    """400 generated bodies (text-like, random, repetitive; 0-512 KB) in gzip, zlib and raw
+    deflate, cut into random chunks: read inside the cap, each is its own bytes exactly."""
+    import httpx
+
+    from keymps.default_plugins.litellm.response_cap import answers_capped, install
+
+    install()
+    rng = np.random.default_rng(20261202)
+    codings = {"gzip": 16 + zlib.MAX_WBITS, "deflate": zlib.MAX_WBITS, "raw deflate": -15}
+    for case in range(400):
+        kind = case % 3
+        size = int(rng.integers(0, 2**19))
+        if kind == 0:
+            body = bytes(rng.integers(0, 256, size, dtype=np.uint8))
+        elif kind == 1:
+            body = bytes(rng.choice(np.frombuffer(b'{"pairs": [0, 1], }\n ', np.uint8), size))
+        else:
+            body = bytes(size)
+        name = list(codings)[case % 3 if case % 5 else 0]
+        packed = _compressed(body, codings[name])
+        cuts = np.sort(rng.integers(0, len(packed) + 1, int(rng.integers(0, 30))))
+        chunks = [packed[a:b] for a, b in zip([0, *cuts], [*cuts, len(packed)], strict=True)]
+        request = httpx.Request("GET", "http://127.0.0.1/")
+        header = "deflate" if name == "raw deflate" else name
+        with answers_capped():
+            response = httpx.Response(
+                200, headers={"Content-Encoding": header}, stream=_chunks(chunks), request=request
+            )
+            assert response.read() == body, (case, name, size)
+
+
+def _chunks(chunks: list[bytes]) -> Any:
+    """An httpx stream giving these chunks, as a socket would."""
+    import httpx
+
+    class Chunks(httpx.SyncByteStream):
+        def __iter__(self) -> Any:
+            return iter(chunks)
+
+    return Chunks()

@@ -29,7 +29,7 @@ _limit: contextvars.ContextVar[int | None] = contextvars.ContextVar(
 _installed = False
 
 _INFLATED = {"gzip": zlib.MAX_WBITS | 16, "x-gzip": zlib.MAX_WBITS | 16, "deflate": zlib.MAX_WBITS}
-"""Content-Encoding -> zlib's wbits (deflate also as raw deflate, as servers send it)."""
+"""Content-Encoding -> zlib's wbits (deflate is zlib, or raw deflate as some servers send it)."""
 
 
 class AnswerRefused(Exception):
@@ -69,6 +69,7 @@ def install() -> None:
         inflate = _Inflater(self, limit)
         for raw in self.iter_raw():
             yield from inflate(raw)
+        yield from inflate.finish()
 
     async def aiter_bytes(
         self: httpx.Response, chunk_size: int | None = None
@@ -82,6 +83,8 @@ def install() -> None:
         async for raw in self.aiter_raw():
             for chunk in inflate(raw):
                 yield chunk
+        for chunk in inflate.finish():
+            yield chunk
 
     httpx.Response.iter_bytes = iter_bytes  # type: ignore[method-assign]
     httpx.Response.aiter_bytes = aiter_bytes  # type: ignore[method-assign,assignment]
@@ -107,29 +110,45 @@ class _Inflater:
         self.coding = codings[0] if codings else None
         self.limit = limit
         self.total = 0
-        self._zlib = zlib.decompressobj(_INFLATED[self.coding]) if self.coding else None
-        self._started = False
+        self._zlib: Any = None
+        if self.coding in ("gzip", "x-gzip"):
+            self._zlib = zlib.decompressobj(_INFLATED[self.coding])
+        self._head = b""
+        """HTTP's deflate: the first two bytes say whether a zlib header comes (else raw)."""
 
     def __call__(self, raw: bytes) -> Iterable[bytes]:
-        if self._zlib is None:
+        if self.coding is None:
             self._count(len(raw))
             return [raw] if raw else []
+        if self._zlib is None:  # deflate, its first two bytes not seen yet
+            self._head += raw
+            if len(self._head) < 2:
+                return []
+            raw, self._head = self._head, b""
+            self._zlib = zlib.decompressobj(
+                zlib.MAX_WBITS if _zlib_header(raw) else -zlib.MAX_WBITS
+            )
         return list(self._inflate(raw))
 
+    def finish(self) -> list[bytes]:
+        """What zlib still holds once the body has ended (at most one match of output)."""
+        if self._zlib is None and self._head:
+            self._zlib = zlib.decompressobj(-zlib.MAX_WBITS)
+            return [*self._inflate(self._head), *self.finish()]
+        if self._zlib is None or self._zlib.eof:
+            return []
+        rest = self._zlib.flush()
+        self._count(len(rest))
+        return [rest] if rest else []
+
     def _inflate(self, data: bytes) -> Iterator[bytes]:
-        assert self._zlib is not None
         while data and not self._zlib.eof:
             try:
                 out = self._zlib.decompress(data, self.limit - self.total + 1)
             except zlib.error as error:
-                if self.coding == "deflate" and not self._started:  # raw deflate, no zlib header
-                    self._zlib = zlib.decompressobj(-zlib.MAX_WBITS)
-                    self._started = True
-                    continue
                 raise AnswerRefused(
                     f"sent corrupt {self.coding} data ({error})", self.url
                 ) from None
-            self._started = True
             self._count(len(out))
             if out:
                 yield out
@@ -139,3 +158,8 @@ class _Inflater:
         self.total += size
         if self.total > self.limit:
             raise AnswerRefused(f"sent an answer larger than {self.limit / 2**20:g} MB", self.url)
+
+
+def _zlib_header(start: bytes) -> bool:
+    """True when two bytes open a zlib stream (method 8, check bits): not raw deflate."""
+    return start[0] & 0x0F == 8 and (start[0] << 8 | start[1]) % 31 == 0
