@@ -136,16 +136,27 @@ def _webp_size(data: bytes) -> tuple[int, int] | None:
 
 
 def _pnm_size(head: bytes) -> tuple[int, int] | None:
-    """Netpbm (P1-P6: width and height after the magic, # comments allowed; P7: WIDTH, HEIGHT)."""
+    fields = netpbm_header(head)
+    if "width" in fields and "height" in fields:
+        return fields["width"], fields["height"]
+    return None
+
+
+def netpbm_header(head: bytes) -> dict[str, int]:
+    """The numbers a Netpbm header gives ("width", "height", "maxval"), # comments allowed: P1-P6
+    list them after the magic (P1 and P4 have no maxval), P7 (PAM) names them."""
     text = re.sub(rb"#[^\n]*", b" ", head[2:]).split()
     if head[1:2] == b"7":
-        fields = dict(zip(text[::2], text[1::2], strict=False))
-        if b"WIDTH" in fields and b"HEIGHT" in fields:
-            return int(fields[b"WIDTH"]), int(fields[b"HEIGHT"])
-        return None
-    if len(text) >= 2 and text[0].isdigit() and text[1].isdigit():
-        return int(text[0]), int(text[1])
-    return None
+        named = dict(zip(text[::2], text[1::2], strict=False))
+        keys = {b"WIDTH": "width", b"HEIGHT": "height", b"MAXVAL": "maxval"}
+        return {name: int(named[key]) for key, name in keys.items() if key in named}
+    names = ["width", "height"] if head[1:2] in (b"1", b"4") else ["width", "height", "maxval"]
+    found: dict[str, int] = {}
+    for name, value in zip(names, text, strict=False):
+        if not value.isdigit():
+            break
+        found[name] = int(value)
+    return found
 
 
 def _tiff_size(data: bytes) -> tuple[int, int] | None:

@@ -112,11 +112,13 @@ def _sample_max(decoded: np.ndarray, data: bytes, path: Path) -> int | None:
 def declared_sample_max(data: bytes) -> int | None:
     """The largest colour sample a file says it holds: 2**bits - 1 from a PNG's sBIT chunk
     (significant bits, the most of the colour channels), a Netpbm file's maxval; else None."""
+    from keymps.config.limits import netpbm_header
+
     try:
         if data[:8] == b"\x89PNG\r\n\x1a\n":
             return _png_significant_max(data)
-        if data[:1] == b"P" and data[1:2] in (b"2", b"3", b"5", b"6", b"7"):
-            return _netpbm_maxval(data[:4096])
+        if re.match(rb"P[1-7]\s", data[:3]):
+            return netpbm_header(data[:4096]).get("maxval")
     except (struct.error, ValueError, IndexError):
         return None  # a header cut short: the decoder has read what it could
     return None
@@ -135,14 +137,6 @@ def _png_significant_max(data: bytes) -> int | None:
             return 2**bits - 1 if 1 <= bits <= 16 else None
         at += 12 + length
     return None
-
-
-def _netpbm_maxval(head: bytes) -> int | None:
-    fields = re.sub(rb"#[^\n]*", b" ", head[2:]).split()
-    if head[1:2] == b"7":
-        named = dict(zip(fields[::2], fields[1::2], strict=False))
-        return int(named[b"MAXVAL"]) if b"MAXVAL" in named else None
-    return int(fields[2]) if len(fields) >= 3 and fields[2].isdigit() else None
 
 
 def _check_pixels(size_px: tuple[int, int], max_pixels: int, path: Path) -> None:

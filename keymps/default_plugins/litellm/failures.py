@@ -14,6 +14,8 @@ from dataclasses import dataclass
 from typing import Literal
 from urllib.parse import urlparse
 
+from keymps.default_plugins.litellm.response_cap import AnswerRefused
+
 Kind = Literal[
     "refused",
     "unresolved",
@@ -82,14 +84,9 @@ def _host_port(url: str) -> str:
 
 
 def redirected(error: BaseException) -> Failure | None:
-    """The redirect behind a failed call, if the server redirected it (see _redirect)."""
-    return _redirect(chain(error))
-
-
-def _redirect(errors: list[BaseException]) -> Failure | None:
-    """A failure that came after the server redirected the request: the redirect is the cause
-    (a 301 or 302 turns the POST into a GET, which the target then refuses)."""
-    for e in errors:
+    """The redirect behind a failed call, if the server redirected it: whatever the target then
+    said, the redirect is the cause (a 301 or 302 turns the POST into a GET, which it refuses)."""
+    for e in chain(error):
         response = getattr(e, "response", None)
         history = getattr(response, "history", None)
         if not history:
@@ -112,9 +109,8 @@ def _redirect(errors: list[BaseException]) -> Failure | None:
 
 def classify(error: BaseException, api_base: str | None) -> Failure | None:
     """The failure in words, or None when the chain holds nothing more specific than litellm's
-    own class (an HTTP status from a real answer, a timeout ...)."""
-    from keymps.default_plugins.litellm.response_cap import AnswerRefused
-
+    own class (an HTTP status from a real answer, a timeout ...). A redirect is told apart
+    first, by `redirected`."""
     errors = chain(error)
     where = endpoint(errors, api_base)
     for e in errors:
@@ -148,9 +144,6 @@ def classify(error: BaseException, api_base: str | None) -> Failure | None:
             return Failure(
                 "bad_json", f"{where} answered with a number of over 4300 digits", "no", http=True
             )
-    redirect = _redirect(errors)
-    if redirect is not None:
-        return redirect
     # litellm quotes the stream when it is labelled text/event-stream; the JSON parser holds it
     # when it is labelled JSON
     streamed = [e.doc for e in errors if isinstance(e, json.JSONDecodeError)]
