@@ -14,9 +14,10 @@ When there are fewer generated points than N, pairing restarts once every genera
 paired (each may then be used again); pass densely sampled paths (keymps' work pieces are
 sampled every millimetre) to avoid that.
 
-Everything here is numpy: the nearest-free search and the optimal assignment were scipy's
-cKDTree and linear_sum_assignment, whose imports (about 0.5 s) every `keymps eval` process paid;
-tests/test_evaluate.py checks both against scipy on generated motions.
+The nearest-free search is numpy (it was scipy's cKDTree, whose import every `keymps eval`
+process paid); the optimal assignment is scipy's compiled solver, loaded on its own
+(keymps/eval/assignment.py). tests/test_evaluate.py checks both against scipy's public API on
+generated motions.
 """
 
 from __future__ import annotations
@@ -24,6 +25,8 @@ from __future__ import annotations
 from collections.abc import Iterator, Sequence
 
 import numpy as np
+
+from keymps.eval.assignment import min_cost_assignment
 
 DEFAULT_N = 100
 """Number of ground-truth points D is computed on."""
@@ -428,7 +431,8 @@ def metric_d(ground_truth: Points, generated: Points, n: int = DEFAULT_N) -> flo
 def metric_d_optimal(ground_truth: Points, generated: Points, n: int = DEFAULT_N) -> float:
     """D with the pairing that minimizes the total distance (Hungarian assignment) instead of the
     paper's greedy, order-dependent pairing: a lower bound of D, for comparison."""
-    return metric_d_both(ground_truth, generated, n)[1]
+    reference, candidates = _prepare(ground_truth, generated, n)
+    return _optimal_mean(reference, candidates, None)
 
 
 def metric_d_both(
@@ -436,112 +440,52 @@ def metric_d_both(
 ) -> tuple[float, float]:
     """(metric_d, metric_d_optimal) of the same motion, its nearest candidates listed once."""
     reference, candidates = _prepare(ground_truth, generated, n)
+    greedy = _greedy_lengths(reference, candidates)
+    return float(greedy[0].mean()), _optimal_mean(reference, candidates, greedy)
+
+
+PRUNE_FROM = 1 << 21
+"""From this many reference-candidate pairs on (a 16 MB cost matrix), the candidates no optimal
+pairing can use are left out before the assignment."""
+
+
+def _greedy_lengths(reference: np.ndarray, candidates: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The greedy pairing's distances, and each reference point's smallest squared distance."""
     greedy, nearest = _greedy_from_lists(reference, candidates)
-    lengths = np.linalg.norm(reference - candidates[greedy], axis=1)
-    d = float(lengths.mean())
+    return np.linalg.norm(reference - candidates[greedy], axis=1), nearest
+
+
+def _optimal_mean(
+    reference: np.ndarray,
+    candidates: np.ndarray,
+    greedy: tuple[np.ndarray, np.ndarray] | None,
+) -> float:
+    """The mean distance of the optimal assignment (`greedy`: _greedy_lengths, when known)."""
+    if len(reference) * len(candidates) >= PRUNE_FROM:
+        lengths, nearest = greedy if greedy else _greedy_lengths(reference, candidates)
+        candidates = candidates[_usable(reference, candidates, lengths, nearest)]
     # Fewer candidates than reference points: each may serve ceil(n / m) of them, as in the
     # greedy pairing's rounds (whose total is then still that of a feasible assignment).
     rounds = -(-len(reference) // len(candidates))
-    # Any assignment costs at least the sum of the row minima: a pair costing more than its
-    # row's minimum plus (greedy total - that sum) is in no optimal assignment, so only the
-    # columns of the other pairs are needed (with a margin for rounding).
+    columns = np.tile(candidates, (rounds, 1)) if rounds > 1 else candidates
+    cost = np.sqrt(_squared(reference[:, None, :] - columns[None, :, :]))
+    chosen = min_cost_assignment(cost)
+    return float(cost[np.arange(len(reference)), chosen].mean())
+
+
+def _usable(
+    reference: np.ndarray, candidates: np.ndarray, lengths: np.ndarray, nearest: np.ndarray
+) -> np.ndarray:
+    """Which candidates an optimal assignment may use, from the greedy pairing's distances.
+
+    Any assignment costs at least the sum of the row minima: a pair costing more than its row's
+    minimum plus (greedy total - that sum) is in no optimal assignment (with a margin for
+    rounding)."""
     lowest = np.sqrt(nearest)
     slack = max(0.0, float(lengths.sum()) - float(lowest.sum()))
     limits = (lowest + slack * (1 + 1e-9) + 1e-12)[:, None]
-    needed = np.zeros(len(candidates), dtype=bool)
+    usable = np.zeros(len(candidates), dtype=bool)
     for begin, block in _distance_blocks(reference, candidates):
         np.sqrt(block, out=block)
-        needed |= (block <= limits[begin : begin + len(block)]).any(axis=0)
-    # Copies of a point (adjacent: candidates are sorted) become one column taking as many.
-    points = candidates[needed]
-    new = np.ones(len(points), dtype=bool)
-    new[1:] = (points[1:] != points[:-1]).any(axis=1)
-    starts = np.flatnonzero(new)
-    capacity = np.diff(np.append(starts, len(points))) * rounds
-    cost = np.sqrt(_squared(reference[:, None, :] - points[starts][None, :, :]))
-    columns = min_cost_assignment(cost, capacity)
-    return d, float(cost[np.arange(len(reference)), columns].mean())
-
-
-def min_cost_assignment(cost: np.ndarray, capacity: np.ndarray | None = None) -> np.ndarray:
-    """The column of each row in an assignment of minimal total cost, each column j used at
-    most capacity[j] times (default once): shortest augmenting paths with dual potentials, one
-    row added at a time (Jonker-Volgenant), each path search over all columns at once."""
-    rows, columns = cost.shape
-    room = np.ones(columns, dtype=np.intp) if capacity is None else np.array(capacity)
-    if rows > room.sum():
-        raise ValueError(f"{rows} rows cannot each get one of {room.sum()} column places")
-    # Start from each row's cheapest column while it has room (reduced costs >= 0, 0 where
-    # assigned, 0 potential on every column with room): only the other rows need a path.
-    row_potential = cost.min(axis=1)
-    column_potential = np.zeros(columns)
-    column_of_row = np.full(rows, -1)
-    cheapest = np.argmin(cost, axis=1)
-    order = np.argsort(cheapest, kind="stable")
-    grouped = cheapest[order]
-    rank = np.arange(rows) - np.searchsorted(grouped, grouped)
-    fits = rank < room[grouped]
-    column_of_row[order[fits]] = grouped[fits]
-    room -= np.bincount(grouped[fits], minlength=columns)
-    rows_on: list[list[int]] = [[] for _ in range(columns)]
-    for row, column in enumerate(column_of_row.tolist()):
-        if column >= 0:
-            rows_on[column].append(row)
-    open_cost = np.empty(columns)  # path costs of the columns not reached yet
-    reached_cost = np.zeros(columns)  # and of the reached ones, when they were reached
-    rows_before = np.zeros(columns, dtype=np.intp)  # rows searched when a column was reached
-    blocked = column_potential.copy()  # -inf on reached columns: their reduced cost is inf
-    reduced = np.empty(columns)
-    for start in np.flatnonzero(column_of_row < 0).tolist():
-        open_cost.fill(np.inf)
-        reached: list[int] = []
-        visited = [start]
-        expand, base = [start], 0.0
-        while True:
-            if len(expand) == 1:
-                row = expand[0]
-                np.subtract(cost[row], blocked, out=reduced)
-                reduced += base - row_potential[row]
-                np.minimum(open_cost, reduced, out=open_cost)
-            else:  # the rows sharing a column: all reached at once
-                block = cost[expand] - blocked
-                block += (base - row_potential[expand])[:, None]
-                np.minimum(open_cost, block.min(axis=0), out=open_cost)
-            column = int(open_cost.argmin())
-            base = float(open_cost[column])
-            reached_cost[column], open_cost[column] = base, np.inf
-            rows_before[column] = len(visited)
-            blocked[column] = -np.inf
-            reached.append(column)
-            if room[column] > 0:
-                break
-            expand = rows_on[column]
-            visited.extend(expand)
-        # the path back to `start`: each column's row is the first searched row that reached
-        # it at its cost (the same sums as the search's)
-        searched = np.array(visited)
-        distance = np.zeros(len(visited))
-        distance[1:] = reached_cost[column_of_row[searched[1:]]]
-        offset = distance - row_potential[searched]
-        path = []
-        while True:
-            count = rows_before[column]
-            via = (cost[searched[:count], column] - column_potential[column]) + offset[:count]
-            row = int(searched[int(via.argmin())])
-            path.append((row, column))
-            if row == start:
-                break
-            column = int(column_of_row[row])
-        # potentials: every reduced cost stays >= 0, those along the tree 0
-        row_potential[start] += base
-        for other in visited[1:]:
-            row_potential[other] += base - reached_cost[column_of_row[other]]
-        column_potential[reached] -= base - reached_cost[reached]
-        blocked[reached] = column_potential[reached]
-        room[path[0][1]] -= 1
-        for row, column in path:  # augment: each row along the path moves one column on
-            if row != start:
-                rows_on[column_of_row[row]].remove(row)
-            column_of_row[row] = column
-            rows_on[column].append(row)
-    return column_of_row
+        usable |= (block <= limits[begin : begin + len(block)]).any(axis=0)
+    return usable
