@@ -440,8 +440,8 @@ def metric_d_both(
 ) -> tuple[float, float]:
     """(metric_d, metric_d_optimal) of the same motion, its nearest candidates listed once."""
     reference, candidates = _prepare(ground_truth, generated, n)
-    greedy = _greedy_lengths(reference, candidates)
-    return float(greedy[0].mean()), _optimal_mean(reference, candidates, greedy)
+    lengths, nearest = _greedy_lengths(reference, candidates)
+    return float(lengths.mean()), _optimal_mean(reference, candidates, (lengths, nearest))
 
 
 PRUNE_FROM = 1 << 21
@@ -468,7 +468,9 @@ def _optimal_mean(
     # greedy pairing's rounds (whose total is then still that of a feasible assignment).
     rounds = -(-len(reference) // len(candidates))
     columns = np.tile(candidates, (rounds, 1)) if rounds > 1 else candidates
-    cost = np.sqrt(_squared(reference[:, None, :] - columns[None, :, :]))
+    cost = np.empty((len(reference), len(columns)))
+    for begin, block in _distance_blocks(reference, columns):  # (no (n, m, 3) differences)
+        np.sqrt(block, out=cost[begin : begin + len(block)])
     chosen = min_cost_assignment(cost)
     return float(cost[np.arange(len(reference)), chosen].mean())
 
