@@ -130,3 +130,31 @@ def test_usage_errors_are_one_line(tmp_path: Path) -> None:
     assert code == 2 and "--distortion needs --intrinsics" in stderr
     code, _, stderr = calibrate("--print-markers", str(tmp_path / "sheet.jpg"))
     assert code == 1 and "written as PNG" in stderr
+
+
+@pytest.mark.parametrize(
+    ("arguments", "message"),
+    [
+        (["--mm-per-px", "0"], "0.05<=x<=10"),
+        (["--mm-per-px", "1e-9"], "0.05<=x<=10"),
+        (["--mm-per-px", "nan"], "'nan' is not a finite number"),
+        (["--mm-per-px", "inf"], "0.05<=x<=10"),
+        (["--intrinsics", "nan,1,1,1"], "--intrinsics: every number must be finite"),
+        (["--intrinsics", "0,0,0,0"], "--intrinsics: fx and fy are positive pixels"),
+        (["--intrinsics", "-500,500,300,200"], "--intrinsics: fx and fy are positive pixels"),
+        (["--distortion", "inf,0,0,0", "--intrinsics", "500,500,300,200"], "must be finite"),
+    ],
+)
+def test_settings_a_task_would_refuse_are_refused_before_the_photo_is_read(
+    arguments: list[str], message: str, tmp_path: Path
+) -> None:
+    """Once printed as a scene.camera block (mm_per_px: nan) with exit status 0."""
+    code, stdout, stderr = calibrate(str(tmp_path / "none.png"), "--board", "0.3,0.2", *arguments)
+    assert code == 2 and message in stderr, stderr
+    assert stdout == "" and "Traceback" not in stderr
+
+
+def test_a_board_of_no_size_is_refused(tmp_path: Path) -> None:
+    for board in ("0,0.2", "0.3,-0.2", "nan,0.2"):
+        code, _, stderr = calibrate(str(tmp_path / "none.png"), "--board", board)
+        assert code == 2 and "--board" in stderr, stderr

@@ -139,12 +139,53 @@ def test_plot_without_matplotlib_says_how_to_get_it(
 def test_bad_point_is_a_usage_error(runner: CliRunner) -> None:
     result = runner.invoke(primitives, ["plot", "line", "--to", "1,2"])
     assert result.exit_code == 2
-    assert "not three numbers" in result.output
+    assert "not three finite numbers" in result.output
 
 
 def test_module_imports_only_click_at_top() -> None:
     source = Path(sys.modules["keymps.cli.primitives"].__file__ or "").read_text()
     top_imports = [line for line in source.splitlines() if line.startswith(("import ", "from "))]
-    allowed = {"__future__", "sys", "collections.abc", "pathlib", "typing", "click"}
+    allowed = {"__future__", "sys", "math", "collections.abc", "pathlib", "typing", "click"}
     allowed |= {"keymps.cli.errors"}
     assert {line.split()[1] for line in top_imports} <= allowed
+
+
+@pytest.mark.parametrize(
+    "arguments",
+    [
+        ["--to", "nan,0,0"],
+        ["--to", "0,inf,0"],
+        ["--from", "-inf,0,0"],
+        ["--from", "0,0,nan", "--to", "0.1,0,0"],
+    ],
+)
+def test_plot_refuses_a_point_that_is_not_finite(runner: CliRunner, arguments: list[str]) -> None:
+    """nan once recursed in the re-targeting until Python gave up (a RecursionError traceback)."""
+    result = runner.invoke(primitives, ["plot", "line", *arguments, "--out", "p.png"])
+    assert result.exit_code == 2, result.output
+    assert "is not three finite numbers A,B,C (metres)" in result.output
+    assert result.exception is None or isinstance(result.exception, SystemExit)
+
+
+def test_plot_refuses_a_format_matplotlib_cannot_write_before_drawing(
+    runner: CliRunner, tmp_path: Path
+) -> None:
+    pytest.importorskip("matplotlib")
+    result = runner.invoke(primitives, ["plot", "line", "--out", "p.txt"])
+    assert result.exit_code == 2, result.output
+    assert "p.txt: matplotlib writes no .txt files (one of: " in result.output
+    assert "png" in result.output and not (tmp_path / "p.txt").exists()
+    written = runner.invoke(primitives, ["plot", "line", "--out", "p.svg"])
+    assert written.exit_code == 0, written.output
+    assert (tmp_path / "p.svg").read_text().lstrip().startswith("<?xml")
+
+
+def test_a_rollout_to_a_point_that_is_not_finite_is_a_dmp_error() -> None:
+    from keymps.primitives.system import DmpError
+
+    line = load_primitive(BUNDLED_DIR / "line.yaml")
+    for goal in ([np.nan, 0, 0], [0, np.inf, 0], [0.1, 0.0]):
+        with pytest.raises(DmpError, match="goal must be a finite"):
+            line.rollout([0, 0, 0], goal)
+        with pytest.raises(DmpError, match="goal must be a finite"):
+            line.dmp.path_length(np.zeros(3), np.asarray(goal, float))

@@ -182,3 +182,27 @@ def test_the_render_cache_returns_the_same_scene_as_a_private_copy() -> None:
     assert np.array_equal(third.image, fresh.image) and third.truth == fresh.truth
     other = render_scene_cached(SceneSpec.from_kinds(["eggplant"], seed=32))
     assert not np.array_equal(other.image, fresh.image)
+
+
+@pytest.mark.parametrize(
+    ("option", "value"),
+    [
+        (option, value)
+        for option in ("--length", "--width", "--height", "--rotation")
+        for value in ("nan", "inf", "-inf")
+    ]  # fmt: skip
+    + [("--board", "nan,0.2"), ("--board", "0.3,inf")],
+)
+def test_render_refuses_numbers_that_are_not_finite(
+    option: str, value: str, tmp_path: Path
+) -> None:
+    """click's FloatRange lets nan through its bounds: it reached numpy as a 0 x 0 mask."""
+    out = tmp_path / "x.png"
+    result = CliRunner().invoke(
+        scene_cli, ["render", "round_cake", option, value, "--out", str(out)]
+    )
+    assert result.exit_code == 2, result.output
+    assert f"Invalid value for '{option}'" in result.output or "two positive" in result.output
+    assert any(words in result.output for words in ("finite", "range", "positive")), result.output
+    assert not isinstance(result.exception, Exception) or isinstance(result.exception, SystemExit)
+    assert not out.exists()

@@ -7,17 +7,7 @@ from pathlib import Path
 import click
 
 from keymps.cli.errors import user_errors
-
-
-def _numbers(text: str, count: tuple[int, ...], what: str) -> list[float]:
-    try:
-        values = [float(v) for v in text.replace(" ", "").split(",") if v]
-    except ValueError:
-        raise click.BadParameter(f"{what}: numbers separated by commas, got {text!r}") from None
-    if len(values) not in count:
-        wanted = " or ".join(str(c) for c in count)
-        raise click.BadParameter(f"{what}: {wanted} numbers separated by commas, got {text!r}")
-    return values
+from keymps.cli.params import FiniteFloat, finite_numbers
 
 
 @click.command(
@@ -35,8 +25,9 @@ def _numbers(text: str, count: tuple[int, ...], what: str) -> list[float]:
 @click.option("--intrinsics", help="fx,fy,cx,cy of a calibrated camera (pixels, OpenCV).")
 @click.option("--distortion", help="k1,k2,p1,p2[,k3] of that camera (with --intrinsics).")
 @click.option(
-    "--mm-per-px", type=float, default=0.5, show_default=True, help="Rectified resolution."
-)
+    "--mm-per-px", type=FiniteFloat(min=0.05, max=10), default=0.5, show_default=True,
+    help="Rectified resolution (the task file's scene.camera.mm_per_px, 0.05-10).",
+)  # fmt: skip
 @click.option("--out", type=click.Path(dir_okay=False, path_type=Path), help="Write the YAML here.")
 @click.option(
     "--print-markers", "sheet", type=click.Path(dir_okay=False, path_type=Path),
@@ -61,11 +52,15 @@ def calibrate(
         return
     if image is None or board is None:
         raise click.UsageError("give IMAGE and --board W,H (or --print-markers FILE.png)")
-    width, height = _numbers(board, (2,), "--board")
-    camera = _numbers(intrinsics, (4,), "--intrinsics") if intrinsics else None
+    width, height = finite_numbers(board, (2,), "--board")
+    if width <= 0 or height <= 0:
+        raise click.BadParameter(f"--board: two positive sizes in metres, got {board!r}")
+    camera = finite_numbers(intrinsics, (4,), "--intrinsics") if intrinsics else None
+    if camera is not None and (camera[0] <= 0 or camera[1] <= 0):
+        raise click.BadParameter(f"--intrinsics: fx and fy are positive pixels, got {intrinsics!r}")
     if distortion and camera is None:
         raise click.UsageError("--distortion needs --intrinsics")
-    coefficients = _numbers(distortion, (4, 5, 8), "--distortion") if distortion else []
+    coefficients = finite_numbers(distortion, (4, 5, 8), "--distortion") if distortion else []
     text, notes = calibration_yaml(
         image, (width, height), marker_size, camera, coefficients, mm_per_px
     )

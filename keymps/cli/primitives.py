@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -129,8 +130,8 @@ def _point(text: str) -> tuple[float, float, float]:
         values = tuple(float(v) for v in text.split(","))
     except ValueError:
         raise click.BadParameter(f"{text!r} is not three numbers A,B,C (metres)") from None
-    if len(values) != 3:
-        raise click.BadParameter(f"{text!r} is not three numbers A,B,C (metres)")
+    if len(values) != 3 or not all(math.isfinite(v) for v in values):
+        raise click.BadParameter(f"{text!r} is not three finite numbers A,B,C (metres)")
     return values[0], values[1], values[2]
 
 
@@ -246,6 +247,15 @@ def plot(
         import matplotlib.pyplot as plt
     except ImportError:
         raise click.ClickException("plot needs matplotlib: pip install matplotlib") from None
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    out = out or Path(f"{name}.png")
+    suffix = out.suffix.lstrip(".").lower()
+    if suffix and suffix not in FigureCanvasAgg.get_supported_filetypes():
+        known = ", ".join(sorted(FigureCanvasAgg.get_supported_filetypes()))
+        raise click.BadParameter(
+            f"{out}: matplotlib writes no .{suffix} files (one of: {known})", param_hint="'--out'"
+        )
     import numpy as np
 
     from keymps.primitives.demos import load_demo_csv
@@ -294,7 +304,6 @@ def plot(
     axes.legend(loc="upper left")
     points = np.vstack([origin, *goals])
     _equal_axes(axes, np, points, [p.rollout(origin, g, mode=mode).y for g in goals])
-    out = out or Path(f"{name}.png")
     figure.savefig(out, dpi=120, bbox_inches="tight")
     plt.close(figure)
     click.echo(f"wrote {out}")

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import click
 
 from keymps.cli.errors import user_errors
+from keymps.cli.params import FiniteFloat
 
 
 def _pair(text: str | None) -> tuple[float, float] | None:
@@ -17,7 +19,7 @@ def _pair(text: str | None) -> tuple[float, float] | None:
         values = tuple(float(p) for p in parts)
     except ValueError:
         raise click.BadParameter(f"expected W,H in metres (e.g. 0.30,0.18), got {text!r}") from None
-    if len(values) != 2 or min(values) <= 0:
+    if len(values) != 2 or not all(math.isfinite(v) and v > 0 for v in values):
         raise click.BadParameter(f"expected two positive numbers W,H in metres, got {text!r}")
     return values[0], values[1]
 
@@ -29,10 +31,12 @@ def scene() -> None:
 
 @scene.command()
 @click.argument("objects", nargs=-1, required=True, metavar="OBJECT...")
-@click.option("--length", type=click.FloatRange(min=0, min_open=True), help="Length, metres.")
-@click.option("--width", type=click.FloatRange(min=0, min_open=True), help="Width, metres.")
-@click.option("--height", type=click.FloatRange(min=0, min_open=True), help="Height, metres.")
-@click.option("--rotation", type=float, help="Angle of the length axis from board x, degrees.")
+@click.option("--length", type=FiniteFloat(min=0, min_open=True), help="Length, metres.")
+@click.option("--width", type=FiniteFloat(min=0, min_open=True), help="Width, metres.")
+@click.option("--height", type=FiniteFloat(min=0, min_open=True), help="Height, metres.")
+@click.option(
+    "--rotation", type=FiniteFloat(), help="Angle of the length axis from board x, degrees."
+)
 @click.option("--seed", type=int, default=0, show_default=True, help="Randomization seed.")
 @click.option("--board", default="0.30,0.18", show_default=True, help="Board size W,H, metres.")
 @click.option(

@@ -234,7 +234,8 @@ class DMP:
 
     def path_length(self, start: np.ndarray, goal: np.ndarray, mode: str = "similarity") -> float:
         """Length in metres of the re-targeted path (from the cached canonical rollout)."""
-        transform = retarget_map(self.demo_delta, np.asarray(goal) - np.asarray(start), mode)
+        delta = _point(goal, "goal") - _point(start, "start")
+        transform = retarget_map(self.demo_delta, delta, mode)
         pos = self._canonical(1000)[0] @ transform.T
         return float(np.linalg.norm(np.diff(pos, axis=0), axis=1).sum())
 
