@@ -27,6 +27,7 @@ from keymps.designs.words import (
     UNIT_RE,
     UNITS,
     counted,
+    misspelled_number,
     normalise,
 )
 from keymps.errors import KeympsError
@@ -431,6 +432,7 @@ def read_instruction(sentence: str) -> Intent:
         raise UnreadableInstruction(
             unreadable_message(sentence, [f"{vague.group(0)!r} does not say how many"])
         )
+    _refuse_misspelled_counts(sentence, text)
     reader = _Reader(text)
     intent = _icing_intent(reader) if reader.has(ICING_WORDS) else None
     if intent is None:
@@ -454,6 +456,24 @@ def read_instruction(sentence: str) -> Intent:
     intent = replace(intent, understood=tuple(reader.understood))
     _check_numbers(intent)
     return intent
+
+
+COUNTED_NOUN = rf"((?:\b[a-z][a-z'-]*\s+){{1,4}})(?:{PIECES}|{DOTS}|rings?|layers?|circles?|rows?)\b"
+"""Up to four words before a noun that takes a count: where a misspelled count would be."""
+
+
+def _refuse_misspelled_counts(sentence: str, text: str) -> None:
+    """A typo of a number word ('eigth dots') is no count: without this the design's default
+    count was used, a confident wrong motion. Number words are digits in `text` by now."""
+    for match in re.finditer(COUNTED_NOUN, text):
+        for word in match.group(1).split():
+            number = misspelled_number(word)
+            if number:
+                raise UnreadableInstruction(
+                    f"the offline planner found {word!r} where {sentence.strip()!r} gives a "
+                    f"count, and it is no number it knows (did you mean {number!r}?); it never "
+                    f"guesses a count. Write the number in digits (8) or in words (eight)"
+                )
 
 
 def _refuse_unmodelled(sentence: str, text: str, intent: Intent) -> None:

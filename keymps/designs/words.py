@@ -46,7 +46,16 @@ ONES = [
     "eighteen",
     "nineteen",
 ]
-TENS = {"twenty": 20, "thirty": 30, "forty": 40, "fifty": 50, "sixty": 60}
+TENS = {
+    "twenty": 20,
+    "thirty": 30,
+    "forty": 40,
+    "fifty": 50,
+    "sixty": 60,
+    "seventy": 70,
+    "eighty": 80,
+    "ninety": 90,
+}
 ORDINALS = {
     "first": 1,
     "second": 2,
@@ -59,6 +68,28 @@ ORDINALS = {
     "ninth": 9,
     "tenth": 10,
 }
+NUMBER_WORDS = (*ONES, *TENS, "hundred", "dozen")
+NEAR_NUMBER_WORDS = frozenset(
+    {"even", "seen", "then", "there", "these", "tree", "trees", "teen", "bone", "done", "gone"}
+    | {"lone", "none", "tone", "weight", "height", "freight", "leaven", "fifth", "sixth"}
+)
+"""English words as close to a number word as a typo is ('even' to 'seven'): never read as one."""
+TYPO_SIMILARITY = 0.8
+"""difflib's ratio from which a word is taken for a misspelled number word ('eigth', 'fiften',
+'sevn', 'ninty' are 0.8-0.92); words under 4 letters are never (too many real words are near:
+'for', 'our', 'to', 'on')."""
+
+
+def misspelled_number(word: str) -> str | None:
+    """The number word `word` looks like a typo of ('eigth' -> 'eight'), else None."""
+    if len(word) < 4 or word in NEAR_NUMBER_WORDS or word in NUMBER_WORDS:
+        return None
+    import difflib  # (not imported by commands that read no sentence)
+
+    close = difflib.get_close_matches(word, NUMBER_WORDS, n=1, cutoff=TYPO_SIMILARITY)
+    return close[0] if close else None
+
+
 PIECES = (
     r"(?:slices?|pieces?|parts?|portions?|wedges?|sections?|segments?|servings?|chunks?|"
     r"strips?|equal\s+parts?|triangles?|squares?|rounds?)"
