@@ -458,7 +458,9 @@ def read_instruction(sentence: str) -> Intent:
     return intent
 
 
-COUNTED_NOUN = rf"((?:\b[a-z][a-z'-]*\s+){{1,4}})(?:{PIECES}|{DOTS}|rings?|layers?|circles?|rows?)\b"
+COUNTED_NOUN = (
+    rf"((?:\b[a-z][a-z'-]*\s+){{1,4}})(?:{PIECES}|{DOTS}|rings?|layers?|circles?|rows?)\b"
+)
 """Up to four words before a noun that takes a count: where a misspelled count would be."""
 
 
