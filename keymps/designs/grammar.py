@@ -98,10 +98,33 @@ UNMODELLED = (
         "a design on part of the object",
     ),
     (r"(?<![\w.])-\s?\d", "a negative number"),
+    (
+        r"\b(?:twice|thrice|again|then|after that|afterwards|followed by)\b|"
+        r"\beach (?:of them|one|half|quarter|third|piece|slice|part|wedge)\b",
+        "a second step or a repeat: each design here is one step",
+    ),
+    (
+        r"\bdiagonal\w*|\bfrom the (?:left|right|top|bottom|outside|inside|far end|other end)\b|"
+        r"\b(?:outside in|inside out|outside to the inside|inside to the outside)\b",
+        "a direction or a starting side the designs do not take",
+    ),
 )
 """Words that change what a sentence asks for in ways no design here models: anywhere in the
 sentence, they stop the plan instead of being skipped ("8 unequal slices" is not 8 equal ones,
 "the left half" is not the whole cake; "cut it in half" is a design and matches none)."""
+UNMODELLED_ICING = (
+    (
+        r"\bin an? (?:straight |neat )?(?:row|line|column|grid|cross|square|triangle|zigzag|wave)s?\b|"
+        r"\b(?:along|across|through|down) the (?:middle|centre|center|diameter|length|width)\b",
+        "a layout the icing designs do not have: they are rings, a centre dot, spirals and digits",
+    ),
+    (
+        r"\b(?:outside|beyond|off) (?:of )?the (?:cake|object|edge|rim|top)\b|\bon the board\b",
+        "a place off the object",
+    ),
+)
+"""UNMODELLED's words for icing only ("along the border" is the ring; cuts go "along its
+length" and "across")."""
 STRONG_ICING = (
     r"\b(?:icing|icings|pip(?:e|es|ed|ing)|frost\w*|decorat\w*|dots?|rosettes?|draw|write)\b"
 )
@@ -479,7 +502,7 @@ def _refuse_misspelled_counts(sentence: str, text: str) -> None:
 
 
 def _refuse_unmodelled(sentence: str, text: str, intent: Intent) -> None:
-    for pattern, what in UNMODELLED:
+    for pattern, what in UNMODELLED + (UNMODELLED_ICING if intent.family == "icing" else ()):
         match = re.search(pattern, text)
         if match:
             raise UnreadableInstruction(
