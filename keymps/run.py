@@ -173,3 +173,37 @@ def write_atomically(path: Path, data: str | bytes) -> Path:
 def _remove(path: Path) -> None:
     with suppress(OSError):
         path.unlink()
+
+
+EARLIER_RUN_FILES = (
+    "trajectory.csv",
+    "trajectory.json",
+    "run.rrd",
+    "execution.mp4",
+    *(f"{stem}.{suffix}" for stem in ("plan", "plan_photo", "outcome") for suffix in IMAGE_FORMATS),
+)
+"""What a run and the bundled plugins write beside run.json (docs/run-folder.md)."""
+
+
+def clear_earlier_run(folder: Path) -> None:
+    """Remove an earlier run's files (EARLIER_RUN_FILES, vlm/'s files, run.json last) from a
+    folder holding its run.json, so that no file of that run passes for the new run's (a failed
+    run left the old trajectory.csv beside its own run.json). A folder without run.json is left
+    as it is. Call with the folder's lock held."""
+    record = folder / "run.json"
+    if not record.is_file():
+        return
+    answers = folder / "vlm"
+    try:
+        for name in EARLIER_RUN_FILES:
+            (folder / name).unlink(missing_ok=True)
+        if answers.is_dir() and not answers.is_symlink():
+            for entry in answers.iterdir():
+                if entry.is_file() or entry.is_symlink():  # a link itself, never its target
+                    entry.unlink()
+        record.unlink()
+    except OSError as error:
+        what = Path(error.filename).name if error.filename else "files"
+        raise KeympsError(
+            f"{folder}: cannot remove the earlier run's {what}: {error.strerror}"
+        ) from None

@@ -361,3 +361,49 @@ def test_rerun_connect_to_an_address_that_is_no_viewer_stops_before_the_run(
             out=tmp_path / "run",
         )
     assert not (tmp_path / "run").exists()
+
+
+def test_a_run_into_an_earlier_runs_folder_leaves_none_of_its_files(tmp_path: Path) -> None:
+    """A failed run into the folder of a finished one kept the old trajectory.csv, plan.png and
+    run.rrd beside its own failed run.json: a script reading the folder took the old motion."""
+    task, folder = _task_copy(tmp_path), tmp_path / "run"
+    keymps.run_task(task, out=folder, executor="file", rerun="save")
+    written = {p.name for p in folder.iterdir()}
+    assert {"trajectory.csv", "trajectory.json", "plan.png", "run.rrd", "vlm"} <= written
+    (folder / "notes.txt").write_text("mine")  # not a file a run writes: kept
+    outside = tmp_path / "kept.json"
+    outside.write_text("{}")
+    (folder / "vlm" / "linked.json").symlink_to(outside)  # a link: removed, never its target
+    with pytest.raises(KeympsError, match="cannot turn 'asdf' into a design"):
+        keymps.run_task(task, out=folder, instruction="asdf", rerun="off")
+    assert sorted(p.name for p in folder.iterdir()) == [
+        ".keymps.lock",
+        "notes.txt",
+        "run.json",
+        "vlm",
+    ]
+    assert json.loads((folder / "run.json").read_text())["status"] == "failed"
+    assert "linked.json" not in {p.name for p in (folder / "vlm").iterdir()} and outside.exists()
+
+
+def test_an_earlier_runs_file_that_cannot_be_removed_stops_the_run(tmp_path: Path) -> None:
+    task, folder = _task_copy(tmp_path), tmp_path / "run"
+    keymps.run_task(task, out=folder, rerun="off")
+    (folder / "trajectory.csv").unlink()
+    (folder / "trajectory.csv").mkdir()  # unlink() cannot remove a folder
+    with pytest.raises(KeympsError) as caught:
+        keymps.run_task(task, out=folder, rerun="off")
+    assert str(caught.value) == (
+        f"{folder}: cannot remove the earlier run's trajectory.csv: Is a directory"
+    )
+    assert (folder / "run.json").exists()  # removed last: still an earlier run's folder
+
+
+def test_a_folder_without_run_json_is_not_cleared(tmp_path: Path) -> None:
+    """run_task writes where it is told; only a folder holding a run's record is an earlier run's."""
+    folder = tmp_path / "mine"
+    folder.mkdir()
+    (folder / "trajectory.csv").write_text("not keymps'")  # a run through ground writes none
+    keymps.run_task(_task_copy(tmp_path), out=folder, rerun="off", through="ground")
+    assert (folder / "trajectory.csv").read_text() == "not keymps'"
+    assert (folder / "run.json").exists()

@@ -18,7 +18,7 @@ from keymps.config.task import Task, load_task
 from keymps.errors import KeympsError, RunInterrupted, StageError, TaskFileError, os_error_message
 from keymps.planning.backend_choice import NO_SERVER
 from keymps.plugin.manager import create_component, get_manager
-from keymps.run import IMAGE_FORMATS, STAGES, Run, RunOptions
+from keymps.run import IMAGE_FORMATS, STAGES, Run, RunOptions, clear_earlier_run
 from keymps.types import Detection, ExecutionReport, SceneImage
 
 Result = TypeVar("Result")
@@ -474,6 +474,11 @@ def run_task(
     parts = Components(task, backend, through)
     folder = _new_run_folder(task, Path(out) if out else None)
     lock = FolderLock(folder).acquire()  # a second run into this folder refuses here
+    try:
+        clear_earlier_run(folder)
+    except KeympsError:
+        lock.release()
+        raise
     run = Run(task=task, folder=folder, options=options)
     run.backend, run.backend_reason, run.robot = backend, reason, parts.robot
     keyless = untrusted_api_base_warning(task) if backend not in NO_SERVER else None
