@@ -398,3 +398,22 @@ def test_a_task_file_given_to_eval_and_a_suite_given_to_run_say_which_command_th
             f"an eval suite (it lists cases), not a task file: run it with `keymps eval {suite}`"
             in (done.output)
         )
+
+
+@pytest.mark.parametrize(
+    ("arguments", "message"),
+    [
+        (["--backend", "nope"], "--backend nope: unknown planner backend 'nope' (available: "),
+        (["--api-base", "ftp://x"], "'ftp://x' is not an http(s) URL with a host"),
+        (["--backend", "replay"], "the replay backend needs a cassette"),
+    ],
+)
+def test_planner_options_no_run_could_use_stop_eval_before_its_first_run(
+    arguments: list[str], message: str, tmp_path: Path
+) -> None:
+    """They once failed every run one by one, and eval exited 0."""
+    out = tmp_path / "eval"
+    result = CliRunner().invoke(cli, ["eval", "icing", *arguments, "--out", str(out), "--quiet"])
+    assert result.exit_code == 1, result.output
+    assert message in result.output and result.output.count("\n") == 1, result.output
+    assert not (out / "results.jsonl").exists() and not (out / "runs").exists()

@@ -262,6 +262,19 @@ def job_record(suite: Suite, job: Job, options: EvalOptions, backend: str) -> di
     }
 
 
+def check_planner_options(suite: Suite, job: Job, options: EvalOptions) -> None:
+    """--backend, --model and --api-base checked once on a case's task, as `keymps run` checks
+    them: an unknown backend or a URL that is none is one error before the first run, not a
+    failed record for every run and exit status 0."""
+    from keymps.config.overrides import apply_overrides
+    from keymps.config.task import load_task
+    from keymps.planning.backend_choice import choose_backend
+
+    task = load_task(write_task_file(suite, job, options.out))
+    given = {"backend": options.backend, "model": options.model, "api_base": options.api_base}
+    choose_backend(apply_overrides(task, given), options.backend, options.model, options.api_base)
+
+
 def run_job(
     suite: Suite,
     job: Job,
@@ -434,6 +447,8 @@ def run_suite(
     for name in options.methods:
         check_runnable(get_method(name), backend)
     jobs = plan_jobs(suite, options)
+    if jobs:
+        check_planner_options(suite, jobs[0], options)
     options.out.mkdir(parents=True, exist_ok=True)
     results = _ResultsFile(options.out / RESULTS_FILE)
     done = {_job_key(r): r for r in read_results(results.path) if r.get("suite") == suite.name}
