@@ -14,6 +14,7 @@ import asyncio
 import json
 import os
 import secrets
+import shutil
 import socket
 import string
 import subprocess
@@ -68,6 +69,11 @@ def hostile_task(folder: Path, planner: str = "", prompt: str | None = None) -> 
     if prompt is not None:
         lines += f"\n  prompt: {prompt}" if prompt else ""
     path = task_copy(folder, **{"model: openai/gpt-4o": lines, "Put 15 icing dots": "Put 1"})
+    # the scene beside the task: a task-only server is sent no image from outside its folder
+    shutil.copy(REPO / "tasks/scenes/round_cake.png", folder / "round_cake.png")
+    path.write_text(
+        path.read_text().replace(f"{REPO}/tasks/scenes/round_cake.png", "round_cake.png")
+    )
     if prompt is not None:
         path.write_text(path.read_text().replace(f"  prompt: {REPO}/prompts/icing.md\n", ""))
     return path
@@ -780,3 +786,35 @@ def _chunks(chunks: list[bytes]) -> Any:
             return iter(chunks)
 
     return Chunks()
+
+
+def test_a_task_only_server_is_sent_no_image_from_outside_the_task_folder(
+    server: Any, tmp_path: Path, fuzz_counter: Any
+) -> None:
+    """A shared task could name any photo of yours (scene.image: /home/you/...) and a server of
+    its own: the run sent no key, but still the photo's crop."""
+    photo = tmp_path / "private" / "photo.png"
+    photo.parent.mkdir()
+    shutil.copy(REPO / "tasks/scenes/round_cake.png", photo)
+    shared = tmp_path / "shared"
+    linked = shared / "scenes" / "linked.png"
+    for image in (str(photo), "../private/photo.png", "scenes/linked.png"):
+        task = hostile_task(shared, f"api_base: {server.openai_base}")
+        linked.parent.mkdir(exist_ok=True)
+        if not linked.is_symlink():
+            linked.symlink_to(photo)  # inside the folder by name, outside once followed
+        task.write_text(task.read_text().replace("image: round_cake.png", f"image: {image}"))
+        with pytest.raises(KeympsError) as caught:
+            run(task, tmp_path / "run")
+        assert_clean_error(caught.value)
+        message = str(caught.value)
+        assert message.startswith(f"{task}:") and f"scene.image {image} is outside" in message
+        assert "sends none of your files to a server only a task file names" in message
+        assert server.chat_requests == [] and RecordingExecutor.calls == []
+        assert not (tmp_path / "run").exists()
+        fuzz_counter.add("VLM attacks/trust", "task-only api_base, outside image", "refused")
+    # the user's own choices are sent: --image, or the server by --api-base
+    run(task, tmp_path / "run-image", image=str(photo))
+    assert len(server.chat_requests) == 1
+    run(task, tmp_path / "run-api-base", api_base=server.openai_base)
+    assert len(server.chat_requests) == 2 and len(RecordingExecutor.calls) == 2

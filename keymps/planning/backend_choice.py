@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 from keymps.config.trust import is_provider_endpoint, same_server
@@ -85,6 +86,32 @@ def untrusted_api_base_warning(task: Task) -> str | None:
         "named only by the task file, so no API key is sent to it; to send one, pass "
         f"--api-base or list it under trusted_api_bases in {config_path()}"
     )
+
+
+def image_for_an_untrusted_server(task: Task) -> str | None:
+    """The refusal when a server only the task file names would be sent an image the task file
+    names outside its own folder tree (a shared task could name any photo of yours and a
+    server of its own); None otherwise. Call only when a VLM will be asked and the image is the
+    task's (not --image)."""
+    image = task.scene.image
+    if task.scene.source != "file" or image is None or api_base_trusted(task):
+        return None
+    if _real(task.folder / image).is_relative_to(_real(task.folder)):  # (an absolute image stays)
+        return None
+    return redact_text(
+        f"{task.where('scene', 'image')}: scene.image {image} is outside the task file's folder "
+        f"and planner.api_base {task.planner.api_base} is named only by the task file: keymps "
+        "sends none of your files to a server only a task file names; pass the image with "
+        f"--image, or the server with --api-base, or list it under trusted_api_bases in "
+        f"{config_path()}"
+    )
+
+
+def _real(path: Path) -> Path:
+    try:
+        return path.resolve()
+    except (OSError, RuntimeError):  # a link loop: compared as written
+        return Path(os.path.abspath(path))
 
 
 def keys_the_task_may_send(task: Task) -> list[str]:
