@@ -814,7 +814,8 @@ def test_a_task_only_server_is_sent_no_image_from_outside_the_task_folder(
         assert not (tmp_path / "run").exists()
         fuzz_counter.add("VLM attacks/trust", "task-only api_base, outside image", "refused")
     # the user's own choices are sent: --image, or the server by --api-base
-    run(task, tmp_path / "run-image", image=str(photo))
+    with pytest.warns(UserWarning, match="no API key is sent"):  # still the task's server
+        run(task, tmp_path / "run-image", image=str(photo))
     assert len(server.chat_requests) == 1
     run(task, tmp_path / "run-api-base", api_base=server.openai_base)
     assert len(server.chat_requests) == 2 and len(RecordingExecutor.calls) == 2

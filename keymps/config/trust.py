@@ -67,7 +67,7 @@ def readable_file_problem(path: Path, roots: Sequence[Path], max_bytes: int) -> 
         return f"{shown} is a kernel or device file ({real}); not read"
     if not stat.S_ISREG(info.st_mode):
         return f"{shown} is not a regular file (a folder, device, pipe or socket)"
-    real_roots = [_real(root) for root in roots]
+    real_roots = [real_path(root) for root in roots]
     if not any(real == root or root in real.parents for root in real_roots):
         searched = ", ".join(str(r) for r in real_roots)
         return (
@@ -114,7 +114,8 @@ def prompt_roots(task_folder: Path) -> list[Path]:
     return [task_folder, *prompt_search_dirs(task_folder)]
 
 
-def _real(folder: Path) -> Path:
+def real_path(folder: Path) -> Path:
+    """`folder` with links followed (as written, made absolute, for a link loop)."""
     try:
         return folder.resolve()
     except (OSError, RuntimeError):

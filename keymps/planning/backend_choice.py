@@ -3,10 +3,9 @@
 from __future__ import annotations
 
 import os
-from pathlib import Path
 from typing import TYPE_CHECKING
 
-from keymps.config.trust import is_provider_endpoint, same_server
+from keymps.config.trust import is_provider_endpoint, real_path, same_server
 from keymps.config.user import config_path, load_user_config
 from keymps.errors import KeympsError
 from keymps.planning.redaction import redact_text, url_secrets
@@ -96,7 +95,9 @@ def image_for_an_untrusted_server(task: Task) -> str | None:
     image = task.scene.image
     if task.scene.source != "file" or image is None or api_base_trusted(task):
         return None
-    if _real(task.folder / image).is_relative_to(_real(task.folder)):  # (an absolute image stays)
+    if real_path(task.folder / image).is_relative_to(
+        real_path(task.folder)
+    ):  # (an absolute image stays)
         return None
     return redact_text(
         f"{task.where('scene', 'image')}: scene.image {image} is outside the task file's folder "
@@ -105,13 +106,6 @@ def image_for_an_untrusted_server(task: Task) -> str | None:
         f"--image, or the server with --api-base, or list it under trusted_api_bases in "
         f"{config_path()}"
     )
-
-
-def _real(path: Path) -> Path:
-    try:
-        return path.resolve()
-    except (OSError, RuntimeError):  # a link loop: compared as written
-        return Path(os.path.abspath(path))
 
 
 def keys_the_task_may_send(task: Task) -> list[str]:
