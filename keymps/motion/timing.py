@@ -73,8 +73,11 @@ class TimedStroke:
 
 def _profile(length: float, limits: Limits, period: float) -> tuple[Any, float]:
     """Rest-to-rest Ruckig profile of s over `length`, its duration a multiple of `period`."""
-    from ruckig import InputParameter, Result, Ruckig
-    from ruckig import Trajectory as RuckigTrajectory
+    from keymps.interrupts import import_whole
+
+    ruckig = import_whole("ruckig")
+    InputParameter, Result, Ruckig = ruckig.InputParameter, ruckig.Result, ruckig.Ruckig
+    RuckigTrajectory = ruckig.Trajectory
 
     request = InputParameter(1)
     request.current_position = [0.0]

@@ -4,18 +4,16 @@ from __future__ import annotations
 
 import os
 import re
-import signal
-import threading
 import time
 import warnings
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TypeVar
 
 from keymps.config.overrides import apply_overrides
 from keymps.config.task import Task, load_task
 from keymps.errors import KeympsError, RunInterrupted, StageError, TaskFileError, os_error_message
+from keymps.interrupts import interrupts_deferred
 from keymps.planning.backend_choice import NO_SERVER
 from keymps.plugin.manager import create_component, get_manager
 from keymps.run import IMAGE_FORMATS, STAGES, Run, RunOptions, clear_earlier_run
@@ -377,25 +375,6 @@ class _Pipeline:
             raise StageError("execute", report.message or f"executor {report.executor} failed")
 
 
-@contextmanager
-def _interrupts_deferred() -> Iterator[None]:
-    """Ctrl-C during the block takes effect when it ends (Python handles signals only in the
-    main thread: elsewhere this does nothing)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    pressed: list[int] = []
-    previous = signal.signal(signal.SIGINT, lambda number, _frame: pressed.append(number))
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
-    if pressed and previous is signal.default_int_handler:
-        raise KeyboardInterrupt
-    if pressed and callable(previous):
-        previous(signal.SIGINT, None)
-
-
 def _write_file(write: Callable[[], Any]) -> None:
     """A run-folder file written between stages: an OSError becomes one line naming it."""
     try:
@@ -509,7 +488,7 @@ def run_task(
                 pipeline.announce("finished", error)
             except KeyboardInterrupt as caught:  # Ctrl-C while the recording closes
                 late = caught
-            with _interrupts_deferred():  # run.json is written, whatever the user presses
+            with interrupts_deferred():  # run.json is written, whatever the user presses
                 problem = _write_record(run, error or late, pipeline)
         finally:
             lock.release()
