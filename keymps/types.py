@@ -219,6 +219,87 @@ class BackendAnswer:
     own (recorded as cached)."""
 
 
+IntentFamily = Literal["cut", "icing"]
+CutOrientation = Literal["vertical", "horizontal", "lengthwise", "crosswise"]
+EqualBy = Literal["area", "width"]
+IntentSource = Literal["offline", "design", "answer", "expect"]
+EQUAL_PARTS_TOLERANCE = 0.05
+"""Appendix F's success criterion stated as a number: each of N pieces within 5 % of the
+object's area / N (or, by width, of its extent / N)."""
+
+
+@dataclass(frozen=True)
+class PlanIntent:
+    """What a plan claims to achieve on one object, stated as data (docs/outcome.md).
+
+    Every field is optional: None (or False) states nothing, and the outcome stage checks only
+    what is stated, beside the checks every plan gets (a cut that misses the food or stops short
+    of its edge, a deposit off the top surface, deposits that merge). Lengths are millimetres
+    on the board; counts are per object.
+    """
+
+    family: IntentFamily | None = None
+    """"cut" or "icing": the work the plan does."""
+    design: str | None = None
+    """The named design it comes from (keymps.designs.grammar.DESIGNS: equal, parallel, width,
+    middle, tips, dot, dots_ring, rings, ...), when one."""
+    pieces: int | None = None
+    """How many pieces the cuts leave (fragments under 1 % of the object's area are crumbs)."""
+    equal: float | None = None
+    """The pieces are equal within this fraction of an equal share: 0.05 is Appendix F's
+    criterion (every piece within 5 % of the object's area / pieces)."""
+    equal_by: EqualBy | None = None
+    """What `equal` compares: "area", or "width" (each piece's extent across parallel cuts);
+    None: width on an elongated object, area on a round or square one."""
+    slice_width_mm: float | None = None
+    """Slices this wide (mm, across the cuts), from one end of the object."""
+    object_length_mm: float | None = None
+    """The object's length as the user states it (mm): slice widths scale by the measured
+    length over this one."""
+    orientation: CutOrientation | None = None
+    """Direction of the cuts in the object's own frame: "vertical" / "horizontal" along the
+    object's side nearest the image's vertical / horizontal (the image's own axes for a round
+    object); "lengthwise" / "crosswise" along / across its long axis."""
+    dots: int | None = None
+    """Icing dots on the object, every ring of dots together."""
+    rings: int | None = None
+    """Closed icing lines around the object (concentric rings)."""
+    digits: str | None = None
+    """Digits drawn in seven-segment icing strokes."""
+    object_id: int | None = None
+    """The object it is for (DetectedObject.id); None: the plan's one object, or each."""
+    source: IntentSource | None = None
+    """Who stated it: the offline planner's reading ("offline"), a named design ("design"), a
+    VLM answer's `intent` field ("answer"), or the task file's `expect:` block ("expect")."""
+
+    def describe(self) -> str:
+        """One phrase: '3 pieces, equal width within 5 %, cut vertically'."""
+        parts: list[str] = []
+        if self.pieces is not None:
+            parts.append(f"{self.pieces} piece" + ("" if self.pieces == 1 else "s"))
+        if self.equal is not None:
+            by = f" {self.equal_by}" if self.equal_by else ""  # "equal width within 5 %"
+            parts.append(f"equal{by} within {100 * self.equal:g} %")
+        if self.slice_width_mm is not None:
+            parts.append(f"slices {self.slice_width_mm / 10:g} cm wide")
+        if self.object_length_mm is not None:
+            parts.append(f"of an object {self.object_length_mm / 10:g} cm long")
+        if self.orientation is not None:
+            parts.append(f"cut {self.orientation}" + ("ly" if self.orientation[-1] == "l" else ""))
+        if self.dots is not None:
+            parts.append(f"{self.dots} dot" + ("" if self.dots == 1 else "s"))
+        if self.rings is not None:
+            parts.append(f"{self.rings} ring" + ("" if self.rings == 1 else "s"))
+        if self.digits is not None:
+            parts.append(f"the digits {self.digits!r}")
+        if not parts and self.design is not None:
+            parts.append(self.design.replace("_", " "))
+        if not parts:
+            parts.append(f"{self.family or 'work'} with no stated result")
+        where = f" on object {self.object_id}" if self.object_id is not None else ""
+        return ", ".join(parts) + where
+
+
 @dataclass(frozen=True)
 class Plan:
     """Which primitive, and which K keypoint pairs (Sec. IV-B/C)."""
@@ -240,6 +321,8 @@ class Plan:
     """(width, height) of the image sent when the crop was downscaled for the provider."""
     pair_objects: tuple[int, ...] = ()
     """Per pair, the id of the object it lies on (empty: every pair on the one object)."""
+    intents: tuple[PlanIntent, ...] = ()
+    """What the plan claims to achieve, per object (empty: it states nothing)."""
 
     @property
     def num_pairs(self) -> int:
