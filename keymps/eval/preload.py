@@ -43,7 +43,7 @@ LAZY_MODULES = (
     "keymps.default_plugins.sim.executor",
     "keymps.default_plugins.threshold_detector",
     "keymps.primitives.retarget",
-    "keymps.eval.parts",
+    "keymps.outcome.pieces",
     "keymps.eval.metric",
     "keymps.perception.frames",
     "keymps.pipeline.overlay",

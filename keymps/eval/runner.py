@@ -371,7 +371,7 @@ def _score(suite: Suite, case: Any, job: Job, output: Any, n: int) -> dict[str, 
     if case.ground_truths:
         scored.update(_score_objects(case, truth, output, n))
     if suite.kind == "equal_parts" and suite.parts is not None:
-        from keymps.eval.parts import check_equal_parts
+        from keymps.outcome.pieces import check_equal_parts
 
         scene_object = truth.scene["objects"][0]
         hole = scene_object.get("hole_m")

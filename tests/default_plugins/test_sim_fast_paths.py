@@ -31,7 +31,7 @@ def random_model(rng: np.random.Generator) -> RobotModel:
 
 
 def test_cut_length_from_runs_matches_all_blade_samples_at_once() -> None:
-    from keymps.default_plugins.sim.cut_sweep import Footprint, covered_length
+    from keymps.outcome.cut_sweep import Footprint, covered_length
 
     rng = np.random.default_rng(RNG_SEED + 14)
     for trial in range(40):
@@ -60,7 +60,7 @@ def test_cut_length_from_runs_matches_all_blade_samples_at_once() -> None:
 def _covered_length_at_once(segments: np.ndarray, footprint: Any) -> float:
     """covered_length as it was: every blade sample tested and projected on the SVD's axis,
     np.unique of the bins."""
-    from keymps.default_plugins.sim.cut_sweep import FOOTPRINT_CELL_M, LENGTH_BIN_M
+    from keymps.outcome.cut_sweep import FOOTPRINT_CELL_M, LENGTH_BIN_M
 
     longest = float(np.linalg.norm(segments[:, 1] - segments[:, 0], axis=1).max())
     fractions = np.linspace(0.0, 1.0, max(2, math.ceil(2 * longest / LENGTH_BIN_M) + 1))
@@ -186,7 +186,7 @@ def test_sim_replay_matches_forward_kinematics_of_every_interpolated_sample() ->
 
 
 def test_blade_positions_are_picked_as_with_numpys_norm_and_union() -> None:
-    from keymps.default_plugins.sim.cut_sweep import SWEEP_STEP_M, _every
+    from keymps.outcome.cut_sweep import SWEEP_STEP_M, _every
 
     rng = np.random.default_rng(RNG_SEED + 22)
     for _ in range(20):

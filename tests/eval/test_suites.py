@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from keymps.config.task import Task
-from keymps.eval.parts import check_equal_parts, split_areas
+from keymps.outcome.pieces import check_equal_parts, split_areas
 from keymps.eval.suites import SuiteError, load_suite, parse_suite
 from keymps.eval.tasks import case_scene, case_task_data
 from keymps.eval.truth import case_truth, line_hits

@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from keymps.default_plugins.sim.cut_sweep import (
+from keymps.outcome.cut_sweep import (
     Footprint,
     blade_backwards,
     covered_length,
