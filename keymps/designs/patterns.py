@@ -117,7 +117,9 @@ def radial_slices(
 
     The first cut passes through the point of the boundary at `start_angle` (the top); the next
     ones follow counter-clockwise as seen in the image. Full cuts start on the `start_angle`
-    side (the first one runs from the top down); rays run from the centre outwards.
+    side (the first one runs from the top down); rays run from the edge in to the centre: a
+    knife's edge trails its tip and ends flat on the board, so a ray cut outwards from the
+    centre would end with the edge across the other side of the object.
     """
     if parts < 2:
         raise ValueError("radial slices need at least 2 parts")
@@ -133,7 +135,8 @@ def radial_slices(
             front = float(ahead.max()) if len(ahead) else 0.0
             pairs.append(np.array([c + (back - overshoot) * dirn, c + (front + overshoot) * dirn]))
         return as_pairs(pairs)
-    return as_pairs([ray(outline, c, start_angle - i * step, overshoot) for i in range(parts)])
+    rays = [ray(outline, c, start_angle - i * step, overshoot) for i in range(parts)]
+    return as_pairs([cut[::-1] for cut in rays])
 
 
 def grid_shape(parts: int, aspect: float = 1.0) -> tuple[int, int]:

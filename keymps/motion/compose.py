@@ -45,9 +45,10 @@ def compose_tool_path(
     descend to the start) then a work piece (the primitive re-targeted to start/goal), and a
     last travel piece back to `home`. Every piece starts and ends at rest.
 
-    yaw_mode 'follow' (a blade): the work piece's yaw is the segment's horizontal direction,
-    taken modulo 180 degrees to turn the wrist least (and kept within +-180 degrees); 'fixed'
-    (a piping bag): yaw stays `home_yaw`. Yaw changes only while moving over, above the object.
+    yaw_mode 'follow' (a blade): the work piece's yaw is the segment's horizontal direction
+    (within +-180 degrees), so that the blade trails the tip: a yaw taken modulo 180 degrees let
+    the edge lead, and the first fifth of a cut was left uncut; 'fixed' (a piping bag): yaw stays
+    `home_yaw`. Yaw changes only while moving over, above the object.
 
     `footprint` ((N, 2) board metres, the object's outline): work that would reach further
     outside it than the safety check allows (a sawing stroke overshooting a cut that ends just
@@ -189,7 +190,9 @@ def _crossed_legs(
 
 
 def _work_yaws(segments: Sequence[Segment], yaw_mode: str, home_yaw: float) -> list[float]:
-    """Per segment, the tool yaw during its work piece."""
+    """Per segment, the tool yaw during its work piece: a blade's is the segment's heading, the
+    tool x axis along the travel, so that the edge (along -x from the tip) trails the tip and
+    sweeps the whole cut; a plunge keeps the yaw before it."""
     if yaw_mode == "fixed":
         return [home_yaw] * len(segments)
     headings = []
@@ -198,30 +201,12 @@ def _work_yaws(segments: Sequence[Segment], yaw_mode: str, home_yaw: float) -> l
         headings.append(
             math.atan2(delta[1], delta[0]) if np.hypot(*delta) >= NO_HEADING_M else None
         )
-    first = next((h for h in headings if h is not None), home_yaw)
-    previous = _wrap_half_turn(first)
+    previous = next((h for h in headings if h is not None), home_yaw)
     yaws = []
     for heading in headings:
-        if heading is not None:
-            previous = _closest_blade_yaw(heading, previous)
+        previous = heading if heading is not None else previous
         yaws.append(previous)
     return yaws
-
-
-def _wrap_half_turn(angle: float) -> float:
-    """The blade direction equivalent to `angle` (mod 180 degrees) in (-90, 90] degrees."""
-    wrapped = math.remainder(angle, math.pi)
-    return math.pi / 2 if math.isclose(wrapped, -math.pi / 2) else wrapped
-
-
-def _closest_blade_yaw(heading: float, previous: float) -> float:
-    """heading + k*180 degrees nearest to previous, within [-180, 180] degrees."""
-    candidate = previous + math.remainder(heading - previous, math.pi)
-    if candidate > math.pi + 1e-12:
-        candidate -= math.pi
-    elif candidate < -math.pi - 1e-12:
-        candidate += math.pi
-    return candidate
 
 
 def _travel(
@@ -250,7 +235,9 @@ def _travel(
         count = max(1, math.ceil(length / TRAVEL_SPACING_M), math.ceil(rotation / TURN_STEP_RAD))
         fractions = np.linspace(0.0, 1.0, count + 1)[1:]
         points.append(a + fractions[:, None] * (b - a))
-        yaws.append(yaw_a + fractions * (yaw_b - yaw_a))
+        turning = yaw_a + fractions * (yaw_b - yaw_a)
+        turning[-1] = yaw_b  # exactly: a rounded end would count as a turn during the descent
+        yaws.append(turning)
     if len(points) == 1:  # already there: a zero-length piece of two identical points
         points.append(end[None, :])
         yaws.append(np.array([end_yaw]))

@@ -181,5 +181,7 @@ def test_radial_cuts_start_at_the_top_and_turn_counter_clockwise_on_screen():
     assert np.allclose(first, [[0, -50], [0, 50]], atol=0.01)  # top to bottom
     assert np.allclose(second, [[-50, 0], [50, 0]], atol=0.01)  # then left to right
     rays = patterns.radial_slices(outline, 3)
-    assert np.allclose(rays[0, 1], [0, -50], atol=0.01)  # the first ray points up
-    assert rays[1, 1, 0] < 0  # the next one to the left of it (counter-clockwise on screen)
+    assert np.allclose(rays[0], [[0, -50], [0, 0]], atol=0.01)  # the first ray is the top one
+    assert rays[1, 0, 0] < 0  # the next one to the left of it (counter-clockwise on screen)
+    # rays run from the edge in to the centre: a knife's trailing edge ends along the ray
+    assert np.allclose(rays[:, 1], 0.0, atol=1e-9)
