@@ -23,6 +23,7 @@ if TYPE_CHECKING:
         GroundedObject,
         Grounding,
         JointPath,
+        Outcome,
         Plan,
         SceneImage,
         ToolPath,
@@ -49,6 +50,9 @@ class RunOptions:
     """Write every VLM request digest and answer to this cassette (JSONL)."""
     confirm: bool = False
     """Real-robot executors move the arm only when this is set."""
+    accept_outcome: bool = False
+    """Execute a plan whose predicted outcome contradicts its intent (an expert's override of
+    the outcome stage; run.json records it)."""
     quiet: bool = False
     image_format: str = "png"
     """plan and outcome images: png (lossless) or jpg (a tenth of the size and of the time to
@@ -74,6 +78,7 @@ class StageResults:
     solve: JointPath | None = None
     time: Trajectory | None = None
     check: ValidatedTrajectory | None = None
+    outcome: Outcome | None = None
     execute: ExecutionReport | None = None
 
     def record(self, stage: str, result: Any) -> None:
@@ -180,7 +185,11 @@ EARLIER_RUN_FILES = (
     "trajectory.json",
     "run.rrd",
     "execution.mp4",
-    *(f"{stem}.{suffix}" for stem in ("plan", "plan_photo", "outcome") for suffix in IMAGE_FORMATS),
+    *(
+        f"{stem}.{suffix}"
+        for stem in ("plan", "plan_photo", "plan_outcome", "outcome")
+        for suffix in IMAGE_FORMATS
+    ),
 )
 """What a run and the bundled plugins write beside run.json (docs/run-folder.md)."""
 

@@ -465,6 +465,97 @@ class ValidatedTrajectory:
 
 
 @dataclass(frozen=True)
+class CutEffect:
+    """One cut: where a knife's edge went through the food (board frame, metres)."""
+
+    pair_index: int
+    object_id: int
+    length_m: float
+    """Length of the cut's line inside the food that the edge swept below the object's top."""
+    depth_m: float
+    """How far below the object's top the edge went (the object's height: down to the board)."""
+    severed_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 2, 2)))
+    """(m, 2, 2) the stretches of the cut's line the edge swept on the board inside the food:
+    there the food is cut through. Predicted only (executors leave it empty)."""
+    chord_m: float | None = None
+    """The food's extent along the cut's line (edge to edge, where the cut runs): what a cut
+    through the whole object sweeps. Predicted only."""
+
+    @property
+    def severed_length_m(self) -> float:
+        return float(np.linalg.norm(self.severed_m[:, 1] - self.severed_m[:, 0], axis=1).sum())
+
+
+@dataclass(frozen=True)
+class PieceEffect:
+    """One piece the cuts leave (fragments under 1 % of the object's area excluded)."""
+
+    object_id: int
+    area_m2: float
+    share: float
+    """Its fraction of the object's area."""
+    outline_m: np.ndarray
+    """(n, 2) its outline in the board frame, metres."""
+
+
+@dataclass(frozen=True)
+class DepositEffect:
+    """One icing deposit: a dot (a disc) or a line (a band of the tool's line width)."""
+
+    kind: Literal["dot", "line"]
+    pair_index: int
+    object_id: int
+    path_m: np.ndarray
+    """(n, 2) board metres: the dot's centre (n = 1) or the line's centreline."""
+    width_m: float
+    """The disc's diameter or the band's width."""
+    stroke: int
+    """The stroke it is piped in: deposits joined end to end share one (0-based)."""
+    on_top: bool
+    """Whether it lies on the object's top surface (inside its footprint)."""
+
+
+@dataclass(frozen=True)
+class Effect:
+    """What a motion does (predicted) or did (measured) to the food."""
+
+    cuts: tuple[CutEffect, ...] = ()
+    pieces: tuple[PieceEffect, ...] = ()
+    deposits: tuple[DepositEffect, ...] = ()
+    strokes: int = 0
+    """Icing strokes: connected chains of deposits."""
+    loops: int = 0
+    """Strokes that close on themselves (rings)."""
+
+
+OutcomeVerdict = Literal["pass", "fail", "accepted"]
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """The outcome stage's result: the predicted effect held against the plan's intent."""
+
+    verdict: OutcomeVerdict
+    """pass; fail (the run stops before execute); accepted (failed, executed anyway on the
+    expert's --accept-outcome)."""
+    intents: tuple[PlanIntent, ...]
+    """What was checked, per object (the plan's intents with the task's `expect:` applied)."""
+    predicted: Effect
+    problems: tuple[str, ...]
+    """One line each; empty when the verdict is pass."""
+    tolerances: dict[str, float] = field(default_factory=dict)
+    """The numbers the checks used (keymps.outcome.verdict.TOLERANCES, metres and fractions)."""
+    measured: Effect | None = None
+    """What the executor measured, when it measures (set after the execute stage)."""
+    measured_problems: tuple[str, ...] = ()
+    """Where the measured result falls short of the prediction (the run is then not ok)."""
+
+    @property
+    def ok(self) -> bool:
+        return self.verdict != "fail"
+
+
+@dataclass(frozen=True)
 class ExecutionReport:
     """What an executor did: its verdict, message, the files it wrote and its figures."""
 
@@ -476,6 +567,9 @@ class ExecutionReport:
     dry_run: bool | None = None
     """For an executor that drives a real robot: True when it only checked (no --confirm),
     False when it was allowed to move; None for the others (simulation, file export)."""
+    measured: Effect | None = None
+    """What an executor that measures the physical result found (the cuts it made), in the
+    form the outcome stage predicts; None when it measures nothing."""
 
 
 STAGES: tuple[str, ...] = (
@@ -486,6 +580,7 @@ STAGES: tuple[str, ...] = (
     "solve",
     "time",
     "check",
+    "outcome",
     "execute",
 )
 """Pipeline stage names in execution order; 'image' (loading the scene) comes first."""

@@ -59,6 +59,11 @@ def cli() -> None:
 @click.option("--no-cache", is_flag=True, help="Always call the VLM, never answer from cache.")
 @click.option("--executor", help="Executor: sim, file, or a plugin's (e.g. ur-rtde).")
 @click.option("--confirm", is_flag=True, help="Allow a real-robot executor to move the arm.")
+@click.option(
+    "--accept-outcome",
+    is_flag=True,
+    help="Execute even when the predicted outcome contradicts the intent (recorded in run.json).",
+)
 @click.option("--out", type=click.Path(path_type=Path), help="Run folder (default runs/NAME-TIME).")
 @click.option(
     "--rerun",
@@ -72,7 +77,8 @@ def cli() -> None:
 @click.option("-q", "--quiet", is_flag=True, help="Print only the run folder.")
 @user_errors
 def run(task_file: Path, rerun_mode: str, rerun_url: str | None, quiet: bool, **given: Any) -> None:
-    """Run TASK (a task file) end to end: detect, plan, ground, compose, solve, time, check, execute."""
+    """Run TASK (a task file) end to end: detect, plan, ground, compose, solve, time, check,
+    predict the outcome, execute."""
     from keymps._memory import collector_paused_for_start_up
 
     if rerun_mode == "connect" and not rerun_url:

@@ -54,6 +54,10 @@ METHOD_NAMES = (
 @click.option("--case", "cases", multiple=True, help="Only this case id (repeatable).")
 @click.option("--no-cache", is_flag=True, help="Always call the VLM, never answer from cache.")
 @click.option(
+    "--verify-outcome", "verify", is_flag=True,
+    help="Equal-parts suites go through the outcome stage: a wrong plan is repaired or refused.",
+)  # fmt: skip
+@click.option(
     "--image-format", type=click.Choice(["jpg", "png"]), default="jpg", show_default=True,
     help="Each run's plan and outcome images (png: lossless, ten times the size).",
 )  # fmt: skip
@@ -75,6 +79,7 @@ def eval_command(
     cases: tuple[str, ...],
     out: Path | None,
     no_cache: bool,
+    verify: bool,
     image_format: str,
     quiet: bool,
 ) -> None:
@@ -120,6 +125,7 @@ def eval_command(
             cases=cases,
             no_cache=no_cache,
             image_format=image_format,
+            verify=verify,
         )
         # start-up's objects frozen: never scanned again, here or in the forked workers
         start_up_done()

@@ -20,6 +20,7 @@ _STAGE_TITLES = {
     "solve": "inverse kinematics",
     "time": "time trajectory",
     "check": "safety check",
+    "outcome": "predict the outcome",
     "execute": "execute",
 }
 
@@ -43,9 +44,27 @@ def _stage_detail(stage: str, result: Any) -> str:
         return f"{result.duration_s:.1f} s, {result.samples} samples at {result.rate_hz:g} Hz"
     if stage == "check":
         return "pass"
+    if stage == "outcome":
+        return _outcome_detail(result)
     if stage == "execute":
         return f"{result.executor}: {result.message}" if result.message else result.executor
     return ""
+
+
+def _outcome_detail(outcome: Any) -> str:
+    """'pass: 8 pieces, 12-13 % each' / 'FAIL: the cuts leave ...' / 'accepted: ...'."""
+    predicted = outcome.predicted
+    if predicted.pieces:
+        shares = [100 * p.share for p in predicted.pieces]
+        found = f"{len(shares)} pieces, {min(shares):.0f}-{max(shares):.0f} % each"
+    elif predicted.deposits:
+        dots = sum(d.kind == "dot" for d in predicted.deposits)
+        found = f"{dots} dots, {predicted.strokes - dots} strokes"
+    else:
+        found = f"{len(predicted.cuts)} cuts"
+    if outcome.verdict == "pass":
+        return f"pass: {found}"
+    return f"{outcome.verdict.upper()}: {outcome.problems[0]}"
 
 
 class RunPrinter:

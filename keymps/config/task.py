@@ -264,6 +264,37 @@ class Robot(StrictModel):
         return {"name": value} if isinstance(value, str) else value
 
 
+Count = Annotated[int, Field(ge=0, le=1000, strict=True)]
+
+
+class Expect(StrictModel):
+    """What the user asserts the run must achieve (docs/tasks.md, `expect:`): checked by the
+    outcome stage against the predicted result before anything moves."""
+
+    pieces: Annotated[int, Field(ge=1, le=1000, strict=True)] | None = None
+    equal: Annotated[float, Field(gt=0, lt=1, allow_inf_nan=False)] | bool | None = None
+    """true (Appendix F's 5 %), or the fraction of an equal share each piece may be off."""
+    equal_by: Literal["area", "width"] | None = None
+    orientation: Literal["vertical", "horizontal", "lengthwise", "crosswise"] | None = None
+    slice_width: (
+        Annotated[float, Field(gt=0, le=MAX_BOARD_M, allow_inf_nan=False), NUMBER] | None
+    ) = None
+    """Each slice this wide across the cuts, metres."""
+    object_length: (
+        Annotated[float, Field(gt=0, le=MAX_BOARD_M, allow_inf_nan=False), NUMBER] | None
+    ) = None
+    """The object's length the slice width refers to, metres."""
+    dots: Count | None = None
+    rings: Count | None = None
+    digits: Annotated[str, Field(pattern=r"^[0-9]{1,12}$")] | None = None
+
+    @model_validator(mode="after")
+    def _equal_needs_pieces(self) -> Expect:
+        if self.equal not in (None, False) and self.pieces is None:
+            raise ValueError("equal needs pieces: how many equal pieces")
+        return self
+
+
 class Task(StrictModel):
     name: str = Field(min_length=1, max_length=200)
     instruction: str = Field(min_length=1, max_length=4000)
@@ -277,6 +308,8 @@ class Task(StrictModel):
     motion: Motion = Motion()
     robot: Robot = Robot()
     executor: PluginSection = PluginSection(name="sim")
+    expect: Expect | None = None
+    """What the run must achieve; checked before anything moves (the outcome stage)."""
     path: Path | None = Field(default=None, exclude=True)
     """The task file this was loaded from (None when built in code)."""
     _source: str = PrivateAttr(default="<task>")

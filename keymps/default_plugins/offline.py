@@ -180,6 +180,8 @@ class OfflineBackend:
                     f"planner.max_pairs = {request.max_pairs}"
                 )
             answer["pairs"] = np.round(pairs_px, 3).tolist()
+            if "intent" in properties:
+                answer["intent"] = _stated(jobs, several=len(objects) > 1)
             if len(jobs) == 1:
                 layout = laid[0][1]
             else:
@@ -199,6 +201,18 @@ class OfflineBackend:
             cost_usd=0.0,
             model=None,
         )
+
+
+def _stated(jobs: list[tuple[Intent, PlanObject]], several: bool) -> list[dict[str, Any]]:
+    """What the designs leave on their objects, as an answer's `intent` field."""
+    from dataclasses import replace
+
+    from keymps.planning.intent import answer_of_intent, intent_of_design
+
+    return [
+        answer_of_intent(replace(intent_of_design(design), object_id=obj.id if several else None))
+        for design, obj in jobs
+    ]
 
 
 def _objects(request: PlanRequest) -> dict[int, PlanObject]:

@@ -40,6 +40,9 @@ class MethodContext:
     api_base: str | None
     plan_only: bool = False
     """Stop after grounding: the design is all that is scored (Appendix F's equal parts)."""
+    verify: bool = False
+    """With plan_only: go on through the outcome stage (a plan whose predicted outcome is
+    wrong goes back to the VLM, and one still wrong is refused), then stop."""
     no_cache: bool = False
     """Always ask the VLM, never answer from the planner's cache."""
     image_format: str = "jpg"

@@ -74,12 +74,19 @@ def _run_pipeline(context: MethodContext, answer: str | None = None) -> MethodOu
             no_cache=context.no_cache,
             image_format=context.image_format,
             dispatch=context.dispatch,
-            through="ground" if context.plan_only else "execute",
+            through=_through(context),
             **overrides,
         )
     except KeympsError as error:
         raise PartialRunError(str(error), results) from None
     return _pipeline_output(results, context)
+
+
+def _through(context: MethodContext) -> str:
+    """How far a run goes: execute; plan-only ones ground, or outcome to verify and repair."""
+    if not context.plan_only:
+        return "execute"
+    return "outcome" if context.verify else "ground"
 
 
 def primitive_descriptions(names: list[str], search_dirs: list[Path]) -> dict[str, str]:

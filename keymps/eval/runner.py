@@ -61,6 +61,8 @@ class EvalOptions:
     """Always ask the VLM (never answer a run from the planner's answer cache)."""
     image_format: str = "jpg"
     """Each run's plan and outcome images: jpg (30 KB, 0.5 ms to write) or png (300 KB, 7 ms)."""
+    verify: bool = False
+    """Plan-only suites (equal parts) go on through the outcome stage: verify and repair."""
     processes: int | None = 1
     """Worker processes sharing the runs in flight (1: every run in this process; None: one per
     core when there are enough runs, as `keymps eval` does). See keymps.eval.pool."""
@@ -259,6 +261,7 @@ def job_record(suite: Suite, job: Job, options: EvalOptions, backend: str) -> di
         "seed": job.seed,
         "backend": backend,
         "model": options.model,
+        **({"verify": True} if options.verify else {}),
     }
 
 
@@ -305,6 +308,7 @@ def run_job(
             options.model,
             options.api_base,
             plan_only=suite.kind == "equal_parts",
+            verify=options.verify,
             no_cache=options.no_cache,
             image_format=options.image_format,
             dispatch=dispatch,
@@ -371,23 +375,40 @@ def _score(suite: Suite, case: Any, job: Job, output: Any, n: int) -> dict[str, 
     if case.ground_truths:
         scored.update(_score_objects(case, truth, output, n))
     if suite.kind == "equal_parts" and suite.parts is not None:
-        from keymps.outcome.pieces import check_equal_parts
-
-        scene_object = truth.scene["objects"][0]
-        hole = scene_object.get("hole_m")
-        check = check_equal_parts(
-            np.asarray(scene_object["outline_m"]),
-            output.lines_m,
-            suite.parts,
-            suite.tolerance,
-            np.asarray(hole) if hole else None,
-        )
-        scored["success"] = check.ok
-        scored["parts"] = len(check.areas_m2)
-        scored["parts_detail"] = check.describe()
-        deviation = check.worst_deviation
-        scored["worst_deviation"] = round(deviation, 4) if np.isfinite(deviation) else None
+        scored.update(_equal_parts(suite, truth.scene["objects"][0], output.lines_m))
     return scored
+
+
+def _equal_parts(suite: Suite, scene_object: dict[str, Any], lines_m: np.ndarray) -> dict[str, Any]:
+    """Appendix F's success by the outcome stage's verifier, on the object's true outline."""
+    from keymps.outcome.verdict import equal_parts_problems
+
+    assert suite.parts is not None
+    hole = scene_object.get("hole_m")
+    problems, pieces = equal_parts_problems(
+        np.asarray(scene_object["outline_m"]),
+        lines_m,
+        suite.parts,
+        suite.tolerance,
+        np.asarray(hole) if hole else None,
+    )
+    ideal = 1.0 / suite.parts
+    worst = (
+        max(abs(p.share - ideal) / ideal for p in pieces) if len(pieces) == suite.parts else None
+    )
+    if len(pieces) != suite.parts:
+        detail = f"{len(pieces)} pieces, not {suite.parts}"
+    else:
+        detail = (
+            f"{suite.parts} pieces, worst {100 * (worst or 0.0):.1f} % off an equal share "
+            f"(limit {100 * suite.tolerance:g} %)"
+        )
+    return {
+        "success": not problems,
+        "parts": len(pieces),
+        "parts_detail": detail,
+        "worst_deviation": round(worst, 4) if worst is not None else None,
+    }
 
 
 def _score_objects(case: Any, truth: Any, output: Any, n: int) -> dict[str, Any]:

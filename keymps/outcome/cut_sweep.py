@@ -8,6 +8,7 @@ below the object's top the whole edge is, so the cut is the union of the edge's 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -137,8 +138,38 @@ def covered_length(segments: np.ndarray, footprint: Footprint | None) -> float:
     than a bin apart along any axis, so the samples of a run of inside ones occupy every bin
     between the run's two ends: only each run's ends are projected, and the axis comes from the
     runs' sums of fractions and of their squares (a 2x2 scatter matrix, not an SVD)."""
+    covered = covered_stretches(segments, footprint)
+    return 0.0 if covered is None else covered.length_m
+
+
+@dataclass(frozen=True)
+class Stretches:
+    """The stretches of a cut's line that a sweep covered: the line (a point and a unit axis,
+    board metres) and the covered intervals along it."""
+
+    origin: np.ndarray
+    """(2,) a point of the line (the covered samples' mean)."""
+    axis: np.ndarray
+    """(2,) the line's unit direction (the samples' principal axis)."""
+    bins: np.ndarray
+    """(m, 2) int: the first and last LENGTH_BIN_M bin of each covered interval, ascending,
+    bins counted along `axis` from `origin`."""
+
+    @property
+    def length_m(self) -> float:
+        return float((self.bins[:, 1] - self.bins[:, 0] + 1).sum() * LENGTH_BIN_M)
+
+    def segments(self) -> np.ndarray:
+        """(m, 2, 2) each covered interval as a segment of the line (board metres)."""
+        ends = np.stack([self.bins[:, 0], self.bins[:, 1] + 1], axis=1) * LENGTH_BIN_M
+        return self.origin + ends[:, :, None] * self.axis
+
+
+def covered_stretches(segments: np.ndarray, footprint: Footprint | None) -> Stretches | None:
+    """The stretches of one cut's line the segments (k, 2, 2) cover, inside the footprint when
+    given (covered_length's intervals); None when they cover nothing."""
     if len(segments) == 0:
-        return 0.0
+        return None
     starts = np.ascontiguousarray(segments[:, 0], dtype=float)
     steps = np.ascontiguousarray(segments[:, 1], dtype=float) - starts
     longest = float(np.sqrt((steps**2).sum(axis=1)).max())
@@ -151,13 +182,13 @@ def covered_length(segments: np.ndarray, footprint: Footprint | None) -> float:
         rows, first, last = _inside_runs(starts, steps, fractions, footprint)
     count = last - first + 1
     if count.sum() < 2:
-        return 0.0
+        return None
     start, step = starts[rows], steps[rows]
     mean, axis = _principal_axis(start, step, fractions, first, last)
     ends = [(start + fractions[index, None] * step - mean) @ axis for index in (first, last)]
     low = np.floor(np.minimum(*ends) / LENGTH_BIN_M).astype(np.int64)
     high = np.floor(np.maximum(*ends) / LENGTH_BIN_M).astype(np.int64)
-    return float(_union_size(low, high) * LENGTH_BIN_M)
+    return Stretches(mean, axis, _union(low, high))
 
 
 def _inside_runs(
@@ -246,10 +277,13 @@ def _principal_axis(
     return mean + reference, axis
 
 
-def _union_size(low: np.ndarray, high: np.ndarray) -> int:
-    """How many integers the union of the intervals [low[i], high[i]] holds."""
+def _union(low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    """(m, 2) the union of the integer intervals [low[i], high[i]] as disjoint intervals,
+    ascending (touching ones joined: [1, 3] and [4, 6] are [1, 6])."""
     order = np.argsort(low, kind="stable")
     low, high = low[order], high[order]
     reach = np.maximum.accumulate(high)
-    before = np.concatenate([[low[0] - 1], reach[:-1]])
-    return int(np.maximum(high - np.maximum(low - 1, before), 0).sum())
+    opens = np.concatenate([[True], low[1:] > reach[:-1] + 1])
+    starts = np.flatnonzero(opens)
+    ends = np.append(starts[1:], len(low)) - 1
+    return np.stack([low[starts], reach[ends]], axis=1)

@@ -64,32 +64,59 @@ def split_areas(
 ) -> tuple[list[float], float]:
     """(areas of the regions the cuts leave, the object's area), both in m^2, regions largest
     first. Cuts are (K, 2, 2) segments in the outline's frame (metres, y up or down alike)."""
-    import cv2
+    regions = Regions(outline_m, cuts_m, hole_m, resolution_m)
+    return sorted(regions.areas_m2.tolist(), reverse=True), regions.object_area_m2
 
-    outline = np.asarray(outline_m, dtype=float)
-    cuts = np.asarray(cuts_m, dtype=float).reshape(-1, 2, 2)
-    origin = outline.min(axis=0) - 4 * resolution_m
-    size = np.ceil((outline.max(axis=0) - origin) / resolution_m).astype(int) + 4
 
-    def to_px(points: np.ndarray) -> np.ndarray:
-        return np.round((points - origin) / resolution_m).astype(np.int32)
+class Regions:
+    """The object's outline (and hole) rasterized at `resolution_m`, cut by one-pixel barriers
+    along the cuts (each lengthened by REACH_M at both ends): its 4-connected regions."""
 
-    mask = np.zeros((int(size[1]), int(size[0])), dtype=np.uint8)
-    cv2.fillPoly(mask, [to_px(outline)], 1)
-    if hole_m is not None and len(hole_m) >= 3:
-        cv2.fillPoly(mask, [to_px(np.asarray(hole_m, dtype=float))], 0)
-    object_pixels = cv2.countNonZero(mask)
-    for start, end in cuts:
-        length = float(np.linalg.norm(end - start))
-        if length > 0:
-            reach = REACH_M * (end - start) / length
-            start, end = start - reach, end + reach
-        a, b = to_px(start), to_px(end)
-        cv2.line(mask, (int(a[0]), int(a[1])), (int(b[0]), int(b[1])), 0, 1, cv2.LINE_8)
-    count, labels = cv2.connectedComponents(mask, connectivity=4)
-    pixels = np.bincount(labels.ravel(), minlength=count)[1:]
-    pixel_area = resolution_m**2
-    return sorted((float(p) * pixel_area for p in pixels), reverse=True), object_pixels * pixel_area
+    def __init__(
+        self,
+        outline_m: np.ndarray,
+        cuts_m: np.ndarray,
+        hole_m: np.ndarray | None = None,
+        resolution_m: float = RESOLUTION_M,
+    ):
+        import cv2
+
+        outline = np.asarray(outline_m, dtype=float)
+        cuts = np.asarray(cuts_m, dtype=float).reshape(-1, 2, 2)
+        self.resolution_m = resolution_m
+        self.origin = outline.min(axis=0) - 4 * resolution_m
+        size = np.ceil((outline.max(axis=0) - self.origin) / resolution_m).astype(int) + 4
+        mask = np.zeros((int(size[1]), int(size[0])), dtype=np.uint8)
+        cv2.fillPoly(mask, [self._px(outline)], 1)
+        if hole_m is not None and len(hole_m) >= 3:
+            cv2.fillPoly(mask, [self._px(np.asarray(hole_m, dtype=float))], 0)
+        pixel_area = resolution_m**2
+        self.object_area_m2 = cv2.countNonZero(mask) * pixel_area
+        for start, end in cuts:
+            length = float(np.linalg.norm(end - start))
+            if length > 0:
+                reach = REACH_M * (end - start) / length
+                start, end = start - reach, end + reach
+            a, b = self._px(start), self._px(end)
+            cv2.line(mask, (int(a[0]), int(a[1])), (int(b[0]), int(b[1])), 0, 1, cv2.LINE_8)
+        count, self.labels = cv2.connectedComponents(mask, connectivity=4)
+        pixels = np.bincount(self.labels.ravel(), minlength=count)[1:]
+        self.areas_m2 = pixels.astype(float) * pixel_area
+        """Area of region i + 1 (label 0 is outside the object and the barriers)."""
+
+    def _px(self, points: np.ndarray) -> np.ndarray:
+        return np.round((points - self.origin) / self.resolution_m).astype(np.int32)
+
+    def outline(self, region: int) -> np.ndarray:
+        """(n, 2) the outline of region `region` (0-based, as `areas_m2`), in the outline's
+        frame, simplified to within a raster cell."""
+        import cv2
+
+        inside = (self.labels == region + 1).astype(np.uint8)
+        contours, _ = cv2.findContours(inside, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+        largest = max(contours, key=cv2.contourArea)
+        simple = cv2.approxPolyDP(largest, 1.0, True).reshape(-1, 2)
+        return simple.astype(float) * self.resolution_m + self.origin
 
 
 def check_equal_parts(

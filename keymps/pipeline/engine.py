@@ -7,6 +7,7 @@ import re
 import time
 import warnings
 from collections.abc import Callable
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -17,7 +18,14 @@ from keymps.interrupts import interrupts_deferred
 from keymps.planning.backend_choice import NO_SERVER
 from keymps.plugin.manager import create_component, get_manager
 from keymps.run import IMAGE_FORMATS, STAGES, Run, RunOptions, clear_earlier_run
-from keymps.types import Detection, ExecutionReport, SceneImage
+from keymps.types import (
+    Detection,
+    ExecutionReport,
+    Outcome,
+    Plan,
+    SceneImage,
+    ValidatedTrajectory,
+)
 
 Result = TypeVar("Result")
 
@@ -31,7 +39,8 @@ StageCallback = Callable[[str, float, Any], None]
 class Components:
     """Everything a run needs, built before the first stage so configuration errors cost nothing.
 
-    A run that stops after planning (`through="ground"`) builds no executor and no robot.
+    A run that stops after planning (`through="ground"`) builds no executor and no robot; one
+    that stops after the outcome stage, no executor.
     Every part is built even when another fails: the TaskFileError raised lists them all.
     Parts named in `skip` (task fields already known to be wrong) are left as None.
     """
@@ -83,7 +92,7 @@ class Components:
                     task, "executor", task.executor.name, task.executor.options, ("executor",)
                 ),
             )
-            if executes
+            if through == "execute"
             else None
         )
         self.primitives = build(
@@ -223,7 +232,7 @@ class _Pipeline:
         seconds = time.perf_counter() - started
         self.current, self.done = None, name
         self.run.stages.record(name, result)
-        self.run.timings_s[name] = seconds
+        self.run.timings_s[name] = self.run.timings_s.get(name, 0.0) + seconds  # repair rounds
         if self.on_stage:
             self.on_stage(name, seconds, result)
         self.announce(name, result)
@@ -273,10 +282,35 @@ class _Pipeline:
             raise pressed
 
     def execute_all(self) -> None:
-        from keymps.config.limits import check_duration, check_tool_path
-        from keymps.motion.compose import compose_tool_path
-        from keymps.motion.timing import time_trajectory
         from keymps.motion.trajectory_io import write_trajectory_csv
+
+        run, parts = self.run, self.parts
+        scene, detection, objects = self.perceive()
+        repair: list[tuple[str, list[str]]] = []
+        while True:
+            plan = self.replan(scene, detection, objects, repair)
+            done = self.plan_to_outcome(scene, detection, objects, plan)
+            if done is None:
+                return  # through="ground"
+            if done.outcome.ok:
+                break
+            repair = self.repair_or_stop(plan, done.outcome, repair)
+        if self.through == "outcome":
+            return
+        validated = done.validated
+        _write_file(lambda: write_trajectory_csv(validated.trajectory, run.path("trajectory.csv")))
+        executor = parts.executor
+        assert executor is not None  # Components built it to execute
+        report = self.stage(
+            "execute",
+            lambda: self.returned("execute", executor.execute(validated, run), ExecutionReport),
+        )
+        if not report.ok:
+            raise StageError("execute", report.message or f"executor {report.executor} failed")
+        self.compare(done.outcome, report)
+
+    def perceive(self) -> tuple[SceneImage, Detection, Any]:
+        """The image and detect stages: the scene, the detection and the scene's objects."""
         from keymps.perception import frames as geometry
         from keymps.perception.rectify import rectify_scene, top_surface
         from keymps.perception.scene_objects import (
@@ -285,10 +319,6 @@ class _Pipeline:
             scene_objects,
         )
         from keymps.perception.search_area import refuse_the_board
-        from keymps.pipeline.overlay import draw_plan, draw_plan_on_photo
-        from keymps.planning import planner as planning
-        from keymps.robot.model import solve_path
-        from keymps.robot.safety import validate
 
         run, parts, task = self.run, self.parts, self.run.task
         # with board corners, every later stage works in the rectified top-down image
@@ -317,28 +347,84 @@ class _Pipeline:
             return detection
 
         detection = self.stage("detect", detect)
-        objects = found["objects"]
         run.warnings.extend(detection.warnings)
+        return scene, detection, found["objects"]
+
+    def replan(
+        self,
+        scene: SceneImage,
+        detection: Detection,
+        objects: Any,
+        repair: list[tuple[str, list[str]]],
+    ) -> Plan:
+        """The plan stage; in a repair round, a plan that fails names the outcome it repairs."""
+        try:
+            return self.plan(scene, detection, objects, repair)
+        except StageError as error:
+            outcome = self.run.stages.outcome
+            if not repair or outcome is None:
+                raise
+            raise StageError(
+                "outcome",
+                _one_line(outcome, len(repair), f"; the repair round failed: {error}"),
+                detail=error,
+            ) from None
+
+    def plan(
+        self,
+        scene: SceneImage,
+        detection: Detection,
+        objects: Any,
+        repair: list[tuple[str, list[str]]],
+    ) -> Plan:
+        """The plan stage (again, with the problems of the earlier rounds' outcomes), plan.png."""
+        from keymps.pipeline.overlay import draw_plan, draw_plan_on_photo
+        from keymps.planning import planner as planning
+
+        run, parts, task = self.run, self.parts, self.run.task
         descriptions = {name: p.description for name, p in parts.primitives.items()}
         families = {name: p.family for name, p in parts.primitives.items()}
-        plan = self.stage(
+        earlier = run.stages.plan.calls if repair and run.stages.plan is not None else ()
+        plan: Plan = self.stage(
             "plan",
             lambda: planning.make_plan(
-                task, detection, scene, descriptions, run, parts.backend, families, objects
-            ),
+                task,
+                detection,
+                scene,
+                descriptions,
+                run,
+                parts.backend,
+                families,
+                objects,
+                repair=repair,
+                earlier_calls=earlier,
+            ),  # fmt: skip
         )
         _write_file(lambda: run.write_image("plan", draw_plan(scene.image, detection, plan)))
         on_photo = draw_plan_on_photo(scene, detection, plan)
         if on_photo is not None:
             _write_file(lambda: run.write_image("plan_photo", on_photo))
+        return plan
+
+    def plan_to_outcome(
+        self, scene: SceneImage, detection: Detection, objects: Any, plan: Plan
+    ) -> _Checked | None:
+        """ground, compose, solve, time, check and outcome for one plan (None: through ground)."""
+        from keymps.config.limits import check_duration, check_tool_path
+        from keymps.motion.compose import compose_tool_path
+        from keymps.motion.timing import time_trajectory
+        from keymps.perception import frames as geometry
+        from keymps.robot.model import solve_path
+        from keymps.robot.safety import validate
+
+        run, parts, task = self.run, self.parts, self.run.task
         grounding = self.stage(
             "ground", lambda: geometry.ground(plan, detection, task, scene, objects)
         )
         if self.through == "ground":
-            return
-        robot, executor = parts.robot, parts.executor
-        assert robot is not None and executor is not None  # Components built them to execute
-        tool = robot.tool
+            return None
+        robot = parts.robot
+        assert robot is not None  # Components built it to go on
         tool_path = self.stage(
             "compose",
             lambda: check_tool_path(
@@ -349,7 +435,7 @@ class _Pipeline:
                     clearance=task.motion.clearance,
                     work_speed=task.motion.work_speed,
                     travel_speed=task.motion.travel_speed,
-                    yaw_mode=tool.yaw,
+                    yaw_mode=robot.tool.yaw,
                     home=robot.home_tool_position(),
                     footprint=run.outline_m,
                     objects=grounding.objects,
@@ -366,13 +452,93 @@ class _Pipeline:
         validated = self.stage(
             "check", lambda: validate(robot, trajectory, tool_path, grounding.objects, task)
         )
-        _write_file(lambda: write_trajectory_csv(validated.trajectory, run.path("trajectory.csv")))
-        report = self.stage(
-            "execute",
-            lambda: self.returned("execute", executor.execute(validated, run), ExecutionReport),
+        outcome = self.stage("outcome", lambda: self.predict(plan, grounding, tool_path, validated))
+        return _Checked(validated, outcome)
+
+    def predict(
+        self, plan: Plan, grounding: Any, tool_path: Any, validated: ValidatedTrajectory
+    ) -> Outcome:
+        """The outcome stage: the predicted effect and the verdict; plan_outcome.png."""
+        from keymps.outcome.check import check_outcome, foods_of, stated_intents
+        from keymps.outcome.picture import draw_outcome
+        from keymps.outcome.predict import Tool
+
+        run, parts, task = self.run, self.parts, self.run.task
+        robot = parts.robot
+        assert robot is not None
+        family = parts.primitives[plan.keyword].family
+        tool = Tool(family != "icing", robot.tool.blade_length, robot.tool.line_width)
+        foods = foods_of(grounding.objects, run.outline_m, grounding.object_height)
+        intents = stated_intents(plan.intents, task)
+        accept = run.options.accept_outcome
+        outcome = check_outcome(
+            robot, validated.trajectory, tool_path, foods, tool, intents, accept
         )
-        if not report.ok:
-            raise StageError("execute", report.message or f"executor {report.executor} failed")
+        scene = run.stages.image
+        if scene is not None:
+            picture = draw_outcome(scene, task, foods, outcome)
+            _write_file(lambda: run.write_image("plan_outcome", picture))
+        if outcome.verdict == "accepted":
+            run.warnings.append(
+                "--accept-outcome: executed although the predicted outcome is wrong: "
+                + "; ".join(outcome.problems)
+            )
+        return outcome
+
+    def repair_or_stop(
+        self, plan: Plan, outcome: Outcome, repair: list[tuple[str, list[str]]]
+    ) -> list[tuple[str, list[str]]]:
+        """The repair history for one more plan round, or the outcome's StageError when the
+        backend asks no model (the offline planner answers the same again) or the rounds
+        (planner.attempts) are spent."""
+        from keymps.planning.prompt import OUTCOME_PROBLEM
+
+        rounds = len(repair) + 1
+        asks_model = any(call.model_call for call in plan.calls)
+        if not asks_model or rounds >= self.run.task.planner.attempts or not plan.calls:
+            raise StageError("outcome", _one_line(outcome, rounds if asks_model else 0))
+        problems = [f"{OUTCOME_PROBLEM}{p}" for p in outcome.problems]
+        intents = "; ".join(i.describe() for i in outcome.intents) or "none stated"
+        problems.append(f"{OUTCOME_PROBLEM}the intent checked: {intents}")
+        return [*repair, (plan.calls[-1].answer_text, problems)]
+
+    def compare(self, outcome: Outcome, report: ExecutionReport) -> None:
+        """A measured result that falls short of the prediction makes the run not ok."""
+        from keymps.outcome.measured import measured_problems
+
+        if report.measured is None:
+            return
+        problems = measured_problems(outcome.predicted, report.measured)
+        self.run.stages.outcome = replace(
+            outcome, measured=report.measured, measured_problems=tuple(problems)
+        )
+        if problems:
+            more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
+            raise StageError(
+                "execute",
+                f"executor {report.executor}: the measured result falls short of the "
+                f"prediction: {problems[0]}{more}",
+            )
+
+
+@dataclass(frozen=True)
+class _Checked:
+    """A plan that went through the safety check, and its outcome."""
+
+    validated: ValidatedTrajectory
+    outcome: Outcome
+
+
+def _one_line(outcome: Outcome, rounds: int, after: str = "") -> str:
+    """The outcome's refusal: its first problem, how many more, the rounds tried, `after`."""
+    first = outcome.problems[0]
+    count = len(outcome.problems)
+    more = f" (and {count - 1} more in run.json)" if count > 1 else ""
+    tried = f"; {rounds} plan rounds with the VLM" if rounds > 1 else ""
+    return (
+        f"the predicted outcome is wrong: {first}{more}{tried}{after}; nothing was executed "
+        "(--accept-outcome executes it anyway)"
+    )
 
 
 def _write_file(write: Callable[[], Any]) -> None:
@@ -407,7 +573,8 @@ def run_task(
     """Run a task end to end; return the finished Run (its folder holds run.json and the rest).
 
     `through="ground"` stops after grounding the plan (eval's plan-only runs): nothing is timed,
-    checked or executed. Keyword overrides: instruction, image, backend, model, api_base, executor, out, rerun,
+    checked or executed; `through="outcome"` stops after the outcome stage (its repair rounds
+    included): nothing is executed. Keyword overrides: instruction, image, backend, model, api_base, executor, out, rerun,
     rerun_url, no_cache, record, confirm, quiet, image_format. Raises KeympsError on the first
     problem; nothing after the failing stage runs, above all no executor.
     """
@@ -428,6 +595,7 @@ def run_task(
         "no_cache",
         "record",
         "confirm",
+        "accept_outcome",
         "quiet",
         "image_format",
         "dispatch",
@@ -445,8 +613,10 @@ def run_task(
             f"{', '.join(RERUN_SCHEMES)} (the viewer prints it, e.g. "
             "rerun+http://127.0.0.1:9876/proxy)"
         )
-    if through not in ("ground", "execute"):
-        raise KeympsError(f"through={through!r}: a run goes through 'ground' or 'execute'")
+    if through not in ("ground", "outcome", "execute"):
+        raise KeympsError(
+            f"through={through!r}: a run goes through 'ground', 'outcome' or 'execute'"
+        )
     out = overrides.pop("out", None)
     task = apply_overrides(task, overrides)
     backend, reason = choose_backend(

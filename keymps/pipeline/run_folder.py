@@ -8,12 +8,13 @@ from typing import Any
 
 from keymps._version import __version__
 from keymps.errors import RunInterrupted, StageError
+from keymps.outcome.record import outcome_record
 from keymps.robot.safety import SafetyError
 from keymps.run import Run, write_atomically
 from keymps.types import ValidatedTrajectory
 
-SCHEMA_VERSION = "1.1"
-"""1.1: `status` (ok, failed, interrupted)."""
+SCHEMA_VERSION = "1.2"
+"""1.1: `status` (ok, failed, interrupted); 1.2: `outcome` (the predicted result, the verdict)."""
 
 
 def _rounded(values: Any, digits: int = 6) -> Any:
@@ -133,6 +134,7 @@ def run_record(run: Run, error: BaseException | None) -> dict[str, Any]:
             "joint_names": list(trajectory.joint_names),
         },
         "validation": _validation(stages.check, error),
+        "outcome": outcome_record(stages.outcome, run.options.accept_outcome),
         "execution": None
         if executed is None
         else {

@@ -17,6 +17,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from keymps.config.limits import max_answer_chars
+from keymps.planning.intent import IntentAnswer, intent_of_answer, intent_schema
 from keymps.planning.named_design import DesignAnswer, design_schema
 from keymps.types import Step
 
@@ -36,6 +37,8 @@ class PlanAnswer(BaseModel):
     keyword: str
     pairs: list[Pair] | None = None
     design: DesignAnswer | None = None
+    intent: IntentAnswer | list[IntentAnswer] | None = None
+    """What the pairs achieve (one per object with several), checked before anything moves."""
     rationale: str = ""
 
 
@@ -49,6 +52,7 @@ class PairsAnswer(BaseModel):
     model_config = ConfigDict(extra="ignore")
     pairs: list[Pair] | None = None
     design: DesignAnswer | None = None
+    intent: IntentAnswer | list[IntentAnswer] | None = None
     rationale: str = ""
 
 
@@ -104,6 +108,8 @@ def answer_schema(
         if answer == "either":
             design = {"anyOf": [design, {"type": "null"}]}
         properties["design"] = design
+    if step in ("combined", "pairs") and answer in ("pairs", "either"):
+        properties["intent"] = intent_schema()
     properties["rationale"] = {"type": "string", "description": "one or two sentences"}
     return strict_object_schema(f"keymps_{step}_answer", properties)
 
@@ -225,7 +231,17 @@ def parse_and_validate(
         from keymps.planning.named_design import to_intent
 
         problems += to_intent(design)[1]
+    for stated in stated_intents(answer):
+        problems += intent_of_answer(stated, family)[1]
     return (None, problems) if problems else (answer, [])
+
+
+def stated_intents(answer: BaseModel) -> list[IntentAnswer]:
+    """The answer's `intent` field as a list (empty when absent)."""
+    stated = getattr(answer, "intent", None)
+    if stated is None:
+        return []
+    return stated if isinstance(stated, list) else [stated]
 
 
 def _form_problems(answer: BaseModel, mode: AnswerMode) -> list[str]:

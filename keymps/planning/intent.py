@@ -9,7 +9,7 @@ direction the cuts run in the object's own frame, how many dots or rings.
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Any
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -69,7 +69,10 @@ def _icing(claim: PlanIntent, design: Intent) -> PlanIntent:
 
 
 class IntentAnswer(BaseModel):
-    """The optional `intent` field of an answer: what the pairs are meant to achieve."""
+    """The optional `intent` field of an answer: what the pairs are meant to achieve.
+
+    A VLM's schema asks for the fields of INTENT_FIELDS; the offline planner also states the
+    design, what equal parts compare and the object's stated length (answer_of_intent)."""
 
     model_config = ConfigDict(extra="forbid")
     pieces: int | None = Field(default=None, strict=True, ge=1, le=1000)
@@ -78,6 +81,12 @@ class IntentAnswer(BaseModel):
     slice_width_cm: float | None = Field(default=None, gt=0, le=1000, allow_inf_nan=False)
     dots: int | None = Field(default=None, strict=True, ge=0, le=1000)
     rings: int | None = Field(default=None, strict=True, ge=0, le=100)
+    digits: str | None = Field(default=None, pattern=r"^[0-9]{1,12}$")
+    object: int | None = Field(default=None, strict=True)
+    """With several objects: the id of the object it is for."""
+    equal_by: Literal["area", "width"] | None = None
+    object_length_cm: float | None = Field(default=None, gt=0, le=1000, allow_inf_nan=False)
+    design: str | None = Field(default=None, max_length=40)
 
 
 INTENT_FIELDS = {
@@ -87,6 +96,7 @@ INTENT_FIELDS = {
     "slice_width_cm": ("number", "each slice's width in cm, when the request gives one"),
     "dots": ("integer", "how many icing dots in all"),
     "rings": ("integer", "how many closed icing lines (rings) around the object"),
+    "digits": ("string", "the digits drawn, when the request asks for digits"),
 }
 
 
@@ -112,21 +122,76 @@ def intent_schema() -> dict[str, Any]:
     }
 
 
-def intent_of_answer(answer: IntentAnswer, family: str) -> tuple[PlanIntent | None, list[str]]:
+def intent_of_answer(
+    answer: IntentAnswer, family: str, source: IntentSource = "answer"
+) -> tuple[PlanIntent | None, list[str]]:
     """(the PlanIntent, []) or (None, the problems in words a model can act on)."""
     if answer.orientation is not None and answer.orientation not in ORIENTATIONS:
         return None, [f"intent.orientation must be one of {', '.join(ORIENTATIONS)}, or null"]
     cutting = family != "icing"
-    stated = PlanIntent(
-        family="cut" if cutting else "icing",
-        pieces=answer.pieces if cutting else None,
-        equal=EQUAL_PARTS_TOLERANCE if cutting and answer.equal else None,
-        orientation=answer.orientation if cutting else None,  # type: ignore[arg-type]
-        slice_width_mm=10 * answer.slice_width_cm if cutting and answer.slice_width_cm else None,
-        dots=None if cutting else answer.dots,
-        rings=None if cutting else answer.rings,
-        source="answer",
-    )
-    if stated.equal is not None and stated.pieces is None:
+    if not cutting:
+        return PlanIntent(
+            family="icing",
+            design=answer.design,
+            dots=answer.dots,
+            rings=answer.rings,
+            digits=answer.digits,
+            object_id=answer.object,
+            source=source,
+        ), []
+    if answer.equal and answer.pieces is None:
         return None, ["intent.equal needs intent.pieces: how many equal pieces"]
-    return stated, []
+    by = answer.equal_by or ("width" if answer.design == "parallel" else None)
+    return PlanIntent(
+        family="cut",
+        design=answer.design,
+        pieces=answer.pieces,
+        equal=EQUAL_PARTS_TOLERANCE if answer.equal else None,
+        equal_by=by if answer.equal else None,
+        orientation=answer.orientation,  # type: ignore[arg-type]
+        slice_width_mm=10 * answer.slice_width_cm if answer.slice_width_cm else None,
+        object_length_mm=10 * answer.object_length_cm if answer.object_length_cm else None,
+        object_id=answer.object,
+        source=source,
+    ), []
+
+
+def answer_of_intent(intent: PlanIntent) -> dict[str, Any]:
+    """The `intent` answer field that states `intent` (the inverse of intent_of_answer)."""
+    stated = {
+        "pieces": intent.pieces,
+        "equal": True if intent.equal is not None else None,
+        "orientation": intent.orientation,
+        "slice_width_cm": intent.slice_width_mm / 10 if intent.slice_width_mm else None,
+        "dots": intent.dots,
+        "rings": intent.rings,
+        "digits": intent.digits,
+        "object": intent.object_id,
+        "equal_by": intent.equal_by,
+        "object_length_cm": intent.object_length_mm / 10 if intent.object_length_mm else None,
+        "design": intent.design,
+    }
+    return {name: value for name, value in stated.items() if value is not None}
+
+
+def plan_intents(answer: Any, family: str, asks_model: bool) -> tuple[PlanIntent, ...]:
+    """What a valid answer claims: its named design's intent, else its `intent` field (the
+    offline planner's reading when the backend asks no model), else nothing."""
+    from keymps.planning.named_design import to_intent
+
+    design = getattr(answer, "design", None)
+    if design is not None:
+        read, _ = to_intent(design)
+        if read is None:
+            return ()
+        return (replace(intent_of_design(read, source="design"), object_id=design.object),)
+    stated = getattr(answer, "intent", None)
+    if stated is None:
+        return ()
+    source: IntentSource = "answer" if asks_model else "offline"
+    claims = []
+    for each in stated if isinstance(stated, list) else [stated]:
+        claim, _ = intent_of_answer(each, family, source)
+        if claim is not None:
+            claims.append(claim)
+    return tuple(claims)

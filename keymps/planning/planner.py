@@ -11,7 +11,7 @@ names api_base, and then a backend sends no key from the environment (docs/secur
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -27,7 +27,15 @@ from keymps.planning.backend_choice import (
     model_provider,
 )
 from keymps.planning.redaction import redact_text, remember
-from keymps.types import BackendAnswer, Detection, Plan, PlanObject, PlanRequest, SceneImage
+from keymps.types import (
+    BackendAnswer,
+    Detection,
+    Plan,
+    PlanObject,
+    PlanRequest,
+    SceneImage,
+    VlmCall,
+)
 
 if TYPE_CHECKING:
     from keymps.config.task import Task
@@ -102,8 +110,14 @@ def make_plan(
     backend: str,
     families: Mapping[str, str] | None = None,
     objects: tuple[SceneObject, ...] | None = None,
+    repair: Sequence[tuple[str, list[str]]] = (),
+    earlier_calls: Sequence[VlmCall] = (),
 ) -> Plan:
     """Ask `backend` for the keyword and keypoint pairs; validated, repaired, recorded.
+
+    `repair`: earlier valid answers and what their predicted outcome got wrong (the outcome
+    stage's repair rounds), shown to the model before it answers again; `earlier_calls`: those
+    rounds' calls (recorded in vlm/ before this round's, and counted in the plan's).
 
     `families`: primitive name -> family (cutting, icing); read from the descriptions when
     None. The sentence and the plan must fit the task's tool family (keymps.planning.family).
@@ -115,6 +129,7 @@ def make_plan(
     from keymps.planning.coordinates import rescale, sent_size, to_pixels
     from keymps.planning.coordinates import resolve as resolve_convention
     from keymps.planning.family import check_plan, check_sentence, families_from_descriptions
+    from keymps.planning.intent import plan_intents
     from keymps.planning.objects import mark_objects, plan_objects, scaled_objects
     from keymps.planning.prompt import find_prompt, png_bytes, png_data_url, prompt_family
     from keymps.planning.session import PlanSession
@@ -185,15 +200,16 @@ def make_plan(
         convention=convention,
         answer_mode=answer_mode,
         family=family,
+        calls=list(earlier_calls),
     )
     session.vlm_folder.mkdir(parents=True, exist_ok=True)
     (session.vlm_folder / "crop.png").write_bytes(crop_png)
     if planner.combined:
-        combined = session.ask("combined")
+        combined = session.ask("combined", earlier=repair)
         keyword, placed, rationale = combined.keyword, combined, combined.rationale
     else:
         chosen = session.ask("keyword")
-        placed = session.ask("pairs", keyword=chosen.keyword)
+        placed = session.ask("pairs", keyword=chosen.keyword, earlier=repair)
         keyword = chosen.keyword
         rationale = " ".join(r for r in (chosen.rationale, placed.rationale) if r)
     check_plan(task, keyword, families)
@@ -215,6 +231,7 @@ def make_plan(
         pairs_crop = rescale(to_pixels(answered, convention, size), size, crop_size)
     pairs_crop, owners = _by_object(pairs_crop, in_crop, task, detection, scene)
     pairs_px = pairs_crop + np.asarray(detection.crop_origin_px, dtype=float)
+    intents = plan_intents(placed, family, asks_model)
     return Plan(
         keyword=keyword,
         pairs_crop_px=pairs_crop,
@@ -227,6 +244,7 @@ def make_plan(
         design=placed.design.model_dump() if placed.design is not None else None,
         image_sent_px=size if size != crop_size else None,
         pair_objects=owners,
+        intents=intents,
     )
 
 

@@ -175,11 +175,26 @@ def _designs_text(family: str, answer: str, catalogue: str) -> str:
     )
 
 
+INTENT_FORMAT = (
+    '"intent": {"pieces": ..., "equal": ..., "orientation": ..., "slice_width_cm": ..., '
+    '"dots": ..., "rings": ..., "digits": ...}'
+)
+INTENT_NOTE = (
+    "\n`intent` states what your pairs achieve: how many pieces the cuts leave and whether "
+    "they are equal, the cuts' direction relative to the object's own sides, the slice width, "
+    "how many dots, rings or which digits (null for what you do not claim; all of it null or "
+    "the whole intent null for a design of your own). keymps predicts what the robot's motion "
+    "does to the object and sends your answer back if the result differs from it."
+)
+
+
 def output_format(step: Step, answer: str, convention: str) -> str:
     """The JSON this call answers with, for the answer form and the coordinate convention."""
     base = _OUTPUT_FORMATS[step]
     if convention == "yx_1000":
         base = base.replace("[[[x0, y0], [x1, y1]], ...]", "[[[y0, x0], [y1, x1]], ...]")
+    if step != "keyword" and answer != "design":  # pairs state their intent
+        base = base.replace('"rationale":', f'{INTENT_FORMAT}, "rationale":') + INTENT_NOTE
     if step == "keyword" or answer == "pairs":
         return base
     design = '{"name": "<design>", "count": ..., "layers": ..., "slice_width_cm": ..., '
@@ -246,12 +261,24 @@ def build_messages(
     ]
     for answer, errors in history:
         messages.append({"role": "assistant", "content": answer})
+        heading = "Your answer was invalid:\n"
+        if errors and all(e.startswith(OUTCOME_PROBLEM) for e in errors):
+            heading = OUTCOME_HEADING
+            errors = [e[len(OUTCOME_PROBLEM) :] for e in errors]
         messages.append(
             {
                 "role": "user",
-                "content": "Your answer was invalid:\n"
+                "content": heading
                 + "\n".join(f"- {e}" for e in errors)
                 + "\nAnswer again with the corrected JSON object only.",
             }
         )
     return messages
+
+
+OUTCOME_PROBLEM = "predicted outcome: "
+"""How the outcome stage's problems start when they go back to the model for repair."""
+OUTCOME_HEADING = (
+    "keymps simulated the motion planned from your answer on the measured object; the result "
+    "is not what was asked:\n"
+)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import hashlib
 import json
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -120,8 +120,14 @@ class PlanSession:
             self.base, messages=messages, schema=schema, attempt=attempt, share_key=share_key
         )
 
-    def ask(self, step: Step, keyword: str | None = None) -> Any:
-        """The validated answer to one planning step (keyword, pairs or combined)."""
+    def ask(
+        self,
+        step: Step,
+        keyword: str | None = None,
+        earlier: Sequence[tuple[str, list[str]]] = (),
+    ) -> Any:
+        """The validated answer to one planning step (keyword, pairs or combined); `earlier`:
+        answers already given and their problems (an outcome repair), shown to the model."""
         from keymps.planning.answer import parse_and_validate
 
         def validate(text: str) -> tuple[Any, list[str]]:
@@ -141,6 +147,7 @@ class PlanSession:
             label=f"{step} answer",
             request_for=lambda history: self.request_for(step, keyword, history),
             validate=validate,
+            earlier=earlier,
         )
 
     def ask_until_valid(
@@ -148,14 +155,15 @@ class PlanSession:
         label: str,
         request_for: Callable[[list[tuple[str, list[str]]]], PlanRequest],
         validate: Callable[[str], tuple[Any, list[str]]],
+        earlier: Sequence[tuple[str, list[str]]] = (),
     ) -> Any:
         """Ask, validate and repair up to planner.attempts times, every attempt recorded.
 
-        `request_for(history)` builds the next request from the earlier (answer, problems);
-        `validate(text)` returns (parsed or None, problems). Cache, cassette and redaction apply
-        to every caller alike (the planner's steps and eval's direct methods).
+        `request_for(history)` builds the next request from the earlier (answer, problems),
+        `earlier` first; `validate(text)` returns (parsed or None, problems). Cache, cassette and
+        redaction apply to every caller alike (the planner's steps and eval's direct methods).
         """
-        history: list[tuple[str, list[str]]] = []
+        history: list[tuple[str, list[str]]] = list(earlier)
         attempts = self.task.planner.attempts
         for _ in range(attempts):
             request = request_for(history)

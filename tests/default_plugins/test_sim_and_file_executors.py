@@ -327,8 +327,8 @@ def test_tool_blade_length_comes_from_the_task_or_the_built_in_tool() -> None:
 
 
 def test_a_sawing_blade_trails_the_cut_and_stays_inside_the_food() -> None:
-    from keymps.outcome.cut_sweep import Footprint, covered_length
     from keymps.default_plugins.sim.executor import Replay, marks
+    from keymps.outcome.cut_sweep import Footprint, covered_length
 
     # sawing along +x: 10 mm strokes back and forth while descending through a 2 cm top
     s = np.linspace(0.0, 1.0, 2001)

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from keymps.config.task import Task
-from keymps.outcome.pieces import check_equal_parts, split_areas
 from keymps.eval.suites import SuiteError, load_suite, parse_suite
 from keymps.eval.tasks import case_scene, case_task_data
 from keymps.eval.truth import case_truth, line_hits
+from keymps.outcome.pieces import check_equal_parts, split_areas
 
 SUITES = Path(__file__).resolve().parents[2] / "benchmarks" / "suites"
 

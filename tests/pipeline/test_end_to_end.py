@@ -39,10 +39,12 @@ def _record(folder: Path) -> dict:
 @pytest.mark.parametrize("task", ["cake_icing", "object_cutting"])
 def test_run_folder_is_complete(runs: dict[str, Path], task: str) -> None:
     folder = runs[task]
-    for name in ("run.json", "plan.png", "outcome.png", "trajectory.csv", "run.rrd"):
+    for name in ("run.json", "plan.png", "plan_outcome.png", "outcome.png", "trajectory.csv"):
         assert (folder / name).stat().st_size > 0, name
+    assert (folder / "run.rrd").stat().st_size > 0
     record = _record(folder)
-    assert record["schema_version"] == "1.1"
+    assert record["schema_version"] == "1.2"
+    assert record["outcome"]["verdict"] == "pass" and record["outcome"]["problems"] == []
     assert record["ok"] is True and record["error"] is None
     assert record["backend"] == "offline"
     assert record["validation"]["verdict"] == "pass"
@@ -55,6 +57,7 @@ def test_run_folder_is_complete(runs: dict[str, Path], task: str) -> None:
         "solve",
         "time",
         "check",
+        "outcome",
         "execute",
     }
     x0, y0, x1, y1 = record["detection"]["bbox_px"]

@@ -227,8 +227,8 @@ def test_planner_answer_limits_the_answer_form(server, tmp_path, mode):
     server.script(Reply.json_answer(wrong), Reply.json_answer(right))
     plan, _ = _plan(server, scene, tmp_path, "Cut it into 4", answer=mode)
     schema = server.chat_requests[0].body["response_format"]["json_schema"]["schema"]
-    assert set(schema["properties"]) == {"keyword", mode if mode == "pairs" else "design",
-                                         "rationale"}  # fmt: skip
+    form = {"pairs", "intent"} if mode == "pairs" else {"design"}  # a design states its intent
+    assert set(schema["properties"]) == {"keyword", *form, "rationale"}
     assert len(server.chat_requests) == 2
     assert (plan.design is None) == (mode == "pairs")
     if mode == "pairs":

@@ -169,8 +169,10 @@ def test_schema_lists_the_primitives_and_is_strict():
     schema = answer_schema("combined", ["line"], 64)
     body = schema["schema"]
     assert body["properties"]["keyword"]["enum"] == ["line"]
-    assert body["required"] == ["keyword", "pairs", "rationale"]
+    assert body["required"] == ["keyword", "pairs", "intent", "rationale"]
     assert body["additionalProperties"] is False and schema["strict"] is True
+    intent = body["properties"]["intent"]["anyOf"][0]  # strict: every field, each nullable
+    assert intent["required"] == list(intent["properties"]) and not intent["additionalProperties"]
 
 
 # --- prompts ---------------------------------------------------------------------------------

@@ -7,9 +7,12 @@ draws what the tool did on the scene image: cuts where the tool went below the o
 surface, icing strokes and dots where it worked on or above it. Dynamics are not simulated.
 
 A knife cuts with its whole edge, not only its tip: the edge is a horizontal segment at the tip's
-height, `blade_length` long, from the tip back along the tool x axis against the direction the
-work piece travels. A cut is the union of the edge's positions while it was below the object's
-top, inside the object's footprint. A tool without a blade (a piping bag) marks with its tip.
+height, `blade_length` long, from the tip along the tool's -x axis (where the wrist turned it:
+the edge trails the tip when the tool x axis points along the cut). A cut is the union of the
+edge's positions while it was below the object's top, inside the object's footprint. A knife's
+work that stays above the food cuts nothing (it is no icing); a tool without a blade (a piping
+bag) marks with its tip. The report's `measured` holds each cut's length and depth in the form
+the outcome stage predicts (keymps.types.Effect).
 """
 
 from __future__ import annotations
@@ -21,17 +24,19 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from keymps.outcome.cut_sweep import (
-    Footprint,
-    blade_backwards,
-    covered_length,
-    edge_segments,
-)
+from keymps.outcome.cut_sweep import Footprint, covered_length, edge_segments
 from keymps.plugin import RegisterExecutor, hookimpl, parse_options, require_validated
 from keymps.robot.safety_geometry import distance_to_polylines, row_norms
 from keymps.sorted_values import distinct
 from keymps.text_drawing import on_text_thread
-from keymps.types import ExecutionReport, SceneImage, ToolPath, ValidatedTrajectory
+from keymps.types import (
+    CutEffect,
+    Effect,
+    ExecutionReport,
+    SceneImage,
+    ToolPath,
+    ValidatedTrajectory,
+)
 
 if TYPE_CHECKING:
     from keymps.config.task import Task
@@ -162,11 +167,17 @@ class Marks:
     sweeps: list[np.ndarray] = field(default_factory=list)
     """Per cut, (k, 2, 2) board segments the cutting edge covered: the blade at each of its
     positions below the top (tip first), or the tip's path step by step for a tool without one."""
+    cut_pieces: list[int] = field(default_factory=list)
+    """Per cut, the tool path piece it was made by."""
+    cut_lowest: list[float] = field(default_factory=list)
+    """Per cut, the tip's lowest height, metres."""
 
 
-def marks(result: Replay, object_top: float | np.ndarray, blade_length: float = 0.0) -> Marks:
+def marks(
+    result: Replay, object_top: float | np.ndarray, blade_length: float = 0.0, knife: bool = False
+) -> Marks:
     """Cuts where a work piece went below its object's top (one height, or one per replayed
-    sample), icing where work stayed on it."""
+    sample), icing where work stayed on it (not with a `knife`: it leaves no icing)."""
     work = result.kind == "work"
     below_top = result.tool_xyz[:, 2] < object_top - 1e-4
     cutting_pieces = distinct(result.piece_index[work & below_top])
@@ -175,7 +186,7 @@ def marks(result: Replay, object_top: float | np.ndarray, blade_length: float = 
     cuts = [result.tool_xyz[a:b, :2] for a, b in cut_runs]
     sweeps = [_sweep(result, a, b, blade_length) for a, b in cut_runs]
     strokes, dots = [], []
-    for a, b in _runs(work & ~cutting):
+    for a, b in _runs(work & ~cutting & (not knife)):
         for _, mine in _by_piece(result.piece_index[a:b]):
             xy = result.tool_xyz[a:b, :2] if mine is None else result.tool_xyz[a:b][mine, :2]
             if np.ptp(xy, axis=0).max() < DOT_EXTENT_M:
@@ -184,21 +195,15 @@ def marks(result: Replay, object_top: float | np.ndarray, blade_length: float = 
                 strokes.append(xy)
     travel = [result.tool_xyz[a:b, :2] for a, b in _runs(~work) if b - a >= 2]
     contacts = result.tool_xyz[result.tool_xyz[:, 2] < -BOARD_CONTACT_M, :2]
-    return Marks(cuts, strokes, dots, travel, contacts, sweeps)
+    lowest = [float(result.tool_xyz[a:b, 2].min()) for a, b in cut_runs]
+    pieces = [int(result.piece_index[a]) for a, _ in cut_runs]
+    return Marks(cuts, strokes, dots, travel, contacts, sweeps, pieces, lowest)
 
 
 def _sweep(result: Replay, start: int, end: int, blade_length: float) -> np.ndarray:
-    """(k, 2, 2) segments covered by the cutting edge over samples [start, end)."""
-    backwards = None
-    if result.tool_x is not None:
-        backwards = result.tool_x[start:end].copy()
-        for piece, mine in _by_piece(result.piece_index[start:end]):
-            whole = np.flatnonzero(result.piece_index == piece)
-            travel = result.tool_xyz[whole[-1], :2] - result.tool_xyz[whole[0], :2]
-            if mine is None:
-                backwards = blade_backwards(backwards, travel)
-            else:
-                backwards[mine] = blade_backwards(backwards[mine], travel)
+    """(k, 2, 2) segments covered by the cutting edge over samples [start, end): the edge
+    reaches from the tip along the tool's -x axis, wherever the wrist turned it."""
+    backwards = None if result.tool_x is None else -result.tool_x[start:end]
     return edge_segments(result.tool_xyz[start:end], backwards, blade_length)
 
 
@@ -345,9 +350,11 @@ class SimExecutor:
         outline = _footprint(run)
         # Without the object's footprint a blade's reach cannot be clipped: cut with the tip.
         blade_length = model.tool.blade_length if outline is not None else 0.0
-        found = marks(result, _object_tops(run, result), blade_length)
+        tops = _object_tops(run, result)
+        found = marks(result, tops, blade_length, knife=model.tool.blade_length > 0)
         clip = Footprint(outline) if outline is not None else None
         lengths = [covered_length(sweep, clip) for sweep in found.sweeps]
+        measured = _measured(found, lengths, tops, tool_path, result)
         period = float(np.diff(result.t).mean()) if len(result.t) > 1 else 0.0
         figures = {
             "duration_s": trajectory.duration_s,
@@ -401,7 +408,33 @@ class SimExecutor:
             f"{figures['max_tracking_error_mm']:.3f} mm"
         )
         message = "; ".join(problems) if problems else summary
-        return ExecutionReport(self.name, not problems, message, tuple(files), figures)
+        return ExecutionReport(
+            self.name, not problems, message, tuple(files), figures, measured=measured
+        )
+
+
+def _measured(
+    found: Marks,
+    lengths: list[float],
+    tops: float | np.ndarray,
+    tool_path: ToolPath | None,
+    result: Replay,
+) -> Effect:
+    """Each cut's length through the food and depth, by the keypoint pair it was made for."""
+    cuts: list[CutEffect] = []
+    for piece, length, lowest in zip(found.cut_pieces, lengths, found.cut_lowest, strict=True):
+        where = np.flatnonzero(result.piece_index == piece)[0]
+        top = float(np.broadcast_to(np.asarray(tops, dtype=float), result.piece_index.shape)[where])
+        owner = tool_path.pieces[piece] if isinstance(tool_path, ToolPath) else None
+        cuts.append(
+            CutEffect(
+                pair_index=owner.pair_index if owner is not None else len(cuts),
+                object_id=owner.object_id if owner is not None else 1,
+                length_m=length,
+                depth_m=float(np.clip(top - lowest, 0.0, top)),
+            )
+        )
+    return Effect(cuts=tuple(cuts))
 
 
 def _count(number: int, noun: str) -> str:

@@ -17,7 +17,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from keymps.plugin import parse_options, require_validated
-from keymps.types import ExecutionReport, Trajectory, ValidatedTrajectory
+from keymps.types import CutEffect, Effect, ExecutionReport, Trajectory, ValidatedTrajectory
 from keymps_mujoco import NAME
 from keymps_mujoco.model import PERSPECTIVE_CAMERA, TOP_CAMERA, TORQUE_LIMITS_NM, Settings
 from keymps_mujoco.scene_inputs import SceneInputs, scene_from_run
@@ -197,6 +197,7 @@ class Execution:
                 video.close()
             renderer.close()
         figures = self._figures(result, lowest, kind, pieces, painter, video)
+        measured = self._measured(lowest, kind, pieces, painter)
         problems = self._problems(result, figures)
         summary = (
             f"simulated {trajectory.duration_s:.1f} s in MuJoCo: max tracking error "
@@ -207,7 +208,9 @@ class Execution:
         if "cuts" in figures:
             summary += f", {figures['cuts_reached_board']:.0f}/{figures['cuts']:.0f} cuts reached the board"
         message = "; ".join(problems) if problems else summary
-        return ExecutionReport(NAME, not problems, message, tuple(files), figures)
+        return ExecutionReport(
+            NAME, not problems, message, tuple(files), figures, measured=measured
+        )
 
     def _camera_size(self, camera: str, settings: Settings) -> tuple[str, tuple[int, int]]:
         height = self.options.video_height_px
@@ -317,6 +320,32 @@ class Execution:
             figures[f"cut_{cuts}_max_force_n"] = round(float(result.contact_force_n[mine].max()), 2)
         figures["cuts"] = float(cuts)
         figures["cuts_reached_board"] = float(reached)
+
+    def _measured(
+        self, lowest: np.ndarray, kind: np.ndarray, pieces: np.ndarray, painter: Any
+    ) -> Effect | None:
+        """Each cut's length through the food and depth (keymps.types.Effect), by the keypoint
+        pair it was made for: what the outcome stage compares with its prediction."""
+        if self.inputs.robot.tool.blade_length <= 0 or not self.inputs.props:
+            return None
+        tool_path = self.context.stages.compose
+        n = len(lowest)
+        cuts: list[CutEffect] = []
+        for piece in np.unique(pieces[:n][kind[:n] == "work"]):
+            heights = lowest[(pieces[:n] == piece) & (kind[:n] == "work")]
+            heights = heights[np.isfinite(heights)]
+            if not len(heights) or float(heights.min()) >= self.food_top - BELOW_TOP_M:
+                continue
+            owner = tool_path.pieces[int(piece)] if tool_path is not None else None
+            cuts.append(
+                CutEffect(
+                    pair_index=owner.pair_index if owner is not None else len(cuts),
+                    object_id=owner.object_id if owner is not None else 1,
+                    length_m=painter.cut_length_m(int(piece)),
+                    depth_m=float(np.clip(self.food_top - heights.min(), 0.0, self.food_top)),
+                )
+            )
+        return Effect(cuts=tuple(cuts))
 
     def _problems(self, result: Any, figures: dict[str, float]) -> list[str]:
         problems = []

@@ -1,0 +1,122 @@
+"""The outcome stage: predict what the timed trajectory does to the food, hold it against the
+plan's intent (and the task's `expect:`), and give the verdict before anything moves."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import fields, replace
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from keymps.outcome.predict import Food, Tool, predict
+from keymps.outcome.verdict import (
+    TOLERANCES,
+    cut_problems,
+    icing_intent_problems,
+    icing_problems,
+    intent_problems,
+)
+from keymps.types import (
+    EQUAL_PARTS_TOLERANCE,
+    Effect,
+    Outcome,
+    OutcomeVerdict,
+    PlanIntent,
+    ToolPath,
+    Trajectory,
+)
+
+if TYPE_CHECKING:
+    from keymps.config.task import Expect, Task
+    from keymps.robot.model import RobotModel
+    from keymps.types import GroundedObject
+
+
+def check_outcome(
+    model: RobotModel,
+    trajectory: Trajectory,
+    tool_path: ToolPath,
+    foods: Sequence[Food],
+    tool: Tool,
+    intents: Sequence[PlanIntent],
+    accept: bool = False,
+) -> Outcome:
+    """The predicted effect and the verdict: pass, fail, or accepted (failed, and `accept`:
+    the expert's --accept-outcome)."""
+    predicted = predict(model, trajectory, tool_path, foods, tool)
+    problems = judge(predicted, foods, tool, intents, tool_path)
+    verdict: OutcomeVerdict = "pass" if not problems else ("accepted" if accept else "fail")
+    tolerances = dict(TOLERANCES)
+    for intent in intents:
+        if intent.equal is not None:
+            tolerances["equal"] = intent.equal
+    return Outcome(verdict, tuple(intents), predicted, tuple(problems), tolerances)
+
+
+def judge(
+    predicted: Effect,
+    foods: Sequence[Food],
+    tool: Tool,
+    intents: Sequence[PlanIntent],
+    tool_path: ToolPath,
+) -> list[str]:
+    """Every problem of the predicted effect, one line each, the checks every plan gets first."""
+    worked = {piece.object_id for piece in tool_path.pieces if piece.kind == "work"}
+    if tool.cuts:
+        problems = cut_problems(predicted, foods)
+    else:
+        pairs = sorted({p.pair_index for p in tool_path.pieces if p.kind == "work"})
+        problems = icing_problems(predicted, pairs, tool.line_width)
+    for intent in intents:
+        for food in foods:
+            if food.id not in worked or intent.object_id not in (None, food.id):
+                continue
+            if tool.cuts:
+                problems += intent_problems(predicted, intent, food)
+            else:
+                problems += icing_intent_problems(predicted, intent, food)
+    return problems
+
+
+def foods_of(
+    objects: Sequence[GroundedObject], outline_m: np.ndarray | None, height: float
+) -> list[Food]:
+    """The objects the prediction cuts or ices: every grounded object, else the one footprint."""
+    if objects:
+        return [Food(o.id, float(o.height), np.asarray(o.outline_m, float)) for o in objects]
+    if outline_m is None:
+        return []
+    return [Food(1, float(height), np.asarray(outline_m, float))]
+
+
+def expected(expect: Expect | None) -> PlanIntent | None:
+    """The task file's `expect:` block as an intent (metres to millimetres)."""
+    if expect is None:
+        return None
+    equal = expect.equal
+    return PlanIntent(
+        pieces=expect.pieces,
+        equal=EQUAL_PARTS_TOLERANCE if equal is True else (None if equal is False else equal),
+        equal_by=expect.equal_by,
+        orientation=expect.orientation,
+        slice_width_mm=1000 * expect.slice_width if expect.slice_width else None,
+        object_length_mm=1000 * expect.object_length if expect.object_length else None,
+        dots=expect.dots,
+        rings=expect.rings,
+        digits=expect.digits,
+        source="expect",
+    )
+
+
+def stated_intents(plan_intents: Sequence[PlanIntent], task: Task) -> tuple[PlanIntent, ...]:
+    """The plan's intents with the task's `expect:` over them: every field it gives replaces
+    the plan's (the user's assertion is the truth); alone, it is the intent of each object."""
+    asserted = expected(task.expect)
+    if asserted is None:
+        return tuple(plan_intents)
+    if not plan_intents:
+        return (asserted,)
+    given = {f.name: getattr(asserted, f.name) for f in fields(asserted) if f.name != "source"}
+    given = {name: value for name, value in given.items() if value is not None}
+    return tuple(replace(intent, **given, source="expect") for intent in plan_intents)

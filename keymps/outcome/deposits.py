@@ -1,0 +1,231 @@
+"""Icing deposits: where a nozzle leaves icing, which deposits form one stroke, which merge.
+
+A work piece deposits where the nozzle works within DEPOSIT_GAP_M of the object's top. Where it
+stays in place (its path spans less than DOT_EXTENT_M) it leaves a dot: a disc
+DOT_DIAMETER_FACTOR line widths across. Elsewhere it leaves a line: a band one line width wide
+along its path. Deposits whose ends meet form one stroke; a stroke whose lines close on
+themselves is a loop (a ring). Two deposits merge where their icing touches, unless the drawing
+joins them there on purpose (lines meeting at a corner or crossing, as a star's do).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+
+from keymps.types import DepositEffect
+
+DEPOSIT_GAP_M = 0.003
+"""The nozzle deposits where it works at most this high above the object's top."""
+DOT_DIAMETER_FACTOR = 2.0
+"""A dot is this many line widths across: icing piped in place spreads to about twice the
+nozzle's line (the sim executor's outcome.png draws dots so)."""
+ON_TOP_SLACK_M = 0.001
+"""A deposit is on the top surface when its icing stays inside the footprint to within this."""
+JOIN_FACTOR = 0.5
+"""Line ends closer than this many line widths are one joint of the drawing."""
+SIMPLIFY_M = 0.0002
+"""A line's path is kept to within this of the nozzle's."""
+DOT_EXTENT_M = 0.001
+"""A deposit whose path spans less than this is a dot (its pair's start is its end); any other
+is a line, however short: joined to others, it is part of their stroke (a spiral's pieces)."""
+
+
+@dataclass(frozen=True)
+class Merge:
+    """Two deposits whose icing runs together."""
+
+    first: int
+    second: int
+    """Indices into the deposits."""
+    gap_m: float
+    """Distance of their centrelines (or centres) where they come closest."""
+    needed_m: float
+    """The distance at which they would just not touch."""
+    kind: Literal["dots", "dot and line", "lines"]
+
+
+def deposits_of(
+    work: Sequence[tuple[int, Any, np.ndarray]], line_width: float
+) -> tuple[tuple[DepositEffect, ...], int, int]:
+    """(deposits, strokes, loops) of the work pieces: each (pair index, its object (a
+    keymps.outcome.predict.Food, or None), (n, 3) tip positions)."""
+    found: list[tuple[str, int, int, np.ndarray, bool]] = []
+    for pair_index, food, tip in work:
+        top = float(food.height) if food is not None else 0.0
+        near = tip[:, 2] - top <= DEPOSIT_GAP_M
+        if not near.any():
+            continue
+        xy = tip[near, :2]
+        if float(np.ptp(xy, axis=0).max()) < DOT_EXTENT_M:
+            kind, path, width = "dot", xy.mean(axis=0, keepdims=True), DOT_DIAMETER_FACTOR
+        else:
+            kind, path, width = "line", _simplified(xy), 1.0
+        on_top = food is not None and _on_top(path, width * line_width / 2, food.outline_m)
+        object_id = food.id if food is not None else 0
+        found.append((kind, pair_index, object_id, path, on_top))
+    stroke_of, loops = _strokes([(kind, path) for kind, _, _, path, _ in found], line_width)
+    deposits = tuple(
+        DepositEffect(
+            kind,  # type: ignore[arg-type]
+            pair_index,
+            object_id,
+            path,
+            (DOT_DIAMETER_FACTOR if kind == "dot" else 1.0) * line_width,
+            stroke_of[k],
+            on_top,
+        )
+        for k, (kind, pair_index, object_id, path, on_top) in enumerate(found)
+    )
+    return deposits, len(set(stroke_of)), loops
+
+
+def _simplified(xy: np.ndarray) -> np.ndarray:
+    """The path (n, 2) with the points a straight line already passes near dropped."""
+    import cv2
+
+    scaled = (xy / SIMPLIFY_M).astype(np.float32).reshape(-1, 1, 2)
+    kept = cv2.approxPolyDP(scaled, 1.0, False).reshape(-1, 2)
+    return np.asarray(kept, dtype=float) * SIMPLIFY_M
+
+
+def _on_top(path: np.ndarray, reach: float, outline: np.ndarray) -> bool:
+    """Whether the icing `reach` either side of the path stays on the footprint."""
+    from keymps.robot.safety_geometry import distance_to_polyline, inside_polygon
+
+    points = _densified(path, max(reach, 0.0005))
+    polygon = np.asarray(outline, float).reshape(-1, 2)
+    if not inside_polygon(points, polygon).all():
+        return False
+    closed = np.vstack([polygon, polygon[:1]])
+    edge = distance_to_polyline(_lifted(points), _lifted(closed))
+    return bool(edge.min() >= reach - ON_TOP_SLACK_M)
+
+
+def _densified(path: np.ndarray, step: float) -> np.ndarray:
+    """The path's points at most `step` apart (its corners kept)."""
+    if len(path) == 1:
+        return path
+    pieces = [path[:1]]
+    for a, b in zip(path[:-1], path[1:], strict=True):
+        count = max(1, int(np.ceil(np.linalg.norm(b - a) / step)))
+        pieces.append(a + np.linspace(0.0, 1.0, count + 1)[1:, None] * (b - a))
+    return np.concatenate(pieces)
+
+
+def _lifted(xy: np.ndarray) -> np.ndarray:
+    return np.column_stack([xy, np.zeros(len(xy))])
+
+
+def _strokes(shapes: Sequence[tuple[str, np.ndarray]], line_width: float) -> tuple[list[int], int]:
+    """Per deposit its stroke (0-based, in first-deposit order), and how many strokes close."""
+    _, joint_of = _joints(shapes, line_width)
+    parent = list(range(len(shapes)))
+
+    def root(k: int) -> int:
+        while parent[k] != k:
+            parent[k] = parent[parent[k]]
+            k = parent[k]
+        return k
+
+    owners: dict[int, int] = {}
+    for k, joints in enumerate(joint_of):
+        for joint in joints:
+            if joint in owners:
+                parent[root(k)] = root(owners[joint])
+            owners.setdefault(joint, k)
+    roots = [root(k) for k in range(len(shapes))]
+    numbering: dict[int, int] = {}
+    stroke_of = [numbering.setdefault(r, len(numbering)) for r in roots]
+    loops = 0
+    for stroke in set(stroke_of):
+        lines = [k for k in range(len(shapes)) if stroke_of[k] == stroke and shapes[k][0] == "line"]
+        nodes = {j for k in lines for j in joint_of[k]}
+        loops += len(lines) >= 3 and len(lines) >= len(nodes)  # a cycle through its joints
+    return stroke_of, loops
+
+
+def _joints(
+    shapes: Sequence[tuple[str, np.ndarray]], line_width: float
+) -> tuple[np.ndarray, list[tuple[int, ...]]]:
+    """The drawing's joints (line ends within JOIN_FACTOR line widths are one), and per deposit
+    the joints of its two ends (none for a dot)."""
+    reach = JOIN_FACTOR * max(line_width, 1e-4)
+    joints: list[np.ndarray] = []
+    joint_of: list[tuple[int, ...]] = []
+    for kind, path in shapes:
+        if kind == "dot":
+            joint_of.append(())
+            continue
+        mine = []
+        for point in (path[0], path[-1]):
+            near = [j for j, joint in enumerate(joints) if np.linalg.norm(joint - point) <= reach]
+            if not near:
+                joints.append(point)
+                near = [len(joints) - 1]
+            mine.append(near[0])
+        joint_of.append(tuple(mine))
+    return np.asarray(joints).reshape(-1, 2), joint_of
+
+
+def merges(deposits: Sequence[DepositEffect], line_width: float) -> list[Merge]:
+    """Every two deposits whose icing touches where the drawing does not join them, closest
+    first: dots with dots and with lines by their discs, lines with lines by their bands
+    (keymps.designs.legibility, joints and crossings excepted)."""
+    if line_width <= 0 or not deposits:
+        return []
+    found = _dot_merges(deposits, line_width) + _line_merges(deposits, line_width)
+    return sorted(found, key=lambda merge: merge.gap_m - merge.needed_m)
+
+
+def _dot_merges(deposits: Sequence[DepositEffect], line_width: float) -> list[Merge]:
+    dots = [k for k, d in enumerate(deposits) if d.kind == "dot"]
+    found: list[Merge] = []
+    for k in dots:
+        centre = deposits[k].path_m[0]
+        for j, other in enumerate(deposits):
+            if j == k or (other.kind == "dot" and j < k):
+                continue
+            needed = (deposits[k].width_m + other.width_m) / 2
+            gap = _distance(centre, other.path_m)
+            if gap < needed:
+                kind: Literal["dots", "dot and line"] = (
+                    "dots" if other.kind == "dot" else "dot and line"
+                )
+                found.append(Merge(min(k, j), max(k, j), gap, needed, kind))
+    return found
+
+
+def _line_merges(deposits: Sequence[DepositEffect], line_width: float) -> list[Merge]:
+    from keymps.designs.legibility import merging_strokes
+
+    lines = [k for k, d in enumerate(deposits) if d.kind == "line"]
+    if len(lines) < 2:
+        return []
+    shapes = [("line", deposits[k].path_m) for k in lines]
+    joints, joint_of = _joints(shapes, line_width)
+    segments: list[np.ndarray] = []
+    for k, ends in zip(lines, joint_of, strict=True):
+        path = deposits[k].path_m.copy()
+        path[0], path[-1] = joints[ends[0]], joints[ends[1]]  # joined ends meet exactly
+        segments.extend(np.stack([path[:-1], path[1:]], axis=1))
+    merge = merging_strokes(np.asarray(segments), line_width)
+    if merge is None:
+        return []
+    gap, where = merge
+    near = sorted(lines, key=lambda k: _distance(where, deposits[k].path_m))[:2]
+    return [Merge(min(near), max(near), gap, line_width, "lines")]
+
+
+def _distance(point: np.ndarray, path: np.ndarray) -> float:
+    """Distance of a point to a polyline (or a single point)."""
+    if len(path) == 1:
+        return float(np.linalg.norm(point - path[0]))
+    a, b = path[:-1], path[1:]
+    step = b - a
+    lengths = np.maximum((step**2).sum(axis=1), 1e-18)
+    t = np.clip(((point - a) * step).sum(axis=1) / lengths, 0.0, 1.0)
+    return float(np.linalg.norm(a + t[:, None] * step - point, axis=1).min())
