@@ -125,7 +125,7 @@ def eval_command(
             cases=cases,
             no_cache=no_cache,
             image_format=image_format,
-            verify=verify,
+            outcome="repair" if verify else "off",
         )
         # start-up's objects frozen: never scanned again, here or in the forked workers
         start_up_done()

@@ -25,6 +25,9 @@ class MethodOutput:
     """plan / outcome -> PNG path, when written."""
     scene: dict[str, Any] | None = None
     """The synthetic scene's sidecar as rendered for this run (saves rendering it again)."""
+    cut_lines_m: np.ndarray | None = None
+    """(M, 2, 2) where the knife cuts through, as the outcome stage predicted it (None when the
+    run did not reach it): the edge reaches past a cut's start, which the lines do not show."""
 
 
 @dataclass(frozen=True)
@@ -40,9 +43,10 @@ class MethodContext:
     api_base: str | None
     plan_only: bool = False
     """Stop after grounding: the design is all that is scored (Appendix F's equal parts)."""
-    verify: bool = False
-    """With plan_only: go on through the outcome stage (a plan whose predicted outcome is
-    wrong goes back to the VLM, and one still wrong is refused), then stop."""
+    outcome: str = "off"
+    """With plan_only: off (stop after grounding); predict (go on through the outcome stage,
+    every plan accepted as answered); repair (a plan whose predicted outcome is wrong goes back
+    to the VLM, one still wrong is refused)."""
     no_cache: bool = False
     """Always ask the VLM, never answer from the planner's cache."""
     image_format: str = "jpg"

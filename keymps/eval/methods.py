@@ -75,6 +75,7 @@ def _run_pipeline(context: MethodContext, answer: str | None = None) -> MethodOu
             image_format=context.image_format,
             dispatch=context.dispatch,
             through=_through(context),
+            accept_outcome=context.outcome == "predict",
             **overrides,
         )
     except KeympsError as error:
@@ -83,10 +84,10 @@ def _run_pipeline(context: MethodContext, answer: str | None = None) -> MethodOu
 
 
 def _through(context: MethodContext) -> str:
-    """How far a run goes: execute; plan-only ones ground, or outcome to verify and repair."""
+    """How far a run goes: execute; plan-only ones ground, or the outcome stage."""
     if not context.plan_only:
         return "execute"
-    return "outcome" if context.verify else "ground"
+    return "ground" if context.outcome == "off" else "outcome"
 
 
 def primitive_descriptions(names: list[str], search_dirs: list[Path]) -> dict[str, str]:
@@ -131,7 +132,12 @@ def _pipeline_output(results: StageResults, context: MethodContext) -> MethodOut
         name: image_file(context.folder, name, context.image_format) for name in ("plan", "outcome")
     }
     images = {name: str(path) for name, path in paths.items() if path.is_file()}
+    outcome = results.outcome
+    cut = None
+    if outcome is not None:
+        cut = np.concatenate([c.severed_m for c in outcome.predicted.cuts]).reshape(-1, 2, 2)
     return MethodOutput(
+        cut_lines_m=cut,
         work_pieces=pieces,
         lines_m=np.asarray(lines, dtype=float),
         keyword=plan.keyword if plan is not None else None,

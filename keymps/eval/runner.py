@@ -61,8 +61,10 @@ class EvalOptions:
     """Always ask the VLM (never answer a run from the planner's answer cache)."""
     image_format: str = "jpg"
     """Each run's plan and outcome images: jpg (30 KB, 0.5 ms to write) or png (300 KB, 7 ms)."""
-    verify: bool = False
-    """Plan-only suites (equal parts) go on through the outcome stage: verify and repair."""
+    outcome: str = "off"
+    """Plan-only suites (equal parts): off (the plan is scored), predict (through the outcome
+    stage, every plan accepted; the predicted cuts are scored) or repair (`--verify-outcome`:
+    a wrong plan goes back to the VLM, one still wrong is refused)."""
     processes: int | None = 1
     """Worker processes sharing the runs in flight (1: every run in this process; None: one per
     core when there are enough runs, as `keymps eval` does). See keymps.eval.pool."""
@@ -261,7 +263,7 @@ def job_record(suite: Suite, job: Job, options: EvalOptions, backend: str) -> di
         "seed": job.seed,
         "backend": backend,
         "model": options.model,
-        **({"verify": True} if options.verify else {}),
+        **({"outcome": options.outcome} if options.outcome != "off" else {}),
     }
 
 
@@ -308,7 +310,7 @@ def run_job(
             options.model,
             options.api_base,
             plan_only=suite.kind == "equal_parts",
-            verify=options.verify,
+            outcome=options.outcome,
             no_cache=options.no_cache,
             image_format=options.image_format,
             dispatch=dispatch,
@@ -375,7 +377,12 @@ def _score(suite: Suite, case: Any, job: Job, output: Any, n: int) -> dict[str, 
     if case.ground_truths:
         scored.update(_score_objects(case, truth, output, n))
     if suite.kind == "equal_parts" and suite.parts is not None:
-        scored.update(_equal_parts(suite, truth.scene["objects"][0], output.lines_m))
+        scene_object = truth.scene["objects"][0]
+        scored.update(_equal_parts(suite, scene_object, output.lines_m))
+        if output.cut_lines_m is not None:  # what the knife cuts: the edge reaches past a start
+            design = scored["success"]
+            scored.update(_equal_parts(suite, scene_object, output.cut_lines_m))
+            scored["design_success"] = design
     return scored
 
 

@@ -8,7 +8,7 @@ below the object's top the whole edge is, so the cut is the union of the edge's 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -43,12 +43,20 @@ def edge_segments(
 ) -> np.ndarray:
     """(k, 2, 2) board segments (tip first) the edge covered over one cut's samples; without a
     blade (`blade_length` 0 or no direction), the tip's path step by step."""
+    return edge_samples(tip_xyz, backwards, blade_length)[1]
+
+
+def edge_samples(
+    tip_xyz: np.ndarray, backwards: np.ndarray | None, blade_length: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """edge_segments with, per segment, the sample it was taken at (a step of the tip's path:
+    the step's first sample)."""
     tip = np.asarray(tip_xyz, dtype=float)[:, :2]
     if blade_length <= 0 or backwards is None:
-        return np.stack([tip[:-1], tip[1:]], axis=1)
+        return np.arange(len(tip) - 1), np.stack([tip[:-1], tip[1:]], axis=1)
     far = tip + blade_length * backwards
     keep = _every(np.asarray(tip_xyz, dtype=float), far, SWEEP_STEP_M)
-    return np.stack([tip[keep], far[keep]], axis=1)
+    return keep, np.stack([tip[keep], far[keep]], axis=1)
 
 
 def _every(tip: np.ndarray, far: np.ndarray, step: float) -> np.ndarray:
@@ -154,6 +162,20 @@ class Stretches:
     bins: np.ndarray
     """(m, 2) int: the first and last LENGTH_BIN_M bin of each covered interval, ascending,
     bins counted along `axis` from `origin`."""
+    run_segments: np.ndarray
+    """Per run of covered samples, the segment it lies on."""
+    run_bins: np.ndarray
+    """(r, 2) int: per run, its first and last bin."""
+
+    def of(self, segments: np.ndarray) -> Stretches | None:
+        """The stretches only the segments marked in `segments` (a mask over them) cover, on
+        the same line; None when they cover nothing."""
+        mine = segments[self.run_segments]
+        if not mine.any():
+            return None
+        low, high = self.run_bins[mine, 0], self.run_bins[mine, 1]
+        return replace(self, bins=_union(low, high), run_segments=self.run_segments[mine],
+                       run_bins=self.run_bins[mine])  # fmt: skip
 
     @property
     def length_m(self) -> float:
@@ -188,7 +210,7 @@ def covered_stretches(segments: np.ndarray, footprint: Footprint | None) -> Stre
     ends = [(start + fractions[index, None] * step - mean) @ axis for index in (first, last)]
     low = np.floor(np.minimum(*ends) / LENGTH_BIN_M).astype(np.int64)
     high = np.floor(np.maximum(*ends) / LENGTH_BIN_M).astype(np.int64)
-    return Stretches(mean, axis, _union(low, high))
+    return Stretches(mean, axis, _union(low, high), rows, np.stack([low, high], axis=1))
 
 
 def _inside_runs(

@@ -1,7 +1,8 @@
 """Icing deposits: where a nozzle leaves icing, which deposits form one stroke, which merge.
 
 A work piece deposits where the nozzle works within DEPOSIT_GAP_M of the object's top. Where it
-stays in place (its path spans less than DOT_EXTENT_M) it leaves a dot: a disc
+stays in place, or moves less than a dot's diameter joined to no other deposit, it leaves a
+dot: a disc
 DOT_DIAMETER_FACTOR line widths across. Elsewhere it leaves a line: a band one line width wide
 along its path. Deposits whose ends meet form one stroke; a stroke whose lines close on
 themselves is a loop (a ring). Two deposits merge where their icing touches, unless the drawing
@@ -54,13 +55,13 @@ def deposits_of(
     """(deposits, strokes, loops) of the work pieces: each (pair index, its object (a
     keymps.outcome.predict.Food, or None), (n, 3) tip positions)."""
     found: list[tuple[str, int, int, np.ndarray, bool]] = []
-    for pair_index, food, tip in work:
-        top = float(food.height) if food is not None else 0.0
-        near = tip[:, 2] - top <= DEPOSIT_GAP_M
-        if not near.any():
+    paths = [_deposited(tip, food) for _, food, tip in work]
+    blobs = _blobs([p for p in paths if p is not None], line_width)
+    shapes = iter(blobs)
+    for (pair_index, food, _), xy in zip(work, paths, strict=True):
+        if xy is None:
             continue
-        xy = tip[near, :2]
-        if float(np.ptp(xy, axis=0).max()) < DOT_EXTENT_M:
+        if next(shapes):
             kind, path, width = "dot", xy.mean(axis=0, keepdims=True), DOT_DIAMETER_FACTOR
         else:
             kind, path, width = "line", _simplified(xy), 1.0
@@ -81,6 +82,34 @@ def deposits_of(
         for k, (kind, pair_index, object_id, path, on_top) in enumerate(found)
     )
     return deposits, len(set(stroke_of)), loops
+
+
+def _deposited(tip: np.ndarray, food: Any) -> np.ndarray | None:
+    """(n, 2) where a work piece's nozzle deposits (near the top), None where it does not."""
+    top = float(food.height) if food is not None else 0.0
+    near = tip[:, 2] - top <= DEPOSIT_GAP_M
+    return tip[near, :2] if near.any() else None
+
+
+def _blobs(paths: Sequence[np.ndarray], line_width: float) -> list[bool]:
+    """Per deposit path, whether it is a dot: it stays in place (DOT_EXTENT_M), or spans less
+    than a dot's diameter with neither end joined to another deposit (a dot piped slightly
+    off its place is still a blob; a spiral's short pieces are joined lines)."""
+    spans = [float(np.ptp(xy, axis=0).max()) for xy in paths]
+    ends = np.array([xy[[0, -1]] for xy in paths]).reshape(-1, 2, 2)
+    reach = JOIN_FACTOR * max(line_width, 1e-4)
+    blobs = []
+    for k, span in enumerate(spans):
+        if span < DOT_EXTENT_M:
+            blobs.append(True)
+            continue
+        others = np.delete(ends, k, axis=0).reshape(-1, 2)
+        joined = (
+            len(others)
+            and float(np.linalg.norm(ends[k][:, None] - others[None], axis=2).min()) <= reach
+        )
+        blobs.append(span < DOT_DIAMETER_FACTOR * line_width and not joined)
+    return blobs
 
 
 def _simplified(xy: np.ndarray) -> np.ndarray:

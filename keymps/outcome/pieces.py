@@ -70,7 +70,7 @@ def split_areas(
 
 class Regions:
     """The object's outline (and hole) rasterized at `resolution_m`, cut by one-pixel barriers
-    along the cuts (each lengthened by REACH_M at both ends): its 4-connected regions."""
+    along the cuts (each lengthened by `reach_m` at both ends): its 4-connected regions."""
 
     def __init__(
         self,
@@ -78,6 +78,7 @@ class Regions:
         cuts_m: np.ndarray,
         hole_m: np.ndarray | None = None,
         resolution_m: float = RESOLUTION_M,
+        reach_m: float = REACH_M,
     ):
         import cv2
 
@@ -95,14 +96,15 @@ class Regions:
         for start, end in cuts:
             length = float(np.linalg.norm(end - start))
             if length > 0:
-                reach = REACH_M * (end - start) / length
+                reach = reach_m * (end - start) / length
                 start, end = start - reach, end + reach
             a, b = self._px(start), self._px(end)
             cv2.line(mask, (int(a[0]), int(a[1])), (int(b[0]), int(b[1])), 0, 1, cv2.LINE_8)
-        count, self.labels = cv2.connectedComponents(mask, connectivity=4)
-        pixels = np.bincount(self.labels.ravel(), minlength=count)[1:]
-        self.areas_m2 = pixels.astype(float) * pixel_area
-        """Area of region i + 1 (label 0 is outside the object and the barriers)."""
+        _, self.labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=4)
+        self.boxes = stats[1:, :4]
+        """Per region, its bounding box in cells: left, top, width, height."""
+        self.areas_m2 = stats[1:, cv2.CC_STAT_AREA].astype(float) * pixel_area
+        """Area of region i (label i + 1; label 0 is outside the object and the barriers)."""
 
     def _px(self, points: np.ndarray) -> np.ndarray:
         return np.round((points - self.origin) / self.resolution_m).astype(np.int32)
@@ -112,10 +114,12 @@ class Regions:
         frame, simplified to within a raster cell."""
         import cv2
 
-        inside = (self.labels == region + 1).astype(np.uint8)
+        left, top, width, height = (int(v) for v in self.boxes[region])
+        box = self.labels[top : top + height, left : left + width]
+        inside = np.pad((box == region + 1).astype(np.uint8), 1)  # contours need a border
         contours, _ = cv2.findContours(inside, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
         largest = max(contours, key=cv2.contourArea)
-        simple = cv2.approxPolyDP(largest, 1.0, True).reshape(-1, 2)
+        simple = cv2.approxPolyDP(largest, 1.0, True).reshape(-1, 2) + [left - 1, top - 1]
         return simple.astype(float) * self.resolution_m + self.origin
 
 

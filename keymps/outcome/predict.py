@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from keymps.outcome.cut_sweep import Footprint, Stretches, covered_stretches, edge_segments
+from keymps.outcome.cut_sweep import Footprint, Stretches, covered_stretches, edge_samples
 from keymps.outcome.deposits import deposits_of
 from keymps.outcome.pieces import CRUMB_FRACTION, Regions
 from keymps.robot.safety_geometry import row_norms
@@ -32,6 +32,9 @@ BELOW_TOP_M = 1e-4
 SEVER_HEIGHT_M = 0.001
 """The edge cuts the food through where the tip passes within this of the board (the MuJoCo
 executor's "reached the board")."""
+PARTING_M = 0.0015
+"""A cut whose end comes this close to the object's edge or to another cut parts the pieces
+there (a blade about a millimetre thick; the footprint is measured to half a pixel)."""
 PIECE_RESOLUTION_M = 0.0002
 """Raster cell of the predicted pieces: a barrier takes 0.2 mm times its length from the
 pieces it divides alike (0.3 % of an eighth of a 15 cm pizza), about 20 ms for that pizza."""
@@ -92,7 +95,7 @@ def predict(
     cuts = []
     for piece, rows in runs:
         food = by_id.get(piece.object_id) or foods[0]
-        blade = -_unit(x_axes[rows, :2])
+        blade = -_unit(x_axes[rows, :2])  # the edge, from the tip along the tool's -x axis
         cuts.append(
             _cut(piece.pair_index, food, prints[food.id], positions[rows], blade, tool.blade_length)
         )
@@ -108,36 +111,21 @@ def _cut(
     blade_length: float,
 ) -> CutEffect:
     """One work piece's cut: its length through the food, its depth, where it cuts through."""
-    below = tip[:, 2] < food.height - BELOW_TOP_M
-    through = _swept(tip, blade, blade_length, below, footprint)
-    severed = _swept(tip, blade, blade_length, below & (tip[:, 2] <= SEVER_HEIGHT_M), footprint)
-    line = through or severed
-    chord = chord_length(food.outline_m, line) if line is not None else 0.0
+    below = np.flatnonzero(tip[:, 2] < food.height - BELOW_TOP_M)
+    through = severed = None
+    if len(below) >= 2:
+        taken, segments = edge_samples(tip[below], blade[below], blade_length)
+        through = covered_stretches(segments, footprint)
+        on_board = tip[below[taken], 2] <= SEVER_HEIGHT_M
+        severed = through.of(on_board) if through is not None else None
     return CutEffect(
         pair_index=pair_index,
         object_id=food.id,
         length_m=through.length_m if through is not None else 0.0,
         depth_m=float(np.clip(food.height - tip[:, 2].min(), 0.0, food.height)),
         severed_m=severed.segments() if severed is not None else np.zeros((0, 2, 2)),
-        chord_m=chord,
+        chord_m=chord_length(food.outline_m, through) if through is not None else 0.0,
     )
-
-
-def _swept(
-    tip: np.ndarray,
-    blade: np.ndarray,
-    blade_length: float,
-    where: np.ndarray,
-    footprint: Footprint,
-) -> Stretches | None:
-    """The stretches of the cut's line the edge covered inside the food at the samples `where`."""
-    if where.sum() < 2:
-        return None
-    if blade_length > 0:
-        return covered_stretches(edge_segments(tip[where], blade[where], blade_length), footprint)
-    both = where[:-1] & where[1:]  # the tip's own path: steps between two such samples
-    steps = np.stack([tip[:-1, :2], tip[1:, :2]], axis=1)[both]
-    return covered_stretches(steps, footprint)
 
 
 def chord_length(outline_m: np.ndarray, line: Stretches) -> float:
@@ -173,7 +161,7 @@ def _pieces(cuts: list[CutEffect], foods: Sequence[Food]) -> tuple[PieceEffect, 
         if not mine:
             continue
         lines = np.concatenate([cut.severed_m for cut in mine]).reshape(-1, 2, 2)
-        regions = Regions(food.outline_m, lines, resolution_m=PIECE_RESOLUTION_M)
+        regions = Regions(food.outline_m, lines, None, PIECE_RESOLUTION_M, PARTING_M)
         # shares of the regions' sum: the barriers' cells (0.2 mm along every cut) belong to
         # no piece, and would make every piece smaller than its share alike
         total = float(regions.areas_m2.sum())

@@ -16,10 +16,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from keymps.outcome.deposits import DOT_DIAMETER_FACTOR, merges
-from keymps.outcome.predict import Food, line_inside
+from keymps.outcome.predict import PARTING_M, Food, line_inside
 from keymps.types import CutEffect, Effect, PieceEffect, PlanIntent
 
-END_TOLERANCE_M = 0.0015
+END_TOLERANCE_M = PARTING_M
 """A cut's end inside the food counts as at the edge, or on another cut, within this."""
 ORIENTATION_TOLERANCE_DEG = 5.0
 """A cut runs in the stated direction when within this of it (a VLM's keypoints a few pixels
@@ -31,11 +31,15 @@ WIDTH_TOLERANCE_M = 0.0015
 footprint is measured to about half a pixel, 0.25-0.5 mm, on either side)."""
 SLICE_WIDTH_FRACTION = 0.1
 """Slices of a stated width: each within this fraction of it."""
+OVERCUT_M = 0.01
+"""A cut may run this far past another one it crosses before it ends inside the food: a slit
+(a ray turned a little past the centre), not a cut that stops short."""
 MIDDLE_FRACTION = 0.05
 """One cut through the middle: within this fraction of the object's extent of its middle."""
 
 TOLERANCES: dict[str, float] = {
     "cut_end_m": END_TOLERANCE_M,
+    "overcut_m": OVERCUT_M,
     "orientation_deg": ORIENTATION_TOLERANCE_DEG,
     "parallel_deg": PARALLEL_TOLERANCE_DEG,
     "width_m": WIDTH_TOLERANCE_M,
@@ -105,13 +109,16 @@ def cut_problems(effect: Effect, foods: Sequence[Food]) -> list[str]:
 
 def _short_end(cut: CutEffect, food: Food, cuts: Sequence[CutEffect]) -> float | None:
     """How far the first end of the cut's severed stretches that lies inside the food, on no
-    other cut, is from the object's edge along the cut's line (None: every end is fine)."""
+    other cut and not just past one (OVERCUT_M), is from the object's edge along the cut's line
+    (None: every end is fine)."""
     others = [c.severed_m for c in cuts if c is not cut and c.object_id == cut.object_id]
     lines = np.concatenate(others).reshape(-1, 2, 2) if others else np.zeros((0, 2, 2))
     for start, end in cut.severed_m:
-        axis = (end - start) / max(float(np.linalg.norm(end - start)), 1e-12)
+        length = max(float(np.linalg.norm(end - start)), 1e-12)
+        axis = (end - start) / length
         inside = line_inside(food.outline_m, start, axis)
-        for point, t in ((start, 0.0), (end, float(np.dot(end - start, axis)))):
+        crossings = _crossings(start, end, lines) * length
+        for point, t in ((start, 0.0), (end, length)):
             holding = inside[(inside[:, 0] <= t + 1e-9) & (t - 1e-9 <= inside[:, 1])]
             if not len(holding):
                 continue  # the end lies outside the food
@@ -120,8 +127,30 @@ def _short_end(cut: CutEffect, food: Food, cuts: Sequence[CutEffect]) -> float |
                 continue
             if len(lines) and _distance_to_segments(point, lines) <= END_TOLERANCE_M:
                 continue
+            if len(crossings) and float(np.abs(crossings - t).min()) <= OVERCUT_M:
+                continue  # a slit just past another cut: the pieces part there
             return to_edge
     return None
+
+
+def _crossings(start: np.ndarray, end: np.ndarray, segments: np.ndarray) -> np.ndarray:
+    """Where (fractions of start-end) the segment start-end crosses each of `segments`."""
+    if not len(segments):
+        return np.zeros(0)
+    d = end - start
+    a, b = segments[:, 0], segments[:, 1]
+    e = b - a
+    denominator = d[0] * e[:, 1] - d[1] * e[:, 0]
+    usable = np.abs(denominator) > 1e-15
+    gap = a - start
+    t = np.where(
+        usable, (gap[:, 0] * e[:, 1] - gap[:, 1] * e[:, 0]) / np.where(usable, denominator, 1), -1
+    )
+    u = np.where(
+        usable, (gap[:, 0] * d[1] - gap[:, 1] * d[0]) / np.where(usable, denominator, 1), -1
+    )
+    hit = usable & (t >= 0) & (t <= 1) & (u >= 0) & (u <= 1)
+    return t[hit]
 
 
 def _distance_to_segments(point: np.ndarray, segments: np.ndarray) -> float:
@@ -147,14 +176,25 @@ def intent_problems(effect: Effect, intent: PlanIntent, food: Food) -> list[str]
     if problems:
         return problems
     if intent.equal is not None and intent.pieces is not None:
-        by = intent.equal_by or ("width" if shape.kind == "elongated" else "area")
-        check = _equal_widths if by == "width" else _equal_areas
+        check = _equal_widths if _equal_by(intent, shape) == "width" else _equal_areas
         problems += check(cuts, pieces, intent, food)
     if intent.slice_width_mm is not None and cuts:
         problems += _width_problems(cuts, intent, food)
     if intent.design == "middle" and len(cuts) == 1:
         problems += _middle_problems(cuts[0], food)
     return problems
+
+
+def _equal_by(intent: PlanIntent, shape: Shape) -> str:
+    """What equal pieces compare when the intent does not say: widths across the cuts for an
+    elongated object's slices and a round one's parallel slices (the eval's ground truth),
+    areas otherwise (wedges, grids, a square's slices: equal widths along its sides are equal
+    areas, and a square cut askew is not in equal parts)."""
+    if intent.equal_by is not None:
+        return intent.equal_by
+    if shape.kind == "elongated" or (shape.kind == "round" and intent.design == "parallel"):
+        return "width"
+    return "area"
 
 
 def _shares(pieces: Sequence[PieceEffect]) -> str:

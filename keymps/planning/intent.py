@@ -31,13 +31,9 @@ def intent_of_design(design: Intent, source: IntentSource = "offline") -> PlanIn
             orientation=design.orientation,
         )
     if design.design == "parallel" and count is not None:
-        # equal spacing across the cuts (the eval's ground truth for "N parts vertically")
+        # equal widths on a round or long object, areas on a square (keymps.outcome.verdict)
         return replace(
-            claim,
-            pieces=count,
-            equal=EQUAL_PARTS_TOLERANCE,
-            equal_by="width",
-            orientation=design.orientation,
+            claim, pieces=count, equal=EQUAL_PARTS_TOLERANCE, orientation=design.orientation
         )
     if design.design == "width":
         return replace(
@@ -141,13 +137,12 @@ def intent_of_answer(
         ), []
     if answer.equal and answer.pieces is None:
         return None, ["intent.equal needs intent.pieces: how many equal pieces"]
-    by = answer.equal_by or ("width" if answer.design == "parallel" else None)
     return PlanIntent(
         family="cut",
         design=answer.design,
         pieces=answer.pieces,
         equal=EQUAL_PARTS_TOLERANCE if answer.equal else None,
-        equal_by=by if answer.equal else None,
+        equal_by=answer.equal_by if answer.equal else None,
         orientation=answer.orientation,  # type: ignore[arg-type]
         slice_width_mm=10 * answer.slice_width_cm if answer.slice_width_cm else None,
         object_length_mm=10 * answer.object_length_cm if answer.object_length_cm else None,

@@ -47,7 +47,7 @@ def test_every_sentence_the_grammar_reads_states_what_it_leaves() -> None:
     ("design", "expected"),
     [
         (Intent("cut", "parallel", count=3, orientation="vertical"),
-         "3 pieces, equal width within 5 %, cut vertically"),
+         "3 pieces, equal within 5 %, cut vertically"),
         (Intent("cut", "equal", count=6), "6 pieces, equal within 5 %"),
         (Intent("cut", "width", slice_width_mm=50, object_length_mm=200),
          "slices 5 cm wide, of an object 20 cm long"),
