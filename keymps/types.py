@@ -480,6 +480,9 @@ class CutEffect:
     chord_m: float | None = None
     """The food's extent along the cut's line (edge to edge, where the cut runs): what a cut
     through the whole object sweeps. Predicted only."""
+    swept_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 2, 2)))
+    """(m, 2, 2) where the edge lay on the board, inside the food or beyond its measured
+    outline (what an evaluation against the true outline cuts with). Predicted only."""
 
     @property
     def severed_length_m(self) -> float:

@@ -26,8 +26,9 @@ class MethodOutput:
     scene: dict[str, Any] | None = None
     """The synthetic scene's sidecar as rendered for this run (saves rendering it again)."""
     cut_lines_m: np.ndarray | None = None
-    """(M, 2, 2) where the knife cuts through, as the outcome stage predicted it (None when the
-    run did not reach it): the edge reaches past a cut's start, which the lines do not show."""
+    """(M, 2, 2) where the knife's edge lay on the board, as the outcome stage predicted it
+    (None when the run did not reach it): the edge reaches past a cut's start, which the lines
+    do not show, and past the detected outline."""
 
 
 @dataclass(frozen=True)

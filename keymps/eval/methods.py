@@ -135,7 +135,7 @@ def _pipeline_output(results: StageResults, context: MethodContext) -> MethodOut
     outcome = results.outcome
     cut = None
     if outcome is not None:
-        cut = np.concatenate([c.severed_m for c in outcome.predicted.cuts]).reshape(-1, 2, 2)
+        cut = np.concatenate([c.swept_m for c in outcome.predicted.cuts]).reshape(-1, 2, 2)
     return MethodOutput(
         cut_lines_m=cut,
         work_pieces=pieces,

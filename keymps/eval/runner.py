@@ -304,17 +304,10 @@ def run_job(
     try:
         task_path = write_task_file(suite, job, options.out)
         context = MethodContext(
-            task_path,
-            folder,
-            backend,
-            options.model,
-            options.api_base,
-            plan_only=suite.kind == "equal_parts",
-            outcome=options.outcome,
-            no_cache=options.no_cache,
-            image_format=options.image_format,
-            dispatch=dispatch,
-        )
+            task_path, folder, backend, options.model, options.api_base,
+            plan_only=suite.kind == "equal_parts", no_cache=options.no_cache,
+            image_format=options.image_format, dispatch=dispatch, outcome=options.outcome,
+        )  # fmt: skip
         try:
             output = get_method(job.method).run(context)
             error: str | None = None

@@ -112,12 +112,13 @@ def _cut(
 ) -> CutEffect:
     """One work piece's cut: its length through the food, its depth, where it cuts through."""
     below = np.flatnonzero(tip[:, 2] < food.height - BELOW_TOP_M)
-    through = severed = None
+    through = severed = swept = None
     if len(below) >= 2:
         taken, segments = edge_samples(tip[below], blade[below], blade_length)
         through = covered_stretches(segments, footprint)
         on_board = tip[below[taken], 2] <= SEVER_HEIGHT_M
         severed = through.of(on_board) if through is not None else None
+        swept = covered_stretches(segments[on_board], None) if severed is not None else None
     return CutEffect(
         pair_index=pair_index,
         object_id=food.id,
@@ -125,6 +126,7 @@ def _cut(
         depth_m=float(np.clip(food.height - tip[:, 2].min(), 0.0, food.height)),
         severed_m=severed.segments() if severed is not None else np.zeros((0, 2, 2)),
         chord_m=chord_length(food.outline_m, through) if through is not None else 0.0,
+        swept_m=swept.segments() if swept is not None else np.zeros((0, 2, 2)),
     )
 
 

@@ -47,6 +47,7 @@ def _cut(cut: CutEffect) -> dict[str, Any]:
         "depth_m": _number(cut.depth_m),
         "chord_m": _number(cut.chord_m) if cut.chord_m is not None else None,
         "severed_m": _points(cut.severed_m),
+        "swept_m": _points(cut.swept_m),
     }
 
 

@@ -24,6 +24,10 @@ END_TOLERANCE_M = PARTING_M
 ORIENTATION_TOLERANCE_DEG = 5.0
 """A cut runs in the stated direction when within this of it (a VLM's keypoints a few pixels
 off turn a 15 cm cut by 1-2 degrees; the issue's turned cake was 10 degrees off)."""
+ALIGNED_DEG = 10.0
+"""An object whose own axes are within this of the image's is aligned with the image: its cuts
+may run along either frame ("vertically" of a loaf lying across the image; a bent or tapered
+object's measured axis is a few degrees off its true one)."""
 PARALLEL_TOLERANCE_DEG = 3.0
 """Cuts whose directions differ by less than this are parallel (pieces compared by width)."""
 WIDTH_TOLERANCE_M = 0.0015
@@ -41,6 +45,7 @@ TOLERANCES: dict[str, float] = {
     "cut_end_m": END_TOLERANCE_M,
     "overcut_m": OVERCUT_M,
     "orientation_deg": ORIENTATION_TOLERANCE_DEG,
+    "aligned_deg": ALIGNED_DEG,
     "parallel_deg": PARALLEL_TOLERANCE_DEG,
     "width_m": WIDTH_TOLERANCE_M,
     "slice_width_fraction": SLICE_WIDTH_FRACTION,
@@ -295,43 +300,45 @@ def _middle_problems(cut: CutEffect, food: Food) -> list[str]:
 def _orientation_problems(
     cuts: Sequence[CutEffect], pieces: Sequence[PieceEffect], intent: PlanIntent, shape: Shape
 ) -> list[str]:
-    wanted = _wanted_direction(intent, shape)
-    if wanted is None:
+    wanted = _wanted_directions(intent, shape)
+    if not wanted:
         return []
     tolerance = math.radians(ORIENTATION_TOLERANCE_DEG)
     for cut in cuts:
-        off = _line_gap(_angle(cut), wanted)
+        off = min(_line_gap(_angle(cut), direction) for direction in wanted)
         if off > tolerance:
-            frame = "the image's" if shape.kind == "round" else "the object's own"
             areas = ", ".join(f"{1e4 * p.area_m2:.1f}" for p in pieces[:12])
             left = f": pieces of {areas} cm² ({_shares(pieces)})" if len(pieces) > 1 else ""
             return [
-                f"cut {cut.pair_index + 1} runs {math.degrees(off):.1f}° off {frame} "
-                f"{_axis_name(intent)} (at most {ORIENTATION_TOLERANCE_DEG:g}°){left}; the "
-                f"intent is {intent.describe()}"
+                f"cut {cut.pair_index + 1} runs {math.degrees(off):.1f}° off the "
+                f"{_axis_name(intent, shape)} (at most {ORIENTATION_TOLERANCE_DEG:g}°){left}; "
+                f"the intent is {intent.describe()}"
             ]
     return []
 
 
-def _axis_name(intent: PlanIntent) -> str:
-    return {
-        "vertical": "vertical",
-        "horizontal": "horizontal",
-        "lengthwise": "long axis",
-        "crosswise": "cross axis",
-    }[intent.orientation or "vertical"]
+def _axis_name(intent: PlanIntent, shape: Shape) -> str:
+    if intent.orientation in ("lengthwise", "crosswise"):
+        return "object's long axis" if intent.orientation == "lengthwise" else "object's cross axis"
+    if shape.kind == "round":
+        return f"image's {intent.orientation}"
+    return f"object's own side nearest the image's {intent.orientation}"
 
 
-def _wanted_direction(intent: PlanIntent, shape: Shape) -> float | None:
-    """The direction the cuts must run in (radians, board frame), None where the object's
-    frame does not fix one (lengthwise on a round or square object)."""
+def _wanted_directions(intent: PlanIntent, shape: Shape) -> list[float]:
+    """The directions the cuts may run in (radians, board frame): "vertical" / "horizontal" is
+    the object's own side nearest the image's vertical / horizontal; for an object within
+    ALIGNED_DEG of the image's axes the image's direction too. None where the object's frame
+    fixes nothing (lengthwise on a round or square object)."""
     axes = (shape.axis, shape.axis + math.pi / 2)
     if intent.orientation in ("vertical", "horizontal"):
         image = math.pi / 2 if intent.orientation == "vertical" else 0.0
-        return min(axes, key=lambda a: _line_gap(a, image))
-    if shape.kind != "elongated":
-        return None
-    return axes[0] if intent.orientation == "lengthwise" else axes[1]
+        own = min(axes, key=lambda a: _line_gap(a, image))
+        aligned = _line_gap(own, image) <= math.radians(ALIGNED_DEG)
+        return [image, own] if aligned else [own]
+    if shape.kind != "elongated" or intent.orientation is None:
+        return []
+    return [axes[0] if intent.orientation == "lengthwise" else axes[1]]
 
 
 def _angle(cut: CutEffect) -> float:

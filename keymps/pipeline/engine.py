@@ -32,6 +32,12 @@ Result = TypeVar("Result")
 RERUN_SCHEMES = ("rerun+http://", "rerun+https://", "rerun://")
 """How a Rerun viewer's address begins (--rerun connect)."""
 
+RUN_OPTIONS = (
+    "rerun", "rerun_url", "no_cache", "record", "confirm", "accept_outcome", "quiet",
+    "image_format", "dispatch",
+)  # fmt: skip
+"""run_task's keywords that set RunOptions (the others override the task file)."""
+
 StageCallback = Callable[[str, float, Any], None]
 """on_stage(stage, seconds, result): called after each stage (the CLI shows progress with it)."""
 
@@ -589,17 +595,7 @@ def run_task(
     if not isinstance(task, Task):
         task = load_task(task)
     options = options or RunOptions()
-    for key in (
-        "rerun",
-        "rerun_url",
-        "no_cache",
-        "record",
-        "confirm",
-        "accept_outcome",
-        "quiet",
-        "image_format",
-        "dispatch",
-    ):
+    for key in RUN_OPTIONS:
         if key in overrides:
             setattr(options, key, overrides.pop(key))
     if options.image_format not in IMAGE_FORMATS:
@@ -614,9 +610,7 @@ def run_task(
             "rerun+http://127.0.0.1:9876/proxy)"
         )
     if through not in ("ground", "outcome", "execute"):
-        raise KeympsError(
-            f"through={through!r}: a run goes through 'ground', 'outcome' or 'execute'"
-        )
+        raise KeympsError(f"through={through!r}: a run goes through ground, outcome or execute")
     out = overrides.pop("out", None)
     task = apply_overrides(task, overrides)
     backend, reason = choose_backend(

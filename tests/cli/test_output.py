@@ -106,5 +106,5 @@ def test_progress_is_coloured_on_a_terminal_unless_no_color(
     result = CliRunner().invoke(cli, args, color=True)  # as on a terminal
     assert result.exit_code == 0, result.output
     ticks = [line for line in result.output.splitlines() if "✓" in line]
-    assert len(ticks) == 9
+    assert len(ticks) == 10  # image to execute, the outcome stage included
     assert all(("\x1b[" in line) is not no_color for line in ticks)

@@ -183,8 +183,9 @@ def test_two_calls_keyword_then_pairs(server, scene, tmp_path):
     assert set(second["response_format"]["json_schema"]["schema"]["properties"]) == {
         "pairs",
         "design",
+        "intent",
         "rationale",
-    }  # planner.answer: either (pairs or a named design)
+    }  # planner.answer: either (pairs or a named design, and what the pairs achieve)
     assert "The chosen primitive is: sawing" in json.dumps(second["messages"])
     assert plan.keyword == "sawing" and plan.num_pairs == 2 and len(plan.calls) == 2
 
@@ -230,7 +231,8 @@ def test_a_vlm_answer_drives_a_full_run_and_the_key_stays_out_of_every_file(
     from keymps import run_task
 
     monkeypatch.setenv("OPENAI_API_KEY", CANARY)  # the provider's standard variable
-    crop_answer = {"keyword": "straight", "pairs": [[[40, 150], [260, 150]]], "rationale": "x"}
+    # one cut across the 15 cm pizza (the 320 px crop's object spans 10-310): the outcome passes
+    crop_answer = {"keyword": "straight", "pairs": [[[5, 160], [315, 160]]], "rationale": "x"}
     server.script(Reply.text_answer("```json\n{oops"), Reply.json_answer(crop_answer))
     run = run_task(
         CUTTING_TASK,

@@ -191,28 +191,32 @@ def _truth(case: Case, truth: dict, segments: np.ndarray) -> str:
 
 
 def _slices_truth(case: Case, outline: np.ndarray, cut: np.ndarray, parts: int) -> str:
+    """Parallel slices: in the asked direction (the object's own side nearest the image's
+    vertical or horizontal, or the image's own for an object within 10 degrees of it), equal
+    in width (a square's: in area), the pieces counted."""
     angles = np.arctan2(cut[:, 1, 1] - cut[:, 0, 1], cut[:, 1, 0] - cut[:, 0, 0])
-    axis = math.radians(case.rotation)
-    if "vertically" in case.sentence:
-        wanted = min(
-            axis, axis + math.pi / 2, key=lambda a: abs(math.remainder(a - math.pi / 2, math.pi))
-        )
-    elif "horizontally" in case.sentence:
-        wanted = min(axis, axis + math.pi / 2, key=lambda a: abs(math.remainder(a, math.pi)))
-    else:  # equal slices of a long object: parallel, equally thick across the cuts
-        wanted = angles[0] + float(
-            np.mean([math.remainder(a - angles[0], math.pi) for a in angles])
-        )
+    mean = angles[0] + float(np.mean([math.remainder(a - angles[0], math.pi) for a in angles]))
+    accepted, boundary = [mean], False  # equal slices of a long object: any one direction
+    if "ly into" in case.sentence:
+        image = math.pi / 2 if "vertically" in case.sentence else 0.0
+        axis = math.radians(case.rotation)
+        own = min(axis, axis + math.pi / 2, key=lambda a: abs(math.remainder(a - image, math.pi)))
+        tilt = math.degrees(abs(math.remainder(own - image, math.pi)))
+        accepted, boundary = ([image, own] if tilt < 10 else [own]), 8 <= tilt <= 12
+    wanted = min(accepted, key=lambda a: abs(math.remainder(mean - a, math.pi)))
     off = max(abs(math.remainder(a - wanted, math.pi)) for a in angles)
-    across = np.array([-math.sin(wanted), math.cos(wanted)])
-    extent = outline @ across
-    positions = np.sort(cut.mean(axis=1) @ across)
-    widths = np.diff([extent.min(), *positions, extent.max()])
-    deviation = float(np.abs(widths / widths.mean() - 1).max()) / TOLERANCE
     pieces = check_equal_parts(outline, cut, parts, TOLERANCE)
-    if len(pieces.areas_m2) != parts or off > math.radians(8):
+    if case.kind == "square_cake":
+        deviation = pieces.worst_deviation / TOLERANCE
+    else:
+        across = np.array([-math.sin(wanted), math.cos(wanted)])
+        extent = outline @ across
+        positions = np.sort(cut.mean(axis=1) @ across)
+        widths = np.diff([extent.min(), *positions, extent.max()])
+        deviation = float(np.abs(widths / widths.mean() - 1).max()) / TOLERANCE
+    if len(pieces.areas_m2) != parts or (off > math.radians(8) and not boundary):
         return "wrong"
-    if off > math.radians(3):  # near the 5 degrees allowed: widths across it are not judged
+    if boundary or off > math.radians(3):  # near the limits: not judged
         return "near"
     return "wrong" if deviation > 1.5 else ("right" if deviation < 0.6 else "near")
 

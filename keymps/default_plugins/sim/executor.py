@@ -354,7 +354,6 @@ class SimExecutor:
         found = marks(result, tops, blade_length, knife=model.tool.blade_length > 0)
         clip = Footprint(outline) if outline is not None else None
         lengths = [covered_length(sweep, clip) for sweep in found.sweeps]
-        measured = _measured(found, lengths, tops, tool_path, result)
         period = float(np.diff(result.t).mean()) if len(result.t) > 1 else 0.0
         figures = {
             "duration_s": trajectory.duration_s,
@@ -386,17 +385,7 @@ class SimExecutor:
                 ),
             )
             files.append(str(path))
-        problems = []
-        if len(found.contacts):
-            problems.append(
-                f"the tool touched below the board for {figures['below_board_s']:.3f} s "
-                f"(lowest {figures['min_tool_z_mm']:.1f} mm)"
-            )
-        if figures["max_tracking_error_mm"] > TRACKING_LIMIT_M * 1000:
-            problems.append(
-                f"tracking error {figures['max_tracking_error_mm']:.2f} mm exceeds "
-                f"{TRACKING_LIMIT_M * 1000:.1f} mm"
-            )
+        problems = _problems(found, figures)
         counts = [
             _count(len(found.cuts), "cut"),
             _count(len(found.strokes), "icing stroke"),
@@ -408,9 +397,26 @@ class SimExecutor:
             f"{figures['max_tracking_error_mm']:.3f} mm"
         )
         message = "; ".join(problems) if problems else summary
+        measured = _measured(found, lengths, tops, tool_path, result)
         return ExecutionReport(
             self.name, not problems, message, tuple(files), figures, measured=measured
         )
+
+
+def _problems(found: Marks, figures: dict[str, float]) -> list[str]:
+    """What makes the replay fail: contact below the board, tracking error."""
+    problems = []
+    if len(found.contacts):
+        problems.append(
+            f"the tool touched below the board for {figures['below_board_s']:.3f} s "
+            f"(lowest {figures['min_tool_z_mm']:.1f} mm)"
+        )
+    if figures["max_tracking_error_mm"] > TRACKING_LIMIT_M * 1000:
+        problems.append(
+            f"tracking error {figures['max_tracking_error_mm']:.2f} mm exceeds "
+            f"{TRACKING_LIMIT_M * 1000:.1f} mm"
+        )
+    return problems
 
 
 def _measured(
