@@ -64,7 +64,7 @@ def judge(
     """Every problem of the predicted effect, one line each, the checks every plan gets first."""
     worked = {piece.object_id for piece in tool_path.pieces if piece.kind == "work"}
     if tool.cuts:
-        problems = cut_problems(predicted, foods)
+        problems = cut_problems(predicted, foods, tool.blade_length)
     else:
         pairs = sorted({p.pair_index for p in tool_path.pieces if p.kind == "work"})
         problems = icing_problems(predicted, pairs, tool.line_width)

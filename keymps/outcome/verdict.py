@@ -76,7 +76,7 @@ def measured_shape(outline_m: np.ndarray) -> Shape:
     return Shape(kind, 0.0 if kind == "round" else angle, polygon_centroid(polygon) / 1000.0)
 
 
-def cut_problems(effect: Effect, foods: Sequence[Food]) -> list[str]:
+def cut_problems(effect: Effect, foods: Sequence[Food], blade_length: float = 0.0) -> list[str]:
     """What is wrong with the cuts whatever was asked: each cut must go through the food, down
     to the board, and from edge to edge (or to another cut)."""
     problems: list[str] = []
@@ -104,10 +104,17 @@ def cut_problems(effect: Effect, foods: Sequence[Food]) -> list[str]:
         else:
             short = _short_end(cut, food, effect.cuts)
             if short is not None:
+                chord = cut.chord_m or 0.0
+                longer = (
+                    f" (the {1000 * blade_length:.0f} mm blade, robot.tool.blade_length, lies on "
+                    "the board along the end of a cut only)"
+                    if 0 < blade_length < chord - END_TOLERANCE_M
+                    else ""
+                )
                 problems.append(
                     f"{name} stops {1000 * short:.1f} mm short of the object's edge: it cuts "
-                    f"through {1000 * cut.severed_length_m:.1f} of the "
-                    f"{1000 * (cut.chord_m or 0):.1f} mm across"
+                    f"through {1000 * cut.severed_length_m:.1f} of the {1000 * chord:.1f} mm "
+                    f"across{longer}"
                 )
     return problems
 
