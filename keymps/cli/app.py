@@ -158,6 +158,7 @@ def validate(task_files: tuple[Path, ...]) -> None:
 
 @cli.command()
 @click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
+@user_errors
 def plugins(as_json: bool) -> None:
     """List every plugin: name, what it provides, distribution and version."""
     from keymps.cli.output import print_plugins
@@ -189,13 +190,15 @@ exported wins."""
 
 def main() -> None:
     from keymps._memory import keep_freed_memory
+    from keymps.interrupts import signals_stop_the_command
 
     for name in SINGLE_THREADED:
         os.environ.setdefault(name, "1")
     keep_freed_memory()  # freed arrays reused, not faulted in again page by page
     warnings.formatwarning = _one_line_warning
     try:
-        cli(prog_name="keymps")
+        with signals_stop_the_command():  # SIGTERM and SIGHUP stop a run as Ctrl-C does
+            cli(prog_name="keymps")
     except SystemExit as done:
         if not (_finished_cleanly and done.code in (None, 0)):
             raise

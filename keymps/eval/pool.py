@@ -121,8 +121,12 @@ def _worker(
     calls go to the parent's broker (keymps.eval.broker)."""
     import signal
 
-    # Ctrl-C reaches the whole process group: the parent alone stops, then ends its workers
+    # Ctrl-C and a closed terminal's SIGHUP reach the whole process group: the parent alone
+    # stops, then ends its workers (SIGTERM, which ends a worker at once, not the parent's
+    # orderly stop a forked worker would inherit)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
     os.environ.clear()
     os.environ.update(environment)
     from keymps.eval.broker import BROKERED_BACKEND, BrokerClient

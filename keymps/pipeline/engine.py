@@ -12,8 +12,16 @@ from typing import Any, TypeVar
 
 from keymps.config.overrides import apply_overrides
 from keymps.config.task import Task, load_task
-from keymps.errors import KeympsError, RunInterrupted, StageError, TaskFileError, os_error_message
-from keymps.interrupts import interrupts_deferred
+from keymps.errors import (
+    Interrupted,
+    KeympsError,
+    RunInterrupted,
+    StageError,
+    TaskFileError,
+    interrupt_name,
+    os_error_message,
+)
+from keymps.interrupts import first_signal, interrupts_deferred, signals_received
 from keymps.planning.backend_choice import NO_SERVER
 from keymps.plugin.manager import create_component, get_manager
 from keymps.run import IMAGE_FORMATS, STAGES, Run, RunOptions, clear_earlier_run
@@ -192,6 +200,7 @@ class _Pipeline:
     def stage(self, name: str, work: Callable[[], Any]) -> Any:
         started = time.perf_counter()
         self.current = name
+        signals_before = signals_received()
         try:
             result = work()
         except StageError as error:
@@ -221,6 +230,9 @@ class _Pipeline:
                 f"(a bug in {suspects}; KEYMPS_DEBUG=1 shows the traceback)",
             ) from error
         seconds = time.perf_counter() - started
+        if signals_received() > signals_before:  # a stop signal the stage's code swallowed (an
+            self.run.stages.record(name, result)  # executor that stopped the arm and returned)
+            raise Interrupted(first_signal())
         self.current, self.done = None, name
         self.run.stages.record(name, result)
         self.run.timings_s[name] = seconds
@@ -388,12 +400,27 @@ def _write_record(run: Run, error: BaseException | None, pipeline: _Pipeline) ->
     from keymps.pipeline.run_folder import write_run_json
 
     if isinstance(error, KeyboardInterrupt):
-        error = RunInterrupted(pipeline.current, pipeline.done)
+        error = RunInterrupted(pipeline.current, pipeline.done, interrupt_name(error))
     try:
         write_run_json(run, error)
     except OSError as failure:
         return os_error_message(failure)
     return None
+
+
+def _prepare_folder(run: Run) -> None:
+    """Remove an earlier run's files, then write the placeholder run.json that holds the disk
+    space of the record (a run.json that is a folder, a full disk: refused before any stage)."""
+    from keymps.pipeline.run_folder import reserve_run_json
+
+    clear_earlier_run(run.folder)
+    with interrupts_deferred():
+        try:
+            reserve_run_json(run)
+        except OSError as error:
+            raise KeympsError(
+                f"{os_error_message(error)} (run.json is written before the first stage)"
+            ) from None
 
 
 def run_task(
@@ -460,12 +487,12 @@ def run_task(
     parts = Components(task, backend, through)
     folder = _new_run_folder(task, Path(out) if out else None)
     lock = FolderLock(folder).acquire()  # a second run into this folder refuses here
+    run = Run(task=task, folder=folder, options=options)
     try:
-        clear_earlier_run(folder)
-    except KeympsError:
+        _prepare_folder(run)
+    except BaseException:
         lock.release()
         raise
-    run = Run(task=task, folder=folder, options=options)
     run.backend, run.backend_reason, run.robot = backend, reason, parts.robot
     keyless = untrusted_api_base_warning(task) if backend not in NO_SERVER else None
     if keyless:
