@@ -45,8 +45,11 @@ def signals_stop_the_command() -> Iterator[None]:
     try:
         yield
     finally:
+        stopped = bool(_received)
         for number, handler in previous.items():
-            signal.signal(number, handler)
+            # a command a signal stopped is exiting: a second Ctrl-C 50 ms later must not cut
+            # that exit short with Python's own KeyboardInterrupt
+            signal.signal(number, signal.SIG_IGN if stopped else handler)
         _received.clear()
 
 
