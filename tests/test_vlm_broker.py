@@ -341,6 +341,47 @@ def test_eval_records_exhausted_retries_as_one_line(
     assert "Traceback" not in result.output
 
 
+@pytest.mark.parametrize("finished", [1, 6, 12])
+def test_ctrl_c_in_an_offline_eval_is_one_line(finished: int, tmp_path: Path) -> None:
+    """Ctrl-C to the process group once `finished` runs are recorded. The offline suite runs in
+    this process too: its run in flight ended after the queues had closed and printed
+    `ValueError: Queue ... is closed` (6 of 6 tries)."""
+    out = tmp_path / "offline"
+    process = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "from keymps.cli.app import main; main()",
+            "eval",
+            "cutting_sim",
+            "--backend",
+            "offline",
+            "--repeats",
+            "3",
+            "--processes",
+            "2",
+            "--quiet",
+            "--out",
+            str(out),
+        ],  # fmt: skip
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        start_new_session=True,
+        text=True,
+    )
+    deadline = time.monotonic() + 120
+    while len(read_results(out / "results.jsonl")) < finished and process.poll() is None:
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
+    os.killpg(process.pid, signal.SIGINT)
+    _, stderr = process.communicate(timeout=60)
+    if process.returncode == 0:
+        pytest.skip("the suite ended before the Ctrl-C")
+    assert process.returncode == 130, stderr
+    assert "Traceback" not in stderr and "is closed" not in stderr, stderr
+    assert stderr.strip().splitlines()[-1].startswith("interrupted: "), stderr
+
+
 def test_ctrl_c_keeps_every_finished_run_and_a_rerun_does_the_rest(tmp_path: Path) -> None:
     """Ctrl-C (SIGINT to the process group, as a terminal sends it) in the middle of a suite:
     it stops within seconds with one line, results.jsonl holds whole records only, and the

@@ -28,6 +28,7 @@ As in any multiprocessing program, a script that runs a suite with processes > 1
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import gc
 import multiprocessing
@@ -161,7 +162,10 @@ def _take_jobs(
                 "ok": False,
                 "error": f"internal error {type(error).__name__}: {error}",
             }
-        results.put((job, record))
+        # stopped (Ctrl-C) and the queue closed: the run is not in results.jsonl, so the next
+        # `keymps eval` does it again
+        with contextlib.suppress(ValueError, OSError):
+            results.put((job, record))
         free.release()
 
     with ThreadPoolExecutor(max_workers=threads) as pool:
