@@ -53,6 +53,12 @@ def signals_stop_the_command() -> Iterator[None]:
         _received.clear()
 
 
+def handling_signals() -> bool:
+    """Whether the keymps command's handler is installed (a KeyboardInterrupt without a signal
+    then came from code, a plugin's, not from the user)."""
+    return signal.getsignal(signal.SIGINT) is _stop_the_command
+
+
 def signals_received() -> int:
     """How many stop signals the command's handler has seen (0 outside the command)."""
     return len(_received)

@@ -23,7 +23,7 @@ from keymps.errors import (
 )
 from keymps.interrupts import first_signal, interrupts_deferred, signals_received
 from keymps.planning.backend_choice import NO_SERVER
-from keymps.plugin.manager import create_component, get_manager
+from keymps.plugin.manager import call_each, create_component, get_manager
 from keymps.run import IMAGE_FORMATS, STAGES, Run, RunOptions, clear_earlier_run
 from keymps.types import Detection, ExecutionReport, SceneImage
 
@@ -262,27 +262,13 @@ class _Pipeline:
         }.get(stage)
 
     def announce(self, name: str, result: Any) -> None:
-        """Tell the observers, each on its own: one that raises is reported (by name) and the
-        others, the Rerun recorder among them, still see the stage."""
-        observers = [impl.plugin for impl in self.manager.hook.keymps_stage_done.get_hookimpls()]
-        pressed: KeyboardInterrupt | None = None
-        for observer in reversed(observers):  # pluggy's order: the last registered first
-            others = [plugin for plugin in observers if plugin is not observer]
-            only = self.manager.subset_hook_caller("keymps_stage_done", remove_plugins=others)
-            try:
-                only(stage=name, result=result, run=self.run)
-            except KeyboardInterrupt as interrupt:  # the others still hear of it (the recorder
-                pressed = interrupt  # closes run.rrd at "finished"); the Ctrl-C then goes on
-            except Exception as error:
-                plugin = self.manager.get_name(observer)
-                message = (
-                    f"an observer of stage {name!r} failed (plugin {plugin!r}): "
-                    f"{type(error).__name__}: {error}"
-                )
-                self.run.warnings.append(message)
-                warnings.warn(message, RuntimeWarning, stacklevel=2)
-        if pressed is not None:
-            raise pressed
+        """Tell the observers, each on its own: one that raises is unregistered with one
+        warning naming it, and the others, the Rerun recorder among them, still see the
+        stage (the user's Ctrl-C goes on after them)."""
+        problems = call_each(
+            self.manager, "keymps_stage_done", stage=name, result=result, run=self.run
+        )
+        self.run.warnings.extend(problems)
 
     def execute_all(self) -> None:
         from keymps.config.limits import check_duration, check_tool_path
