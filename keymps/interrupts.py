@@ -34,22 +34,24 @@ def _stop_the_command(signum: int, _frame: Any) -> None:
 
 
 @contextmanager
-def signals_stop_the_command() -> Iterator[None]:
+def signals_stop_the_command() -> Iterator[list[int]]:
     """Within the block (the keymps command), Ctrl-C, SIGTERM and SIGHUP raise `Interrupted` in
     the main thread: the same orderly stop for the three (an executor stops the arm, run.json
-    records `interrupted`). A second signal soon after the first waits for that stop to end."""
+    records `interrupted`). A second signal soon after the first waits for that stop to end.
+    Yields the list of the signals received (still filled after the block)."""
+    received: list[int] = []
     if threading.current_thread() is not threading.main_thread():
-        yield
+        yield received
         return
     previous = {number: signal.signal(number, _stop_the_command) for number in STOP_SIGNALS}
     try:
-        yield
+        yield received
     finally:
-        stopped = bool(_received)
+        received.extend(number for number, _ in _received)
         for number, handler in previous.items():
             # a command a signal stopped is exiting: a second Ctrl-C 50 ms later must not cut
             # that exit short with Python's own KeyboardInterrupt
-            signal.signal(number, signal.SIG_IGN if stopped else handler)
+            signal.signal(number, signal.SIG_IGN if received else handler)
         _received.clear()
 
 
