@@ -70,7 +70,7 @@ class StageError(KeympsError):
 
     Args:
         stage: The stage's name (one of keymps.run.STAGES).
-        message: One line; a leading "<stage>: " is dropped, so the stage is named once.
+        message: One line; a leading `"<stage>: "` is dropped, so the stage is named once.
         detail: The error the stage raised, when there was one.
     """
 

@@ -90,7 +90,7 @@ class Run:
     task: Task
     """The task being run, command-line overrides applied."""
     folder: Path
-    """The run folder (runs/<task>-<time>/ or --out): run.json and every file of the run."""
+    """The run folder (`runs/<task>-<time>/` or `--out`): run.json and every file of the run."""
     options: RunOptions = field(default_factory=RunOptions)
     """Choices made on the command line or by run_task's keywords, not in the task file."""
     stages: StageResults = field(default_factory=StageResults)

@@ -1,6 +1,7 @@
 """The data passed between pipeline stages: typed, immutable, numpy inside.
 
 Frames and units, used everywhere in keymps:
+
 - image pixels: origin at the top-left corner of the full image, x right, y down;
 - crop pixels: the same, with the origin at the top-left corner of the crop sent to the VLM;
 - board frame: metres, origin at the bottom-left corner of the workspace as seen in the image,
@@ -355,8 +356,10 @@ class GroundedObject:
 
 @dataclass(frozen=True)
 class Grounding:
-    """The plan in the board frame: the segments and the heights the motion works at (the
-    `ground` stage's result)."""
+    """The plan in the board frame: the `ground` stage's result.
+
+    The segments, and the heights the motion works at.
+    """
 
     segments: tuple[Segment, ...]
     """K grounded keypoint pairs, in the plan's order."""
@@ -398,8 +401,10 @@ class Piece:
 
 @dataclass(frozen=True)
 class ToolPath:
-    """The composed Cartesian path (Eq. 6): travel moves and re-targeted primitives (the
-    `compose` stage's result)."""
+    """The composed Cartesian path (Eq. 6): the `compose` stage's result.
+
+    Travel moves and re-targeted primitives, in execution order.
+    """
 
     pieces: tuple[Piece, ...]
     """The pieces in execution order, each starting where the one before it ended."""
@@ -414,8 +419,10 @@ class ToolPath:
 
 @dataclass(frozen=True)
 class JointPath:
-    """Inverse-kinematics solution of a ToolPath: one joint vector per path point (the `solve`
-    stage's result)."""
+    """Inverse-kinematics solution of a ToolPath: the `solve` stage's result.
+
+    One joint vector per path point.
+    """
 
     pieces: tuple[np.ndarray, ...]
     """Per piece, (n, 6) joint angles in radians aligned with the piece's points."""
@@ -429,8 +436,10 @@ class JointPath:
 
 @dataclass(frozen=True)
 class Trajectory:
-    """A time-parameterized joint trajectory sampled at the controller rate (the `time` stage's
-    result): jerk-limited, within the arm's joint and the tool's speed limits."""
+    """A joint trajectory sampled at the controller rate: the `time` stage's result.
+
+    Jerk-limited, within the arm's joint limits and the tool's speed limits.
+    """
 
     t: np.ndarray
     """(n,) sample times, seconds from the start, 1 / rate_hz apart."""
@@ -480,8 +489,10 @@ class ValidationReport:
 
 @dataclass(frozen=True)
 class ValidatedTrajectory:
-    """A Trajectory that passed keymps.robot.safety (the `check` stage's result); executors
-    accept only this type, through `keymps.plugin.require_validated`."""
+    """A Trajectory that passed keymps.robot.safety: the `check` stage's result.
+
+    Executors accept only this type, through `keymps.plugin.require_validated`.
+    """
 
     trajectory: Trajectory
     """The trajectory as checked, its arrays read-only."""

@@ -5,6 +5,7 @@ The reference is read with griffe, as mkdocstrings reads it: from the source, Go
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -75,6 +76,30 @@ def test_keymps_types_exports_every_type_it_defines(keymps_api: Any) -> None:
         if not member.is_alias and not name.startswith("_") and name != "annotations"
     }
     assert defined == set(module.exports)
+
+
+def test_classes_and_callables_open_with_a_one_line_summary(keymps_api: Any) -> None:
+    """The reference's summary tables show a docstring's first line alone (PEP 257)."""
+    run_on = []
+    for name, target in [*_public(keymps_api), *_callables(keymps_api)]:
+        lines = target.docstring.value.splitlines() if target.docstring else []
+        if (target.is_class or target.is_function) and len(lines) > 1 and lines[1].strip():
+            run_on.append(name)
+    assert not run_on, f"a summary that runs on to a second line: {sorted(set(run_on))}"
+
+
+def test_no_docstring_hides_a_placeholder_as_html(keymps_api: Any) -> None:
+    """Markdown passes `<name>` through as an HTML tag, which the page then leaves out:
+    placeholders such as runs/<name>-<time>/ belong in backticks."""
+    code = re.compile(r"```.*?```|`[^`]*`", re.DOTALL)
+    hidden = []
+    for name, target in _public(keymps_api):
+        members = target.members.items() if target.is_class else ()
+        for label, item in [(name, target), *((f"{name}.{m}", v) for m, v in members)]:
+            text = code.sub("", item.docstring.value) if item.docstring else ""
+            if not item.is_alias and re.search(r"<[A-Za-z][\w-]*>", text):
+                hidden.append(label)
+    assert not hidden, f"docstrings with a bare <placeholder>: {hidden}"
 
 
 def test_every_field_of_a_public_class_has_a_docstring(keymps_api: Any) -> None:

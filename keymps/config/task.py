@@ -272,7 +272,7 @@ class Task(StrictModel):
     """
 
     name: str = Field(min_length=1, max_length=200)
-    """Names the run folder (runs/<name>-<time>/)."""
+    """Names the run folder (`runs/<name>-<time>/`)."""
     instruction: str = Field(min_length=1, max_length=4000)
     """The sentence the planner carries out ("cut it into 8 equal slices")."""
     scene: Scene

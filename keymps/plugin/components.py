@@ -36,8 +36,10 @@ class ImageSource(Protocol):
 
 
 class Detector(Protocol):
-    """Finds the object(s) in the scene image: `register_detectors(register)`; raise
-    DetectionError when there is none."""
+    """Finds the object(s) in the scene image: `register_detectors(register)`.
+
+    Raise DetectionError when there is none.
+    """
 
     def detect(self, scene: SceneImage) -> Detection:
         """Find the object(s) in the scene image.
@@ -82,8 +84,10 @@ class VlmBackend(Protocol):
 
 
 class Executor(Protocol):
-    """Runs a validated trajectory: `register_executors(register)`. It must call
-    keymps.robot.safety.require_validated(validated, name) before moving anything."""
+    """Runs a validated trajectory: `register_executors(register)`.
+
+    It must call `require_validated(validated, name)` before moving anything.
+    """
 
     name: str
     """The executor's registered name (run.json's `execution.executor`)."""
