@@ -574,6 +574,14 @@ def _check_trust(task: Task, source: str, parsed: PositionedYaml) -> list[str]:
         )
         if wrong:
             problem(("planner", "prompt"), wrong)
+    if task.planner.cassette is not None:  # --cassette, the user's own, is not checked here
+        wrong = trust.readable_file_problem(
+            task.resolve(task.planner.cassette),
+            [trust.real_path(task.folder)],
+            trust.MAX_CASSETTE_BYTES,
+        )
+        if wrong:
+            problem(("planner", "cassette"), wrong)
     return problems
 
 
