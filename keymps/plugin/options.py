@@ -12,10 +12,19 @@ Options = TypeVar("Options", bound=BaseModel)
 
 
 def parse_options(model: type[Options], options: dict[str, Any] | None, component: str) -> Options:
-    """Validate `options` with `model`; on failure raise one KeympsError line naming every problem.
+    """Validate a plugin's options with its pydantic model.
 
-    `component` names the plugin in the message, e.g. "threshold detector" or "executor ur-rtde":
-    "threshold detector: option 'blur': must be odd; option 'x': unknown option (options: ...)".
+    Args:
+        model: The options' pydantic model (`extra="forbid"` makes unknown options errors).
+        options: The task file's section for the plugin, without `name`; None for none.
+        component: Names the plugin in the message, e.g. "threshold detector".
+
+    Returns:
+        The validated options.
+
+    Raises:
+        keymps.errors.KeympsError: One line naming every problem, e.g. "threshold detector:
+            option 'blur': must be odd; option 'x': unknown option (options: ...)".
     """
     try:
         return model.model_validate(options or {})

@@ -49,7 +49,21 @@ def issue(trajectory: Trajectory, report: ValidationReport) -> ValidatedTrajecto
 
 
 def require_validated(candidate: object, executor: str) -> Trajectory:
-    """The trajectory inside a ValidatedTrajectory issued by `validate`, unchanged since."""
+    """The trajectory inside a ValidatedTrajectory the safety check issued, unchanged since.
+
+    Every executor calls this before it moves anything.
+
+    Args:
+        candidate: What the executor was given.
+        executor: The executor's name, for the message.
+
+    Returns:
+        The checked trajectory (its arrays read-only).
+
+    Raises:
+        keymps.errors.SafetyError: When `candidate` was not issued by
+            keymps.robot.safety.validate, failed it, or was modified afterwards.
+    """
     entry = _issued.get(id(candidate))
     if (
         not isinstance(candidate, ValidatedTrajectory)
