@@ -115,7 +115,10 @@ class RosbagExecutor:
             if options.joint_states_topic is not None:
                 states = joint_states(store, trajectory, options.joint_prefix, stamps)
                 counts[options.joint_states_topic] = _put(
-                    writer, store, options.joint_states_topic, zip(stamps.tolist(), states)
+                    writer,
+                    store,
+                    options.joint_states_topic,
+                    zip(stamps.tolist(), states, strict=True),
                 )
         return counts
 

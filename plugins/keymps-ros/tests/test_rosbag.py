@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 import pytest
 import yaml
+from keymps_ros.rosbag import joint_trajectory, replace_bag, typestore
 from rosbags.rosbag2 import Reader
 
 from keymps.config.task import Task
@@ -21,7 +22,6 @@ from keymps.robot.model import RobotModel, solve_path
 from keymps.robot.safety import SafetyError, validate
 from keymps.run import Run
 from keymps.types import Piece, ToolPath, Trajectory, ValidatedTrajectory
-from keymps_ros.rosbag import joint_trajectory, replace_bag, typestore
 
 
 def make_task(model: str, name: str = "icing lines") -> Task:
