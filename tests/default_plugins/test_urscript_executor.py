@@ -272,3 +272,26 @@ def test_the_same_trajectory_gives_the_same_bytes(tmp_path: Path) -> None:
     create_component("executor", "urscript", {}).execute(again, run)
     first = (tmp_path / "a" / "trajectory.script").read_bytes()
     assert first == (tmp_path / "b" / "trajectory.script").read_bytes()
+
+
+def test_a_whole_run_writes_the_program_of_its_own_trajectory(tmp_path: Path) -> None:
+    import json
+
+    from keymps import run_task
+    from keymps.motion.trajectory_io import read_trajectory_csv
+
+    repo = Path(__file__).resolve().parents[2]
+    run = run_task(
+        repo / "tasks" / "cake_icing.yaml", executor="urscript", backend="offline",
+        out=tmp_path / "run", rerun="off",
+    )  # fmt: skip
+    record = json.loads((run.folder / "run.json").read_text())["execution"]
+    assert record["ok"] and record["files"] == [str(run.folder / "trajectory.script")]
+    assert run.stages.check is not None
+    trajectory = run.stages.check.trajectory
+    program = read_urscript((run.folder / "trajectory.script").read_text())
+    check_servoj(program, trajectory, UR3, 0.1, 300.0)
+    assert program.comment("trajectory sha256:") == trajectory_digest(trajectory)
+    table = read_trajectory_csv(run.folder / "trajectory.csv")  # the run folder's own record
+    servos = np.array([c.joints() for c in program.named("servoj")[:-1]])
+    assert np.abs(servos - table["q"][1:]).max() <= JOINTS
