@@ -113,7 +113,9 @@ class Ros2Executor:
         finally:
             _close(ros)
 
-    def _check_start(self, actual: np.ndarray, trajectory: Trajectory, run: Any) -> Any:
+    def _check_start(
+        self, actual: np.ndarray, trajectory: Trajectory, run: Any
+    ) -> tuple[float, Trajectory]:
         """The largest joint offset to the first sample and the checked move there."""
         from keymps.plugin import SafetyError
         from keymps.robot.approach import check_approach, move_j_profile
@@ -132,7 +134,7 @@ class Ros2Executor:
         speed, acceleration = self.options.approach_speed, self.options.approach_acceleration
         try:
             check_approach(
-                RobotModel.from_task(run.task), actual, first, run.task,
+                run.robot or RobotModel.from_task(run.task), actual, first, run.task,
                 speed=speed, acceleration=acceleration, rate_hz=float(trajectory.rate_hz),
             )  # fmt: skip
         except SafetyError as error:
