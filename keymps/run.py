@@ -211,6 +211,7 @@ def _remove(path: Path) -> None:
 EARLIER_RUN_FILES = (
     "trajectory.csv",
     "trajectory.json",
+    "trajectory.script",
     "run.rrd",
     "execution.mp4",
     *(f"{stem}.{suffix}" for stem in ("plan", "plan_photo", "outcome") for suffix in IMAGE_FORMATS),

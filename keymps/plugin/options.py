@@ -2,13 +2,29 @@
 
 from __future__ import annotations
 
-from typing import Any, TypeVar
+from pathlib import Path
+from typing import Annotated, Any, TypeVar
 
-from pydantic import BaseModel, ValidationError
+from pydantic import AfterValidator, BaseModel, ValidationError
 
 from keymps.errors import KeympsError
 
 Options = TypeVar("Options", bound=BaseModel)
+
+
+def _inside_the_run_folder(path: Path) -> Path:
+    # A task file may come from a stranger: a plugin writes nothing outside the run folder.
+    if path.is_absolute() or ".." in path.parts or not path.name:
+        raise ValueError(
+            f"{str(path)!r} leads out of the run folder: name a file in it "
+            "(--out chooses the folder)"
+        )
+    return path
+
+
+RunFolderPath = Annotated[Path, AfterValidator(_inside_the_run_folder)]
+"""An option naming a file or folder inside the run folder (subfolders allowed): an absolute
+path or one with `..` is refused in one line. Write it with `run.path(str(option))`."""
 
 
 def parse_options(model: type[Options], options: dict[str, Any] | None, component: str) -> Options:

@@ -81,3 +81,10 @@ def require_validated(candidate: object, executor: str) -> Trajectory:
             [f"executor {executor!r} refuses a validated trajectory that was modified afterwards"]
         )
     return candidate.trajectory
+
+
+def trajectory_digest(trajectory: Trajectory) -> str:
+    """The sha256 (hex) of a trajectory's samples, joint names and rate: what
+    `require_validated` compares, and what exported files name to say which trajectory they
+    hold."""
+    return _digest(trajectory)
