@@ -1,6 +1,6 @@
 """Shared by the tests: the count of fuzzed and fault-injected cases, printed after every run.
 
-The fuzz suites (tests/test_fuzz_*.py, test_safety_invariants.py, test_vlm_faults.py) add each
+The fuzz suites (tests/*/test_*_fuzz.py and test_litellm_faults.py) add each
 distinct case they try to the session's `fuzz_counter`; pytest's terminal summary then prints
 one line per suite, so CI logs show how many cases ran (docs/safety.md).
 """

@@ -1,6 +1,6 @@
 """Canaries: secrets planted every way a run could leak them never appear in a byte it writes.
 
-`keymps run` against tests/vlm_server.py on 127.0.0.1, a successful run in its own process
+`keymps run` against tests/helpers/vlm_server.py on 127.0.0.1, a successful run in its own process
 (python -m keymps.cli.app) and a failing one in this process (click's streams and the file
 descriptors both captured), with canaries as
 
@@ -29,8 +29,8 @@ from typing import Any
 from urllib.parse import quote
 
 from click.testing import CliRunner
-from fuzz_support import task_copy
-from vlm_server import Recorded, Reply, VlmServer
+from helpers.fuzz_support import task_copy
+from helpers.vlm_server import Recorded, Reply, VlmServer
 
 from keymps.cli.app import cli
 

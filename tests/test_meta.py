@@ -38,7 +38,7 @@ def test_every_hook_has_a_docs_heading_with_its_signature(hook: str) -> None:
 
 @pytest.mark.parametrize("hook", HOOKS)
 def test_every_hook_is_exercised_by_a_test(hook: str) -> None:
-    tests = [p for p in (REPO / "tests").glob("test_*.py") if p.name != "test_meta.py"]
+    tests = [p for p in (REPO / "tests").rglob("test_*.py") if p.name != "test_meta.py"]
     assert any(re.search(rf"\b{hook}\b", p.read_text()) for p in tests), hook
 
 

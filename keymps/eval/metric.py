@@ -16,7 +16,7 @@ sampled every millimetre) to avoid that.
 
 The nearest-free search is numpy (it was scipy's cKDTree, whose import every `keymps eval`
 process paid); the optimal assignment is scipy's compiled solver, loaded on its own
-(keymps/eval/assignment.py). tests/test_evaluate.py checks both against scipy's public API on
+(keymps/eval/assignment.py). tests/eval/test_metric.py checks both against scipy's public API on
 generated motions.
 """
 

@@ -4,7 +4,7 @@ The timing maps the path parameter s to joints through one spline per stroke. Th
 spline scipy.interpolate.CubicSpline builds by default (bc_type 'not-a-knot', axis 0), written
 out so that a run does not import scipy.interpolate (over half a second on a busy machine) for
 it: the same linear system for the knot slopes (solved by the tridiagonal recursion), the same
-piecewise polynomial, the same extrapolation past the ends. tests/test_fast_paths.py compares
+piecewise polynomial, the same extrapolation past the ends. tests/*/test_*_fast_paths.py compares
 the two.
 """
 

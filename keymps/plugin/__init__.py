@@ -29,8 +29,8 @@ from keymps.plugin.hookspecs import (
     RegisterVlmBackend,
     hookimpl,
 )
-from keymps.plugin.options import parse_options
-from keymps.plugin.trajectories import require_validated
+from keymps.plugin.options import RunFolderPath, parse_options
+from keymps.plugin.trajectories import require_validated, trajectory_digest
 
 __all__ = [
     "DetectionError",
@@ -44,6 +44,7 @@ __all__ = [
     "RegisterExecutor",
     "RegisterImageSource",
     "RegisterVlmBackend",
+    "RunFolderPath",
     "SafetyError",
     "StageError",
     "StageObserver",
@@ -53,4 +54,5 @@ __all__ = [
     "interrupts_deferred",
     "parse_options",
     "require_validated",
+    "trajectory_digest",
 ]
