@@ -60,6 +60,9 @@ class Interrupted(KeyboardInterrupt):
         self.signum = int(signum)
         super().__init__(self.name)
 
+    def __reduce__(self) -> tuple[type[Interrupted], tuple[int]]:
+        return Interrupted, (self.signum,)  # (args holds the name, not the number)
+
     @property
     def name(self) -> str:
         """How the user stopped it: Ctrl-C, SIGTERM, SIGHUP."""
@@ -74,7 +77,15 @@ class Interrupted(KeyboardInterrupt):
 
 
 def interrupt_name(interrupt: BaseException) -> str:
-    """'Ctrl-C', 'SIGTERM' or 'SIGHUP' for a KeyboardInterrupt (a plain one is a Ctrl-C)."""
+    """What stopped the command, in the words its messages use.
+
+    Args:
+        interrupt: a KeyboardInterrupt (the keymps command raises `Interrupted` for Ctrl-C,
+            SIGTERM and SIGHUP; a plain KeyboardInterrupt is a Ctrl-C).
+
+    Returns:
+        'Ctrl-C', 'SIGTERM' or 'SIGHUP'.
+    """
     return interrupt.name if isinstance(interrupt, Interrupted) else "Ctrl-C"
 
 

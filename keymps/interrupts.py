@@ -73,8 +73,14 @@ def first_signal() -> int:
 
 @contextmanager
 def interrupts_deferred() -> Iterator[None]:
-    """A stop signal during the block takes effect when it ends (Python handles signals only in
-    the main thread: elsewhere this does nothing)."""
+    """Hold Ctrl-C, SIGTERM and SIGHUP back until the block ends (stopping an arm, a write).
+
+    The first signal held is then delivered to whatever handled it before. Python handles
+    signals only in the main thread: elsewhere this does nothing.
+
+    Yields:
+        None, once: the block runs with the signals held.
+    """
     if threading.current_thread() is not threading.main_thread():
         yield
         return

@@ -379,7 +379,7 @@ def create_component(
     except KeympsError:
         raise
     except BaseException as error:
-        if _a_real_interrupt(error, signals_before):
+        if _a_real_interrupt(error, signals_before) or os.environ.get("KEYMPS_DEBUG"):
             raise
         plugin = next((p for p, pairs in found.items() if (name, factory) in pairs), "?")
         detail = " ".join(f"{type(error).__name__}: {error}".split())
