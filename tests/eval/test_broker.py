@@ -341,29 +341,23 @@ def test_eval_records_exhausted_retries_as_one_line(
     assert "Traceback" not in result.output
 
 
-@pytest.mark.parametrize("finished", [1, 6, 12])
-def test_ctrl_c_in_an_offline_eval_is_one_line(finished: int, tmp_path: Path) -> None:
-    """Ctrl-C to the process group once `finished` runs are recorded. The offline suite runs in
-    this process too: its run in flight ended after the queues had closed and printed
-    `ValueError: Queue ... is closed` (6 of 6 tries)."""
+@pytest.mark.parametrize(
+    ("finished", "signum", "to_group"),
+    [(1, signal.SIGINT, True), (12, signal.SIGINT, True), (6, signal.SIGTERM, False)],
+    ids=["Ctrl-C after 1", "Ctrl-C after 12", "SIGTERM to the main process after 6"],
+)
+def test_stopping_an_offline_eval_is_one_line(
+    finished: int, signum: int, to_group: bool, tmp_path: Path
+) -> None:
+    """Ctrl-C to the process group (a terminal's) or SIGTERM to the main process (a service
+    manager's) once `finished` runs are recorded. The offline suite runs in this process too:
+    its run in flight ended after the queues had closed and printed `ValueError: Queue ... is
+    closed` (6 of 6 Ctrl-Cs); SIGTERM killed the suite with no word."""
     out = tmp_path / "offline"
+    command = ["eval", "cutting_sim", "--backend", "offline", "--repeats", "3"]
     process = subprocess.Popen(
-        [
-            sys.executable,
-            "-c",
-            "from keymps.cli.app import main; main()",
-            "eval",
-            "cutting_sim",
-            "--backend",
-            "offline",
-            "--repeats",
-            "3",
-            "--processes",
-            "2",
-            "--quiet",
-            "--out",
-            str(out),
-        ],  # fmt: skip
+        [sys.executable, "-c", "from keymps.cli.app import main; main()", *command]
+        + ["--processes", "2", "--quiet", "--out", str(out)],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         start_new_session=True,
@@ -373,11 +367,14 @@ def test_ctrl_c_in_an_offline_eval_is_one_line(finished: int, tmp_path: Path) ->
     while len(read_results(out / "results.jsonl")) < finished and process.poll() is None:
         assert time.monotonic() < deadline
         time.sleep(0.01)
-    os.killpg(process.pid, signal.SIGINT)
+    if to_group:
+        os.killpg(process.pid, signum)
+    else:
+        os.kill(process.pid, signum)
     _, stderr = process.communicate(timeout=60)
     if process.returncode == 0:
-        pytest.skip("the suite ended before the Ctrl-C")
-    assert process.returncode == 130, stderr
+        pytest.skip("the suite ended before the signal")
+    assert process.returncode == 128 + signum, stderr
     assert "Traceback" not in stderr and "is closed" not in stderr, stderr
     assert stderr.strip().splitlines()[-1].startswith("interrupted: "), stderr
 
