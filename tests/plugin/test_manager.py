@@ -322,7 +322,7 @@ def test_the_entry_points_read_ahead_serve_one_manager_and_a_later_one_reads_aga
 
 # -- a broken plugin is one warning naming it, in every command --
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 BROKEN = {
     "register raises": "@hookimpl\ndef register_detectors(register):\n    raise RuntimeError('x')\n",
     "register exits": "@hookimpl\ndef register_executors(register):\n    raise SystemExit(4)\n",
