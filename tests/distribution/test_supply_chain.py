@@ -21,7 +21,7 @@ tomllib = pytest.importorskip("tomllib")  # Python 3.11+
 
 REPO = Path(__file__).resolve().parents[2]
 KNOWN_BAD = {"litellm": {Version("1.82.7"), Version("1.82.8")}}
-PLUGINS = ("keymps-ur-rtde", "keymps-mujoco")
+PLUGINS = ("keymps-ur-rtde", "keymps-mujoco", "keymps-ros")
 PIN = re.compile(r"^([A-Za-z0-9_.\-]+)(?:\[([^\]]*)\])?==([^\s;\\]+)")
 
 
