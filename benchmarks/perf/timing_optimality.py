@@ -61,17 +61,20 @@ def measure(
     task_path: Path, tool_jerk: float | None = None, joint_jerk: float | None = None
 ) -> dict[str, Any]:
     from keymps import load_task, run_task
+    from keymps.config.task import PluginSection
     from keymps.motion.timing import split_strokes
 
     task = load_task(task_path)
+    # the sim executor without the task's own executor options (sim_cutting.yaml's are MuJoCo's)
+    task = task.model_copy(update={"executor": PluginSection(name="sim")})
     changes = {"max_tool_jerk": tool_jerk, "max_joint_jerk": joint_jerk}
     changes = {key: value for key, value in changes.items() if value is not None}
     if changes:
         task = task.model_copy(update={"robot": task.robot.model_copy(update=changes)})
     with tempfile.TemporaryDirectory() as folder:
-        run = run_task(task, out=folder, rerun="off", backend="offline", executor="sim")
-    tool_path, joint_path = run.results["compose"], run.results["solve"]
-    trajectory, validated = run.results["time"], run.results["check"]
+        run = run_task(task, out=folder, rerun="off", backend="offline")
+    tool_path, joint_path = run.stages.compose, run.stages.solve
+    trajectory, validated = run.stages.time, run.stages.check
     from keymps.robot.model import RobotModel
 
     model = RobotModel.from_task(task)
@@ -108,11 +111,16 @@ def main() -> None:
         default=None,
         help="override the tasks' robot.max_joint_jerk (rad/s^3)",
     )
+    parser.add_argument(
+        "--quick", action="store_true", help="the icing task alone: checks the script runs (CI)"
+    )
     args = parser.parse_args()
     try:
         import toppra  # noqa: F401
     except ImportError:
         sys.exit("this benchmark needs TOPP-RA: pip install toppra")
+    if args.quick and not args.tasks:
+        args.tasks = [REPO / "tasks" / "cake_icing.yaml"]
     tasks = args.tasks or sorted((REPO / "tasks").glob("*.yaml"))
     results = [measure(path, args.max_tool_jerk, args.max_joint_jerk) for path in tasks]
 
