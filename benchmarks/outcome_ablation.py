@@ -10,7 +10,7 @@ verifier on the cake's true outline: of the planned lines (the paper's design su
 what the knife cuts through (the edge reaches past a cut's start); a refused plan cuts nothing
 and is no success. Prints a markdown table beside the paper's numbers.
 
-    python benchmarks/outcome_ablation.py [--repeats 50] [--sigmas 0.0025 0.005 0.01]
+    python benchmarks/outcome_ablation.py [--repeats 50] [--sigmas 0.0025 0.005 0.01] [--quick]
 """
 
 from __future__ import annotations
@@ -64,7 +64,10 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=50)
     parser.add_argument("--sigmas", type=float, nargs="+", default=[0.0025, 0.005, 0.01])
     parser.add_argument("--out", type=Path)
+    parser.add_argument("--quick", action="store_true", help="2 scenes per cake, one sigma")
     args = parser.parse_args()
+    if args.quick:
+        args.repeats, args.sigmas = 2, [0.005]
     os.environ.setdefault("OPENAI_API_KEY", "sk-local-imprecise-vlm")  # sent to 127.0.0.1 only
     from keymps.eval.imprecise_vlm import ErrorModel, ImpreciseVlm
 

@@ -17,17 +17,29 @@ from typing import Any, Literal
 import numpy as np
 
 __all__ = [
+    "EQUAL_PARTS_TOLERANCE",
     "STAGES",
     "BackendAnswer",
+    "CutEffect",
+    "CutOrientation",
+    "DepositEffect",
     "DetectedObject",
     "Detection",
+    "Effect",
+    "EqualBy",
     "ExecutionReport",
     "GroundedObject",
     "Grounding",
+    "IntentFamily",
+    "IntentSource",
     "JointPath",
+    "Outcome",
+    "OutcomeVerdict",
     "Piece",
+    "PieceEffect",
     "PieceKind",
     "Plan",
+    "PlanIntent",
     "PlanObject",
     "PlanRequest",
     "Rectification",
@@ -287,9 +299,13 @@ class BackendAnswer:
 
 
 IntentFamily = Literal["cut", "icing"]
+"""The work a plan does: cut, or icing."""
 CutOrientation = Literal["vertical", "horizontal", "lengthwise", "crosswise"]
+"""A direction of cuts in the object's own frame (PlanIntent.orientation)."""
 EqualBy = Literal["area", "width"]
+"""What equal pieces compare: their areas, or their widths across parallel cuts."""
 IntentSource = Literal["offline", "design", "answer", "expect"]
+"""Who stated an intent: the offline planner, a named design, a VLM answer, the task file."""
 EQUAL_PARTS_TOLERANCE = 0.05
 """Appendix F's success criterion stated as a number: each of N pieces within 5 % of the
 object's area / N (or, by width, of its extent / N)."""
@@ -340,7 +356,11 @@ class PlanIntent:
     VLM answer's `intent` field ("answer"), or the task file's `expect:` block ("expect")."""
 
     def describe(self) -> str:
-        """One phrase: '3 pieces, equal width within 5 %, cut vertically'."""
+        """What it states, in words.
+
+        Returns:
+            One phrase: '3 pieces, equal within 5 %, cut vertically'.
+        """
         parts: list[str] = []
         if self.pieces is not None:
             parts.append(f"{self.pieces} piece" + ("" if self.pieces == 1 else "s"))
@@ -588,7 +608,9 @@ class CutEffect:
     """One cut: where a knife's edge went through the food (board frame, metres)."""
 
     pair_index: int
+    """The keypoint pair (0-based) whose work piece made it."""
     object_id: int
+    """The object it cuts (DetectedObject.id)."""
     length_m: float
     """Length of the cut's line inside the food that the edge swept below the object's top."""
     depth_m: float
@@ -605,6 +627,7 @@ class CutEffect:
 
     @property
     def severed_length_m(self) -> float:
+        """Metres of the cut's line cut through (the severed stretches' total length)."""
         return float(np.linalg.norm(self.severed_m[:, 1] - self.severed_m[:, 0], axis=1).sum())
 
 
@@ -613,7 +636,9 @@ class PieceEffect:
     """One piece the cuts leave (fragments under 1 % of the object's area excluded)."""
 
     object_id: int
+    """The object it is a piece of."""
     area_m2: float
+    """Its area, square metres."""
     share: float
     """Its fraction of the object's area."""
     outline_m: np.ndarray
@@ -625,8 +650,11 @@ class DepositEffect:
     """One icing deposit: a dot (a disc) or a line (a band of the tool's line width)."""
 
     kind: Literal["dot", "line"]
+    """A dot where the nozzle stayed in place, else a line along its path."""
     pair_index: int
+    """The keypoint pair (0-based) whose work piece piped it."""
     object_id: int
+    """The object it lies on (0: none known)."""
     path_m: np.ndarray
     """(n, 2) board metres: the dot's centre (n = 1) or the line's centreline."""
     width_m: float
@@ -642,8 +670,11 @@ class Effect:
     """What a motion does (predicted) or did (measured) to the food."""
 
     cuts: tuple[CutEffect, ...] = ()
+    """One per work piece of a cutting tool, in plan order."""
     pieces: tuple[PieceEffect, ...] = ()
+    """The pieces the cuts leave, object by object, largest first (predicted only)."""
     deposits: tuple[DepositEffect, ...] = ()
+    """The icing, in plan order (a work piece that deposits nothing has none)."""
     strokes: int = 0
     """Icing strokes: connected chains of deposits."""
     loops: int = 0
@@ -651,6 +682,8 @@ class Effect:
 
 
 OutcomeVerdict = Literal["pass", "fail", "accepted"]
+"""The outcome stage's verdict: pass, fail, or accepted (failed, executed on the expert's
+--accept-outcome)."""
 
 
 @dataclass(frozen=True)
@@ -663,6 +696,7 @@ class Outcome:
     intents: tuple[PlanIntent, ...]
     """What was checked, per object (the plan's intents with the task's `expect:` applied)."""
     predicted: Effect
+    """What the validated trajectory does to the food (keymps.outcome.predict)."""
     problems: tuple[str, ...]
     """One line each; empty when the verdict is pass."""
     tolerances: dict[str, float] = field(default_factory=dict)
@@ -674,6 +708,7 @@ class Outcome:
 
     @property
     def ok(self) -> bool:
+        """Whether the run goes on to execute: the verdict is pass or accepted."""
         return self.verdict != "fail"
 
 

@@ -1,6 +1,6 @@
 """The outcome stage's share of a warm run's compute (issue 36: under 20 %).
 
-Run: python benchmarks/perf/outcome_share.py [--repeats 7]
+Run: python benchmarks/perf/outcome_share.py [--repeats 7] [--quick]
 
 Each shipped task (and a sawing cut of the banana bread, the longest cutting motion) runs once
 to warm the models and caches, then --repeats times in this process, the tasks interleaved so
@@ -56,9 +56,13 @@ def one_run(task_file: Path, extra: dict[str, object], out: Path) -> dict[str, f
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=7)
+    parser.add_argument("--quick", action="store_true", help="one repeat of two tasks (a test)")
     args = parser.parse_args()
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     chosen = cases()
+    if args.quick:
+        chosen = {name: chosen[name] for name in ("icing", "cutting")}
+        args.repeats = 1
     shares: dict[str, list[float]] = {name: [] for name in chosen}
     stage_ms: dict[str, list[float]] = {name: [] for name in chosen}
     with tempfile.TemporaryDirectory() as scratch:

@@ -135,7 +135,8 @@ def _pipeline_output(results: StageResults, context: MethodContext) -> MethodOut
     outcome = results.outcome
     cut = None
     if outcome is not None:
-        cut = np.concatenate([c.swept_m for c in outcome.predicted.cuts]).reshape(-1, 2, 2)
+        swept = [c.swept_m for c in outcome.predicted.cuts]
+        cut = np.concatenate(swept).reshape(-1, 2, 2) if swept else np.zeros((0, 2, 2))
     return MethodOutput(
         cut_lines_m=cut,
         work_pieces=pieces,

@@ -68,11 +68,19 @@ class Shape:
 
 
 def measured_shape(outline_m: np.ndarray) -> Shape:
+    """The object's kind and own axes from its footprint: a long object's axis is its area's
+    principal axis (a bent eggplant's smallest enclosing rectangle is turned 6-10 degrees off
+    its length), a square's the sides of that rectangle, a round object's the image's."""
+    import cv2
+
     from keymps.designs.crop_shape import classify
     from keymps.designs.outline import polygon_centroid
 
     polygon = 1000.0 * np.asarray(outline_m, float)
     kind, angle = classify(polygon)
+    if kind == "elongated":
+        moments = cv2.moments(polygon.astype(np.float32))
+        angle = 0.5 * math.atan2(2 * moments["mu11"], moments["mu20"] - moments["mu02"])
     return Shape(kind, 0.0 if kind == "round" else angle, polygon_centroid(polygon) / 1000.0)
 
 
