@@ -378,13 +378,17 @@ def _score(suite: Suite, case: Any, job: Job, output: Any, n: int) -> dict[str, 
         scene_object = truth.scene["objects"][0]
         scored.update(_equal_parts(suite, scene_object, output.lines_m))
         if output.cut_lines_m is not None:  # what the knife cuts: the edge reaches past a start
+            from keymps.outcome.predict import PARTING_M
+
             design = scored["success"]
-            scored.update(_equal_parts(suite, scene_object, output.cut_lines_m))
+            scored.update(_equal_parts(suite, scene_object, output.cut_lines_m, PARTING_M))
             scored["design_success"] = design
     return scored
 
 
-def _equal_parts(suite: Suite, scene_object: dict[str, Any], lines_m: np.ndarray) -> dict[str, Any]:
+def _equal_parts(
+    suite: Suite, scene_object: dict[str, Any], lines_m: np.ndarray, reach_m: float | None = None
+) -> dict[str, Any]:
     """Appendix F's success by the outcome stage's verifier, on the object's true outline."""
     from keymps.outcome.verdict import equal_parts_problems
 
@@ -396,6 +400,7 @@ def _equal_parts(suite: Suite, scene_object: dict[str, Any], lines_m: np.ndarray
         suite.parts,
         suite.tolerance,
         np.asarray(hole) if hole else None,
+        reach_m,
     )
     ideal = 1.0 / suite.parts
     worst = (

@@ -424,14 +424,18 @@ def equal_parts_problems(
     parts: int,
     tolerance: float,
     hole_m: np.ndarray | None = None,
+    reach_m: float | None = None,
 ) -> tuple[list[str], tuple[PieceEffect, ...]]:
     """Appendix F's success by this verifier: the problems of cut lines (K, 2, 2) drawn across an
     outline (the eval's true one) against `parts` pieces equal in area within `tolerance`, and
-    the pieces (at keymps.outcome.pieces.RESOLUTION_M, shares of the pieces' own sum)."""
-    from keymps.outcome.pieces import CRUMB_FRACTION, RESOLUTION_M, Regions
+    the pieces (at keymps.outcome.pieces.RESOLUTION_M, shares of the pieces' own sum). Each line
+    is lengthened by `reach_m` at both ends: keymps.outcome.pieces.REACH_M for planned lines (the
+    paper's design), PARTING_M for a knife's cuts, as the outcome stage parts pieces."""
+    from keymps.outcome.pieces import CRUMB_FRACTION, REACH_M, RESOLUTION_M, Regions
 
     lines = np.asarray(lines_m, float).reshape(-1, 2, 2)
-    regions = Regions(outline_m, lines, hole_m, RESOLUTION_M)
+    reach = REACH_M if reach_m is None else reach_m
+    regions = Regions(outline_m, lines, hole_m, RESOLUTION_M, reach)
     total = float(regions.areas_m2.sum())
     pieces = tuple(
         PieceEffect(1, float(area), float(area) / total, np.zeros((0, 2)))
