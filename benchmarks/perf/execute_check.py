@@ -64,6 +64,9 @@ class Baseline:
         self.cut_sweep = load("cut_sweep", "default_plugins/sim/cut_sweep.py")
         self.run_module = load("run", "run.py")
         self.trajectory_io = load("trajectory_io", "motion/trajectory_io.py")
+        # the baseline's executor imports its cut_sweep by the path it had then (now
+        # keymps.outcome.cut_sweep): that name is the baseline's module while it loads
+        sys.modules.setdefault("keymps.default_plugins.sim.cut_sweep", self.cut_sweep)
         self.executor = load("executor", "default_plugins/sim/executor.py")
         self.executor.covered_length = self.cut_sweep.covered_length
         self.executor.Footprint = self.cut_sweep.Footprint

@@ -54,20 +54,21 @@ def deposits_of(
 ) -> tuple[tuple[DepositEffect, ...], int, int]:
     """(deposits, strokes, loops) of the work pieces: each (pair index, its object (a
     keymps.outcome.predict.Food, or None), (n, 3) tip positions)."""
-    found: list[tuple[str, int, int, np.ndarray, bool]] = []
-    paths = [_deposited(tip, food) for _, food, tip in work]
-    blobs = _blobs([p for p in paths if p is not None], line_width)
-    shapes = iter(blobs)
-    for (pair_index, food, _), xy in zip(work, paths, strict=True):
-        if xy is None:
-            continue
-        if next(shapes):
-            kind, path, width = "dot", xy.mean(axis=0, keepdims=True), DOT_DIAMETER_FACTOR
-        else:
-            kind, path, width = "line", _simplified(xy), 1.0
-        on_top = food is not None and _on_top(path, width * line_width / 2, food.outline_m)
-        object_id = food.id if food is not None else 0
-        found.append((kind, pair_index, object_id, path, on_top))
+    placed: list[tuple[int, Any, np.ndarray]] = []
+    for pair, food, tip in work:
+        xy = _deposited(tip, food)
+        if xy is not None:
+            placed.append((pair, food, xy))
+    blobs = _blobs([xy for _, _, xy in placed], line_width)
+    shaped = [
+        ("dot", xy.mean(axis=0, keepdims=True)) if blob else ("line", _simplified(xy))
+        for (_, _, xy), blob in zip(placed, blobs, strict=True)
+    ]
+    tops = _tops([food for _, food, _ in placed], shaped, line_width)
+    found = [
+        (kind, pair, food.id if food is not None else 0, path, top)
+        for (pair, food, _), (kind, path), top in zip(placed, shaped, tops, strict=True)
+    ]
     stroke_of, loops = _strokes([(kind, path) for kind, _, _, path, _ in found], line_width)
     deposits = tuple(
         DepositEffect(
@@ -121,17 +122,39 @@ def _simplified(xy: np.ndarray) -> np.ndarray:
     return np.asarray(kept, dtype=float) * SIMPLIFY_M
 
 
-def _on_top(path: np.ndarray, reach: float, outline: np.ndarray) -> bool:
-    """Whether the icing `reach` either side of the path stays on the footprint."""
+def _tops(
+    foods: Sequence[Any], shaped: Sequence[tuple[str, np.ndarray]], line_width: float
+) -> list[bool]:
+    """Per deposit, whether it lies on its object's top: the dots of an object tested at once."""
+    tops = [False] * len(shaped)
+    for food in {id(f): f for f in foods if f is not None}.values():
+        mine = [k for k, f in enumerate(foods) if f is food]
+        dots = [k for k in mine if shaped[k][0] == "dot"]
+        if dots:
+            centres = np.array([shaped[k][1][0] for k in dots])
+            reach = DOT_DIAMETER_FACTOR * line_width / 2
+            for k, top in zip(dots, _inside_by(centres, reach, food.outline_m), strict=True):
+                tops[k] = bool(top)
+        for k in mine:
+            if shaped[k][0] == "line":
+                tops[k] = _on_top(shaped[k][1], line_width / 2, food.outline_m)
+    return tops
+
+
+def _inside_by(points: np.ndarray, reach: float, outline: np.ndarray) -> np.ndarray:
+    """(n,) whether each point is inside the polygon at least `reach` (less the slack) from
+    its edge."""
     from keymps.robot.safety_geometry import distance_to_polyline, inside_polygon
 
-    points = _densified(path, max(reach, 0.0005))
     polygon = np.asarray(outline, float).reshape(-1, 2)
-    if not inside_polygon(points, polygon).all():
-        return False
     closed = np.vstack([polygon, polygon[:1]])
     edge = distance_to_polyline(_lifted(points), _lifted(closed))
-    return bool(edge.min() >= reach - ON_TOP_SLACK_M)
+    return inside_polygon(points, polygon) & (edge >= reach - ON_TOP_SLACK_M)
+
+
+def _on_top(path: np.ndarray, reach: float, outline: np.ndarray) -> bool:
+    """Whether the icing `reach` either side of the path stays on the footprint."""
+    return bool(_inside_by(_densified(path, max(reach, 0.0005)), reach, outline).all())
 
 
 def _densified(path: np.ndarray, step: float) -> np.ndarray:
@@ -169,9 +192,12 @@ def _strokes(shapes: Sequence[tuple[str, np.ndarray]], line_width: float) -> tup
     roots = [root(k) for k in range(len(shapes))]
     numbering: dict[int, int] = {}
     stroke_of = [numbering.setdefault(r, len(numbering)) for r in roots]
+    lines_of: dict[int, list[int]] = {}
+    for k, (kind, _) in enumerate(shapes):
+        if kind == "line":
+            lines_of.setdefault(stroke_of[k], []).append(k)
     loops = 0
-    for stroke in set(stroke_of):
-        lines = [k for k in range(len(shapes)) if stroke_of[k] == stroke and shapes[k][0] == "line"]
+    for lines in lines_of.values():
         nodes = {j for k in lines for j in joint_of[k]}
         loops += len(lines) >= 3 and len(lines) >= len(nodes)  # a cycle through its joints
     return stroke_of, loops
@@ -211,20 +237,25 @@ def merges(deposits: Sequence[DepositEffect], line_width: float) -> list[Merge]:
 
 
 def _dot_merges(deposits: Sequence[DepositEffect], line_width: float) -> list[Merge]:
+    """Dots closer than their discs allow to another dot, or to a line's band."""
     dots = [k for k, d in enumerate(deposits) if d.kind == "dot"]
+    if not dots:
+        return []
+    centres = np.array([deposits[k].path_m[0] for k in dots])
+    radius = np.array([deposits[k].width_m / 2 for k in dots])
     found: list[Merge] = []
-    for k in dots:
-        centre = deposits[k].path_m[0]
-        for j, other in enumerate(deposits):
-            if j == k or (other.kind == "dot" and j < k):
-                continue
-            needed = (deposits[k].width_m + other.width_m) / 2
-            gap = _distance(centre, other.path_m)
-            if gap < needed:
-                kind: Literal["dots", "dot and line"] = (
-                    "dots" if other.kind == "dot" else "dot and line"
-                )
-                found.append(Merge(min(k, j), max(k, j), gap, needed, kind))
+    gaps = np.linalg.norm(centres[:, None] - centres[None], axis=2)
+    needed = radius[:, None] + radius[None]
+    for a, b in zip(*np.nonzero(np.triu(gaps < needed, k=1)), strict=True):
+        found.append(Merge(dots[a], dots[b], float(gaps[a, b]), float(needed[a, b]), "dots"))
+    for j, line in enumerate(deposits):
+        if line.kind != "line":
+            continue
+        near = _distances(centres, line.path_m)
+        for a in np.flatnonzero(near < radius + line.width_m / 2):
+            needed_m = float(radius[a] + line.width_m / 2)
+            pair = (min(dots[a], j), max(dots[a], j))
+            found.append(Merge(*pair, float(near[a]), needed_m, "dot and line"))
     return found
 
 
@@ -251,10 +282,16 @@ def _line_merges(deposits: Sequence[DepositEffect], line_width: float) -> list[M
 
 def _distance(point: np.ndarray, path: np.ndarray) -> float:
     """Distance of a point to a polyline (or a single point)."""
+    return float(_distances(np.asarray(point, float)[None], path)[0])
+
+
+def _distances(points: np.ndarray, path: np.ndarray) -> np.ndarray:
+    """(n,) distance of each point (n, 2) to a polyline (m, 2) (or a single point)."""
     if len(path) == 1:
-        return float(np.linalg.norm(point - path[0]))
+        return np.linalg.norm(points - path[0], axis=1)
     a, b = path[:-1], path[1:]
     step = b - a
     lengths = np.maximum((step**2).sum(axis=1), 1e-18)
-    t = np.clip(((point - a) * step).sum(axis=1) / lengths, 0.0, 1.0)
-    return float(np.linalg.norm(a + t[:, None] * step - point, axis=1).min())
+    t = np.clip(((points[:, None] - a[None]) * step[None]).sum(axis=2) / lengths, 0.0, 1.0)
+    nearest = a[None] + t[:, :, None] * step[None]
+    return np.linalg.norm(nearest - points[:, None], axis=2).min(axis=1)
