@@ -380,7 +380,7 @@ def _check_fields(data: Any, where: str) -> None:
     """Refuse anything but a mapping of known fields in FORMAT with the required ones."""
     if not isinstance(data, dict):
         raise PrimitiveError(f"{where}: expected a mapping of primitive fields")
-    unknown = sorted(set(data) - _FIELDS)
+    unknown = sorted(set(data) - _FIELDS, key=str)  # YAML keys may be numbers too
     if unknown:
         raise PrimitiveError(f"{where}: unknown field {unknown[0]!r}")
     if data.get("format", FORMAT) != FORMAT:
