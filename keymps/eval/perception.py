@@ -115,7 +115,8 @@ def _task(case: PhotoCase, corners: np.ndarray, intrinsics: bool, detector: dict
 
 
 def _offline_design(task: Any, detection: Detection, scene: SceneImage) -> Plan:
-    """The offline planner's design, made the way a run makes it (keymps.planning.make_plan)."""
+    """The offline planner's design, made the way a run makes it
+    (keymps.planning.planner.make_plan)."""
     import tempfile
     from pathlib import Path
 
