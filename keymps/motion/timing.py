@@ -327,10 +327,9 @@ def _worst_places(
 def time_strokes_at_once(
     model: RobotModel, strokes: list[Stroke], tool_limits: Limits, period: float
 ) -> list[TimedStroke | KeympsError]:
-    """The fastest profile of every stroke (tool limits first) whose joints stay inside every
-    joint limit, checked every 1 / CHECK_RATE_HZ s (or `period`, when shorter); each round of
-    slowing down checks all strokes still too fast in one pass. A stroke that cannot be timed
-    gets its error in its place."""
+    """Each stroke's fastest profile (tool limits first) whose joints keep every joint limit at
+    CHECK_RATE_HZ (or 1 / period if faster), each round's checks of all strokes still too fast
+    in one pass; a stroke that cannot be timed gets its error in its place."""
     rates = _StrokeRates(strokes)
     check_period = min(period, 1.0 / CHECK_RATE_HZ)
     limits = [
