@@ -206,7 +206,7 @@ def flat_case(
     if not empty:
         share = coverage if coverage is not None else float(rng.uniform(0.05, 0.6))
         objects = _main_object(rng, board_lab, size_px, share, hue_only, round_cake, variation)
-        if rng.random() < 0.3 and not round_cake:
+        if rng.random() < 0.3 and not round_cake:  # drawn first: each seed keeps its scene
             objects = _with_second_object(
                 rng, objects, board_lab, size_px, share, hue_only, variation
             )
