@@ -12,12 +12,21 @@ See docs/plugins.md for every hook and docs/architecture.md for where plugins si
 """
 
 from keymps.errors import DetectionError, ImageSourceError, KeympsError, SafetyError, StageError
-from keymps.plugin.components import Detector, Executor, ImageSource, StageObserver, VlmBackend
+from keymps.plugin.arms import DEFAULT_ACCELERATION, DEFAULT_JERK, ArmSpec, degrees
+from keymps.plugin.components import (
+    Arm,
+    Detector,
+    Executor,
+    ImageSource,
+    StageObserver,
+    VlmBackend,
+)
 from keymps.plugin.hookspecs import (
     Register,
     RegisterDetector,
     RegisterExecutor,
     RegisterImageSource,
+    RegisterRobot,
     RegisterVlmBackend,
     hookimpl,
 )
@@ -25,6 +34,10 @@ from keymps.plugin.options import parse_options
 from keymps.plugin.trajectories import require_validated
 
 __all__ = [
+    "DEFAULT_ACCELERATION",
+    "DEFAULT_JERK",
+    "Arm",
+    "ArmSpec",
     "DetectionError",
     "Detector",
     "Executor",
@@ -35,11 +48,13 @@ __all__ = [
     "RegisterDetector",
     "RegisterExecutor",
     "RegisterImageSource",
+    "RegisterRobot",
     "RegisterVlmBackend",
     "SafetyError",
     "StageError",
     "StageObserver",
     "VlmBackend",
+    "degrees",
     "hookimpl",
     "parse_options",
     "require_validated",

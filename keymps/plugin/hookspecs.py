@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 from pluggy import HookimplMarker, HookspecMarker
 
-from keymps.plugin.components import Detector, Executor, ImageSource, VlmBackend
+from keymps.plugin.components import Arm, Detector, Executor, ImageSource, VlmBackend
 
 if TYPE_CHECKING:
     from keymps.run import Run
@@ -26,6 +26,7 @@ RegisterDetector = Register[Detector]
 RegisterVlmBackend = Register[VlmBackend]
 RegisterExecutor = Register[Executor]
 RegisterImageSource = Register[ImageSource]
+RegisterRobot = Register[Arm]
 
 
 @hookspec
@@ -46,6 +47,11 @@ def register_executors(register: RegisterExecutor) -> None:
 @hookspec
 def register_image_sources(register: RegisterImageSource) -> None:
     """Register image sources: factory(options) -> ImageSource."""
+
+
+@hookspec
+def register_robots(register: RegisterRobot) -> None:
+    """Register robot arms: factory(options) -> Arm (an ArmSpec), selected by `robot.model`."""
 
 
 @hookspec

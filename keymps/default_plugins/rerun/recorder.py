@@ -68,7 +68,8 @@ def eye_position(run: Run) -> tuple[list[float], list[float]]:
 
     low, high = board_rectangle(run)
     center = (low + high) / 2.0
-    away = center - np.array(run.task.robot.base[:2], dtype=float)
+    base = run.robot.base[:2] if run.robot is not None else None
+    away = center - np.array(base or run.task.robot.base_xy(run.task.scene.workspace), dtype=float)
     norm = float(np.linalg.norm(away))
     away = away / norm if norm > 1e-6 else np.array([0.0, 1.0])
     side = np.array([-away[1], away[0]])
