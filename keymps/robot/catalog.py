@@ -130,7 +130,10 @@ def so101_spec() -> ArmSpec:
         acceleration_limits=(10.0,) * 5,
         jerk_limits=(200.0,) * 5,
         home=(0.0, -0.6, 0.6, 1.4, 0.0),
-        standoff=0.06,
+        # Its reach, gripper pointing down, is 10-30 cm from the base and up to 5 cm above
+        # the base's foot: raised by 10 cm, it holds a 10 cm knife down to the board.
+        standoff=0.10,
+        mount_height=0.10,
         rate_hz=100.0,
         package_dirs=(package,),
         description="SO-101 (LeRobot), 5 joints",

@@ -4,7 +4,8 @@ Each step solves J dq = e in the damped least-squares sense (e: the tool frame's
 position and orientation, in the board-aligned frame), steps at most 0.3 rad, and is clipped to
 the joint limits. An arm with more than six joints (the Panda's seventh) spends its redundancy
 in J's null space, moving away from its joint limits (the squared distance from the middle of
-each range, scaled by the range). The full pose is the task: a 5-joint arm asked for an
+each range, scaled by the range), in proportion to the pose error so that a path's postures
+follow its points continuously. The full pose is the task: a 5-joint arm asked for an
 orientation it cannot hold does not converge, and the caller refuses the point instead of
 tilting the tool. Convergence is to 1e-9 m and 1e-8 rad (the timing differentiates joint paths
 twice: solver noise would show as acceleration).
@@ -26,7 +27,9 @@ ROTATION_TOLERANCE_RAD = math.radians(0.1)
 MAX_STEP_RAD = 0.3
 """Big steps can jump to another arm configuration."""
 NULLSPACE_GAIN = 0.2
-"""Of the step towards the middle of the joint ranges, per iteration (redundant arms)."""
+"""Of the step towards the middle of the joint ranges, per iteration (redundant arms)..."""
+NULLSPACE_SPAN = 0.05
+""".. for an error of this much (metres and radians) or more; less for a smaller error."""
 
 
 @dataclass(frozen=True)
@@ -105,7 +108,10 @@ class IterativeIk:
         inverse = jacobian.T @ np.linalg.inv(jacobian @ jacobian.T + damping2 * np.eye(6))
         step = inverse @ error
         if self.redundant:
-            away = -NULLSPACE_GAIN * self.weight * (q - self.middle) / self.weight.max()
+            # In proportion to the error: along a path the posture then follows the tool
+            # continuously, the same however many iterations a point takes.
+            scale = NULLSPACE_GAIN * min(1.0, float(np.linalg.norm(error)) / NULLSPACE_SPAN)
+            away = -scale * self.weight * (q - self.middle) / self.weight.max()
             step += away - inverse @ (jacobian @ away)
         return step
 

@@ -314,14 +314,26 @@ class RobotModel:
         Raises a KeympsError naming the point and the arm when there is none."""
         if self.arm is not None:
             return self._ur_seed(position, yaw)
-        home = self.arm_model.home
-        turned = home.copy()
-        turned[0] = np.clip(home[0] + self._azimuth_change(position, home), self.lower[0],
-                            self.upper[0])  # fmt: skip
-        result = self.solver.solve_from_anywhere(position, tool_rotation(yaw), [turned, home])
+        seeds = self._seeds_towards(position)
+        result = self.solver.solve_from_anywhere(position, tool_rotation(yaw), seeds)
         if not result.converged:
             raise KeympsError(self._unreachable(position, yaw, result, "the path's first point"))
         return result.q
+
+    def _seeds_towards(self, position: np.ndarray) -> list[np.ndarray]:
+        """The home configuration turned to face `position` (its first joint), with its last
+        joint (the tool's roll on a table arm) at seven places across its range: a roll limit
+        the solver would run into is then approached from the other side."""
+        home = self.arm_model.home
+        turned = home.copy()
+        turned[0] = np.clip(
+            home[0] + self._azimuth_change(position, home), self.lower[0], self.upper[0]
+        )
+        seeds = [turned]
+        for roll in np.linspace(self.lower[-1], self.upper[-1], 9)[1:-1]:
+            seeds.append(turned.copy())
+            seeds[-1][-1] = roll
+        return [*seeds, home]
 
     def _azimuth_change(self, position: np.ndarray, q: np.ndarray) -> float:
         """How far the first joint (a vertical axis on a table arm) turns the tool from its
@@ -409,9 +421,8 @@ class RobotModel:
         """Whether the tool can point down at `point` (closed form for a UR arm, else IK)."""
         if self.arm is not None:
             return bool(self.reach_shortfall(np.asarray(point, float)[None])[0] <= 0)
-        home = self.arm_model.home
-        result = self.solver.solve_from_anywhere(point, tool_rotation(yaw), [home], tries=4)
-        return result.converged
+        seeds = self._seeds_towards(point)
+        return self.solver.solve_from_anywhere(point, tool_rotation(yaw), seeds, tries=0).converged
 
     def home_tool_position(self) -> np.ndarray:
         """Above the middle of the board, clear of the object (or as high as reachable)."""
