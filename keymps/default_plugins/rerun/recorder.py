@@ -269,7 +269,9 @@ def _log_motion(stream: Any, trajectory: Any, run: Run) -> None:
 
     index = stage_index("time")
     rerun_motion.log_trajectory(stream, trajectory, index, ROBOT_RATE_HZ)
-    urdf = rerun_robot.log_robot_model(stream, run.task)
+    if run.robot is None:
+        return
+    urdf = rerun_robot.log_robot_model(stream, run.robot, run.task)
     picked = rerun_motion.subsample_indices(trajectory.t, ROBOT_RATE_HZ)
     rerun_robot.log_robot_motion(stream, urdf, trajectory, picked, index)
 
