@@ -95,6 +95,9 @@ class _Kinematics:
 _KINEMATICS: dict[tuple[Any, ...], _Kinematics] = {}
 """Per process, by (arm, base, tool): `keymps eval` builds the same robot for every run."""
 KINEMATICS_KEPT = 16
+FLANGE_FRAME, TCP_FRAME = "keymps_tool_mount", "keymps_tcp"
+"""The frames keymps adds to an arm's model: its tool mount (ArmSpec.tip_link) and the tool's
+tip (names no URDF of an arm uses: "flange" and "tcp" are common link names)."""
 _CLEARANCES: dict[tuple[Any, ...], Clearances] = {}
 
 
@@ -130,7 +133,7 @@ class RobotModel:
             self.model, self.tcp_frame = place_arm(self.arm_model, self.base_in_board, tool)
         else:
             self.model, self.tcp_frame = known.model, known.tcp_frame
-        self.flange_frame = self.model.getFrameId("flange")
+        self.flange_frame = self.model.getFrameId(FLANGE_FRAME)
         self.data = self.model.createData()
         arm = self.arm_model
         self.joint_names = arm.joint_names
@@ -628,7 +631,8 @@ def _capped(limits: np.ndarray, cap: float | None) -> np.ndarray:
 
 def place_arm(arm: ArmModel, base_in_board: Any, tool: Tool) -> tuple[Any, int]:
     """A copy of the arm's Pinocchio model with its root at `base_in_board` (pinocchio.SE3) and
-    two frames on the tool mount: `flange` (ArmSpec.tip_link) and `tcp` (the tool's tip)."""
+    two frames on the tool mount: FLANGE_FRAME (ArmSpec.tip_link) and TCP_FRAME (the tool's
+    tip)."""
     import pinocchio as pin
 
     model = arm.model.copy()
@@ -642,9 +646,9 @@ def place_arm(arm: ArmModel, base_in_board: Any, tool: Tool) -> tuple[Any, int]:
     parent = model.frames[model.getFrameId(arm.spec.tip_link)].parentFrame
     tcp = mount * se3(np.eye(3), np.array(tool.tcp))
     frame_id = model.addFrame(
-        pin.Frame("tcp", arm.flange_joint, parent, tcp, pin.FrameType.OP_FRAME)
+        pin.Frame(TCP_FRAME, arm.flange_joint, parent, tcp, pin.FrameType.OP_FRAME)
     )
-    model.addFrame(pin.Frame("flange", arm.flange_joint, parent, mount, pin.FrameType.OP_FRAME))
+    model.addFrame(pin.Frame(FLANGE_FRAME, arm.flange_joint, parent, mount, pin.FrameType.OP_FRAME))
     return model, frame_id
 
 

@@ -247,6 +247,7 @@ def _find_mesh(spec: Arm, written: str, roots: tuple[Path, ...]) -> Path:
         bases = [*roots, *(r.parent for r in roots), urdf_folder, *urdf_folder.parents]
         candidates = [b / package / rest for b in bases]
         candidates += [b / rest for b in bases if b.name == package]
+        candidates += [root / rest for root in roots]  # the arm's own folder is its package
     elif parts.scheme in ("file", ""):
         candidates = [urdf_folder / unquote(parts.path)]  # an absolute path stays absolute
     else:
