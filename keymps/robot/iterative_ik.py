@@ -1,7 +1,7 @@
 """Inverse kinematics of any arm: damped least squares on Pinocchio's frame Jacobian (CLIK).
 
 Each step solves J dq = e in the damped least-squares sense (e: the tool frame's SE(3) error,
-position and orientation, in the board-aligned frame), steps at most 0.3 rad, and is clipped to
+position and orientation, in the board-aligned frame), steps at most 0.5 rad, and is clipped to
 the joint limits. An arm with more than six joints (the Panda's seventh) spends its redundancy
 in J's null space, moving away from its joint limits (the squared distance from the middle of
 each range, scaled by the range), in proportion to the pose error so that a path's postures
@@ -24,8 +24,13 @@ from keymps.robot.probes import probe_configurations
 POSITION_TOLERANCE_M = 1e-4
 ROTATION_TOLERANCE_RAD = math.radians(0.1)
 """What a solution must meet (the contract); the solver itself goes far below."""
-MAX_STEP_RAD = 0.3
+MAX_STEP_RAD = 0.5
 """Big steps can jump to another arm configuration."""
+STALL_ITERATIONS = 15
+STALL_RATIO = 0.5
+"""A solve whose error has not halved in STALL_ITERATIONS iterations gives up (it is stuck at a
+joint limit or the pose is out of reach): multi-start then tries the next seed."""
+_EYE6 = np.eye(6)
 NULLSPACE_GAIN = 0.2
 """Of the step towards the middle of the joint ranges, per iteration (redundant arms)..."""
 NULLSPACE_SPAN = 0.05
@@ -75,21 +80,27 @@ class IterativeIk:
 
         model, data, frame = self.model, self.data, self.frame
         target_p, target_r = np.asarray(position, float), np.asarray(rotation, float)
-        q = np.clip(np.array(seed, dtype=float), self.lower, self.upper)
+        lower, upper = self.lower, self.upper
+        q = np.minimum(np.maximum(np.array(seed, dtype=float), lower), upper)
         damping2 = damping * damping
         error = np.zeros(6)
         pos_err = rot_err = math.inf
         iteration = 0
+        checkpoint = math.inf
         for iteration in range(max_iterations + 1):
             pin.forwardKinematics(model, data, q)
             pose = pin.updateFramePlacement(model, data, frame)
             error[:3] = target_p - pose.translation
             rot_local = pin.log3(pose.rotation.T @ target_r)
             error[3:] = pose.rotation @ rot_local
-            pos_err = float(np.linalg.norm(error[:3]))
-            rot_err = float(np.linalg.norm(rot_local))
+            pos_err = math.sqrt(float(error[:3] @ error[:3]))
+            rot_err = math.sqrt(float(rot_local @ rot_local))
             if (pos_err < 1e-9 and rot_err < 1e-8) or iteration == max_iterations:
                 break
+            if iteration % STALL_ITERATIONS == 0:  # stuck (at a joint limit, out of reach)?
+                if pos_err + rot_err > STALL_RATIO * checkpoint:
+                    break
+                checkpoint = pos_err + rot_err
             jacobian = pin.computeFrameJacobian(
                 model, data, q, frame, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
             )
@@ -97,7 +108,7 @@ class IterativeIk:
             largest = float(np.abs(step).max())
             if largest > MAX_STEP_RAD:
                 step *= MAX_STEP_RAD / largest
-            q = np.clip(q + step, self.lower, self.upper)
+            q = np.minimum(np.maximum(q + step, lower), upper)
         return IkResult(q, pos_err, rot_err, iteration)
 
     def _step(
@@ -105,7 +116,7 @@ class IterativeIk:
     ) -> np.ndarray:
         """The damped least-squares step, plus for a redundant arm the step away from its joint
         limits projected into the Jacobian's null space."""
-        inverse = jacobian.T @ np.linalg.inv(jacobian @ jacobian.T + damping2 * np.eye(6))
+        inverse = jacobian.T @ np.linalg.inv(jacobian @ jacobian.T + damping2 * _EYE6)
         step = inverse @ error
         if self.redundant:
             # In proportion to the error: along a path the posture then follows the tool
@@ -130,7 +141,7 @@ class IterativeIk:
         candidates = [*seeds, *(self.lower + unit * (self.upper - self.lower))]
         best: IkResult | None = None
         for seed in candidates:
-            result = self.solve(position, rotation, seed, max_iterations=300)
+            result = self.solve(position, rotation, seed, max_iterations=200)
             if result.converged:
                 return result
             if best is None or result.position_error_m < best.position_error_m:
