@@ -348,18 +348,25 @@ class RobotModel:
         )
 
     def _unreachable(self, position: np.ndarray, yaw: float, result: IkResult, where: str) -> str:
-        """Why a point cannot be solved, naming the arm and the point."""
+        """Why a point cannot be solved, naming the arm and the point: out of reach, or (an arm
+        of fewer than six joints) reachable with the tool down but not at this yaw."""
         x, y, z = (float(v) for v in position)
-        pos_mm, rot_deg = result.position_error_m * 1000, math.degrees(result.rotation_error_rad)
         point = f"board point ({x:.3f}, {y:.3f}, {z:.3f}) m"
-        if pos_mm <= 0.1 and rot_deg > 0.1:
+        held = [
+            other
+            for other in np.linspace(-math.pi, math.pi, 12, endpoint=False)
+            if self.dof < 6 and self.reachable(position, float(other))
+        ]
+        if held:
             what = (
                 f"cannot hold the tool pointing down at yaw {math.degrees(yaw):.0f} degrees at "
-                f"{point} ({where}; it stays {rot_deg:.1f} degrees off)"
+                f"{point} ({where}; with {self.dof} joints its yaw there is limited, e.g. "
+                f"{math.degrees(held[0]):.0f} degrees works)"
             )
         else:
             what = (
-                f"cannot reach {point} with the tool pointing down ({where}; {pos_mm:.1f} mm short)"
+                f"cannot reach {point} with the tool pointing down ({where}; "
+                f"{result.position_error_m * 1000:.1f} mm short)"
             )
         bx, by, bz, byaw = self.base
         return (
