@@ -241,6 +241,8 @@ class ToolSpec(StrictModel):
 
 
 JointLimit = Annotated[float, Field(gt=0, le=1e6, allow_inf_nan=False), NUMBER]
+JointAngle = Annotated[float, Field(ge=-100.0, le=100.0, allow_inf_nan=False), NUMBER]
+"""radians (or metres for a prism joint): no joint turns 16 times."""
 ModelName = Annotated[str, Field(pattern=r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")]
 """A registered robot's name (`keymps plugins` lists them): letters, digits, _ . -"""
 LinkName = Annotated[str, Field(min_length=1, max_length=200)]
@@ -270,7 +272,7 @@ class Robot(StrictModel):
     joints: list[LinkName] | None = Field(default=None, min_length=1, max_length=12)
     """With urdf: the arm's joints in the controller's order (default: root to tip_link)."""
     limits: RobotLimits | None = None
-    home: list[FiniteFloat] | None = Field(default=None, min_length=1, max_length=12)
+    home: list[JointAngle] | None = Field(default=None, min_length=1, max_length=12)
     """With urdf: the configuration the inverse kinematics starts from (radians)."""
     base: tuple[BaseOffset, BaseOffset, BaseOffset, Degrees] | None = None
     """x, y, z in metres and yaw in degrees of the robot base in the board frame; the arm's
