@@ -410,7 +410,8 @@ def _add_joint_body(spec: Any, parent: Any, robot: RobotModel, joint: int, place
         gravcomp=1.0,
     )
     shortname = pin_model.joints[joint].shortname()
-    axis = {"JointModelRX": [1, 0, 0], "JointModelRY": [0, 1, 0]}.get(shortname, [0, 0, 1])
+    axes: dict[str, list[float]] = {"JointModelRX": [1.0, 0, 0], "JointModelRY": [0, 1.0, 0]}
+    axis = axes.get(shortname, [0, 0, 1.0])
     if shortname == "JointModelRevoluteUnaligned":
         axis = [float(v) for v in pin_model.joints[joint].axis]
     effort = float(robot.effort_limits[index]) or 50.0
