@@ -27,7 +27,8 @@ every distance to the board measured is lowered by it (a bound for the samples i
 every distance between two links by how far the joints between them can move one relative to
 the other until the next measured configuration."""
 SELF_REFINE_BELOW = 0.005
-"""Pairs of links this close at a measured configuration are measured again at every sample."""
+"""Pairs of links this close (hulls) at a measured configuration are measured again at every
+sample, between their meshes."""
 ALWAYS_TOUCHING = 0.9
 """Pairs of links in contact at this fraction of sampled configurations are never checked."""
 
@@ -115,6 +116,24 @@ def _stl_points(data: bytes) -> np.ndarray:
     return np.array(rows, dtype=float)
 
 
+@cache
+def mesh_bvh(path: str, scale: tuple[float, ...]) -> Any:
+    """The mesh itself as coal's bounding-volume hierarchy (built once per process: a few
+    tenths of a second for a detailed link)."""
+    import coal
+
+    data = Path(path).read_bytes()
+    if path.lower().endswith(".stl"):
+        corners = _stl_points(data).astype(float) * np.asarray(scale, float)
+        model = coal.BVHModelOBBRSS()
+        model.beginModel(len(corners) // 3, len(corners))
+        model.addVertices(corners)
+        model.addTriangles(np.arange(len(corners)).reshape(-1, 3))
+        model.endModel()
+        return model
+    return coal.MeshLoader().load(path, np.asarray(scale, float))
+
+
 def _hull(points: np.ndarray) -> Any:
     import coal
 
@@ -154,6 +173,9 @@ def build_geometry(model: Any, shapes: list[Shape]) -> Any:
             placement,
             shape_geometry(shape),
         )
+        if shape.path is not None:  # the mesh itself, for the exact distance of near pairs
+            item.meshPath = str(shape.path)
+            item.meshScale = np.asarray(shape.size, dtype=float)
         geometry.addGeometryObject(item)
     return geometry
 
@@ -288,18 +310,32 @@ class Clearances:
 
     def _every_sample(self, qs: np.ndarray, picked: np.ndarray, k: int, column: int) -> float:
         """The distance between one pair of links measured at every sample from measured sample
-        k to the next, each lowered by the pair's relative motion to the sample after it."""
+        k to the next (between the meshes themselves, not their hulls, where both are meshes),
+        each lowered by the pair's relative motion to the sample after it."""
+        import coal
         import pinocchio as pin
 
         stop = int(picked[min(k + 1, len(picked) - 1)])
         window = qs[int(picked[k]) : stop + 1]
         motion = self._relative_motion(window, np.arange(len(window)))[:, column]
-        pair = len(self.board_pairs) + column
+        a, b = self.self_pairs[column]
+        objects = self.geometry.geometryObjects
+        exact = [_mesh_of(objects[i]) for i in (a, b)]
         worst = np.inf
         model, data, geometry, results = self.model, self.data, self.geometry, self.geometry_data
+        request = coal.DistanceRequest()
         for q, moved in zip(window, motion, strict=True):
             pin.updateGeometryPlacements(model, data, geometry, results, q)
-            distance = pin.computeDistance(geometry, results, pair).min_distance
+            if exact[0] is not None and exact[1] is not None:
+                poses = [results.oMg[i] for i in (a, b)]
+                distance = coal.distance(
+                    exact[0], coal.Transform3s(poses[0].rotation, poses[0].translation),
+                    exact[1], coal.Transform3s(poses[1].rotation, poses[1].translation),
+                    request, coal.DistanceResult(),
+                )  # fmt: skip
+            else:
+                pair = len(self.board_pairs) + column
+                distance = pin.computeDistance(geometry, results, pair).min_distance
             worst = min(worst, distance - moved)
         return float(worst)
 
@@ -319,6 +355,13 @@ class Clearances:
             ahead = travelled[np.append(picked[1:], picked[-1])] - travelled[picked]
             out[:, column] = ahead
         return out
+
+
+def _mesh_of(item: Any) -> Any:
+    """The exact mesh of a geometry object built from a mesh file, else None."""
+    if not item.meshPath:
+        return None
+    return mesh_bvh(item.meshPath, tuple(float(v) for v in item.meshScale))
 
 
 def _joint_axis(model: Any, joint: int) -> np.ndarray:

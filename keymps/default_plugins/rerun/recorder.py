@@ -269,9 +269,12 @@ def _log_motion(stream: Any, trajectory: Any, run: Run) -> None:
 
     index = stage_index("time")
     rerun_motion.log_trajectory(stream, trajectory, index, ROBOT_RATE_HZ)
-    if run.robot is None:
-        return
-    urdf = rerun_robot.log_robot_model(stream, run.robot, run.task)
+    robot = run.robot
+    if robot is None:  # a Run built without its arm: the task's
+        from keymps.robot.model import RobotModel
+
+        robot = RobotModel.from_task(run.task)
+    urdf = rerun_robot.log_robot_model(stream, robot, run.task)
     picked = rerun_motion.subsample_indices(trajectory.t, ROBOT_RATE_HZ)
     rerun_robot.log_robot_motion(stream, urdf, trajectory, picked, index)
 
