@@ -21,12 +21,13 @@ class ArmSpec:
     """A robot arm: its URDF, the frame its tool is mounted on, and its limits.
 
     Joint vectors follow `joint_names` (the controller's order); per-joint tuples have one
-    value per joint. Angles in radians, lengths in metres.
+    value per joint (or one value for every joint). Angles in radians, lengths in metres.
     """
 
     name: str
     """The model name a task file gives as `robot.model` ("ur5e", "panda")."""
     urdf: Path
+    """The arm's URDF file (its collision shapes are the safety check's collision model)."""
     tip_link: str
     """The frame the tool is mounted on: `robot.tool.tcp` is given in it and its z axis is the
     direction the tool points (the flange, a gripper's tool centre point)."""
@@ -71,7 +72,15 @@ class ArmSpec:
     """One line for `keymps plugins` and error messages ("Universal Robots UR5e")."""
 
     def base_for(self, board_size: tuple[float, float]) -> Pose4:
-        """The default placement on a board of `board_size` (width, height) metres."""
+        """The default placement on a board.
+
+        Args:
+            board_size: The board's (width, height), metres.
+
+        Returns:
+            (x, y, z, yaw): metres and degrees of the root link in the board frame, `standoff`
+            in front of the middle of the near edge, raised by `mount_height`, facing the board.
+        """
         return (board_size[0] / 2.0, -self.standoff, self.mount_height, 90.0)
 
 
@@ -82,5 +91,12 @@ DEFAULT_JERK = 100.0
 
 
 def degrees(*values: float) -> tuple[float, ...]:
-    """Degrees to radians, for limit tables written as the makers publish them."""
+    """Degrees to radians, for limit tables written as the makers publish them.
+
+    Args:
+        values: Angles or angular speeds in degrees (per second).
+
+    Returns:
+        The same in radians.
+    """
     return tuple(math.radians(v) for v in values)

@@ -128,40 +128,98 @@ class StageObserver(Protocol):
 
 
 class Arm(Protocol):
-    """A robot arm: `register_robots(register)`; factory(options) returns one, usually a
-    keymps.plugin.ArmSpec (the attributes are documented there)."""
+    """A robot arm: what `register_robots` factories return.
+
+    Usually a keymps.plugin.ArmSpec, whose fields document each of these.
+    """
 
     @property
-    def name(self) -> str: ...
-    @property
-    def urdf(self) -> Path: ...
-    @property
-    def tip_link(self) -> str: ...
-    @property
-    def joint_names(self) -> tuple[str, ...]: ...
-    @property
-    def velocity_limits(self) -> tuple[float, ...] | None: ...
-    @property
-    def acceleration_limits(self) -> tuple[float, ...] | None: ...
-    @property
-    def jerk_limits(self) -> tuple[float, ...] | None: ...
-    @property
-    def position_limits(self) -> tuple[tuple[float, float], ...] | None: ...
-    @property
-    def effort_limits(self) -> tuple[float, ...] | None: ...
-    @property
-    def home(self) -> tuple[float, ...] | None: ...
-    @property
-    def rate_hz(self) -> float: ...
-    @property
-    def dh(self) -> tuple[float, float, float, float, float, float] | None: ...
-    @property
-    def package_dirs(self) -> tuple[Path, ...]: ...
-    @property
-    def collision_padding(self) -> float: ...
-    @property
-    def mesh_scales(self) -> tuple[tuple[str, tuple[float, float, float]], ...]: ...
-    @property
-    def description(self) -> str: ...
+    def name(self) -> str:
+        """The model name (`robot.model`)."""
+        ...
 
-    def base_for(self, board_size: tuple[float, float]) -> Pose4: ...
+    @property
+    def urdf(self) -> Path:
+        """The URDF file."""
+        ...
+
+    @property
+    def tip_link(self) -> str:
+        """The link the tool is mounted on."""
+        ...
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        """The arm's joints in the controller's order (() for root to tip)."""
+        ...
+
+    @property
+    def velocity_limits(self) -> tuple[float, ...] | None:
+        """rad/s per joint (None: the URDF's)."""
+        ...
+
+    @property
+    def acceleration_limits(self) -> tuple[float, ...] | None:
+        """rad/s^2 per joint (None: keymps' default)."""
+        ...
+
+    @property
+    def jerk_limits(self) -> tuple[float, ...] | None:
+        """rad/s^3 per joint (None: keymps' default)."""
+        ...
+
+    @property
+    def position_limits(self) -> tuple[tuple[float, float], ...] | None:
+        """(lower, upper) per joint (None: the URDF's)."""
+        ...
+
+    @property
+    def effort_limits(self) -> tuple[float, ...] | None:
+        """N m per joint (None: the URDF's)."""
+        ...
+
+    @property
+    def home(self) -> tuple[float, ...] | None:
+        """Where the inverse kinematics starts (None: zeros)."""
+        ...
+
+    @property
+    def rate_hz(self) -> float:
+        """The controller's rate, Hz."""
+        ...
+
+    @property
+    def dh(self) -> tuple[float, float, float, float, float, float] | None:
+        """A UR-type DH table (the closed-form IK), or None."""
+        ...
+
+    @property
+    def package_dirs(self) -> tuple[Path, ...]:
+        """Folders the URDF's meshes may be read from."""
+        ...
+
+    @property
+    def collision_padding(self) -> float:
+        """Metres added to every clearance the safety check demands."""
+        ...
+
+    @property
+    def mesh_scales(self) -> tuple[tuple[str, tuple[float, float, float]], ...]:
+        """(link, scale) extra scales of links' meshes."""
+        ...
+
+    @property
+    def description(self) -> str:
+        """One line naming the arm."""
+        ...
+
+    def base_for(self, board_size: tuple[float, float]) -> Pose4:
+        """The default placement on a board.
+
+        Args:
+            board_size: The board's (width, height), metres.
+
+        Returns:
+            (x, y, z, yaw) of the root link in the board frame, metres and degrees.
+        """
+        ...
