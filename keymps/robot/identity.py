@@ -11,7 +11,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from keymps.robot.description import ARMS
+from keymps.robot.description import ARMS, JOINT_NAMES
+
+__all__ = ["JOINT_NAMES", "UNIVERSAL_ROBOTS", "ArmIdentity", "arm_identity", "tool_poses"]
 
 if TYPE_CHECKING:
     from keymps.robot.model import RobotModel
