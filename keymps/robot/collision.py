@@ -98,17 +98,27 @@ def mesh_points(path: Path, scale: tuple[float, ...]) -> np.ndarray:
         import coal
 
         points = np.asarray(coal.MeshLoader().load(str(path), np.ones(3)).vertices(), float)
-    points = np.unique(np.ascontiguousarray(points, dtype=np.float32).view("V12"))
-    return points.view(np.float32).reshape(-1, 3).astype(float) * np.asarray(scale, float)
+    return _distinct_rows(np.asarray(points, dtype=float)) * np.asarray(scale, float)
+
+
+def _distinct_rows(points: np.ndarray) -> np.ndarray:
+    """The distinct rows of (n, 3) points (sorted; np.unique's row mode imports numpy.ma, which
+    a run never loads: keymps.sorted_values)."""
+    if len(points) == 0:
+        return points.reshape(0, 3)
+    ordered = points[np.lexsort((points[:, 2], points[:, 1], points[:, 0]))]
+    keep = np.concatenate([[True], np.any(ordered[1:] != ordered[:-1], axis=1)])
+    return ordered[keep]
 
 
 def _stl_points(data: bytes) -> np.ndarray:
     """Triangle corners of a binary or ASCII STL file, (m, 3)."""
     if len(data) >= 84:
         count = int(np.frombuffer(data, "<u4", 1, 80)[0])
-        if len(data) == 84 + 50 * count:
-            record = np.dtype([("normal", "<f4", 3), ("corners", "<f4", (3, 3)), ("attr", "<u2")])
-            return np.frombuffer(data, record, count, 84)["corners"].reshape(-1, 3)
+        if len(data) == 84 + 50 * count:  # 50-byte records: normal, 3 corners, attribute
+            records = np.frombuffer(data, np.uint8, 50 * count, 84).reshape(count, 50)
+            corners = np.ascontiguousarray(records[:, 12:48]).view("<f4")
+            return corners.reshape(-1, 3)
     text = data.decode("ascii", errors="replace")
     rows = [line.split()[1:4] for line in text.splitlines() if line.strip().startswith("vertex")]
     if not rows:

@@ -254,7 +254,9 @@ def test_a_robot_factory_that_raises_is_one_line(keymps_plugins: Any, tmp_path: 
     task = load_task(write_task(tmp_path, "{model: broken}"))
     with pytest.raises(TaskFileError) as caught:
         keymps.run_task(task, out=tmp_path / "run", rerun="off", backend="offline")
-    assert "robot.model: robot 'broken' failed to build: ZeroDivisionError" in str(caught.value)
+    message = str(caught.value)
+    assert "robot.model: robot 'broken' of plugin 'broken-robot' could not be built" in message
+    assert "ZeroDivisionError" in message and "\n" not in message
 
 
 @pytest.mark.parametrize("model", ["ur3", "ur5e", "ur10e", "panda"])
