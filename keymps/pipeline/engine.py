@@ -114,10 +114,23 @@ def _primitives(task: Task, load: Callable[..., Any], search: Any) -> Any:
 
 
 def _robot(task: Task, model: Any) -> Any:
+    """The task's arm, built by the robot plugin that registered it (`robot.model`, or `urdf`
+    for the task's own URDF), placed and tooled; every error located in the task file."""
+    from keymps.robot.model import arm_by_name
+
+    field = ("robot", "urdf") if task.robot.urdf is not None else ("robot", "model")
+    where = f"{task.where(*field)}: {'.'.join(field)}"
     try:
-        return model.from_task(task)
+        arm = arm_by_name(*task.robot.arm_component(task.folder))
     except KeympsError as error:
-        raise _located(task, error) from None
+        raise KeympsError(f"{where}: {error}") from None
+    try:
+        return model.from_task(task, arm)
+    except KeympsError as error:
+        located = _located(task, error)
+        if located is error and str(error).startswith("robot: arm "):
+            located = KeympsError(f"{where}: {str(error).removeprefix('robot: ')}")
+        raise located from None
 
 
 _FIELD_PREFIX = re.compile(r"^([a-z_]+(?:\.[a-z_]+)+): ")

@@ -291,7 +291,7 @@ def _by_object(
 
     owners = assign_pairs(pairs_crop, objects)
     frame = ImageFrame.for_scene(task, scene)
-    base_px = frame.to_pixels(np.array([task.robot.base[:2]], dtype=float))[0]
+    base_px = frame.to_pixels(np.array([task.robot.base_xy(task.scene.workspace)], dtype=float))[0]
     start = base_px - np.asarray(detection.crop_origin_px, dtype=float)
     order = visit_order(owners, objects, (float(start[0]), float(start[1])))
     return pairs_crop[order], tuple(owners[k] for k in order)
