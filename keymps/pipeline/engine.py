@@ -125,12 +125,26 @@ def _robot(task: Task, model: Any) -> Any:
     except KeympsError as error:
         raise KeympsError(f"{where}: {error}") from None
     try:
-        return model.from_task(task, arm)
+        robot = model.from_task(task, arm)
     except KeympsError as error:
         located = _located(task, error)
         if located is error and str(error).startswith("robot: arm "):
             located = KeympsError(f"{where}: {str(error).removeprefix('robot: ')}")
         raise located from None
+    too_high = robot.height_problem()  # a height error, not "out of reach" after planning
+    if too_high:
+        field, name = _tallest_height_field(task)
+        raise KeympsError(f"{task.where(*field)}: {name}: {too_high}")
+    return robot
+
+
+def _tallest_height_field(task: Task) -> tuple[tuple[Any, ...], str]:
+    """Where the task file sets its tallest object's height, and the field's name."""
+    tallest = task.scene.tallest_object_height
+    for index, spec in enumerate(task.scene.objects or ()):
+        if spec.height is not None and spec.height == tallest:
+            return ("scene", "objects", index, "height"), f"scene.objects[{index}].height"
+    return ("scene", "object_height"), "scene.object_height"
 
 
 _FIELD_PREFIX = re.compile(r"^([a-z_]+(?:\.[a-z_]+)+): ")
