@@ -402,7 +402,11 @@ class Piece:
         return self.pairs or (self.pair_index,)
 
     def pairs_label(self) -> str:
-        """'pair 3', 'pairs 14-61' or 'pairs 1, 2, 5, 3' (numbered from 1, as in plan.png)."""
+        """The pairs this piece works on, for messages.
+
+        Returns:
+            'pair 3', 'pairs 14-61' or 'pairs 1, 2, 5, 3': numbered from 1, as in plan.png.
+        """
         numbers = [k + 1 for k in self.piped_pairs]
         if len(numbers) == 1:
             return f"pair {numbers[0]}"
