@@ -203,10 +203,10 @@ def check_tool_path(tool_path: ToolPath, task: Task) -> ToolPath:
                 if piece.kind == "work"
                 else "the travel move to its start"
             )
+            at = piece.pairs_label() if piece.kind == "work" else f"pair {piece.pair_index + 1}"
             raise KeympsError(
-                f"the tool path goes {-lowest * 1000:.1f} mm below the board at pair "
-                f"{piece.pair_index + 1} ({where}); raise height.margin or keep that pair's "
-                "keypoints off the board"
+                f"the tool path goes {-lowest * 1000:.1f} mm below the board at {at} "
+                f"({where}); raise height.margin or keep that pair's keypoints off the board"
             )
     motion = task.motion
     moving = [(p.length_m, p.speed) for p in tool_path.pieces if len(p.points) > 1]

@@ -299,6 +299,7 @@ class _Pipeline:
 
     def execute_all(self) -> None:
         from keymps.config.limits import check_duration, check_tool_path
+        from keymps.motion.chains import JOIN_LINE_WIDTHS
         from keymps.motion.compose import compose_tool_path
         from keymps.motion.timing import time_trajectory
         from keymps.motion.trajectory_io import write_trajectory_csv
@@ -378,6 +379,7 @@ class _Pipeline:
                     home=robot.home_tool_position(),
                     footprint=run.outline_m,
                     objects=grounding.objects,
+                    join_distance=JOIN_LINE_WIDTHS * tool.line_width,
                 ),
                 task,
             ),

@@ -360,10 +360,9 @@ def _workspace_hint(tool_path: ToolPath, index: int) -> str:
     """Which pair left the workspace. Keypoints are inside the image, so a work piece leaves it
     only where its primitive reaches past the pair's ends (a sawing stroke at the edge)."""
     piece = tool_path.pieces[index]
-    pair = piece.pair_index + 1
     if piece.kind != "work":
-        return f"on the travel move to pair {pair}"
+        return f"on the travel move to pair {piece.pair_index + 1}"
     return (
-        f"during pair {pair}: primitive {tool_path.keyword!r} reaches past the pair's ends "
-        "(leave more board around the object, or choose a primitive without strokes)"
+        f"during {piece.pairs_label()}: primitive {tool_path.keyword!r} reaches past the "
+        "pair's ends (leave more board around the object, or choose a primitive without strokes)"
     )
