@@ -150,15 +150,16 @@ def _ollama_completion(
 
 
 class VlmServer:
-    """Serves on 127.0.0.1 at an ephemeral port, in a background thread."""
+    """Serves on 127.0.0.1 at an ephemeral port (or the one given), in a background thread."""
 
-    def __init__(self, responder: Responder | None = None):
+    def __init__(self, responder: Responder | None = None, port: int = 0):
+        """`port`: 0 for a free one; another is taken as it is (OSError when in use)."""
         self.responder = responder or (lambda request: '{"keyword": "x", "pairs": []}')
         self.requests: list[Recorded] = []
         self._queue: list[Reply] = []
         self._lock = threading.Lock()
         self._closing = threading.Event()
-        self._server = ThreadingHTTPServer(("127.0.0.1", 0), self._handler_class())
+        self._server = ThreadingHTTPServer(("127.0.0.1", port), self._handler_class())
         self._server.daemon_threads = True
         self._thread = threading.Thread(target=self._server.serve_forever, daemon=True)
 

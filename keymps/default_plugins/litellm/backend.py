@@ -49,7 +49,8 @@ class LitellmOptions(BaseModel):
     retries: int = Field(default=MAX_RETRIES, ge=0, le=10)
     backoff_s: float = Field(default=BACKOFF_S, ge=0, le=60)
     api_base_trusted: bool = False
-    """False when only the task file names api_base: no key from the environment is sent."""
+    """False when only the task file chose the server (its api_base, or the provider's default
+    port on this machine): no key from the environment is sent."""
 
 
 def import_litellm() -> Any:
@@ -98,18 +99,19 @@ class LitellmBackend:
 
     def _key_for(self, provider: str) -> str | None:
         """The key this call sends: none from the environment to an api_base that only a task
-        file names (docs/security.md); else planner.api_key_env or the provider's variable."""
-        from keymps.planning.backend_choice import PROVIDER_KEYS
+        file names, or to a default local port (docs/security.md); else planner.api_key_env
+        or the provider's variable."""
+        from keymps.planning.backend_choice import LOCAL_DEFAULTS, PROVIDER_KEYS
 
         api_base = self.options.api_base
-        if api_base and not self.options.api_base_trusted:
+        if not self.options.api_base_trusted and (api_base or provider in LOCAL_DEFAULTS):
             if provider in _ENVIRONMENT_SIGNED:
                 raise KeympsError(
                     f"planner.api_base {api_base} is named only by the task file, and {provider} "
                     "signs every request with your cloud credentials: pass --api-base, or list it "
                     "under trusted_api_bases in your user config (docs/security.md)"
                 )
-            return "no-key-needed"  # given, so that litellm does not read $OPENAI_API_KEY itself
+            return "no-key-needed"  # given, so that litellm reads no key variable itself
         key = self._api_key()
         if key is None:  # read here, not by litellm, so that the key sent is known
             names = [n for n in PROVIDER_KEYS.get(provider, ()) if n.endswith("_API_KEY")]
