@@ -61,7 +61,7 @@ class Reply:
 
     @staticmethod
     def redirect(status: int, to_path: str) -> Reply:
-        """A redirect (301, 302, 307 ...) to this path on the same server."""
+        """A redirect (301, 302, 307 ...) to this path on the same server, or to this URL."""
         return Reply("redirect", status=status, text=to_path)
 
     @staticmethod
@@ -301,7 +301,8 @@ class VlmServer:
                     return
                 if reply.kind == "redirect":
                     self.send_response(reply.status)
-                    self.send_header("Location", f"{server.url}{reply.text}")
+                    elsewhere = reply.text.startswith(("http://", "https://"))
+                    self.send_header("Location", ("" if elsewhere else server.url) + reply.text)
                     self.send_header("Content-Length", "0")
                     self.end_headers()
                     return

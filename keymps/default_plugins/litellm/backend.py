@@ -58,9 +58,10 @@ def import_litellm() -> Any:
     os.environ.setdefault("LITELLM_LOCAL_MODEL_COST_MAP", "True")
     import litellm
 
-    from keymps.default_plugins.litellm import response_cap
+    from keymps.default_plugins.litellm import redirects, response_cap
 
     response_cap.install()
+    redirects.install()
     litellm.suppress_debug_info = True
     litellm.telemetry = False
     return litellm
@@ -184,10 +185,11 @@ class LitellmBackend:
 
     def _within_deadline(self, call: _Call) -> Any:
         """One try, ended by planner.timeout_s whatever the server does (deadline.py)."""
+        from keymps.default_plugins.litellm.redirects import same_origin_only
         from keymps.default_plugins.litellm.response_cap import answers_capped
 
         def capped() -> Any:
-            with answers_capped():  # in the worker thread, which reads the answer
+            with answers_capped(), same_origin_only():  # in the worker thread, which sends
                 return call.litellm.completion(**call.arguments)
 
         try:
@@ -196,10 +198,11 @@ class LitellmBackend:
             raise _timeout(call) from None
 
     async def _awaited_within_deadline(self, call: _Call) -> Any:
+        from keymps.default_plugins.litellm.redirects import same_origin_only
         from keymps.default_plugins.litellm.response_cap import answers_capped
 
         async def capped() -> Any:
-            with answers_capped():
+            with answers_capped(), same_origin_only():
                 return await call.litellm.acompletion(**call.arguments)
 
         try:
