@@ -33,8 +33,19 @@ BACKOFF_S = 1.0
 _REGISTERED: set[str] = set()
 """Local models registered with litellm at zero price in this process."""
 _LOCAL_PROVIDERS = {"ollama", "ollama_chat", "hosted_vllm", "lm_studio", "llamafile"}
-_ENVIRONMENT_SIGNED = {"bedrock", "sagemaker", "vertex_ai", "vertex_ai_beta"}
-"""Providers whose requests litellm signs with cloud credentials it finds itself."""
+_ENVIRONMENT_SIGNED = (
+    "bedrock",
+    "sagemaker",
+    "vertex_ai",
+    "oci",
+    "snowflake",
+    "watsonx",
+    "github_copilot",
+)
+"""Providers (and every provider whose name starts with one: sagemaker_chat, sagemaker_nova,
+vertex_ai_beta, watsonx_text ...) whose requests litellm signs or authorizes with credentials
+it finds itself (cloud SDK credentials, key files, tokens from the environment), whatever key
+keymps gives it."""
 
 
 class LitellmOptions(BaseModel):
@@ -106,7 +117,7 @@ class LitellmBackend:
 
         api_base = self.options.api_base
         if not self.options.api_base_trusted and (api_base or provider in LOCAL_DEFAULTS):
-            if provider in _ENVIRONMENT_SIGNED:
+            if provider.startswith(_ENVIRONMENT_SIGNED):
                 raise KeympsError(
                     f"planner.api_base {api_base} is named only by the task file, and {provider} "
                     "signs every request with your cloud credentials: pass --api-base, or list it "

@@ -14,8 +14,10 @@ prints itself goes to ur_rtde.log in the run folder, not to the console.
 from __future__ import annotations
 
 import contextlib
+import ipaddress
 import math
 import os
+import re
 import socket
 import sys
 import time
@@ -25,7 +27,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from keymps.errors import KeympsError
 from keymps.plugin import parse_options, require_validated
@@ -89,6 +91,31 @@ class UrRtdeOptions(BaseModel):
     """Refuse when any joint is further than this from the first point, rad."""
     max_following_error: float = Field(0.2, gt=0, le=1.0)
     """Stop when any joint lags the command by more than this while streaming, rad."""
+
+    @field_validator("host")
+    @classmethod
+    def _an_address(cls, host: str) -> str:
+        if not is_host(host):
+            raise ValueError(
+                f"{host!r} is not an IP address or a host name (letters, digits, '-' and '.')"
+            )
+        return host
+
+
+HOST_LABEL = re.compile(r"[A-Za-z0-9]([A-Za-z0-9-]{0,61}[A-Za-z0-9])?")
+"""One dot-separated label of a host name (RFC 1123), matched whole."""
+
+
+def is_host(text: str) -> bool:
+    """Whether `text` is an IPv4 or IPv6 address or a host name, and nothing else (a newline,
+    a space or a port would otherwise reach ur_rtde's connect call)."""
+    try:
+        ipaddress.ip_address(text)
+        return True
+    except ValueError:
+        pass
+    labels = text.removesuffix(".").split(".")
+    return len(text) <= 253 and all(HOST_LABEL.fullmatch(label) for label in labels)
 
 
 def _connect_receive(host: str, frequency: float) -> Any:
