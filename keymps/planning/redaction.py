@@ -83,13 +83,19 @@ def url_secrets(url: str | None) -> list[str]:
     return [value for value in found if value]
 
 
-def environment_secrets() -> list[str]:
-    """Values of credential-like environment variables, at least MIN_ENV_SECRET long."""
-    return [
-        value
+def secret_variables() -> dict[str, str]:
+    """Credential-like environment variables (name -> value), values at least MIN_ENV_SECRET
+    long."""
+    return {
+        name: value
         for name, value in os.environ.items()
         if SECRET_ENV_NAME.search(name) and len(value) >= MIN_ENV_SECRET
-    ]
+    }
+
+
+def environment_secrets() -> list[str]:
+    """Values of credential-like environment variables, at least MIN_ENV_SECRET long."""
+    return list(secret_variables().values())
 
 
 def known_secrets(extra: Iterable[str] = ()) -> list[str]:

@@ -150,7 +150,7 @@ def test_the_async_call_of_keymps_eval_is_not_redirected_either(servers: Any) ->
 def test_outside_keymps_calls_httpx_follows_redirects_as_its_own(servers: Any) -> None:
     import httpx
 
-    from keymps.default_plugins.litellm.redirects import install as install_guard
+    from keymps.default_plugins.litellm.request_guard import install as install_guard
 
     install_guard()
     own, other = servers

@@ -1,7 +1,8 @@
 """A real local VLM server for tests: OpenAI-compatible and Ollama-style endpoints on 127.0.0.1.
 
 Answers are scripted: queue them with `server.script(...)`; when the queue is empty the default
-responder answers. Every request is recorded (path, headers, JSON body) for assertions.
+responder answers. Every request is recorded (path, headers, JSON body; None for a GET) for
+assertions.
 
     with VlmServer() as server:
         server.script(Reply.text("not json"), Reply.text('{"keyword": ...}'))
@@ -107,6 +108,7 @@ class Recorded:
     body: Any
     at: float = field(default_factory=time.monotonic)
     """When the request arrived (time.monotonic)."""
+    method: str = "POST"
 
 
 Responder = Callable[[Recorded], str]
@@ -189,7 +191,8 @@ class VlmServer:
         return [
             r
             for r in self.requests
-            if r.path.endswith(("/chat/completions", "/api/chat", "/api/generate"))
+            if r.method == "POST"
+            and r.path.endswith(("/chat/completions", "/api/chat", "/api/generate"))
         ]
 
     def __enter__(self) -> VlmServer:
@@ -256,6 +259,10 @@ class VlmServer:
                 self.close_connection = True
 
             def do_GET(self) -> None:
+                headers = {k.lower(): v for k, v in self.headers.items()}
+                record = Recorded(self.path, headers, None, method="GET")
+                with server._lock:
+                    server.requests.append(record)
                 if self.path.rstrip("/").endswith(("/models", "/api/tags")):
                     self._send_json(200, {"object": "list", "data": [], "models": []})
                 else:

@@ -105,7 +105,8 @@ def listener(provider: str) -> VlmServer:
 def local_task(folder: Path, provider: str, key_env: str | None) -> Path:
     folder.mkdir(parents=True, exist_ok=True)
     text = (REPO / "tasks" / "cake_icing.yaml").read_text()
-    planner = f"model: {provider}/llava\n  cache: false"
+    # a new model name each time: litellm looks a model up (with its own key variable) once
+    planner = f"model: {provider}/llava-{secrets.token_hex(4)}\n  cache: false"
     if key_env:
         planner += f"\n  api_key_env: {key_env}"
     text = text.replace("model: openai/gpt-4o", planner).replace("Put 15 icing dots", "Put 1")
@@ -185,3 +186,22 @@ def test_a_default_local_port_is_sent_no_hard_linked_file(tmp_path: Path) -> Non
         run(task, tmp_path / "run")
     assert "default address http://localhost:11434" in str(caught.value)
     assert RecordingExecutor.calls == []
+
+
+def test_a_task_only_api_base_keeps_litellms_own_lookups_keyless_too(
+    tmp_path: Path, monkeypatch: Any, fuzz_counter: Any
+) -> None:
+    """litellm looks an Ollama model up at its default address with $OLLAMA_API_KEY, whatever
+    api_base the call has: with a server only the task names, that request is not sent."""
+    default = listener("ollama")
+    monkeypatch.setenv("OLLAMA_API_KEY", KEY)
+    with VlmServer(responder=lambda request: json.dumps(DOT)) as elsewhere:
+        task = local_task(tmp_path / "task", "ollama", None)
+        task.write_text(
+            task.read_text().replace("cache: false", f"cache: false\n  api_base: {elsewhere.url}")
+        )
+        with pytest.warns(UserWarning, match="no API key is sent"):
+            run(task, tmp_path / "run")
+        assert elsewhere.chat_requests and not heard_key(elsewhere)
+    assert not heard_key(default)
+    fuzz_counter.add("VLM attacks/local ports", "task-only api_base, lookup", "no key")

@@ -69,10 +69,10 @@ def import_litellm() -> Any:
     os.environ.setdefault("LITELLM_LOCAL_MODEL_COST_MAP", "True")
     import litellm
 
-    from keymps.default_plugins.litellm import redirects, response_cap
+    from keymps.default_plugins.litellm import request_guard, response_cap
 
     response_cap.install()
-    redirects.install()
+    request_guard.install()
     litellm.suppress_debug_info = True
     litellm.telemetry = False
     return litellm
@@ -113,10 +113,10 @@ class LitellmBackend:
         """The key this call sends: none from the environment to an api_base that only a task
         file names, or to a default local port (docs/security.md); else planner.api_key_env
         or the provider's variable."""
-        from keymps.planning.backend_choice import LOCAL_DEFAULTS, PROVIDER_KEYS
+        from keymps.planning.backend_choice import PROVIDER_KEYS
 
         api_base = self.options.api_base
-        if not self.options.api_base_trusted and (api_base or provider in LOCAL_DEFAULTS):
+        if not self._server_trusted(provider):
             if provider.startswith(_ENVIRONMENT_SIGNED):
                 raise KeympsError(
                     f"planner.api_base {api_base} is named only by the task file, and {provider} "
@@ -131,6 +131,14 @@ class LitellmBackend:
         if key is None and api_base and provider in ("openai", "hosted_vllm"):
             key = "no-key-needed"  # OpenAI-compatible local servers want some key
         return key
+
+    def _server_trusted(self, provider: str) -> bool:
+        """Whether the call's server is the user's: not an api_base only the task file names,
+        nor a provider's default address on this machine only the task chose."""
+        from keymps.planning.backend_choice import LOCAL_DEFAULTS
+
+        chosen = bool(self.options.api_base) or provider in LOCAL_DEFAULTS
+        return self.options.api_base_trusted or not chosen
 
     def _register_local_model(self, litellm: Any, model: str) -> None:
         # litellm does not price local models; registering them at zero gives a cost of 0.0
@@ -196,11 +204,11 @@ class LitellmBackend:
 
     def _within_deadline(self, call: _Call) -> Any:
         """One try, ended by planner.timeout_s whatever the server does (deadline.py)."""
-        from keymps.default_plugins.litellm.redirects import same_origin_only
+        from keymps.default_plugins.litellm.request_guard import guarded
         from keymps.default_plugins.litellm.response_cap import answers_capped
 
         def capped() -> Any:
-            with answers_capped(), same_origin_only():  # in the worker thread, which sends
+            with answers_capped(), guarded(call.server_trusted):  # in the thread that sends
                 return call.litellm.completion(**call.arguments)
 
         try:
@@ -209,11 +217,11 @@ class LitellmBackend:
             raise _timeout(call) from None
 
     async def _awaited_within_deadline(self, call: _Call) -> Any:
-        from keymps.default_plugins.litellm.redirects import same_origin_only
+        from keymps.default_plugins.litellm.request_guard import guarded
         from keymps.default_plugins.litellm.response_cap import answers_capped
 
         async def capped() -> Any:
-            with answers_capped(), same_origin_only():
+            with answers_capped(), guarded(call.server_trusted):
                 return await call.litellm.acompletion(**call.arguments)
 
         try:
@@ -222,6 +230,7 @@ class LitellmBackend:
             raise _timeout(call) from None
 
     def _prepare(self, request: PlanRequest) -> _Call:
+        from keymps.default_plugins.litellm.request_guard import guarded
         from keymps.planning.backend_choice import model_provider
 
         model = request.model or self.options.model
@@ -234,8 +243,10 @@ class LitellmBackend:
         litellm = import_litellm()
         provider = model_provider(model)
         local = is_local(self.options.api_base, provider)
+        trusted = self._server_trusted(provider)
         if local:
-            self._register_local_model(litellm, model)
+            with guarded(trusted):  # litellm looks the model up on the server
+                self._register_local_model(litellm, model)
         arguments: dict[str, Any] = {
             "model": model,
             "messages": request.messages,
@@ -256,9 +267,11 @@ class LitellmBackend:
         remember(key, *url_secrets(self.options.api_base))
         if key is not None:
             arguments["api_key"] = key
-        if _supports_schema(litellm, model, provider):
-            arguments["response_format"] = {"type": "json_schema", "json_schema": request.schema}
-        return _Call(litellm, model, local, arguments)
+        with guarded(trusted):
+            if _supports_schema(litellm, model, provider):
+                schema = {"type": "json_schema", "json_schema": request.schema}
+                arguments["response_format"] = schema
+        return _Call(litellm, model, local, arguments, trusted)
 
     def _retrying(self, call: _Call) -> Retrying:
         return Retrying(
@@ -278,8 +291,13 @@ class LitellmBackend:
         # litellm prices every response it returns; ask again only when it could not
         cost: Any = (getattr(response, "_hidden_params", None) or {}).get("response_cost")
         if cost is None:
+            from keymps.default_plugins.litellm.request_guard import guarded
+
             try:
-                cost = call.litellm.completion_cost(completion_response=response, model=call.model)
+                with guarded(call.server_trusted):  # pricing may look the model up
+                    cost = call.litellm.completion_cost(
+                        completion_response=response, model=call.model
+                    )
             except Exception:
                 cost = None
         if cost is None and call.local:
@@ -306,12 +324,14 @@ def _timeout(call: _Call) -> Exception:
 
 @dataclass(frozen=True)
 class _Call:
-    """One prepared call: litellm, the model, whether it runs locally, the arguments."""
+    """One prepared call: litellm, the model, whether it runs locally, the arguments, and
+    whether its server is the user's (keymps.default_plugins.litellm.request_guard)."""
 
     litellm: Any
     model: str
     local: bool
     arguments: dict[str, Any]
+    server_trusted: bool
 
 
 @functools.lru_cache(maxsize=64)

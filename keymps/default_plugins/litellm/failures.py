@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from typing import Literal
 from urllib.parse import urlparse
 
-from keymps.default_plugins.litellm.redirects import RedirectRefused
+from keymps.default_plugins.litellm.request_guard import RedirectRefused, SecretRefused
 from keymps.default_plugins.litellm.response_cap import AnswerRefused
 
 Kind = Literal[
@@ -31,6 +31,7 @@ Kind = Literal[
     "stream",
     "bad_chunks",
     "redirected",
+    "secret",
 ]
 
 
@@ -87,8 +88,17 @@ def _host_port(url: str) -> str:
 def redirected(error: BaseException) -> Failure | None:
     """The redirect behind a failed call, if the server redirected it: whatever the target then
     said, the redirect is the cause (a 301 or 302 turns the POST into a GET, which it refuses).
-    A redirect to another server was not followed at all (keymps' redirects module)."""
+    A redirect to another server was not followed at all, and a request carrying a secret to a
+    server the user did not name not sent (keymps' request_guard)."""
     for e in chain(error):
+        if isinstance(e, SecretRefused):
+            return Failure(
+                "secret",
+                f"the request to {_host_port(e.url)} would have carried the value of {e.what} "
+                "(litellm reads it itself), and only the task file chose that server: not sent; "
+                f"unset {e.what[1:]}, or pass the server with --api-base if it is yours",
+                "no",
+            )
         if isinstance(e, RedirectRefused):
             return Failure(
                 "redirected",
