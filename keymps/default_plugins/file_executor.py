@@ -7,8 +7,13 @@ from typing import TYPE_CHECKING, Any
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator
 
-from keymps.plugin import RegisterExecutor, hookimpl, parse_options, require_validated
-from keymps.run import EARLIER_RUN_FILES
+from keymps.plugin import (
+    RegisterExecutor,
+    RunFolderPath,
+    hookimpl,
+    parse_options,
+    require_validated,
+)
 from keymps.types import ExecutionReport, ValidatedTrajectory
 
 if TYPE_CHECKING:
@@ -20,58 +25,23 @@ class FileOptions(BaseModel):
 
     model_config = ConfigDict(defer_build=True, extra="forbid", frozen=True, populate_by_name=True)
 
-    csv: Path | None = Path("trajectory.csv")
+    csv: RunFolderPath | None = Path("trajectory.csv")
     """A file in the run folder (subfolders allowed); null skips the file."""
-    json_path: Path | None = Field(Path("trajectory.json"), alias="json")
+    json_path: RunFolderPath | None = Field(Path("trajectory.json"), alias="json")
     """The task file's `json` key: the ROS JointTrajectory file."""
 
-    @field_validator("csv", "json_path")
+    @field_validator("json_path")
     @classmethod
-    def _a_file_of_its_own(cls, path: Path | None, info: ValidationInfo) -> Path | None:
-        # A task file may come from a stranger: it writes nothing outside the run folder, and
-        # overwrites none of the run's own files there (run.json, plan.png, the lock ...).
+    def _not_the_csv(cls, path: Path | None, info: ValidationInfo) -> Path | None:
+        # RunFolderPath keeps the run's own files out; these two are this executor's
         if path is None:
             return path
-        if path.is_absolute() or ".." in path.parts or not path.name:
-            raise ValueError(
-                f"{str(path)!r} leads out of the run folder: name a file in it "
-                "(--out chooses the folder)"
-            )
-        problem = run_file_clash(path, own=DEFAULT_NAMES[info.field_name or ""])
-        other = info.data.get("csv") if info.field_name == "json_path" else None
-        if problem is None and other is not None and _same_file(path, other):
-            problem = f"{str(path)!r} is the csv file too: name two files"
-        if problem:
-            raise ValueError(problem)
+        if str(path).casefold() == "trajectory.csv":
+            raise ValueError("'trajectory.csv' is the run's own CSV: name another file")
+        csv = info.data.get("csv")
+        if csv is not None and str(csv).casefold() == str(path).casefold():
+            raise ValueError(f"{str(path)!r} is the csv file too: name two files")
         return path
-
-
-DEFAULT_NAMES = {"csv": "trajectory.csv", "json_path": "trajectory.json"}
-"""Each option's default: the one run file it may name (the run writes the same CSV itself)."""
-RUN_FILES = frozenset({"run.json", ".keymps.lock", *EARLIER_RUN_FILES})
-"""The files a run and the bundled plugins write in its folder (docs/run-folder.md)."""
-
-
-def run_file_clash(path: Path, own: str) -> str | None:
-    """Why an executor option may not name `path` in the run folder (None when it may): a
-    control character in it, one of the run's own files or its vlm/ records, or a hidden name
-    (the lock, the temporary files every file is written through). `own`: the run file the
-    option is for."""
-    text = str(path)
-    if any(ord(c) < 32 or ord(c) == 127 for c in text):
-        return f"{text!r} holds a control character (a NUL or a newline): name a plain file"
-    if path.parts[0].casefold() == "vlm":
-        return f"{text!r} is inside vlm/, the run's VLM records: name another file"
-    if any(part.startswith(".") for part in path.parts):
-        return f"{text!r} is a hidden name, as the run's lock and temporary files are"
-    taken = {name.casefold() for name in RUN_FILES - {own}}
-    if len(path.parts) == 1 and text.casefold() in taken:
-        return f"{text!r} is one of the run's own files (docs/run-folder.md): name another file"
-    return None
-
-
-def _same_file(a: Path, b: Path) -> bool:
-    return str(a).casefold() == str(b).casefold()  # a case-insensitive disk has one file
 
 
 class FileExecutor:

@@ -3,9 +3,10 @@
 A shared task's `executor: {name: file, csv: ..., json: ...}` could name `plan.png`,
 `run.json`, `.keymps.lock`, a file in `vlm/`, or the other option's file, and the run wrote the
 trajectory over it; a name with a NUL passed `keymps validate`. Each is refused at its
-file:line:col; generated names (the run's files in every case, in subfolders, with suffixes,
-hidden, with control characters) are refused exactly when they clash, and a run with an
-accepted name leaves every file of the run intact.
+file:line:col (the checks are keymps.plugin.RunFolderPath's: every plugin's file options have
+them); generated names (the run's files in every case, in subfolders, with suffixes, hidden,
+with control characters) are refused exactly when they clash, and a run with an accepted name
+leaves every file of the run intact.
 """
 
 from __future__ import annotations
@@ -21,17 +22,8 @@ from helpers.fuzz_support import task_copy
 
 from keymps.cli.app import cli
 
-RUN_FILES = [
-    "run.json",
-    ".keymps.lock",
-    "run.rrd",
-    "plan.png",
-    "plan.jpg",
-    "plan_photo.png",
-    "outcome.png",
-    "outcome.jpg",
-    "execution.mp4",
-]
+RUN_FILES = ["run.json", ".keymps.lock", "run.rrd", "plan.png", "plan.jpg", "plan_photo.png"]
+"""What every run writes itself, whichever executor runs (docs/run-folder.md)."""
 
 
 def file_task(folder: Path, options: str) -> Path:
@@ -49,7 +41,7 @@ def validated(task: Path) -> list[str]:
         ("csv: plan.png", "one of the run's own files"),
         ("csv: run.json", "one of the run's own files"),
         ("json: .keymps.lock", "hidden name"),
-        ("json: trajectory.csv", "one of the run's own files"),
+        ("json: trajectory.csv", "the run's own CSV"),
         ("csv: RUN.JSON", "one of the run's own files"),
         ("csv: vlm/crop.png", "inside vlm/"),
         ("csv: out.txt, json: out.txt", "is the csv file too"),
