@@ -18,7 +18,13 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from helpers.fuzz_support import RecordingExecutor, assert_clean_error, install, task_copy
+from helpers.fuzz_support import (
+    RecordingExecutor,
+    assert_clean_error,
+    install,
+    plan_request,
+    task_copy,
+)
 from helpers.vlm_server import Reply, VlmServer
 
 import keymps
@@ -115,10 +121,7 @@ def test_a_redirect_on_the_same_server_is_still_followed(servers: Any, tmp_path:
 
 
 def test_the_async_call_of_keymps_eval_is_not_redirected_either(servers: Any) -> None:
-    import numpy as np
-
     from keymps.default_plugins.litellm.backend import LitellmBackend, LitellmOptions
-    from keymps.types import PlanRequest
 
     own, other = servers
     backend = LitellmBackend(
@@ -129,18 +132,7 @@ def test_the_async_call_of_keymps_eval_is_not_redirected_either(servers: Any) ->
             timeout_s=30,
         )
     )
-    request = PlanRequest(
-        instruction="Put 1 icing dot",
-        crop=np.zeros((8, 8, 3), np.uint8),
-        crop_mask=None,
-        metres_per_px=(0.001, 0.001),
-        primitives={"line": "a line"},
-        object_height=0.05,
-        max_pairs=4,
-        messages=[{"role": "user", "content": "plan"}],
-        schema={"name": "plan", "strict": True, "schema": {"type": "object"}},
-        timeout_s=30,
-    )
+    request = plan_request(30, {"name": "plan", "strict": True, "schema": {"type": "object"}})
     own.script(Reply.redirect(307, f"{other.url}/v1/messages"))
     with pytest.raises(KeympsError, match="another server: not followed"):
         asyncio.run(backend.acomplete(request))
