@@ -6,7 +6,8 @@ attempt under run.folder/vlm, and answers from the cache or records to a cassett
 
 Backends implement keymps.plugin.VlmBackend (see docs/vlm.md). The factory receives the planner options: model, api_base, api_key_env, temperature,
 timeout_s, cassette (None when unset), and api_base_trusted: False when only the task file
-names api_base, and then a backend sends no key from the environment (docs/security.md).
+chose the server (its api_base, or a provider's default port on this machine), and then a
+backend sends no key from the environment (docs/security.md).
 """
 
 from __future__ import annotations
