@@ -23,6 +23,9 @@ NO_HEADING_M = 0.001
 """Segments with less horizontal travel than this (dots, plunges) keep the previous yaw."""
 FOOTPRINT_SLACK_M = 0.002
 """Strokes near a cut's ends stop this far inside the safety check's footprint margin."""
+CHORD_END_M = 0.003
+"""A cut's end this close inside its object's edge is on the edge (a chord may be cut either
+way; the detected outline and a planner's ends differ by a few millimetres)."""
 
 
 class MotionError(KeympsError):
@@ -82,16 +85,19 @@ def compose_tool_path(
             for k, s in enumerate(segments)
         ]
     )
-    joined = primitive.family == "icing" and yaw_mode == "fixed"
-    strokes = (
-        pipe_chains(ends, [s.object_id for s in segments], join_distance)
-        if joined
-        else [Chain((k,), (False,), ends[k]) for k in range(len(segments))]
-    )
-    yaws = _work_yaws([segments[c.pairs[0]] for c in strokes], yaw_mode, home_yaw)
-    owners = [segments[c.pairs[0]].object_id for c in strokes]
     outlines = {o.id: np.asarray(o.outline_m, dtype=float).reshape(-1, 2) for o in objects}
     single = np.asarray(footprint, dtype=float).reshape(-1, 2) if footprint is not None else None
+    joined = primitive.family == "icing" and yaw_mode == "fixed"
+    if joined:
+        strokes = pipe_chains(ends, [s.object_id for s in segments], join_distance)
+        yaws = [home_yaw] * len(strokes)
+    elif yaw_mode == "follow":
+        edges = [outlines.get(s.object_id, single) for s in segments]
+        strokes, yaws = _blade_strokes(ends, edges, home_yaw)
+    else:
+        strokes = [Chain((k,), (False,), ends[k]) for k in range(len(segments))]
+        yaws = [home_yaw] * len(strokes)
+    owners = [segments[c.pairs[0]].object_id for c in strokes]
     work_paths = [
         _work_path(
             primitive, chain, work_speed, yaw if yaw_mode == "follow" else None,
@@ -243,24 +249,69 @@ def _crossed_legs(
     return np.logical_or.reduceat(near <= TRAVEL_SPACING_M, first)
 
 
-def _work_yaws(segments: Sequence[Segment], yaw_mode: str, home_yaw: float) -> list[float]:
-    """Per segment, the tool yaw during its work piece: a blade's is the segment's heading, the
-    tool x axis along the travel, so that the edge (along -x from the tip) trails the tip and
-    sweeps the whole cut; a plunge keeps the yaw before it."""
-    if yaw_mode == "fixed":
-        return [home_yaw] * len(segments)
-    headings = []
-    for segment in segments:
-        delta = np.asarray(segment.goal, float)[:2] - np.asarray(segment.start, float)[:2]
-        headings.append(
-            math.atan2(delta[1], delta[0]) if np.hypot(*delta) >= NO_HEADING_M else None
-        )
-    previous = next((h for h in headings if h is not None), home_yaw)
+def _blade_strokes(
+    ends: np.ndarray, outlines: Sequence[np.ndarray | None], home_yaw: float
+) -> tuple[list[Chain], list[float]]:
+    """Per cut its direction and the blade's yaw: the yaw is the direction of travel, so that
+    the edge (along the tool's -x axis from the tip) trails the tip and sweeps the whole cut;
+    a plunge keeps the yaw before it. A cut whose both ends lie on or beyond its object's
+    edge (a chord) may be cut either way: it runs the way that turns the wrist least, its
+    heights kept (it still starts above the food and ends on the board). A cut that ends
+    inside the food (a ray to the centre) keeps its direction: reversed, the edge trailing
+    from the rim would reach across the far side."""
+    strokes: list[Chain] = []
+    headings: list[float | None] = []
+    previous: float | None = None
+    for k, (start, goal) in enumerate(ends):
+        delta = goal[:2] - start[:2]
+        if float(np.hypot(*delta)) < NO_HEADING_M:
+            strokes.append(Chain((k,), (False,), ends[k]))
+            headings.append(None)
+            continue
+        heading = math.atan2(delta[1], delta[0])
+        reverse = math.remainder(heading + math.pi, math.tau)
+        if _is_chord(start, goal, outlines[k]) and _turn(reverse, previous) < _turn(
+            heading, previous
+        ):
+            swapped = np.array([[*goal[:2], start[2]], [*start[:2], goal[2]]])
+            strokes.append(Chain((k,), (True,), swapped))
+            heading = reverse
+        else:
+            strokes.append(Chain((k,), (False,), ends[k]))
+        headings.append(heading)
+        previous = heading
+    held: float = next((h for h in headings if h is not None), home_yaw)
     yaws = []
-    for heading in headings:
-        previous = heading if heading is not None else previous
-        yaws.append(previous)
-    return yaws
+    for maybe in headings:
+        held = maybe if maybe is not None else held
+        yaws.append(held)
+    return strokes, yaws
+
+
+def _turn(heading: float, previous: float | None) -> float:
+    """How far the wrist turns from `previous` to `heading` (radians; from 0 for the first
+    cut, which keeps the first cut's yaw near the home orientation)."""
+    return abs(math.remainder(heading - (0.0 if previous is None else previous), math.tau))
+
+
+def _is_chord(start: np.ndarray, goal: np.ndarray, outline: np.ndarray | None) -> bool:
+    """Whether both ends lie outside the outline or within CHORD_END_M inside its edge."""
+    if outline is None or len(outline) < 3:
+        return False
+    from keymps.robot.safety_geometry import inside_polygon
+
+    points = np.array([start[:2], goal[:2]])
+    closed = np.vstack([outline, outline[:1]])
+    a, b = closed[:-1], closed[1:]
+    ab = b - a
+    t = np.clip(
+        np.einsum("pij,ij->pi", points[:, None] - a[None], ab) / np.maximum((ab**2).sum(1), 1e-18),
+        0.0,
+        1.0,
+    )
+    edge = np.linalg.norm(points[:, None] - (a[None] + t[..., None] * ab[None]), axis=2).min(1)
+    inside = inside_polygon(points, outline)
+    return bool(np.all(~inside | (edge <= CHORD_END_M)))
 
 
 def _travel(

@@ -163,6 +163,30 @@ def test_knife_yaw_is_the_cut_direction_so_the_blade_trails_the_tip(dictionary: 
         assert abs(piece.yaw[0]) <= math.pi + 1e-12
 
 
+def test_a_chord_runs_the_way_that_turns_the_wrist_least_with_the_edge_trailing(
+    dictionary: dict,
+) -> None:
+    """Cuts across the food (both ends beyond its edge) may run either way: back-and-forth
+    chords run the same way (no half turn of the wrist between them), each still starting
+    above the food and ending on the board with the tool x axis along the travel. A ray that
+    ends at the centre keeps its direction (reversed, the trailing edge would cross the far
+    half)."""
+    angles = np.linspace(0.0, 2 * math.pi, 48, endpoint=False)
+    circle = np.array([0.15, 0.09]) + 0.05 * np.c_[np.cos(angles), np.sin(angles)]
+    chords = [cut(0.13, 0.03, 0.13, 0.15), cut(0.15, 0.15, 0.15, 0.03), cut(0.17, 0.03, 0.17, 0.15)]
+    ray = cut(0.15, 0.15, 0.15, 0.09)
+    path = compose([*chords, ray], dictionary["straight"], footprint=circle)
+    works = [p for p in path.pieces if p.kind == "work"]
+    assert np.allclose([w.yaw[0] for w in works[:3]], math.pi / 2)
+    assert works[1].piped_pairs == (1,) and works[1].points[0, 1] < works[1].points[-1, 1]
+    for work in works:
+        travel = work.points[-1, :2] - work.points[0, :2]
+        tool_x = np.array([math.cos(work.yaw[0]), math.sin(work.yaw[0])])
+        assert tool_x @ travel > 0.999 * np.linalg.norm(travel)
+        assert work.points[0, 2] > TOP and work.points[-1, 2] == pytest.approx(0.0, abs=1e-6)
+    assert np.allclose(works[3].yaw, -math.pi / 2)  # the ray, as planned: rim to centre
+
+
 def test_piping_bag_keeps_a_fixed_yaw_and_dots_are_dots(dictionary: dict) -> None:
     segments = [dot_or_line(0.1, 0.08, 0.1, 0.08), dot_or_line(0.12, 0.06, 0.18, 0.1)]
     path = compose(segments, dictionary["line"], yaw_mode="fixed", home_yaw=0.3)

@@ -77,7 +77,7 @@ def test_a_vlm_pair_beside_the_potato_cuts_nothing_and_is_refused(tmp_path, monk
     """The only pair lies in the corner of the crop beside the potato, within the safety
     check's footprint + 2 cm: the simulator said "1 cut" of 0.0 mm. The repair round gets the
     same answer: still refused, after planner.attempts (2) rounds."""
-    monkeypatch.setenv("OUTCOME_TEST_API_KEY", "sk-outcome-test")
+    monkeypatch.setenv("OUTCOME_TEST_API_KEY", "sk-test-9d41c07be2f58a36")
     png, _ = _scene(tmp_path, ObjectSpec("potato", 0.09, 0.06, 0.05, 0.0), seed=2)
     planner = "backend: litellm, model: openai/test-vlm, api_key_env: OUTCOME_TEST_API_KEY, "
     task = _task(tmp_path, png, "Cut the potato in half", KNIFE, 0.05, planner + "cache: false")

@@ -58,7 +58,7 @@ def _vlm_task(folder: Path, png: Path, attempts: int = 2) -> Path:
 
 @pytest.fixture(autouse=True)
 def _key(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setenv(KEY_VARIABLE, "sk-outcome-repair-test")
+    monkeypatch.setenv(KEY_VARIABLE, "sk-test-5e82ab19f0c4d763")
 
 
 def test_unequal_pieces_go_back_and_the_repaired_plan_runs(cake, tmp_path):
