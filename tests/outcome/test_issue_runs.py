@@ -95,7 +95,10 @@ def test_a_vlm_pair_beside_the_potato_cuts_nothing_and_is_refused(tmp_path, monk
 def test_a_knife_task_on_an_object_of_no_height_cuts_nothing(tmp_path):
     """object_height: 0.0 was reported as "4 icing strokes"."""
     png, _ = _scene(tmp_path, ObjectSpec("round_pizza", 0.15, 0.15, 0.02, 0.0))
-    task = _task(tmp_path, png, "Cut it into 8 equal slices", KNIFE, 0.0)
+    # the UR3 5 cm back from its default base: there its upper arm comes near wrist 1 over the
+    # far rim, and the self-contact check (not this test's subject) would refuse the run first
+    back = KNIFE.replace("{tool: knife}", "{tool: knife, base: [0.15, -0.25, 0.0, 90]}")
+    task = _task(tmp_path, png, "Cut it into 8 equal slices", back, 0.0)
     error, record = _refused(task, tmp_path / "run")
     assert "never goes below the object's top, 0.0 mm above the board" in str(error)
     assert all(c["length_m"] == 0 for c in record["outcome"]["predicted"]["cuts"])
