@@ -5,8 +5,9 @@ stays in place, or moves less than a dot's diameter joined to no other deposit, 
 dot: a disc
 DOT_DIAMETER_FACTOR line widths across. Elsewhere it leaves a line: a band one line width wide
 along its path. Deposits whose ends meet form one stroke; a stroke whose lines close on
-themselves is a loop (a ring). Two deposits merge where their icing touches, unless the drawing
-joins them there on purpose (lines meeting at a corner or crossing, as a star's do).
+themselves is a loop (a ring), and so is a line piped as one stroke that ends where it starts.
+Two deposits merge where their icing touches, unless the drawing joins them there on purpose
+(lines meeting at a corner or crossing, as a star's do).
 """
 
 from __future__ import annotations
@@ -114,9 +115,14 @@ def _blobs(paths: Sequence[np.ndarray], line_width: float) -> list[bool]:
 
 
 def _simplified(xy: np.ndarray) -> np.ndarray:
-    """The path (n, 2) with the points a straight line already passes near dropped."""
+    """The path (n, 2) with the points a straight line already passes near dropped. A path that
+    ends where it starts is simplified in two halves, split at its point farthest from the
+    start (Douglas-Peucker measures from the chord between the ends, which has none)."""
     import cv2
 
+    far = int(np.argmax(np.linalg.norm(xy - xy[0], axis=1)))
+    if len(xy) > 2 and 0 < far < len(xy) - 1 and np.linalg.norm(xy[-1] - xy[0]) < SIMPLIFY_M:
+        return np.vstack([_simplified(xy[: far + 1])[:-1], _simplified(xy[far:])])
     scaled = (xy / SIMPLIFY_M).astype(np.float32).reshape(-1, 1, 2)
     kept = cv2.approxPolyDP(scaled, 1.0, False).reshape(-1, 2)
     return np.asarray(kept, dtype=float) * SIMPLIFY_M
@@ -199,8 +205,19 @@ def _strokes(shapes: Sequence[tuple[str, np.ndarray]], line_width: float) -> tup
     loops = 0
     for lines in lines_of.values():
         nodes = {j for k in lines for j in joint_of[k]}
-        loops += len(lines) >= 3 and len(lines) >= len(nodes)  # a cycle through its joints
+        if len(lines) == 1:  # lines that meet, piped as one stroke (keymps.motion.chains)
+            loops += len(nodes) == 1 and _encloses(shapes[lines[0]][1], line_width)
+        else:
+            loops += len(lines) >= 3 and len(lines) >= len(nodes)  # a cycle through its joints
     return stroke_of, loops
+
+
+def _encloses(path: np.ndarray, line_width: float) -> bool:
+    """Whether a line that ends where it starts closes around more than its own band: its
+    area (shoelace) is over four square line widths (a line piped there and back is none)."""
+    x, y = path[:, 0], path[:, 1]
+    area = 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
+    return area > 4.0 * line_width**2
 
 
 def _joints(

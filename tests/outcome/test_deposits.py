@@ -62,6 +62,22 @@ def test_joined_lines_are_one_stroke_and_a_closed_one_is_a_loop():
     assert merge.kind == "lines" and merge.gap_m < LINE
 
 
+def test_a_ring_piped_as_one_stroke_is_a_loop_and_a_line_there_and_back_is_not():
+    """Icing lines that meet are piped as one work piece (keymps.motion.chains): a ring is
+    then one line that ends where it starts (it counted no loop, and "2 rings" was refused)."""
+    angles = np.linspace(0.0, 2 * math.pi, 73)
+    rings = []
+    for k, radius in enumerate((0.03, 0.06)):
+        xy = 0.1 + radius * np.c_[np.cos(angles), np.sin(angles)]
+        rings.append((k, CAKE, np.column_stack([xy, np.full(len(xy), 0.061)])))
+    deposits, strokes, loops = deposits_of(rings, LINE)
+    assert [d.kind for d in deposits] == ["line", "line"] and (strokes, loops) == (2, 2)
+    there = np.linspace(0.05, 0.15, 30)
+    back = np.r_[there, there[::-1]]
+    to_and_fro = np.column_stack([back, np.full(60, 0.1), np.full(60, 0.061)])
+    assert deposits_of([(0, CAKE, to_and_fro)], LINE)[1:] == (1, 0)
+
+
 def test_a_dot_piped_a_little_off_its_place_is_still_a_dot_and_icing_off_the_top_is_named():
     off_place = _line(np.array([0.1, 0.1]), np.array([0.103, 0.1]), 0)  # 3 mm, joined to none
     edge = _dot(0.199, 0.1, 1)  # its disc hangs 3 mm over the edge
