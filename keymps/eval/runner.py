@@ -64,7 +64,8 @@ class EvalOptions:
     outcome: str = "off"
     """Plan-only suites (equal parts): off (the plan is scored), predict (through the outcome
     stage, every plan accepted; the predicted cuts are scored) or repair (`--verify-outcome`:
-    a wrong plan goes back to the VLM, one still wrong is refused)."""
+    a wrong plan goes back to the VLM, one still wrong is refused). Executed suites run every
+    motion, its verdict recorded, except under repair."""
     processes: int | None = 1
     """Worker processes sharing the runs in flight (1: every run in this process; None: one per
     core when there are enough runs, as `keymps eval` does). See keymps.eval.pool."""
