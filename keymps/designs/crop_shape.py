@@ -70,8 +70,9 @@ def _largest_contour(mask: np.ndarray) -> np.ndarray | None:
     return np.asarray(largest.reshape(-1, 2), dtype=float)
 
 
-SQUARE_SNAP_DEG = 0.5
-"""A square footprint measured within this of the image axes is taken as aligned with them."""
+AXIS_SNAP_DEG = 0.5
+"""A square or elongated footprint measured within this of the image axes is taken as aligned
+with them (the measurement's own noise)."""
 
 
 def classify(polygon_mm: np.ndarray) -> tuple[ShapeKind, float]:
@@ -96,13 +97,14 @@ def classify(polygon_mm: np.ndarray) -> tuple[ShapeKind, float]:
     else:
         kind = "round"
     # Keep the image axes when the sides nearly align with them: for a round object within 10
-    # degrees (its rectangle's angle means little), for a square one within measurement noise
-    # only (a cake turned 3 degrees must get a turned grid, or its pieces are 5 % unequal).
-    snap = math.radians(10.0 if kind == "round" else SQUARE_SNAP_DEG)
-    if kind != "elongated" and abs(abs(angle) - math.pi / 2) < snap:
+    # degrees (its rectangle's angle means little), for others within measurement noise only
+    # (a cake turned 3 degrees must get a turned grid, or its pieces are 5 % unequal).
+    snap = math.radians(10.0 if kind == "round" else AXIS_SNAP_DEG)
+    near_vertical = abs(abs(angle) - math.pi / 2) < snap
+    if abs(angle) < snap or (near_vertical and kind != "elongated"):
         angle = 0.0
-    if kind != "elongated" and abs(angle) < snap:
-        angle = 0.0
+    elif near_vertical:  # a long object standing upright: its long axis is the image's y
+        angle = math.pi / 2
     return kind, angle
 
 
