@@ -92,6 +92,7 @@ def classify(polygon_mm: np.ndarray) -> tuple[ShapeKind, float]:
     fill = polygon_area(polygon_mm) / max(w * h, 1e-9)
     if aspect >= ELONGATED_ASPECT:
         kind: ShapeKind = "elongated"
+        angle = _principal_axis(polygon_mm)
     elif fill >= SQUARE_FILL:
         kind = "square"
     else:
@@ -106,6 +107,16 @@ def classify(polygon_mm: np.ndarray) -> tuple[ShapeKind, float]:
     elif near_vertical:  # a long object standing upright: its long axis is the image's y
         angle = math.pi / 2
     return kind, angle
+
+
+def _principal_axis(polygon_mm: np.ndarray) -> float:
+    """The footprint's long axis from its second moments of area, in (-pi/2, pi/2]: the
+    minimum-area rectangle of an oval or a curved body is a degree or more off."""
+    import cv2
+
+    moments = cv2.moments(polygon_mm.astype(np.float32))
+    angle = 0.5 * math.atan2(2 * moments["mu11"], moments["mu20"] - moments["mu02"])
+    return angle + math.pi if angle <= -math.pi / 2 else angle
 
 
 def measure(crop: np.ndarray, mask: np.ndarray | None, mm_per_px: tuple[float, float]) -> CropShape:
