@@ -364,23 +364,22 @@ def default_search_dirs(task_folder: Path) -> list[Path]:
     """Where primitives are looked for, first match wins: the task folder's ../primitives and
     primitives/, each folder in KEYMPS_PRIMITIVES_PATH, ./primitives, the bundled dictionary.
     ../primitives and ./primitives are left out when other users may write them (a task in
-    /tmp/x would otherwise read /tmp/primitives: docs/security.md)."""
-    from keymps.config.trust import shared_folders_left_out
+    /tmp/x would otherwise read /tmp/primitives: docs/security.md). Those three are not
+    followed when they are links themselves (a shared folder's `primitives -> /` is no
+    search folder at `/`); the user's own folders are."""
+    from keymps.config.trust import anchored, real_path, shared_folders_left_out
 
     task_folder = Path(task_folder)
-    dirs = [
+    own = [
         *shared_folders_left_out([task_folder / ".." / "primitives"]),
         task_folder / "primitives",
     ]
     env = os.environ.get("KEYMPS_PRIMITIVES_PATH", "")
-    dirs += [Path(part) for part in env.split(os.pathsep) if part.strip()]
-    dirs += [*shared_folders_left_out([Path.cwd() / "primitives"]), BUNDLED_DIR]
-    unique: list[Path] = []
-    for folder in dirs:
-        resolved = folder.resolve()
-        if resolved not in unique:
-            unique.append(resolved)
-    return unique
+    chosen = [real_path(Path(part)) for part in env.split(os.pathsep) if part.strip()]
+    dirs = [*map(anchored, own), *chosen]
+    dirs += [*map(anchored, shared_folders_left_out([Path.cwd() / "primitives"]))]
+    dirs.append(real_path(BUNDLED_DIR))
+    return list(dict.fromkeys(dirs))
 
 
 def find_primitive_files(search_dirs: Sequence[Path]) -> dict[str, Path]:
