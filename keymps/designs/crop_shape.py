@@ -70,9 +70,11 @@ def _largest_contour(mask: np.ndarray) -> np.ndarray | None:
     return np.asarray(largest.reshape(-1, 2), dtype=float)
 
 
-AXIS_SNAP_DEG = 0.5
-"""A square or elongated footprint measured within this of the image axes is taken as aligned
-with them (the measurement's own noise)."""
+SQUARE_SNAP_DEG = 0.5
+"""A square footprint measured within this of the image axes is taken as aligned with them."""
+ELONGATED_SNAP_DEG = 0.1
+"""An elongated one's axis within this of the image axes is taken as aligned: its second
+moments place it to a few hundredths of a degree, so this is pixel noise only."""
 
 
 def classify(polygon_mm: np.ndarray) -> tuple[ShapeKind, float]:
@@ -100,7 +102,9 @@ def classify(polygon_mm: np.ndarray) -> tuple[ShapeKind, float]:
     # Keep the image axes when the sides nearly align with them: for a round object within 10
     # degrees (its rectangle's angle means little), for others within measurement noise only
     # (a cake turned 3 degrees must get a turned grid, or its pieces are 5 % unequal).
-    snap = math.radians(10.0 if kind == "round" else AXIS_SNAP_DEG)
+    snap = math.radians(
+        {"round": 10.0, "square": SQUARE_SNAP_DEG, "elongated": ELONGATED_SNAP_DEG}[kind]
+    )
     near_vertical = abs(abs(angle) - math.pi / 2) < snap
     if abs(angle) < snap or (near_vertical and kind != "elongated"):
         angle = 0.0
