@@ -9,8 +9,9 @@
    beside a bright one keeps its own edge), or the task's.
 4. Regions: crumbs (under min_area) are dropped; a region that touches three or more sides of
    the searched area, or covers most of it, is the board (or the table), never an object: the
-   detection stops there. The largest remaining region is the object (or the one `pick` names);
-   every region is in Detection.objects, numbered left to right, then top to bottom.
+   detection stops there. Every remaining region is an object, in Detection.objects, numbered
+   left to right, then top to bottom; the largest gives the detection its own box. `pick` keeps
+   one of them only (by decreasing area), warning about others of its size.
 """
 
 from __future__ import annotations
@@ -79,9 +80,11 @@ class BoardOptions(BaseModel):
     max_coverage: float = Field(default=0.75, gt=0, le=1)
     """A region covering more than this fraction of the searched area is the board."""
     comparable: float = Field(default=0.5, gt=0, le=1)
-    """A second region at least this fraction of the chosen one's area triggers a warning."""
-    pick: int = Field(default=0, ge=0)
-    """Which object to use, by index in order of decreasing area (0 = the largest)."""
+    """With `pick`: another region at least this fraction of the picked one's area triggers
+    a warning."""
+    pick: int | None = Field(default=None, ge=0)
+    """Keep only this object, by index in order of decreasing area (0 = the largest); by
+    default every object is kept (the planner addresses them)."""
     roi: list[tuple[float, float]] | None = None
     """Search only inside this polygon of image pixels, or box [x0, y0, x1, y1]."""
 
@@ -218,18 +221,18 @@ class BoardDetector:
             )
         objects.sort(key=lambda r: r.area, reverse=True)
         pick = self.options.pick
-        if pick >= len(objects):
+        if pick is not None and pick >= len(objects):
             raise DetectionError(
                 f"detector.pick is {pick} but only {len(objects)} object(s) were found "
-                f"(largest first: {_list(objects)})"
+                f"(by decreasing area: {_list(objects)})"
             )
-        chosen = objects[pick]
+        chosen = objects[pick or 0]
         report["chosen"] = {
             "bbox_px": list(chosen.bbox),
-            "why": f"object #{pick} by decreasing area"
-            + (" (the largest)" if pick == 0 else f" (detector.pick = {pick})"),
+            "why": "the largest object" if pick is None else f"detector.pick = {pick}",
         }
-        numbered = sorted(objects, key=_reading_order)
+        kept = objects if pick is None else [chosen]
+        numbered = sorted(kept, key=_reading_order)
         report["objects"] = [
             {"id": i + 1, "bbox_px": list(r.bbox), "area_px": round(r.area, 1)}
             for i, r in enumerate(numbered)
@@ -410,10 +413,14 @@ def _reading_order(region: Region) -> tuple[float, float]:
 
 
 def _list(regions: list[Region]) -> str:
-    return "; ".join(f"#{i} box {list(r.bbox)} ({r.area:.0f} px)" for i, r in enumerate(regions))
+    return "; ".join(
+        f"pick {i}: box {list(r.bbox)} ({r.area:.0f} px)" for i, r in enumerate(regions)
+    )
 
 
-def _warnings(chosen: Region, pick: int, objects: list[Region], options: BoardOptions) -> list[str]:
+def _warnings(
+    chosen: Region, pick: int | None, objects: list[Region], options: BoardOptions
+) -> list[str]:
     found = []
     if chosen.sides:
         found.append(
@@ -421,7 +428,8 @@ def _warnings(chosen: Region, pick: int, objects: list[Region], options: BoardOp
             f"{' and '.join(chosen.sides)} side(s) of the searched area: it may be cut off, "
             "and its box smaller than the object"
         )
-    found += comparable_object_warnings(objects, pick, options.comparable)
+    if pick is not None:  # one object kept: name the others it might have meant
+        found += comparable_object_warnings(objects, pick, options.comparable)
     return found
 
 

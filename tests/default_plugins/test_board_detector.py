@@ -130,9 +130,29 @@ def test_objects_are_numbered_left_to_right_and_the_report_says_why() -> None:
     assert report["detector"] == "board" and report["threshold"]["how"].startswith("automatic")
     assert report["board_model"]["mean_lab"][0] == pytest.approx(88, abs=2)
     assert [r["verdict"] for r in report["regions"]] == ["object"] * 3
-    assert report["chosen"]["why"].startswith("object #0 by decreasing area")
+    assert report["chosen"]["why"] == "the largest object"
     json.dumps(report)  # run.json holds it as it is
     assert detection.others_px == ((40, 200, 140, 300), (60, 30, 120, 90))  # largest first
+
+
+def test_every_object_is_kept_without_a_warning_and_pick_keeps_one() -> None:
+    """Issue 39: every run with two objects warned 'the one in box [...] is used, not the one in
+    box [...]', even when the sentence had both cut. Without detector.pick both are objects and
+    nothing is warned; with it one is kept and the other named by box, area and place."""
+    image = finish(board(BOARDS["white plastic"]))
+    paint_float = image.astype(float)
+    paint(paint_float, (60, 60, 220, 220), (40.0, 20.0, 30.0))
+    paint(paint_float, (380, 70, 530, 220), (40.0, 20.0, 30.0))  # a little smaller, right
+    both = BoardDetector().detect(finish(paint_float))
+    assert both.warnings == () and len(both.objects) == 2
+    picked = BoardDetector(BoardOptions(pick=0)).detect(finish(paint_float))
+    (warning,) = picked.warnings
+    assert [o.bbox_px for o in picked.objects] == [(60, 60, 220, 220)]
+    assert "detector.pick keeps the object in box [60, 60, 220, 220]" in warning
+    assert "in box [380, 70, 530, 220]" in warning and "to its right), is left out" in warning
+    assert "#" not in warning  # no number that plan.png would give another object
+    with pytest.raises(KeympsError, match=r"\(by decreasing area: pick 0: box \[60, 60"):
+        BoardDetector(BoardOptions(pick=2)).detect(finish(paint_float))
 
 
 def test_a_task_can_set_the_threshold_and_options_are_checked() -> None:
