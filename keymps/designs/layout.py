@@ -18,6 +18,9 @@ RING_FRACTION = 0.78
 """Radius of a ring of dots as a fraction of a round object's radius (space from the edge)."""
 TIP_FRACTION = 0.1
 """Both tips: each cut is this fraction of the length in from its end (5-30 mm)."""
+CAP_MARGIN_MM = 2.0
+"""Both tips of a capped body (an eggplant): the cut on the cap's side is this far into the body,
+so that the cap comes off whole."""
 
 
 OVERSHOOT_MM = 1.0
@@ -129,18 +132,35 @@ def _cuts(intent: Intent, shape: CropShape) -> tuple[np.ndarray, str]:
             f"the middle{along}"
         )
     if intent.design == "tips":
-        inset = min(max(TIP_FRACTION * (high - low), 5.0), 30.0)
-        if intent.slice_width_mm is not None:
-            inset = _scaled_width(intent, intent.slice_width_mm, high - low)
-        if 2 * inset >= high - low:
-            raise KeympsError(
-                f"{intent.slice_width_mm or inset:g} mm off each end leaves nothing of the "
-                f"{what} ({(high - low) / 10:.1f} cm long)"
-            )
-        return patterns.both_tips(o, angle, inset, over), (
-            f"{what}: both tips cut off, {inset / 10:.1f} cm from each end"
-        )
+        return _tips(intent, shape, angle, over)
     raise KeympsError(f"the offline planner has no design for {intent.describe()}")
+
+
+def _tips(intent: Intent, shape: CropShape, angle: float, over: float) -> tuple[np.ndarray, str]:
+    """Both tips off: `inset` in from each end of the body, or at the base of a cap (an end of
+    another colour the body was measured without)."""
+    o = shape.outline
+    low, high = o.extent(angle)
+    inset = min(max(TIP_FRACTION * (high - low), 5.0), 30.0)
+    if intent.slice_width_mm is not None:
+        inset = _scaled_width(intent, intent.slice_width_mm, high - low)
+    insets = [inset, inset]
+    along = math.cos(angle - o.axis_angle)
+    capped = shape.trimmed_mm if along > 0.99 else shape.trimmed_mm[::-1] if along < -0.99 else ()
+    notes = []
+    for end, trimmed in enumerate(capped):
+        if trimmed > 0:
+            insets[end] = CAP_MARGIN_MM
+            notes.append(f"the {trimmed / 10:.1f} cm cap cut off at its base")
+    if sum(insets) >= high - low:
+        raise KeympsError(
+            f"{inset:g} mm off each end leaves nothing of the {shape.describe()} "
+            f"({(high - low) / 10:.1f} cm long)"
+        )
+    plain = f"{inset / 10:.1f} cm from " + ("each end" if not notes else "the other end")
+    return patterns.parallel_cuts(o, angle, [insets[0], high - low - insets[1]], over), (
+        f"{shape.describe()}: both tips cut off, " + ", ".join([*notes, plain])
+    )
 
 
 def _scaled_width(intent: Intent, width: float, measured: float) -> float:
