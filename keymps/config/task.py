@@ -283,18 +283,34 @@ class Robot(StrictModel):
 
 
 class Task(StrictModel):
+    """A validated task file: the sentence, the scene, and the components that carry it out.
+
+    Built by `keymps.load_task` (or `parse_task` from text); unknown keys are errors and every
+    error names the file, line, column and field. Every field is described in docs/tasks.md.
+    """
+
     name: str = Field(min_length=1, max_length=200)
+    """Names the run folder (`runs/<name>-<time>/`)."""
     instruction: str = Field(min_length=1, max_length=4000)
+    """The sentence the planner carries out ("cut it into 8 equal slices")."""
     scene: Scene
+    """The image, the workspace it spans (metres), the objects and their heights."""
     detector: PluginSection = PluginSection(name="board")
+    """The detector plugin (`name`) and its options."""
     planner: Planner = Planner()
+    """The planner backend (auto, offline, litellm, replay), model, prompt and answer format."""
     primitives: list[Annotated[str, Field(min_length=1, max_length=200)]] = Field(
         min_length=1, max_length=100
     )
+    """The primitive names the planner may choose from (the dictionary's file names)."""
     height: Height = Height()
+    """How the object's height is integrated into the segments (Appendix C)."""
     motion: Motion = Motion()
+    """Clearance (metres) and speeds (m/s) of the tool path, and its bounds."""
     robot: Robot = Robot()
+    """The arm's model, base pose on the board, tool, controller rate and limits."""
     executor: PluginSection = PluginSection(name="sim")
+    """The executor plugin (`name`) and its options."""
     path: Path | None = Field(default=None, exclude=True)
     """The task file this was loaded from (None when built in code)."""
     _source: str = PrivateAttr(default="<task>")
@@ -321,13 +337,14 @@ class Task(StrictModel):
             raise ValueError("instruction is empty")
         if any(ord(c) < 32 or ord(c) == 127 for c in value):
             raise ValueError(
-                "instruction contains a line break, a tab or another control character: write "
-                "it on one line (YAML's folded style, `instruction: >`, joins lines with spaces)"
+                "instruction contains control characters (a line break, a tab ...): write it on "
+                "one line (YAML's folded style, `instruction: >`, joins lines with spaces)"
             )
         return value
 
     @property
     def folder(self) -> Path:
+        """The task file's folder (the current folder for a task built in code)."""
         return self.path.parent if self.path else Path.cwd()
 
     @property
@@ -337,11 +354,26 @@ class Task(StrictModel):
         return api_base is not None and api_base == self._api_base_from_file
 
     def resolve(self, relative: Path) -> Path:
-        """A path from the task file, relative to the task file's folder."""
+        """A path from the task file, taken relative to the task file's folder.
+
+        Args:
+            relative: A path as the task file wrote it.
+
+        Returns:
+            `relative` itself when absolute, else `folder / relative`.
+        """
         return relative if relative.is_absolute() else (self.folder / relative)
 
     def where(self, *field_path: str | int) -> str:
-        """'file:line:col' of a field, for errors found after loading (e.g. a plugin name)."""
+        """Where a field is written, for errors found after loading (e.g. a plugin's name).
+
+        Args:
+            *field_path: Keys and list indices from the top, e.g. `"detector", "name"`.
+
+        Returns:
+            `file:line:col` of the field (of its nearest written parent when the file leaves
+            it out); the source's name alone for a task built in code.
+        """
         if self._yaml is None:
             return self._source
         line, column = self._yaml.locate(tuple(field_path))

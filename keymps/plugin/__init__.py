@@ -11,7 +11,15 @@ def register_detectors(register: RegisterDetector) -> None:
 See docs/plugins.md for every hook and docs/architecture.md for where plugins sit.
 """
 
-from keymps.errors import DetectionError, ImageSourceError, KeympsError, SafetyError, StageError
+from keymps.errors import (
+    DetectionError,
+    ImageSourceError,
+    KeympsError,
+    SafetyError,
+    StageError,
+    interrupt_name,
+)
+from keymps.interrupts import interrupts_deferred
 from keymps.plugin.components import Detector, Executor, ImageSource, StageObserver, VlmBackend
 from keymps.plugin.hookspecs import (
     Register,
@@ -21,8 +29,8 @@ from keymps.plugin.hookspecs import (
     RegisterVlmBackend,
     hookimpl,
 )
-from keymps.plugin.options import parse_options
-from keymps.plugin.trajectories import require_validated
+from keymps.plugin.options import RunFolderPath, parse_options
+from keymps.plugin.trajectories import require_validated, trajectory_digest
 
 __all__ = [
     "DetectionError",
@@ -36,11 +44,15 @@ __all__ = [
     "RegisterExecutor",
     "RegisterImageSource",
     "RegisterVlmBackend",
+    "RunFolderPath",
     "SafetyError",
     "StageError",
     "StageObserver",
     "VlmBackend",
     "hookimpl",
+    "interrupt_name",
+    "interrupts_deferred",
     "parse_options",
     "require_validated",
+    "trajectory_digest",
 ]
