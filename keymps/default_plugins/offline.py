@@ -179,6 +179,7 @@ class OfflineBackend:
                     + "), but planner.answer: design names one: use planner.answer: either"
                 )
             intent, obj = jobs[0]
+            _refuse_what_a_named_design_loses(intent)
             answer["design"] = design_answer(intent) | (
                 {"object": obj.id} if len(objects) > 1 else {}
             )
@@ -211,6 +212,21 @@ class OfflineBackend:
             latency_s=time.perf_counter() - started,
             cost_usd=0.0,
             model=None,
+        )
+
+
+def _refuse_what_a_named_design_loses(intent: Intent) -> None:
+    """A named design has no distance from the edge, no inset for the tips and no piece shape:
+    a sentence that gives one is not answered without it."""
+    lost = [
+        f"{intent.edge_distance_mm / 10:g} cm from the edge" if intent.edge_distance_mm else "",
+        "the tips' inset" if intent.design == "tips" and intent.slice_width_mm else "",
+        f"{intent.piece_shape} pieces" if intent.piece_shape in ("strip", "round") else "",
+    ]
+    if any(lost):
+        raise KeympsError(
+            f"the offline planner reads {intent.describe()}, and a named design cannot carry "
+            f"{', '.join(w for w in lost if w)}: use planner.answer: either (or pairs)"
         )
 
 

@@ -55,7 +55,7 @@ def place_design(
 
     With the icing line's width, an icing design whose lines would merge is refused."""
     from keymps.designs.crop_shape import measure
-    from keymps.designs.layout import OVERSHOOT_MM, design
+    from keymps.designs.layout import design
 
     mm_per_px = (1000.0 * metres_per_px[0], 1000.0 * metres_per_px[1])
     shape = measure(crop, mask, mm_per_px)
@@ -70,13 +70,9 @@ def place_design(
     height, width = crop.shape[:2]
     pairs_px = clip_to_image(shape.to_pixels(pairs_mm), width - 1, height - 1)
     if intent.family == "cut":
-        # cuts reach past the object's edges by the overshoot, no further from its bounding
-        # box (the paper's lines end at the box; a measured box a pixel short of the true one
-        # then left a turned cake's corner piece attached)
+        # cuts reach the object's edges, not beyond its bounding box (the paper's lines)
         outline_px = shape.to_pixels(shape.outline.polygon)
-        reach = OVERSHOOT_MM / np.asarray(shape.mm_per_px)
-        low, high = outline_px.min(axis=0) - reach, outline_px.max(axis=0) + reach
-        pairs_px = clip_to_image(clip_to_box(pairs_px, low, high), width - 1, height - 1)
+        pairs_px = clip_to_box(pairs_px, outline_px.min(axis=0), outline_px.max(axis=0))
     if len(pairs_px) > max_pairs:
         raise KeympsError(
             f"the design {intent.describe()} needs {len(pairs_px)} keypoint pairs, more than "
