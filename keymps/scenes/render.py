@@ -358,9 +358,3 @@ def _body_truth(obj: ObjectSpec, centre: tuple[float, float]) -> dict[str, Any]:
     if ends is None:
         return {}
     return {"body_m": np.round(to_board_frame(ends, obj, centre), 6).tolist()}
-
-
-def render_to_file(spec: SceneSpec, path: str | Path) -> tuple[RenderedScene, Path, Path]:
-    scene = render_scene(spec)
-    png, sidecar = scene.save(path)
-    return scene, png, sidecar
