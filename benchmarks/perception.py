@@ -21,7 +21,12 @@ def main() -> int:
     parser.add_argument("--boards", type=int, default=400, help="generated top-down boards")
     parser.add_argument("--photos", type=int, default=40, help="photos (each tall and flat)")
     parser.add_argument("--failures", action="store_true", help="list every failed case")
+    parser.add_argument(
+        "--quick", action="store_true", help="20 boards and 1 photo: checks the script runs (CI)"
+    )
     args = parser.parse_args()
+    if args.quick:
+        args.boards, args.photos = 20, 1
     started = time.perf_counter()
     flat = flat_benchmark(args.boards)
     photos = photo_benchmark(args.photos)

@@ -57,7 +57,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--repeats", type=int, default=7)
     parser.add_argument("--bytecode", action="store_true", help="cache compiled bytecode")
+    parser.add_argument(
+        "--quick", action="store_true", help="one repeat: checks the script runs (CI)"
+    )
     args = parser.parse_args()
+    if args.quick:
+        args.repeats = 1
     with tempfile.TemporaryDirectory() as folder:
         env = {**os.environ, "LITELLM_LOCAL_MODEL_COST_MAP": "True"}
         if args.bytecode:

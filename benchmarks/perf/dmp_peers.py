@@ -178,7 +178,12 @@ class MovementPrimitives:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=21, help="runs per measurement (median)")
+    parser.add_argument(
+        "--quick", action="store_true", help="3 repeats: checks the script runs (CI)"
+    )
     args = parser.parse_args()
+    if args.quick:
+        args.repeat = 3
     warnings.filterwarnings("ignore")
     pydmps_module, mp_class = _require_peers()
     t, y = demonstration()

@@ -225,7 +225,13 @@ def main() -> None:
     parser.add_argument("--long", type=int, default=1000, help="requests of the memory run")
     parser.add_argument("--slow-latency", type=float, default=1.0, help="a second, slower server")
     parser.add_argument("--slow-requests", type=int, default=40)
+    parser.add_argument(
+        "--quick", action="store_true", help="a few short runs: checks the script runs (CI)"
+    )
     args = parser.parse_args()
+    if args.quick:
+        args.requests, args.long, args.slow_requests = 8, 120, 4
+        args.latency, args.slow_latency = 0.05, 0.2
     work = Path(tempfile.mkdtemp(prefix="keymps-eval-perf-"))
     server = Server(args.latency)
     EXCLUDED.add(server.pid)

@@ -149,7 +149,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--baseline", default="a668308", help="git commit to compare with")
     parser.add_argument("--repeats", type=int, default=15)
+    parser.add_argument(
+        "--quick", action="store_true", help="one repeat: checks the script runs (CI)"
+    )
     arguments = parser.parse_args()
+    if arguments.quick:
+        arguments.repeats = 1
 
     from keymps import run_task
 

@@ -306,7 +306,12 @@ def main() -> None:
         action="store_true",
         help="leave keymps' bytecode as the environment has it",
     )
+    parser.add_argument(
+        "--quick", action="store_true", help="one repeat of everything: checks the script runs (CI)"
+    )
     args = parser.parse_args()
+    if args.quick:
+        args.repeats, args.eval_times = 1, 1
     baseline = args.baseline_python
     lines: list[tuple[str, str]] = []
     with tempfile.TemporaryDirectory() as scratch:

@@ -70,8 +70,8 @@ def measure(
         task = task.model_copy(update={"robot": task.robot.model_copy(update=changes)})
     with tempfile.TemporaryDirectory() as folder:
         run = run_task(task, out=folder, rerun="off", backend="offline", executor="sim")
-    tool_path, joint_path = run.results["compose"], run.results["solve"]
-    trajectory, validated = run.results["time"], run.results["check"]
+    tool_path, joint_path = run.stages.compose, run.stages.solve
+    trajectory, validated = run.stages.time, run.stages.check
     from keymps.robot.model import RobotModel
 
     model = RobotModel.from_task(task)
@@ -108,11 +108,16 @@ def main() -> None:
         default=None,
         help="override the tasks' robot.max_joint_jerk (rad/s^3)",
     )
+    parser.add_argument(
+        "--quick", action="store_true", help="the icing task alone: checks the script runs (CI)"
+    )
     args = parser.parse_args()
     try:
         import toppra  # noqa: F401
     except ImportError:
         sys.exit("this benchmark needs TOPP-RA: pip install toppra")
+    if args.quick and not args.tasks:
+        args.tasks = [REPO / "tasks" / "cake_icing.yaml"]
     tasks = args.tasks or sorted((REPO / "tasks").glob("*.yaml"))
     results = [measure(path, args.max_tool_jerk, args.max_joint_jerk) for path in tasks]
 

@@ -56,7 +56,7 @@ def test_nine_squares_of_a_round_cake_are_refused_with_the_alternative():
 
 
 def test_nine_squares_of_a_square_cake_are_a_three_by_three_grid():
-    from synthetic_crops import piece_areas
+    from helpers.synthetic_crops import piece_areas
 
     scene = make_scene("rect", (180, 180))
     plan, _ = plan_for("cut the cake into 9 squares", scene)
@@ -123,7 +123,7 @@ def test_three_cm_slices_of_a_12_cm_loaf_keep_no_sliver():
 def test_a_sentence_of_the_other_family_stops_at_the_plan_stage(
     task_file, sentence, message, backend, tmp_path, keymps_plugins
 ):
-    from fuzz_support import RecordingExecutor, ScriptedBackend, install
+    from helpers.fuzz_support import RecordingExecutor, ScriptedBackend, install
 
     install(keymps_plugins)
     ScriptedBackend.answers = []
@@ -138,7 +138,7 @@ def test_a_sentence_of_the_other_family_stops_at_the_plan_stage(
 
 
 def test_a_vlm_plan_with_a_primitive_of_the_other_family_is_refused(tmp_path, keymps_plugins):
-    from fuzz_support import RecordingExecutor, ScriptedBackend, answer_text, install
+    from helpers.fuzz_support import RecordingExecutor, ScriptedBackend, answer_text, install
 
     install(keymps_plugins)
     task = keymps.load_task(REPO / "tasks" / "object_cutting.yaml")
@@ -215,7 +215,7 @@ def _across_the_middle_beyond_the_edges(keyword: str, beyond_mm: float):
 def test_a_cut_ending_5_mm_outside_the_object_runs_with_every_shipped_primitive(
     primitive, tmp_path, keymps_plugins
 ):
-    from fuzz_support import RecordingExecutor, ScriptedBackend, install
+    from helpers.fuzz_support import RecordingExecutor, ScriptedBackend, install
 
     install(keymps_plugins)
     task = keymps.load_task(REPO / "tasks" / "object_cutting.yaml")

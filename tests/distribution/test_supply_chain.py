@@ -7,6 +7,7 @@ hashes (docs/security.md, Supply chain).
 
 from __future__ import annotations
 
+import os
 import re
 from importlib import metadata
 from pathlib import Path
@@ -127,8 +128,13 @@ def test_ci_installs_from_the_lock_with_hashes_required() -> None:
     assert all("--require-hashes" in line or "--no-deps" in line for line in installs), installs
 
 
+@pytest.mark.skipif(
+    os.environ.get("KEYMPS_LOCKED_INSTALL") != "1",
+    reason="only an install from requirements/lock.txt (.ci/run sets KEYMPS_LOCKED_INSTALL=1) "
+    "has the locked versions; the README's command installs the newest releases",
+)
 @pytest.mark.parametrize("name", ["litellm", "numpy", "opencv-python-headless", "rerun-sdk"])
 def test_installed_direct_dependencies_are_the_locked_versions(name: str) -> None:
-    """What the tests run against is what the lock pins (.ci/run installs from it)."""
+    """What CI tests against is what the lock pins: .ci/run installs from it and says so."""
     version, _ = _lock()[canonicalize_name(name)]
     assert Version(metadata.version(name)) == version, f"regenerate the lock or reinstall {name}"

@@ -618,7 +618,7 @@ def gzip_bomb() -> bytes:
 
 
 def _completion(text: str) -> bytes:
-    from vlm_server import _openai_completion
+    from helpers.vlm_server import _openai_completion
 
     return json.dumps(_openai_completion(text, "test-vlm")).encode()
 
