@@ -282,7 +282,7 @@ def summarize(rounds: list[dict[str, float]], quick: bool) -> None:
     if "vlm_first_s" in rounds[0]:
         print(f"vlm_first_run_starting_planner_s: {median('vlm_first_s'):.3f}")
         print(f"vlm_first_starting_overhead_s: {paired('vlm_first_s', 'offline_s'):.3f}")
-    print(f"vlm_peak_mb: {median(later.replace('_s', '_mb')):.0f}")
+    print(f"vlm_peak_mb: {median(later.removesuffix('_s') + '_mb'):.0f}")
     print(f"vlm_in_process_peak_mb: {median('vlm_in_process_mb'):.0f}")
     print(f"offline_peak_mb: {median('offline_mb'):.0f}")
     if "planner_rss_mb" in rounds[0]:
