@@ -396,6 +396,18 @@ def _write_record(run: Run, error: BaseException | None, pipeline: _Pipeline) ->
     return None
 
 
+def _backend_under_way(task: Task, backend: str, options: RunOptions) -> RunOptions:
+    """The run's options with the plan stage's backend got going before the first stage: its
+    own set-up (litellm's import, seconds) started on a thread, to overlap the stages before
+    planning."""
+    from keymps.planning.planner import prepare_backend
+
+    if backend in NO_SERVER or options.dispatch is not None:  # (eval's broker warms up itself)
+        return options
+    prepare_backend(task, backend)
+    return options
+
+
 def run_task(
     task: Task | str | Path,
     *,
@@ -456,6 +468,7 @@ def run_task(
         refused = image_for_an_untrusted_server(task)
         if refused:
             raise KeympsError(refused)
+    options = _backend_under_way(task, backend, options)
     prepare_text_drawing()  # OpenCV's font set-up, on the other core until plan.png is drawn
     parts = Components(task, backend, through)
     folder = _new_run_folder(task, Path(out) if out else None)
