@@ -7,6 +7,7 @@ import re
 import time
 import warnings
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -14,7 +15,7 @@ from keymps.config.overrides import apply_overrides
 from keymps.config.task import Task, load_task
 from keymps.errors import KeympsError, RunInterrupted, StageError, TaskFileError, os_error_message
 from keymps.interrupts import interrupts_deferred
-from keymps.planning.backend_choice import NO_SERVER
+from keymps.planning.backend_choice import AUTO_VLM, NO_SERVER
 from keymps.plugin.manager import create_component, get_manager
 from keymps.run import IMAGE_FORMATS, STAGES, Run, RunOptions, clear_earlier_run
 from keymps.types import Detection, ExecutionReport, SceneImage
@@ -398,12 +399,17 @@ def _write_record(run: Run, error: BaseException | None, pipeline: _Pipeline) ->
 
 def _backend_under_way(task: Task, backend: str, options: RunOptions) -> RunOptions:
     """The run's options with the plan stage's backend got going before the first stage: its
-    own set-up (litellm's import, seconds) started on a thread, to overlap the stages before
-    planning."""
+    calls handed to the warm planner (one is up, or asked to start), or else its own set-up
+    (litellm's import, seconds) started on a thread, to overlap the stages before planning."""
     from keymps.planning.planner import prepare_backend
+    from keymps.planning.warm.client import warm_dispatch
 
     if backend in NO_SERVER or options.dispatch is not None:  # (eval's broker warms up itself)
         return options
+    if backend == AUTO_VLM:
+        dispatch = warm_dispatch(options.warm_planner)
+        if dispatch is not None:
+            return replace(options, dispatch=dispatch)
     prepare_backend(task, backend)
     return options
 
@@ -420,7 +426,8 @@ def run_task(
 
     `through="ground"` stops after grounding the plan (eval's plan-only runs): nothing is timed,
     checked or executed. Keyword overrides: instruction, image, backend, model, api_base, executor, out, rerun,
-    rerun_url, no_cache, record, confirm, quiet, image_format. Raises KeympsError on the first
+    rerun_url, no_cache, record, confirm, quiet, image_format, warm_planner (off, use, start:
+    keymps.planning.warm). Raises KeympsError on the first
     problem; nothing after the failing stage runs, above all no executor.
     """
     from keymps.pipeline.folder_lock import FolderLock
@@ -443,6 +450,7 @@ def run_task(
         "quiet",
         "image_format",
         "dispatch",
+        "warm_planner",
     ):
         if key in overrides:
             setattr(options, key, overrides.pop(key))
