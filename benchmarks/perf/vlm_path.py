@@ -70,7 +70,7 @@ def answer_for(body: dict[str, Any]) -> str:
             point = [width / 2 + radius * math.cos(angle), height / 2 + radius * math.sin(angle)]
             pairs.append([point, point])
     else:
-        pairs = [[[width * f, 0.05 * height], [width * f, 0.95 * height]] for f in (0.3, 0.5, 0.7)]
+        pairs = [[[width * f, 0.25 * height], [width * f, 0.75 * height]] for f in (0.4, 0.5, 0.6)]
     return json.dumps({"keyword": keyword, "pairs": pairs, "design": None, "rationale": "bench"})
 
 

@@ -99,10 +99,13 @@ def eval_command(
         from keymps.plugin.manager import skip_pydantic_plugin_scan
 
         skip_pydantic_plugin_scan()  # before the suite's models: the plugin scan is read once
+        from keymps.eval.pool import get_going
         from keymps.eval.report import markdown_table, write_summary
-        from keymps.eval.runner import EvalOptions
+        from keymps.eval.runner import EvalOptions, backend_named
         from keymps.eval.suites import load_suite
 
+        # litellm's import and the workers' fork server, while the suite is read
+        get_going(backend_named(backend, model, api_base), model, api_base, concurrency, processes)
         suite = load_suite(suite_file)
         chosen = methods or ("keymps",)
         folder = out or Path("eval") / "-".join(

@@ -79,9 +79,14 @@ class Job:
 
 
 def resolve_backend(options: EvalOptions) -> str:
-    if options.backend:
-        return options.backend
-    return AUTO_VLM if (options.model or options.api_base) else AUTO_OFFLINE
+    return backend_named(options.backend, options.model, options.api_base)
+
+
+def backend_named(backend: str | None, model: str | None, api_base: str | None) -> str:
+    """The planner backend of `keymps eval --backend --model --api-base`."""
+    if backend:
+        return backend
+    return AUTO_VLM if (model or api_base) else AUTO_OFFLINE
 
 
 def plan_jobs(suite: Suite, options: EvalOptions) -> list[Job]:
@@ -440,12 +445,20 @@ def run_suite(
     waits long for the other."""
     from keymps.eval.broker import BROKERED_BACKEND, VlmBroker
     from keymps.eval.methods import check_runnable, get_method
-    from keymps.eval.pool import OFFLINE_BACKENDS, JobRunner, default_processes, run_in_processes
+    from keymps.eval.pool import (
+        OFFLINE_BACKENDS,
+        JobRunner,
+        default_processes,
+        get_going,
+        run_in_processes,
+    )
     from keymps.eval.turn import CpuTurn
 
     backend = resolve_backend(options)
     for name in options.methods:
         check_runnable(get_method(name), backend)
+    given = (options.model, options.api_base, options.concurrency, options.processes)
+    get_going(backend, *given)  # (`keymps eval` began this before it read the suite)
     jobs = plan_jobs(suite, options)
     if jobs:
         check_planner_options(suite, jobs[0], options)

@@ -401,7 +401,7 @@ def _backend_under_way(task: Task, backend: str, options: RunOptions) -> RunOpti
     """The run's options with the plan stage's backend got going before the first stage: its
     calls handed to the warm planner (one is up, or asked to start), or else its own set-up
     (litellm's import, seconds) started on a thread, to overlap the stages before planning."""
-    from keymps.planning.planner import prepare_backend
+    from keymps.planning.planner import backend_options, prepare_backend
     from keymps.planning.warm.client import warm_dispatch
 
     if backend in NO_SERVER or options.dispatch is not None:  # (eval's broker warms up itself)
@@ -410,7 +410,7 @@ def _backend_under_way(task: Task, backend: str, options: RunOptions) -> RunOpti
         dispatch = warm_dispatch(options.warm_planner)
         if dispatch is not None:
             return replace(options, dispatch=dispatch)
-    prepare_backend(task, backend)
+    prepare_backend(backend, backend_options(task))
     return options
 
 

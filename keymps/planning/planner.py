@@ -51,18 +51,18 @@ def backend_options(task: Task) -> dict[str, Any]:
     }
 
 
-def prepare_backend(task: Task, backend: str) -> threading.Thread:
+def prepare_backend(backend: str, options: dict[str, Any]) -> threading.Thread:
     """Start the backend's set-up (`prepare()`: litellm's import, seconds) on a thread now, so
-    that it overlaps the stages before planning; the plan stage's first call waits for what is
-    left of it. A backend without `prepare`, or one that cannot be made (the plan stage reports
-    why), is left alone."""
+    that it overlaps whatever comes before the first request; that request waits for what is
+    left of it. A backend without `prepare`, or one that cannot be made with these options
+    (the plan stage makes it again and says why), is left alone."""
     from keymps.plugin.manager import create_component, get_manager
 
     get_manager()  # set up in this thread: the plugin scan is not shared with a thread
 
     def set_up() -> None:
         try:
-            made = create_component("vlm_backend", backend, backend_options(task))
+            made = create_component("vlm_backend", backend, options)
             prepare = getattr(made, "prepare", None)
             if callable(prepare):
                 prepare()
