@@ -106,7 +106,7 @@ def _run(
     from keymps.cli.output import RunPrinter
     from keymps.errors import KeympsError
     from keymps.pipeline.engine import refuse_a_folder_of_other_files, run_task
-    from keymps.planning.warm.client import mode_from
+    from keymps.planning.warm.dispatch import mode_from
     from keymps.run import Run
 
     given["warm_planner"] = mode_from(given.pop("warm_planner"))

@@ -41,13 +41,14 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from keymps.errors import KeympsError
-from keymps.planning.backend_choice import NO_SERVER
+from keymps.planning.backend_choice import AUTO_VLM, NO_SERVER
 
 if TYPE_CHECKING:
     from keymps.eval.broker import VlmBroker
     from keymps.eval.runner import EvalOptions, Job
     from keymps.eval.suites import Suite
     from keymps.eval.turn import CpuTurn
+    from keymps.planning.warm.dispatch import WarmDispatch
 
 RUNS_AHEAD = 2
 """Runs each process prepares beyond its share of the VLM calls in flight."""
@@ -308,25 +309,38 @@ def start_fork_server(backend: str) -> None:
     forkserver.ensure_running()
 
 
-_UNDER_WAY: set[str] = set()
-"""Backends whose start-up this process has begun (once per process)."""
+_UNDER_WAY: dict[str, WarmDispatch | None] = {}
+"""Backends whose start-up this process has begun, and the warm planner their calls go to."""
 
 
 def get_going(
-    backend: str, model: str | None, api_base: str | None, concurrency: int, processes: int | None
-) -> None:
-    """A VLM evaluation's slow starts, begun before the suite is read: litellm's import and
-    first-call set-up (on a thread of this process, whose broker makes every call), and the
-    fork server of the worker processes unless every run stays in this process (--processes
-    1, or one VLM call at a time). Returns at once; offline runs need neither."""
+    backend: str,
+    model: str | None,
+    api_base: str | None,
+    concurrency: int,
+    processes: int | None,
+    warm_planner: str = "off",
+) -> WarmDispatch | None:
+    """A VLM evaluation's slow starts, begun before the suite is read (once per process):
+    the warm planner's use when one is up (or `warm_planner` is start), else litellm's import
+    and first-call set-up (on a thread of this process, whose broker makes every call); and
+    the fork server of the worker processes unless every run stays in this process
+    (--processes 1, or one VLM call at a time). Returns at once: the warm planner's dispatch
+    for the broker, or None. Offline runs need none of it."""
     from keymps.planning.planner import prepare_backend
+    from keymps.planning.warm.dispatch import warm_dispatch
 
-    if backend in OFFLINE_BACKENDS or backend in _UNDER_WAY:
-        return
-    _UNDER_WAY.add(backend)
-    prepare_backend(backend, {"model": model, "api_base": api_base})
+    if backend in OFFLINE_BACKENDS:
+        return None
+    if backend in _UNDER_WAY:
+        return _UNDER_WAY[backend]
+    warm = warm_dispatch(warm_planner) if backend == AUTO_VLM else None
+    if warm is None:
+        prepare_backend(backend, {"model": model, "api_base": api_base})
     if processes != 1 and concurrency > 1:
         start_fork_server(backend)
+    _UNDER_WAY[backend] = warm
+    return warm
 
 
 def fork_here(backend: str) -> bool:

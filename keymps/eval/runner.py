@@ -64,6 +64,9 @@ class EvalOptions:
     processes: int | None = 1
     """Worker processes sharing the runs in flight (1: every run in this process; None: one per
     core when there are enough runs, as `keymps eval` does). See keymps.eval.pool."""
+    warm_planner: str = "off"
+    """Whether litellm's calls go to the warm planner (keymps.planning.warm): off, use (when
+    one is up: `keymps eval`'s default) or start."""
 
 
 @dataclass(frozen=True)
@@ -458,7 +461,7 @@ def run_suite(
     for name in options.methods:
         check_runnable(get_method(name), backend)
     given = (options.model, options.api_base, options.concurrency, options.processes)
-    get_going(backend, *given)  # (`keymps eval` began this before it read the suite)
+    warm = get_going(backend, *given, options.warm_planner)  # (keymps eval began it earlier)
     jobs = plan_jobs(suite, options)
     if jobs:
         check_planner_options(suite, jobs[0], options)
@@ -489,8 +492,8 @@ def run_suite(
         processes = min(processes, options.concurrency)
     # given up by the broker while a run of this process waits for the VLM
     turn = CpuTurn(active=backend == BROKERED_BACKEND)
-    warm_up = backend == BROKERED_BACKEND and bool(todo)
-    broker = VlmBroker(options.concurrency, warm_up=warm_up, turn=turn)
+    warm_up = backend == BROKERED_BACKEND and bool(todo) and warm is None
+    broker = VlmBroker(options.concurrency, warm_up=warm_up, turn=turn, via=warm)
     try:
         if processes > 1:
             runner = JobRunner(run=run_job, record=job_record)

@@ -402,7 +402,7 @@ def _backend_under_way(task: Task, backend: str, options: RunOptions) -> RunOpti
     calls handed to the warm planner (one is up, or asked to start), or else its own set-up
     (litellm's import, seconds) started on a thread, to overlap the stages before planning."""
     from keymps.planning.planner import backend_options, prepare_backend
-    from keymps.planning.warm.client import warm_dispatch
+    from keymps.planning.warm.dispatch import warm_dispatch
 
     if backend in NO_SERVER or options.dispatch is not None:  # (eval's broker warms up itself)
         return options

@@ -16,7 +16,8 @@ import numpy as np
 import pytest
 
 from keymps.errors import KeympsError
-from keymps.planning.warm.client import call_environment, mode_from, server_environment
+from keymps.planning.warm.client import call_environment, server_environment
+from keymps.planning.warm.dispatch import mode_from
 from keymps.planning.warm.place import MAX_SOCKET_PATH, Place, folder_problem
 from keymps.planning.warm.wire import (
     MAX_MESSAGE_BYTES,

@@ -512,3 +512,38 @@ def test_a_stranger_to_the_wire_gets_an_error_not_a_crash(planner: Planner) -> N
         with pytest.raises(WireError):
             receive(connection)
     assert planner.status() is not None
+
+
+CROP = re.compile(r"(\d+) x (\d+) pixels")
+
+
+def _cuts(request: Recorded) -> str:
+    """Three cuts across the middle of whatever crop the request shows (a valid cutting plan)."""
+    width, height = (int(v) for v in CROP.findall(json.dumps(request.body["messages"]))[-1])
+    pairs = [[[width * f, 0.3 * height], [width * f, 0.7 * height]] for f in (0.4, 0.5, 0.6)]
+    return answer_text("straight", pairs, "three cuts")
+
+
+def test_an_evaluation_asks_through_the_planner_and_imports_no_litellm(
+    planner: Planner, tmp_path: Path
+) -> None:
+    served = planner.status()["requests"]  # type: ignore[index]
+    with VlmServer(responder=_cuts) as server:
+        runs = {
+            mode: _keymps(
+                planner.env, "eval", "cake_six", "--model", MODEL, "--api-base",
+                server.openai_base, "--no-cache", "--repeats", "2", "--concurrency", "4",
+                "--processes", "2", "--quiet", "--out", str(tmp_path / mode), *flags,
+            )
+            for mode, flags in (("warm", ()), ("alone", ("--no-warm-planner",)))
+        }  # fmt: skip
+        asked = len(server.chat_requests)
+    for mode, done in runs.items():
+        assert done.returncode == 0, done.stderr
+        records = [json.loads(line) for line in (tmp_path / mode / "results.jsonl").open()]
+        assert len(records) == 4 and all(r["ok"] for r in records), records
+        assert {r["vlm_calls"] for r in records} == {1}
+    assert asked == 8
+    assert planner.status()["requests"] == served + 4  # type: ignore[index]
+    assert "litellm imported: False" in runs["warm"].stderr
+    assert "litellm imported: True" in runs["alone"].stderr

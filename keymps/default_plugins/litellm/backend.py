@@ -6,9 +6,7 @@ LITELLM_LOCAL_MODEL_COST_MAP=True so that the import never reaches for the netwo
 
 from __future__ import annotations
 
-import contextlib
 import functools
-import importlib
 import ipaddress
 import os
 import threading
@@ -33,9 +31,9 @@ MAX_RETRIES = 3
 BACKOFF_S = 1.0
 """First wait between tries; doubled each time (plus jitter) unless the server sends Retry-After."""
 
-_IMPORTING = threading.Lock()
-"""Held while litellm is imported: a run's plan stage waits here for the import that
-`prepare` started on another thread."""
+_SETTING_UP = threading.RLock()
+"""Held while litellm is imported (a run's plan stage waits here for the import that `prepare`
+started on another thread), and while a local model is registered."""
 _REGISTERED: set[str] = set()
 """Local models registered with litellm at zero price in this process."""
 _LOCAL_PROVIDERS = {"ollama", "ollama_chat", "hosted_vllm", "lm_studio", "llamafile"}
@@ -61,7 +59,7 @@ class LitellmOptions(BaseModel):
 def import_litellm() -> Any:
     """litellm, imported quietly and without network access at import time (from any thread:
     a second caller waits for the first one's import)."""
-    with _IMPORTING:
+    with _SETTING_UP:
         os.environ.setdefault("LITELLM_LOCAL_MODEL_COST_MAP", "True")
         import litellm
 
@@ -71,75 +69,6 @@ def import_litellm() -> Any:
         litellm.suppress_debug_info = True
         litellm.telemetry = False
         return litellm
-
-
-WARM_UP_MODEL = "openai/keymps-warm-up"
-WARM_UP_API_BASE = "http://127.0.0.1:9/v1"
-"""The warm-up's model and address: a closed local port (the discard service's), no key."""
-
-
-def _in_memory_client() -> Any:
-    """An OpenAI client whose transport answers every request itself, in memory."""
-    import openai
-
-    # the HTTP library the OpenAI SDK is built on (httpx, or its fork httpx2 in newer SDKs)
-    client_class = next(c for c in openai.DefaultHttpxClient.__mro__ if c.__name__ == "Client")
-    http: Any = importlib.import_module(client_class.__module__.split(".")[0])
-
-    def answer(request: Any) -> Any:
-        return http.Response(
-            200,
-            json={
-                "id": "keymps-warm-up",
-                "object": "chat.completion",
-                "created": 0,
-                "model": WARM_UP_MODEL,
-                "choices": [
-                    {
-                        "index": 0,
-                        "message": {"role": "assistant", "content": "{}"},
-                        "finish_reason": "stop",
-                    }
-                ],
-                "usage": {"prompt_tokens": 1, "completion_tokens": 1, "total_tokens": 2},
-            },
-        )
-
-    return openai.OpenAI(
-        api_key="no-key-needed",
-        base_url=WARM_UP_API_BASE,
-        http_client=openai.DefaultHttpxClient(transport=http.MockTransport(answer)),
-        max_retries=0,
-    )
-
-
-def _warm_up_request() -> PlanRequest:
-    import numpy as np
-
-    from keymps.types import PlanRequest
-
-    tiny_png = "data:image/png;base64,iVBORw0KGgo="
-    return PlanRequest(
-        instruction="warm-up",
-        crop=np.zeros((1, 1, 3), np.uint8),
-        crop_mask=None,
-        metres_per_px=(0.001, 0.001),
-        primitives={"line": "warm-up"},
-        object_height=0.0,
-        max_pairs=1,
-        messages=[
-            {"role": "system", "content": "warm-up"},
-            {
-                "role": "user",
-                "content": [
-                    {"type": "text", "text": "warm-up"},
-                    {"type": "image_url", "image_url": {"url": tiny_png}},
-                ],
-            },
-        ],
-        schema={"name": "warm_up", "strict": True, "schema": {"type": "object"}},
-        model=WARM_UP_MODEL,
-    )
 
 
 def is_local(api_base: str | None, provider: str) -> bool:
@@ -167,21 +96,10 @@ class LitellmBackend:
     def prepare(self) -> None:
         """Import litellm and set up its first call now: keymps calls this on a thread as soon
         as a run knows it plans with litellm (it then overlaps the stages before planning),
-        and once in the warm planner.
+        and once in the warm planner (keymps.default_plugins.litellm.warm_up)."""
+        from keymps.default_plugins.litellm.warm_up import warm_up
 
-        litellm's first completion in a process sets up more than its request (about a second:
-        its proxy's pydantic types, the provider configurations its cost calculation reads,
-        the OpenAI client's response types, the HTTP transport). One completion along this
-        backend's own path does it here, answered by an in-memory transport: nothing is sent
-        (the address is a closed local port anyway, with the placeholder key)."""
-        litellm = import_litellm()
-        warm = LitellmBackend(LitellmOptions(model=WARM_UP_MODEL, api_base=WARM_UP_API_BASE))
-        with contextlib.suppress(Exception):  # a warm-up: the first real call does the rest
-            call = warm._prepare(_warm_up_request())
-            response = litellm.completion(**call.arguments, client=_in_memory_client())
-            warm._answer(call, response, 0.0, [])
-        with contextlib.suppress(Exception):  # litellm's own client: refused by the closed port
-            litellm.completion(**call.arguments)
+        warm_up(import_litellm())
 
     def _api_key(self) -> str | None:
         env = self.options.api_key_env
@@ -218,6 +136,11 @@ class LitellmBackend:
         # litellm does not price local models; registering them at zero gives a cost of 0.0
         if model in _REGISTERED:  # once per process: every call of an eval builds a backend
             return
+        with _SETTING_UP:  # one at a time: each quiets litellm's logger and restores it
+            self._register_now(litellm, model)
+
+    @staticmethod
+    def _register_now(litellm: Any, model: str) -> None:
         import logging
 
         provider = model.split("/", 1)[0] if "/" in model else "openai"

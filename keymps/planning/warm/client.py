@@ -1,11 +1,4 @@
-"""The warm planner's client: a run's `dispatch`, and `keymps planner start|stop|status`.
-
-`keymps run` uses the warm planner for the litellm backend when one is up (`use`, the
-command's default), starts one when none is and it is asked to (`start`: `--warm-planner` or
-KEYMPS_WARM_PLANNER=1), or never touches it (`off`: `--no-warm-planner`,
-KEYMPS_WARM_PLANNER=0, and `keymps.run_task`'s default). Whatever happens to the planner, the
-run goes on: a planner that is not there, does not start, or dies mid-request leaves the call
-to the run's own process, as without it.
+"""The warm planner's client: status, start, stop, and the requests of the litellm backend.
 
 What crosses the socket for a request: the backend options (model, api_base, api_key_env,
 temperature, timeout_s, max_tokens, whether the api_base is trusted with a key), the request
@@ -22,18 +15,15 @@ import socket
 import subprocess
 import sys
 import time
-import warnings
 from typing import TYPE_CHECKING, Any
 
 from keymps.errors import KeympsError
-from keymps.planning.backend_choice import AUTO_VLM, PROVIDER_KEYS, model_provider
+from keymps.planning.backend_choice import PROVIDER_KEYS, model_provider
 from keymps.planning.warm.place import Place, peer, supported
 
 if TYPE_CHECKING:
     from keymps.types import BackendAnswer, PlanRequest
 
-MODES = ("off", "use", "start")
-ENVIRONMENT_VARIABLE = "KEYMPS_WARM_PLANNER"
 START_TIMEOUT_S = 120.0
 """How long a run waits for a planner it started (its import of litellm) before planning in its
 own process."""
@@ -69,21 +59,6 @@ capitals and `_` (OPENAI_API_KEY, OPENAI_BASE_URL, ANTHROPIC_API_KEY ...)."""
 
 class PlannerUnavailable(Exception):
     """No warm planner answered: not running, not started, or gone before its answer."""
-
-
-def mode_from(flag: bool | None) -> str:
-    """The command's mode: --warm-planner (start) or --no-warm-planner (off), else
-    $KEYMPS_WARM_PLANNER (1/start, 0/off, use), else use."""
-    if flag is not None:
-        return "start" if flag else "off"
-    value = os.environ.get(ENVIRONMENT_VARIABLE, "").strip().lower()
-    named = {"": "use", "use": "use", "1": "start", "start": "start", "0": "off", "off": "off"}
-    if value not in named:
-        raise KeympsError(
-            f"${ENVIRONMENT_VARIABLE}={value!r}: 1 (start the warm planner when none is up), "
-            "0 (never use it), or use (use one that is up)"
-        )
-    return named[value]
 
 
 def call_environment(model: str | None, api_key_env: str | None) -> dict[str, str]:
@@ -232,40 +207,76 @@ class WarmPlanner:
     def plan(self, options: dict[str, Any], request: PlanRequest) -> BackendAnswer:
         """The backend's answer to one request, asked by the planner as this process would ask
         it. KeympsError for the backend's errors; PlannerUnavailable when no answer came."""
-        from keymps.planning.warm.wire import (
-            PROTOCOL,
-            WireError,
-            answer_from_wire,
-            receive,
-            request_to_wire,
-            send,
-        )
+        from keymps.planning.warm.wire import WireError, receive
 
-        body = {
-            "options": options,
-            "request": request_to_wire(request),
-            "environment": call_environment(
-                request.model or options.get("model"), options.get("api_key_env")
-            ),
-            "cwd": _working_folder(),
-        }
         with self.connect() as connection:
             try:
-                send(connection, {"kind": "plan", "protocol": PROTOCOL})
-                send(connection, body)
+                connection.sendall(_request_bytes(options, request))
                 connection.settimeout(answer_deadline_s(options))
                 reply = receive(connection)
             except TimeoutError:
-                raise KeympsError(
-                    f"the warm planner gave no answer within {answer_deadline_s(options):g} s"
-                ) from None
+                raise _no_answer_in_time(options) from None
             except (WireError, OSError) as error:
                 raise PlannerUnavailable(f"gave no answer ({error})") from None
-        if "answer" in reply:
-            return answer_from_wire(reply["answer"])
-        if "error" in reply:
-            raise KeympsError(str(reply["error"]))
-        raise RuntimeError(str(reply.get("failure", "the warm planner's reply has no answer")))
+        return _answer_of(reply)
+
+    async def aplan(self, options: dict[str, Any], request: PlanRequest) -> BackendAnswer:
+        """plan() on an event loop (`keymps eval`'s broker): waits without a thread."""
+        import asyncio
+
+        from keymps.planning.warm.wire import WireError, areceive
+
+        if not supported() or not self.place.socket.exists():
+            raise PlannerUnavailable("is not running")
+        try:
+            reader, writer = await asyncio.wait_for(
+                asyncio.open_unix_connection(str(self.place.socket)), CONNECT_TIMEOUT_S
+            )
+        except (OSError, TimeoutError) as error:
+            raise PlannerUnavailable(f"is not answering ({error})") from None
+        try:
+            _pid, uid = peer(writer.get_extra_info("socket"))
+            if uid != os.getuid():
+                raise PlannerUnavailable(f"runs as user {uid}, not as you: not used")
+            writer.write(_request_bytes(options, request))
+            await writer.drain()
+            reply = await asyncio.wait_for(areceive(reader), answer_deadline_s(options))
+        except TimeoutError:
+            raise _no_answer_in_time(options) from None
+        except (WireError, OSError) as error:
+            raise PlannerUnavailable(f"gave no answer ({error})") from None
+        finally:
+            writer.close()
+        return _answer_of(reply)
+
+
+def _request_bytes(options: dict[str, Any], request: PlanRequest) -> bytes:
+    """A plan request as it crosses: its kind, then its body (read by the child alone)."""
+    from keymps.planning.warm.wire import PROTOCOL, encode, request_to_wire
+
+    model = request.model or options.get("model")
+    body = {
+        "options": options,
+        "request": request_to_wire(request),
+        "environment": call_environment(model, options.get("api_key_env")),
+        "cwd": _working_folder(),
+    }
+    return encode({"kind": "plan", "protocol": PROTOCOL}) + encode(body)
+
+
+def _answer_of(reply: dict[str, Any]) -> BackendAnswer:
+    """The answer in a reply; its error raised as the backend would have raised it."""
+    from keymps.planning.warm.wire import answer_from_wire
+
+    if "answer" in reply:
+        return answer_from_wire(reply["answer"])
+    if "error" in reply:
+        raise KeympsError(str(reply["error"]))
+    raise RuntimeError(str(reply.get("failure", "the warm planner's reply has no answer")))
+
+
+def _no_answer_in_time(options: dict[str, Any]) -> KeympsError:
+    return KeympsError(f"the warm planner gave no answer within {answer_deadline_s(options):g} s")
 
 
 def _working_folder() -> str | None:
@@ -286,63 +297,3 @@ def _log_file(place: Place) -> Any:
         yield descriptor
     finally:
         os.close(descriptor)
-
-
-class WarmDispatch:
-    """A run's `dispatch(backend, request)`: litellm's calls go to the warm planner, any other
-    backend's to the backend itself; without a planner, the backend answers in this process."""
-
-    def __init__(
-        self,
-        planner: WarmPlanner,
-        starting: bool = False,
-        process: subprocess.Popen[bytes] | None = None,
-    ) -> None:
-        self.planner = planner
-        self.starting = starting
-        """A planner is starting: wait for it at the first request."""
-        self.process = process
-        """The process this run started it with, if it did."""
-        self.gone: str | None = None
-        """Why the planner is not used any more (the rest of the run asks in this process)."""
-
-    def __call__(self, backend: Any, request: PlanRequest) -> BackendAnswer:
-        options = getattr(backend, "options", None)
-        if getattr(backend, "name", None) != AUTO_VLM or options is None or self.gone:
-            answer: BackendAnswer = backend.complete(request)
-            return answer
-        try:
-            if self.starting:
-                self.planner.wait_until_up(self.process)
-                self.starting = False
-            return self.planner.plan(options.model_dump(), request)
-        except PlannerUnavailable as reason:
-            self.gone = f"the warm planner {reason}: planning in this process"
-            warnings.warn(self.gone, RuntimeWarning, stacklevel=2)
-        answer = backend.complete(request)
-        return answer
-
-
-def warm_dispatch(mode: str) -> WarmDispatch | None:
-    """A run's dispatch through the warm planner, or None when the run asks in its own
-    process: mode off, or no planner up and `use`. `start` starts one when none is up (the
-    run then waits for it at its first request, while its own stages run meanwhile)."""
-    if mode not in MODES:
-        raise KeympsError(f"warm_planner={mode!r}: one of {', '.join(MODES)}")
-    if mode == "off" or not supported():
-        return None
-    planner = WarmPlanner()
-    if problem := planner.folder_problem():
-        warnings.warn(f"{problem}: planning in this process", RuntimeWarning, stacklevel=2)
-        return None
-    if planner.status() is not None:
-        return WarmDispatch(planner)
-    if mode == "use":
-        return None
-    if planner.lock_held():  # another run is starting one: wait for it as for one's own
-        return WarmDispatch(planner, starting=True)
-    try:
-        return WarmDispatch(planner, starting=True, process=planner.start())
-    except KeympsError as error:
-        warnings.warn(f"{error}: planning in this process", RuntimeWarning, stacklevel=2)
-        return None

@@ -11,11 +11,14 @@ import dataclasses
 import json
 import socket
 import struct
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from keymps.types import BackendAnswer, PlanObject, PlanRequest
+
+if TYPE_CHECKING:
+    import asyncio
 
 PROTOCOL = 1
 """Raised when a message changes meaning; a server of another protocol is not used."""
@@ -31,21 +34,45 @@ class WireError(Exception):
     """The other end closed the connection, or sent something that is no message."""
 
 
-def send(connection: socket.socket, message: dict[str, Any]) -> None:
+def encode(message: dict[str, Any]) -> bytes:
+    """The message as it crosses: its length, then its JSON."""
     data = json.dumps(message, separators=(",", ":")).encode()
     if len(data) > MAX_MESSAGE_BYTES:
         raise WireError(f"a message of {len(data)} bytes is over the limit")
-    connection.sendall(_HEADER.pack(len(data)))
-    connection.sendall(data)
+    return _HEADER.pack(len(data)) + data
+
+
+def send(connection: socket.socket, message: dict[str, Any]) -> None:
+    connection.sendall(encode(message))
 
 
 def receive(connection: socket.socket) -> dict[str, Any]:
     """The next message; WireError when the connection ends first or it is malformed."""
-    (size,) = _HEADER.unpack(_exactly(connection, _HEADER.size))
+    size = _size(_exactly(connection, _HEADER.size))
+    return _decode(_exactly(connection, size))
+
+
+async def areceive(reader: asyncio.StreamReader) -> dict[str, Any]:
+    """receive() from an asyncio stream."""
+    import asyncio
+
+    try:
+        size = _size(await reader.readexactly(_HEADER.size))
+        return _decode(await reader.readexactly(size))
+    except asyncio.IncompleteReadError:
+        raise WireError("the connection closed mid-message") from None
+
+
+def _size(header: bytes) -> int:
+    (size,) = _HEADER.unpack(header)
     if size > MAX_MESSAGE_BYTES:
         raise WireError(f"a message of {size} bytes announced: over the limit")
+    return int(size)
+
+
+def _decode(data: bytes) -> dict[str, Any]:
     try:
-        message = json.loads(_exactly(connection, size))
+        message = json.loads(data)
     except (UnicodeDecodeError, ValueError):
         raise WireError("a message that is not JSON") from None
     if not isinstance(message, dict):
