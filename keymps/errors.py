@@ -24,10 +24,16 @@ class TaskFileError(KeympsError):
 
 
 class SafetyError(KeympsError):
-    """The trajectory is unsafe (or not validated); `problems` lists every finding."""
+    """The trajectory is unsafe (or not validated); `problems` lists every finding.
+
+    Args:
+        problems: Every finding, one line each; the message lists the first 12 and counts the
+            rest.
+    """
 
     def __init__(self, problems: list[str]):
         self.problems = problems
+        """Every finding, one line each."""
         shown = problems[:_MAX_LISTED]
         more = f"; and {len(problems) - _MAX_LISTED} more" if len(problems) > _MAX_LISTED else ""
         super().__init__("safety: " + "; ".join(shown) + more)
@@ -61,24 +67,41 @@ class StageError(KeympsError):
 
     The message names the stage once ("detect: no object found"); `detail` keeps the error the
     stage raised (a SafetyError's list of problems, say) for run.json.
+
+    Args:
+        stage: The stage's name (one of keymps.run.STAGES).
+        message: One line; a leading `"<stage>: "` is dropped, so the stage is named once.
+        detail: The error the stage raised, when there was one.
     """
 
     def __init__(self, stage: str, message: str, detail: BaseException | None = None):
         self.stage = stage
+        """The stage that failed."""
         self.message = message.removeprefix(f"{stage}: ")
+        """The problem, without the stage's name."""
         self.detail = detail
+        """The error the stage raised (a SafetyError with its problems ...), or None."""
         super().__init__(f"{stage}: {self.message}")
 
 
 class ImageSourceError(StageError):
-    """An image source could not produce the scene image (raise it from `load`)."""
+    """An image source could not produce the scene image (raise it from `load`).
+
+    Args:
+        message: One line naming what is wrong ("camera 0 opened but returned no frame").
+    """
 
     def __init__(self, message: str):
         super().__init__("image", message)
 
 
 class DetectionError(StageError):
-    """A detector could not find the object in the scene image (raise it from `detect`)."""
+    """A detector could not find the object in the scene image (raise it from `detect`).
+
+    Args:
+        message: One line saying what was found instead ("no object found: nothing of at
+            least N px differs from the board's colour model ...").
+    """
 
     def __init__(self, message: str):
         super().__init__("detect", message)

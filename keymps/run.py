@@ -92,9 +92,13 @@ class Run:
     """The run's typed context: passed to every `keymps_stage_done` observer and to executors."""
 
     task: Task
+    """The task being run, command-line overrides applied."""
     folder: Path
+    """The run folder (`runs/<task>-<time>/` or `--out`): run.json and every file of the run."""
     options: RunOptions = field(default_factory=RunOptions)
+    """Choices made on the command line or by run_task's keywords, not in the task file."""
     stages: StageResults = field(default_factory=StageResults)
+    """Each stage's typed result (`run.stages.plan` ...), None until that stage has run."""
     robot: RobotModel | None = None
     """The arm the run plans for (base placed on the board, the task's tool)."""
     outline_m: np.ndarray | None = None
@@ -102,23 +106,52 @@ class Run:
     objects: tuple[GroundedObject, ...] = ()
     """Every object found (id, name, height, footprint in board metres), once detected."""
     backend: str | None = None
+    """The planner backend the run uses (offline, litellm, replay ...), once chosen."""
     backend_reason: str | None = None
-    """Which planner backend the run uses, and why (`auto` explains its choice)."""
+    """Why that backend (`auto` explains its choice)."""
     timings_s: dict[str, float] = field(default_factory=dict)
+    """Seconds each finished stage took, by stage name (run.json's timings_s)."""
     warnings: list[str] = field(default_factory=list)
+    """What the run noticed without stopping (the detector's doubts, a slowed work piece ...),
+    one line each, in order."""
 
     def path(self, name: str) -> Path:
-        """A file in the run folder (its parent folders created)."""
+        """A file in the run folder, its parent folders created.
+
+        Args:
+            name: The file's path relative to the run folder (`vlm/answer-1.json`).
+
+        Returns:
+            The path inside `folder` (the file itself is not created).
+        """
         target = self.folder / name
         target.parent.mkdir(parents=True, exist_ok=True)
         return target
 
     def image_path(self, stem: str) -> Path:
-        """Where the run's image `stem` (plan, outcome) is, in the run's image format."""
+        """Where one of the run's images is, in the run's image format.
+
+        Args:
+            stem: The image's name without suffix (`plan`, `outcome`).
+
+        Returns:
+            `folder / "<stem>.png"` (or `.jpg` with `image_format="jpg"`).
+        """
         return image_file(self.folder, stem, self.options.image_format)
 
     def write_image(self, stem: str, image: Any) -> Path:
-        """Write a BGR image as `stem` in the run folder, in the run's image format."""
+        """Write an image into the run folder atomically, in the run's image format.
+
+        Args:
+            stem: The image's name without suffix (`plan`, `outcome`).
+            image: (H, W, 3) BGR uint8 array.
+
+        Returns:
+            The path written.
+
+        Raises:
+            keymps.errors.KeympsError: When OpenCV cannot encode the image.
+        """
         self.folder.mkdir(parents=True, exist_ok=True)
         return write_image(self.image_path(stem), image)
 
@@ -182,6 +215,7 @@ def _remove(path: Path) -> None:
 EARLIER_RUN_FILES = (
     "trajectory.csv",
     "trajectory.json",
+    "trajectory.script",
     "run.rrd",
     "execution.mp4",
     *(f"{stem}.{suffix}" for stem in ("plan", "plan_photo", "outcome") for suffix in IMAGE_FORMATS),

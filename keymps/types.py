@@ -1,6 +1,7 @@
 """The data passed between pipeline stages: typed, immutable, numpy inside.
 
 Frames and units, used everywhere in keymps:
+
 - image pixels: origin at the top-left corner of the full image, x right, y down;
 - crop pixels: the same, with the origin at the top-left corner of the crop sent to the VLM;
 - board frame: metres, origin at the bottom-left corner of the workspace as seen in the image,
@@ -15,7 +16,34 @@ from typing import Any, Literal
 
 import numpy as np
 
+__all__ = [
+    "STAGES",
+    "BackendAnswer",
+    "DetectedObject",
+    "Detection",
+    "ExecutionReport",
+    "GroundedObject",
+    "Grounding",
+    "JointPath",
+    "Piece",
+    "PieceKind",
+    "Plan",
+    "PlanObject",
+    "PlanRequest",
+    "Rectification",
+    "SceneImage",
+    "Segment",
+    "Step",
+    "ToolPath",
+    "Trajectory",
+    "ValidatedTrajectory",
+    "ValidationReport",
+    "VlmCall",
+]
+
 PieceKind = Literal["work", "travel"]
+"""A piece of the tool path: `work` (a re-targeted primitive on the object) or `travel` (a
+straight move between pieces, clear of the object)."""
 Step = Literal["combined", "keyword", "pairs", "direct"]
 """A planning call: the combined answer, the keyword or pairs alone, or an eval method's own
 prompt (keymps.eval.vlm)."""
@@ -39,6 +67,7 @@ class Rectification:
     camera_matrix: np.ndarray | None = None
     """3x3 intrinsics (OpenCV convention), when given."""
     distortion: np.ndarray | None = None
+    """OpenCV's distortion coefficients (k1, k2, p1, p2[, k3 ...]), when given."""
     camera_position_m: tuple[float, float, float] | None = None
     """The camera's centre in the board frame (solvePnP on the corners), with intrinsics."""
     camera_foot_px: tuple[float, float] | None = None
@@ -47,10 +76,13 @@ class Rectification:
 
 @dataclass(frozen=True)
 class SceneImage:
-    """The environment image (BGR, uint8) and where it came from."""
+    """The environment image (BGR, uint8) and where it came from: the `image` stage's result."""
 
     image: np.ndarray
+    """(H, W, 3) BGR, uint8: the top-down image every later stage works in (rectified to the
+    board when the task gives scene.camera)."""
     source: str
+    """Where it came from: a file path, `synthetic:<objects>:seed=<n>`, `opencv:<camera>` ..."""
     truth: dict[str, Any] | None = None
     """A synthetic scene's true geometry (its JSON sidecar, keymps.scenes); None for photos."""
     rectification: Rectification | None = None
@@ -73,25 +105,31 @@ class DetectedObject:
     contour_px: np.ndarray
     """(N, 2) outline in full-image pixels."""
     area_px: float
+    """Its area in full-image pixels (the contour's, or the mask's pixel count)."""
     mask: np.ndarray | None = None
-    """Boolean mask over the full image, if the detector made one."""
+    """(H, W) boolean mask over the full image, if the detector made one."""
 
 
 @dataclass(frozen=True)
 class Detection:
-    """The object found in the scene image (Appendix A)."""
+    """The object found in the scene image (Appendix A): the `detect` stage's result."""
 
     bbox_px: tuple[int, int, int, int]
     """[x0, y0, x1, y1] in full-image pixels; x1 and y1 are exclusive."""
     crop: np.ndarray
-    """The image sent to the planner (the bbox plus padding, clipped to the image)."""
+    """(h, w, 3) BGR, uint8: the image sent to the planner (the bbox plus padding, clipped to
+    the image)."""
     crop_origin_px: tuple[int, int]
     """Top-left corner of the crop in full-image pixels (the paper's b_offset)."""
     contour_px: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    """(N, 2) the object's outline in full-image pixels (empty when the detector gives none)."""
     mask: np.ndarray | None = None
+    """(H, W) boolean mask of the object over the full image, if the detector made one."""
     others_px: tuple[tuple[int, int, int, int], ...] = ()
     """Bounding boxes of other large regions, largest first."""
     warnings: tuple[str, ...] = ()
+    """What the detector doubts (an object touching the side of the searched area, say), one
+    line each; the run prints them and run.json keeps them."""
     objects: tuple[DetectedObject, ...] = ()
     """Every object found (the one in bbox_px included), in id order; empty from a detector
     that reports one object only."""
@@ -110,14 +148,23 @@ class VlmCall:
     """One request/answer exchange with a planner backend (secrets already redacted)."""
 
     attempt: int
+    """1-based: the first answer, then one per repair."""
     request: dict[str, Any]
+    """The request as sent (messages, model, schema), JSON-ready, secrets redacted."""
     answer_text: str
+    """The answer exactly as the backend gave it."""
     error: str | None = None
+    """Why the answer was refused (and repaired or given up on); None when it was used."""
     latency_s: float = 0.0
+    """Wall-clock time of the call, seconds (0 for a cached answer)."""
     prompt_tokens: int | None = None
+    """Tokens of the request, as the provider counted them; None when unknown."""
     completion_tokens: int | None = None
+    """Tokens of the answer, as the provider counted them; None when unknown."""
     cost_usd: float | None = None
+    """The call's price in US dollars; None where the price is unknown."""
     cached: bool = False
+    """The answer came from the on-disk cache or a cassette: no call was made."""
     model_call: bool = True
     """False for backends that ask no model (the offline planner): not counted as VLM calls."""
 
@@ -127,7 +174,9 @@ class PlanObject:
     """One object in the crop sent to the planner."""
 
     id: int
+    """Its DetectedObject.id."""
     name: str | None
+    """What the task calls it (scene.objects), e.g. "banana"; None when unnamed."""
     height: float
     """Top surface above the board, metres."""
     bbox_px: tuple[int, int, int, int]
@@ -139,15 +188,18 @@ class PlanObject:
 
     @property
     def label(self) -> str:
+        """'#2 banana' (or '#2' without a name): how prompts and messages name it."""
         return f"#{self.id} {self.name}" if self.name else f"#{self.id}"
 
     @property
     def centre_px(self) -> tuple[float, float]:
+        """(x, y) centre of its box in crop pixels."""
         x0, y0, x1, y1 = self.bbox_px
         return (x0 + x1) / 2, (y0 + y1) / 2
 
     @property
     def area_px(self) -> float:
+        """Its area in crop pixels: the mask's pixel count, else its box's area."""
         if self.mask is not None:
             return float(self.mask.sum())
         x0, y0, x1, y1 = self.bbox_px
@@ -159,30 +211,39 @@ class PlanRequest:
     """Everything a backend may use to answer one planning call."""
 
     instruction: str
+    """The user's sentence ("cut it into 8 equal slices")."""
     crop: np.ndarray
-    """The image sent (BGR, uint8): the object's crop."""
+    """(h, w, 3) BGR, uint8: the image sent, the object's crop."""
     crop_mask: np.ndarray | None
-    """The object's pixels in the crop (bool), when the detector gives them."""
+    """(h, w) bool: the object's pixels in the crop, when the detector gives them."""
     metres_per_px: tuple[float, float]
     """Metres per crop pixel along x and y."""
     primitives: Mapping[str, str]
     """Primitive name -> description (the keyword must be one of the names)."""
     object_height: float
+    """The object's top surface above the board, metres."""
     max_pairs: int
+    """The most keypoint pairs an answer may hold (more is refused and repaired)."""
     messages: list[dict[str, Any]]
     """The rendered chat: system prompt, the sentence with the crop as a PNG data URL, repairs."""
     schema: dict[str, Any]
     """The answer's JSON schema ({"name", "strict", "schema"}, OpenAI response_format style)."""
     step: Step = "combined"
+    """Which planning call this is (see Step)."""
     keyword: str | None = None
     """For step 'pairs': the primitive chosen by the 'keyword' call."""
     previous_errors: tuple[str, ...] = ()
     """Problems with the previous attempt's answer (empty on the first attempt)."""
     attempt: int = 1
+    """1 for the first ask, 2 and on for repairs."""
     model: str | None = None
+    """The model to ask (litellm's name, e.g. `openai/gpt-4o`); None for backends without one."""
     temperature: float = 0.0
+    """Sampling temperature passed to the model."""
     timeout_s: float = 60.0
+    """The longest the backend may take for this call, seconds."""
     task_name: str = ""
+    """The task's name (for records and cassettes)."""
     line_width_mm: float = 0.0
     """Width of the icing line the task's tool draws (0: not an icing tool, or unknown)."""
     share_key: str | None = None
@@ -193,20 +254,26 @@ class PlanRequest:
 
     @property
     def crop_size_px(self) -> tuple[int, int]:
+        """(width, height) of the crop in pixels."""
         return int(self.crop.shape[1]), int(self.crop.shape[0])
 
 
 @dataclass(frozen=True)
 class BackendAnswer:
-    """A backend's raw answer and what it cost."""
+    """A backend's raw answer and what it cost: what `VlmBackend.complete` returns."""
 
     text: str
+    """The answer's text: the planner's JSON (keymps parses and checks it)."""
     prompt_tokens: int | None = None
+    """Tokens of the request, as the provider counted them; None when unknown."""
     completion_tokens: int | None = None
+    """Tokens of the answer, as the provider counted them; None when unknown."""
     latency_s: float = 0.0
+    """Wall-clock time of the call, seconds."""
     cost_usd: float | None = None
     """None where the price is unknown (e.g. a local model without a registered price)."""
     model: str | None = None
+    """The model that answered, as the provider names it."""
     retries: tuple[str, ...] = ()
     """Failed tries before this answer (rate limits, server errors ...), one line each."""
     finish_reason: str | None = None
@@ -221,17 +288,22 @@ class BackendAnswer:
 
 @dataclass(frozen=True)
 class Plan:
-    """Which primitive, and which K keypoint pairs (Sec. IV-B/C)."""
+    """Which primitive, and which K keypoint pairs (Sec. IV-B/C): the `plan` stage's result."""
 
     keyword: str
+    """The chosen primitive's name (one of the task's primitives)."""
     pairs_crop_px: np.ndarray
     """(K, 2, 2): K pairs of (start, end) points in crop pixels."""
     pairs_px: np.ndarray
     """(K, 2, 2): the same pairs in full-image pixels."""
     backend: str
+    """The planner backend that answered (offline, litellm, replay ...)."""
     model: str | None = None
+    """The model asked; None for the offline planner."""
     rationale: str = ""
+    """The backend's own explanation of its plan, if it gave one."""
     calls: tuple[VlmCall, ...] = ()
+    """Every exchange with the backend, repairs included, in order."""
     coordinates: str = "pixels"
     """How the backend wrote its points (pixels, xy_1000, yx_1000); pairs_* are pixels."""
     design: dict[str, Any] | None = None
@@ -243,6 +315,7 @@ class Plan:
 
     @property
     def num_pairs(self) -> int:
+        """K, the number of keypoint pairs."""
         return int(self.pairs_px.shape[0])
 
 
@@ -251,9 +324,13 @@ class Segment:
     """One grounded keypoint pair: DMP start and goal in the board frame (metres)."""
 
     start: np.ndarray
+    """(3,) the DMP's start y0 in the board frame, metres (height integrated, Appendix C)."""
     goal: np.ndarray
+    """(3,) the DMP's goal g in the board frame, metres."""
     start_px: tuple[float, float]
+    """(x, y) of the pair's start in full-image pixels."""
     goal_px: tuple[float, float]
+    """(x, y) of the pair's end in full-image pixels."""
     object_id: int = 1
     """The object this pair works on (DetectedObject.id)."""
 
@@ -263,7 +340,9 @@ class GroundedObject:
     """One object on the board in metres: what the motion must clear and the work stay on."""
 
     id: int
+    """Its DetectedObject.id."""
     name: str | None
+    """What the task calls it (scene.objects); None when unnamed."""
     height: float
     """Its top surface above the board, metres."""
     outline_m: np.ndarray
@@ -277,18 +356,23 @@ class GroundedObject:
 
 @dataclass(frozen=True)
 class Grounding:
-    """The plan in the board frame: the segments and the heights the motion works at."""
+    """The plan in the board frame: the `ground` stage's result.
+
+    The segments, and the heights the motion works at.
+    """
 
     segments: tuple[Segment, ...]
+    """K grounded keypoint pairs, in the plan's order."""
     object_height: float
     """The tallest object's height (every object's, with one object), metres."""
     workspace_size: tuple[float, float]
+    """(width, height) of the board area the image spans (s_env), metres."""
     objects: tuple[GroundedObject, ...] = ()
     """Every object on the board (the ones without work too), in id order."""
 
     @property
     def segments_m(self) -> np.ndarray:
-        """(K, 2, 3) array of start/goal points."""
+        """(K, 2, 3): each segment's start and goal in the board frame, metres."""
         return np.array([[s.start, s.goal] for s in self.segments], dtype=float).reshape(-1, 2, 3)
 
 
@@ -297,6 +381,7 @@ class Piece:
     """A continuous part of the tool path that starts and ends at rest."""
 
     kind: PieceKind
+    """`work` (a re-targeted primitive) or `travel` (a move between pieces)."""
     pair_index: int
     """Index of the keypoint pair this piece belongs to (travel moves lead to that pair)."""
     points: np.ndarray
@@ -310,57 +395,81 @@ class Piece:
 
     @property
     def length_m(self) -> float:
+        """Length of the piece's polyline, metres."""
         return float(np.linalg.norm(np.diff(self.points, axis=0), axis=1).sum())
 
 
 @dataclass(frozen=True)
 class ToolPath:
-    """The composed Cartesian path (Eq. 6): travel moves and re-targeted primitives."""
+    """The composed Cartesian path (Eq. 6): the `compose` stage's result.
+
+    Travel moves and re-targeted primitives, in execution order.
+    """
 
     pieces: tuple[Piece, ...]
+    """The pieces in execution order, each starting where the one before it ended."""
     keyword: str
+    """The primitive the work pieces were re-targeted from."""
 
     @property
     def points(self) -> np.ndarray:
+        """(n, 3) every piece's points end to end, board frame, metres."""
         return np.concatenate([p.points for p in self.pieces], axis=0)
 
 
 @dataclass(frozen=True)
 class JointPath:
-    """Inverse-kinematics solution of a ToolPath: one joint vector per path point."""
+    """Inverse-kinematics solution of a ToolPath: the `solve` stage's result.
+
+    One joint vector per path point.
+    """
 
     pieces: tuple[np.ndarray, ...]
     """Per piece, (n, 6) joint angles in radians aligned with the piece's points."""
     joint_names: tuple[str, ...]
+    """The arm's joint names, base to wrist (the columns of each piece)."""
     max_position_error_m: float
+    """The largest distance between a solved pose's tool tip and its path point, metres."""
     max_rotation_error_rad: float
+    """The largest angle between a solved pose's tool orientation and the one asked, radians."""
 
 
 @dataclass(frozen=True)
 class Trajectory:
-    """A time-parameterized joint trajectory sampled at the controller rate."""
+    """A joint trajectory sampled at the controller rate: the `time` stage's result.
+
+    Jerk-limited, within the arm's joint limits and the tool's speed limits.
+    """
 
     t: np.ndarray
+    """(n,) sample times, seconds from the start, 1 / rate_hz apart."""
     q: np.ndarray
+    """(n, 6) joint angles, radians."""
     qd: np.ndarray
+    """(n, 6) joint velocities, rad/s."""
     qdd: np.ndarray
+    """(n, 6) joint accelerations, rad/s^2."""
     tool_xyz: np.ndarray
-    """(n, 3) planned tool-tip positions in the board frame."""
+    """(n, 3) planned tool-tip positions in the board frame, metres."""
     piece_index: np.ndarray
     """(n,) index into ToolPath.pieces."""
     kind: np.ndarray
     """(n,) 'work' or 'travel'."""
     joint_names: tuple[str, ...]
+    """The arm's joint names, base to wrist (the columns of q, qd, qdd)."""
     rate_hz: float
+    """The controller rate the samples are spaced for, Hz (125 for CB3, 500 for e-Series)."""
     warnings: tuple[str, ...] = ()
     """What the timing noticed, e.g. a work piece the joints slowed far below work_speed."""
 
     @property
     def duration_s(self) -> float:
+        """From the first sample to the last, seconds."""
         return float(self.t[-1] - self.t[0]) if len(self.t) else 0.0
 
     @property
     def samples(self) -> int:
+        """n, the number of samples."""
         return int(len(self.t))
 
 
@@ -369,16 +478,26 @@ class ValidationReport:
     """The safety check's verdict, its problems (one line each) and its figures."""
 
     ok: bool
+    """True when nothing was found: the trajectory may be executed."""
     problems: tuple[str, ...]
+    """Every finding, one line each (empty when ok)."""
     figures: dict[str, float]
+    """What was measured, by name with its unit (`min_tool_z_mm`,
+    `max_deviation_from_tool_path_mm`, `max_joint_velocity_ratio` of the limit ...): run.json's
+    `validation`."""
 
 
 @dataclass(frozen=True)
 class ValidatedTrajectory:
-    """A Trajectory that passed keymps.robot.safety; executors accept only this type."""
+    """A Trajectory that passed keymps.robot.safety: the `check` stage's result.
+
+    Executors accept only this type, through `keymps.plugin.require_validated`.
+    """
 
     trajectory: Trajectory
+    """The trajectory as checked, its arrays read-only."""
     report: ValidationReport
+    """The check's verdict and figures."""
 
 
 @dataclass(frozen=True)
@@ -386,10 +505,16 @@ class ExecutionReport:
     """What an executor did: its verdict, message, the files it wrote and its figures."""
 
     executor: str
+    """The executor's registered name (sim, file, ur-rtde ...)."""
     ok: bool
+    """True when it did what it was asked (a simulated or exported run, a completed motion)."""
     message: str = ""
+    """One line for the user: what it did, or why it stopped."""
     files: tuple[str, ...] = ()
+    """Paths of the files it wrote (outcome.png, execution.mp4 ...)."""
     figures: dict[str, float] = field(default_factory=dict)
+    """What it measured, by name with its unit (`max_tracking_error_mm`, `min_tool_z_mm` ...);
+    run.json keeps them."""
     dry_run: bool | None = None
     """For an executor that drives a real robot: True when it only checked (no --confirm),
     False when it was allowed to move; None for the others (simulation, file export)."""

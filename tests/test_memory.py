@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-TASKS = Path(__file__).resolve().parents[2] / "tasks"
+TASKS = Path(__file__).resolve().parents[1] / "tasks"
 
 FAULTS_OF_REPEATED_ARRAYS = """
 import resource, sys

@@ -11,7 +11,7 @@ import pytest
 
 from keymps.plugin import hookspecs
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[1]
 HOOKS = sorted(
     name
     for name, value in vars(hookspecs).items()

@@ -11,7 +11,7 @@ import pytest
 
 from keymps.sorted_values import distinct, median, percentile
 
-TASKS = Path(__file__).resolve().parents[2] / "tasks"
+TASKS = Path(__file__).resolve().parents[1] / "tasks"
 
 
 def _samples(rng: np.random.Generator) -> np.ndarray:

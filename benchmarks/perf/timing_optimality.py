@@ -61,15 +61,18 @@ def measure(
     task_path: Path, tool_jerk: float | None = None, joint_jerk: float | None = None
 ) -> dict[str, Any]:
     from keymps import load_task, run_task
+    from keymps.config.task import PluginSection
     from keymps.motion.timing import split_strokes
 
     task = load_task(task_path)
+    # the sim executor without the task's own executor options (sim_cutting.yaml's are MuJoCo's)
+    task = task.model_copy(update={"executor": PluginSection(name="sim")})
     changes = {"max_tool_jerk": tool_jerk, "max_joint_jerk": joint_jerk}
     changes = {key: value for key, value in changes.items() if value is not None}
     if changes:
         task = task.model_copy(update={"robot": task.robot.model_copy(update=changes)})
     with tempfile.TemporaryDirectory() as folder:
-        run = run_task(task, out=folder, rerun="off", backend="offline", executor="sim")
+        run = run_task(task, out=folder, rerun="off", backend="offline")
     tool_path, joint_path = run.stages.compose, run.stages.solve
     trajectory, validated = run.stages.time, run.stages.check
     from keymps.robot.model import RobotModel

@@ -31,7 +31,11 @@ def _stage_detail(stage: str, result: Any) -> str:
     if stage == "detect":
         return "bbox " + ",".join(str(v) for v in result.bbox_px)
     if stage == "plan":
-        return f"{result.backend}: {result.keyword}, {result.num_pairs} pair(s)"
+        detail = f"{result.backend}: {result.keyword}, {result.num_pairs} pair(s)"
+        calls = [call for call in result.calls if call.model_call]
+        if calls and calls[-1].cached:  # no model was asked this time (--no-cache asks it)
+            detail += ", cached answer"
+        return detail
     if stage == "ground":
         return f"{len(result.segments)} segment(s)"
     if stage == "compose":

@@ -20,6 +20,12 @@ class FiniteFloat(click.FloatRange):
             self.fail(f"{value!r} is not a finite number", param, ctx)
         return number
 
+    def _describe_range(self) -> str:
+        # click shows an unbounded range as "x<=None"
+        if self.min is None and self.max is None:
+            return ""
+        return super()._describe_range()
+
 
 def finite_numbers(text: str, count: tuple[int, ...], what: str) -> list[float]:
     """`count` comma-separated finite numbers, or a click error naming `what`."""

@@ -8,7 +8,7 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from keymps.config.task import Task, file_problem
+from keymps.config.task import Task, file_problem, image_file_problem
 from keymps.errors import KeympsError
 
 _OVERRIDE_FIELDS: dict[str, tuple[str, ...]] = {
@@ -40,7 +40,7 @@ def apply_overrides(task: Task, overrides: dict[str, Any]) -> Task:
         if key in ("image", "cassette"):
             value = Path(os.path.abspath(value))  # resolve() raises on a symlink loop
             if key == "image":
-                problem = file_problem(value)
+                problem = file_problem(value) or image_file_problem(value)
                 if problem:
                     raise KeympsError(f"--image: {problem}")
                 data["scene"]["source"] = "file"

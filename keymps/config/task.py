@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import stat
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, get_args
 
 from pydantic import (
     BaseModel,
@@ -31,6 +31,18 @@ def _not_a_boolean(value: Any) -> Any:
 NUMBER = BeforeValidator(_not_a_boolean)
 """In every numeric field of a task file: a boolean is an error, not 1 or 0."""
 
+
+class Unit:
+    """The unit of a numeric task field, named when a value is out of its bounds ("60" for
+    scene.object_height is a height in millimetres, not the 60 m the field would read)."""
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+
+
+METRES = Unit("metres")
+METRES_PER_SECOND = Unit("metres per second")
+
 PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False), NUMBER]
 FiniteFloat = Annotated[float, Field(allow_inf_nan=False), NUMBER]
 Point2 = tuple[FiniteFloat, FiniteFloat]
@@ -56,9 +68,11 @@ class PluginSection(BaseModel):
 MAX_BOARD_M = 3.0
 """No tabletop arm works on a board larger than this, or from further away: a bigger number in
 a task file is millimetres, caught where it is written."""
-BoardSide = Annotated[float, Field(gt=0, le=MAX_BOARD_M, allow_inf_nan=False), NUMBER]
+BoardSide = Annotated[float, Field(gt=0, le=MAX_BOARD_M, allow_inf_nan=False), NUMBER, METRES]
 """A side of the imaged board, metres."""
-BaseOffset = Annotated[float, Field(ge=-MAX_BOARD_M, le=MAX_BOARD_M, allow_inf_nan=False), NUMBER]
+BaseOffset = Annotated[
+    float, Field(ge=-MAX_BOARD_M, le=MAX_BOARD_M, allow_inf_nan=False), NUMBER, METRES
+]
 """A coordinate of the robot base (or of the board frame's origin) on the board, metres."""
 MAX_PIXEL_COORDINATE = 2**20
 """OpenCV reads no image wider or taller than this (OPENCV_IO_MAX_IMAGE_WIDTH's default)."""
@@ -66,7 +80,7 @@ PixelCoordinate = Annotated[
     float, Field(ge=-MAX_PIXEL_COORDINATE, le=MAX_PIXEL_COORDINATE, allow_inf_nan=False), NUMBER
 ]
 Degrees = Annotated[float, Field(ge=-360, le=360, allow_inf_nan=False), NUMBER]
-ToolOffset = Annotated[float, Field(ge=-1.0, le=1.0, allow_inf_nan=False), NUMBER]
+ToolOffset = Annotated[float, Field(ge=-1.0, le=1.0, allow_inf_nan=False), NUMBER, METRES]
 """A tool tip coordinate in the flange frame, metres: no UR3 tool is a metre long."""
 MAX_IMAGE_PIXELS_LIMIT = 2**30
 """OpenCV's own ceiling (OPENCV_IO_MAX_IMAGE_PIXELS' default): scene.max_image_pixels' bound."""
@@ -119,7 +133,7 @@ class SceneObjectSpec(StrictModel):
 
     name: str = Field(min_length=1, max_length=60, pattern=r"^[A-Za-z][A-Za-z0-9 _-]*$")
     """What it is ("banana"); the offline planner reads it ("cut the banana in half")."""
-    height: Annotated[float, Field(ge=0, le=1.0, allow_inf_nan=False), NUMBER] | None = None
+    height: Annotated[float, Field(ge=0, le=1.0, allow_inf_nan=False), NUMBER, METRES] | None = None
     """Its top surface above the board, metres; scene.object_height when omitted."""
     at: tuple[BaseOffset, BaseOffset] | None = None
     """A board point (metres, within MAX_BOARD_M) on or near it: pins it to the detected object nearest there
@@ -132,7 +146,7 @@ class Scene(StrictModel):
     """Image source plugin: file, synthetic, opencv, or one from a plugin package."""
     source_options: dict[str, Any] = Field(default_factory=dict)
     workspace: Workspace = Workspace()
-    object_height: Annotated[float, Field(ge=0, le=1.0, allow_inf_nan=False), NUMBER] = 0.05
+    object_height: Annotated[float, Field(ge=0, le=1.0, allow_inf_nan=False), NUMBER, METRES] = 0.05
     objects: list[SceneObjectSpec] | None = Field(default=None, min_length=1, max_length=32)
     """The objects on the board, left to right (keymps.perception.scene_objects matches them
     to the detected ones); without it every object has object_height."""
@@ -199,7 +213,7 @@ class Planner(StrictModel):
 
 class Height(StrictModel):
     mode: Literal["both", "start", "end"] = "both"
-    margin: Annotated[float, Field(ge=-0.05, le=0.1, allow_inf_nan=False), NUMBER] = 0.005
+    margin: Annotated[float, Field(ge=-0.05, le=0.1, allow_inf_nan=False), NUMBER, METRES] = 0.005
     """Added to the object's top surface wherever the height is integrated, metres."""
 
 
@@ -210,12 +224,16 @@ MAX_DURATION_S = 4 * 3600.0
 
 
 class Motion(StrictModel):
-    clearance: Annotated[float, Field(ge=0.005, le=0.3, allow_inf_nan=False), NUMBER] = 0.03
+    clearance: Annotated[float, Field(ge=0.005, le=0.3, allow_inf_nan=False), NUMBER, METRES] = 0.03
     """Travel moves rise this far above the object's top, metres."""
-    work_speed: Annotated[float, Field(gt=0, le=0.5, allow_inf_nan=False), NUMBER] = 0.03
-    travel_speed: Annotated[float, Field(gt=0, le=1.0, allow_inf_nan=False), NUMBER] = 0.15
+    work_speed: Annotated[
+        float, Field(gt=0, le=0.5, allow_inf_nan=False), NUMBER, METRES_PER_SECOND
+    ] = 0.03
+    travel_speed: Annotated[
+        float, Field(gt=0, le=1.0, allow_inf_nan=False), NUMBER, METRES_PER_SECOND
+    ] = 0.15
     max_path_length: Annotated[
-        float, Field(gt=0, le=MAX_PATH_LENGTH_M, allow_inf_nan=False), NUMBER
+        float, Field(gt=0, le=MAX_PATH_LENGTH_M, allow_inf_nan=False), NUMBER, METRES
     ] = 50.0
     """Longer tool paths are refused before inverse kinematics, metres (keymps.config.limits)."""
     max_duration_s: Annotated[
@@ -265,18 +283,34 @@ class Robot(StrictModel):
 
 
 class Task(StrictModel):
+    """A validated task file: the sentence, the scene, and the components that carry it out.
+
+    Built by `keymps.load_task` (or `parse_task` from text); unknown keys are errors and every
+    error names the file, line, column and field. Every field is described in docs/tasks.md.
+    """
+
     name: str = Field(min_length=1, max_length=200)
+    """Names the run folder (`runs/<name>-<time>/`)."""
     instruction: str = Field(min_length=1, max_length=4000)
+    """The sentence the planner carries out ("cut it into 8 equal slices")."""
     scene: Scene
+    """The image, the workspace it spans (metres), the objects and their heights."""
     detector: PluginSection = PluginSection(name="board")
+    """The detector plugin (`name`) and its options."""
     planner: Planner = Planner()
+    """The planner backend (auto, offline, litellm, replay), model, prompt and answer format."""
     primitives: list[Annotated[str, Field(min_length=1, max_length=200)]] = Field(
         min_length=1, max_length=100
     )
+    """The primitive names the planner may choose from (the dictionary's file names)."""
     height: Height = Height()
+    """How the object's height is integrated into the segments (Appendix C)."""
     motion: Motion = Motion()
+    """Clearance (metres) and speeds (m/s) of the tool path, and its bounds."""
     robot: Robot = Robot()
+    """The arm's model, base pose on the board, tool, controller rate and limits."""
     executor: PluginSection = PluginSection(name="sim")
+    """The executor plugin (`name`) and its options."""
     path: Path | None = Field(default=None, exclude=True)
     """The task file this was loaded from (None when built in code)."""
     _source: str = PrivateAttr(default="<task>")
@@ -301,12 +335,16 @@ class Task(StrictModel):
     def _printable(cls, value: str) -> str:
         if not value.strip():
             raise ValueError("instruction is empty")
-        if any(ord(c) < 32 and c not in "\n\t" for c in value):
-            raise ValueError("instruction contains control characters")
+        if any(ord(c) < 32 or ord(c) == 127 for c in value):
+            raise ValueError(
+                "instruction contains a line break, a tab or another control character: write "
+                "it on one line (YAML's folded style, `instruction: >`, joins lines with spaces)"
+            )
         return value
 
     @property
     def folder(self) -> Path:
+        """The task file's folder (the current folder for a task built in code)."""
         return self.path.parent if self.path else Path.cwd()
 
     @property
@@ -316,11 +354,26 @@ class Task(StrictModel):
         return api_base is not None and api_base == self._api_base_from_file
 
     def resolve(self, relative: Path) -> Path:
-        """A path from the task file, relative to the task file's folder."""
+        """A path from the task file, taken relative to the task file's folder.
+
+        Args:
+            relative: A path as the task file wrote it.
+
+        Returns:
+            `relative` itself when absolute, else `folder / relative`.
+        """
         return relative if relative.is_absolute() else (self.folder / relative)
 
     def where(self, *field_path: str | int) -> str:
-        """'file:line:col' of a field, for errors found after loading (e.g. a plugin name)."""
+        """Where a field is written, for errors found after loading (e.g. a plugin's name).
+
+        Args:
+            *field_path: Keys and list indices from the top, e.g. `"detector", "name"`.
+
+        Returns:
+            `file:line:col` of the field (of its nearest written parent when the file leaves
+            it out); the source's name alone for a task built in code.
+        """
         if self._yaml is None:
             return self._source
         line, column = self._yaml.locate(tuple(field_path))
@@ -357,7 +410,9 @@ def _format_problems(source: str, parsed: PositionedYaml, error: ValidationError
         line, column = parsed.locate(path, at_key=item["type"] == "extra_forbidden")
         message = item["msg"]
         if item["type"] == "extra_forbidden":
-            message = "unknown key"
+            message = "unknown key" + _did_you_mean(path)
+        elif _too_large(item):
+            message += _unit_hint(path)
         elif item["type"] == "missing":
             message = "field required"
         elif message.startswith("Value error, "):
@@ -365,6 +420,70 @@ def _format_problems(source: str, parsed: PositionedYaml, error: ValidationError
         text = f"{source}:{line}:{column}: {_field_name(path)}: {_one_line(message)}"
         lines.append((line, column, text))
     return [text for _, _, text in sorted(lines, key=lambda entry: entry[:2])]
+
+
+def _too_large(item: Any) -> bool:
+    """A value past its bound's far end (60 for a height at most 1 m, -200 for an offset at
+    least -3 m): often another unit's number, so the message names the field's unit."""
+    kind, bound = item["type"], dict(item.get("ctx") or {})
+    if kind in ("less_than", "less_than_equal"):
+        return True
+    limit = bound.get("ge", bound.get("gt"))
+    return (
+        kind in ("greater_than", "greater_than_equal")
+        and isinstance(limit, int | float)
+        and limit < 0
+    )
+
+
+def _model_at(path: tuple[Any, ...]) -> tuple[type[BaseModel] | None, str | None]:
+    """The task model that holds the last key of `path`, and that key (list indexes skipped)."""
+    model: type[BaseModel] | None = Task
+    keys = [part for part in path if isinstance(part, str)]
+    for key in keys[:-1]:
+        field = model.model_fields.get(key) if model else None
+        model = _submodel(field.annotation) if field else None
+    return model, (keys[-1] if keys else None)
+
+
+def _submodel(annotation: Any) -> type[BaseModel] | None:
+    """The task model inside a field's type (`Camera`, `list[SceneObjectSpec] | None` ...)."""
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return annotation
+    for argument in get_args(annotation):
+        found = _submodel(argument)
+        if found is not None:
+            return found
+    return None
+
+
+def _did_you_mean(path: tuple[Any, ...]) -> str:
+    import difflib
+
+    model, key = _model_at(path)
+    if model is None or key is None:
+        return ""
+    close = difflib.get_close_matches(key, list(model.model_fields), n=1, cutoff=0.8)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+def _unit_hint(path: tuple[Any, ...]) -> str:
+    model, key = _model_at(path)
+    field = model.model_fields.get(key) if model is not None and key is not None else None
+    if field is None:
+        return ""
+    units = [
+        u for u in [*field.metadata, *_annotated_metadata(field.annotation)] if isinstance(u, Unit)
+    ]
+    return f" (the unit is {units[0].name})" if units else ""
+
+
+def _annotated_metadata(annotation: Any) -> list[Any]:
+    """Metadata of every Annotated type inside a field's type (tuple items, `X | None`)."""
+    found = list(getattr(annotation, "__metadata__", ()))
+    for argument in get_args(annotation):
+        found.extend(_annotated_metadata(argument))
+    return found
 
 
 def _display_path(path: Path) -> str:
@@ -426,7 +545,7 @@ def file_problem(path: Path) -> str | None:
     return None
 
 
-def _image_file_problem(path: Path) -> str | None:
+def image_file_problem(path: Path) -> str | None:
     """Why a regular file is no image (its first bytes), before a run makes its folder."""
     from keymps.config.limits import looks_like_an_image
     from keymps.config.trust import shown_path
@@ -455,7 +574,7 @@ def _check_referenced_files(task: Task, source: str, parsed: PositionedYaml) -> 
         if relative is None:
             continue
         resolved = task.resolve(relative)
-        problem = file_problem(resolved) or _image_file_problem(resolved)
+        problem = file_problem(resolved) or image_file_problem(resolved)
         if problem:
             line, column = parsed.locate(key_path)
             problems.append(f"{source}:{line}:{column}: {'.'.join(key_path)}: {problem}")
@@ -487,6 +606,14 @@ def _check_trust(task: Task, source: str, parsed: PositionedYaml) -> list[str]:
         )
         if wrong:
             problem(("planner", "prompt"), wrong)
+    if task.planner.cassette is not None:  # --cassette, the user's own, is not checked here
+        wrong = trust.readable_file_problem(
+            task.resolve(task.planner.cassette),
+            [trust.real_path(task.folder)],
+            trust.MAX_CASSETTE_BYTES,
+        )
+        if wrong:
+            problem(("planner", "cassette"), wrong)
     return problems
 
 

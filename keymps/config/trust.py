@@ -5,12 +5,13 @@ A task file is shared between labs, so it is not trusted with anything the user 
 - `planner.api_key_env` may name only a provider-style key variable (KEY_ENV_PATTERN, a few
   known names, or a name the user lists in their own config): never AWS_SECRET_ACCESS_KEY;
 - an `api_base` only a task file names receives no key (keymps.planning.backend_choice);
-- files a task makes keymps read and send (prompts, primitives) must be regular files inside
-  the task's folder or the documented search folders, and small.
+- files a task makes keymps read and send (prompts, primitives, a cassette) must be regular
+  files inside the task's folder or the documented search folders, and small.
 """
 
 from __future__ import annotations
 
+import errno
 import os
 import re
 import stat
@@ -28,6 +29,8 @@ MAX_PROMPT_BYTES = 256 * 1024
 """A prompt template is a few kilobytes of Markdown."""
 MAX_PRIMITIVE_BYTES = 4 * 1024 * 1024
 """A primitive file is a few kilobytes of YAML (DMP weights)."""
+MAX_CASSETTE_BYTES = 256 * 1024 * 1024
+"""A cassette holds text answers: tens of thousands of them fit in far less."""
 
 
 def api_key_env_problem(name: str, allowed: Sequence[str] = ()) -> str | None:
@@ -50,35 +53,58 @@ def shown_path(path: Path) -> str:
 
 def readable_file_problem(path: Path, roots: Sequence[Path], max_bytes: int) -> str | None:
     """Why `path` may not be read on a task's behalf (None when it may): it must be a regular
-    file, at most `max_bytes`, whose real path (symlinks followed) is inside one of `roots`."""
+    file, at most `max_bytes`, whose real path (symlinks followed) is inside one of `roots` and
+    in no hidden file or folder of it (`.ssh`, `.env`: a task saved in your home folder is no
+    reason to read those). A root that is itself a link is not followed (`anchored`), and a path
+    outside every root gets the same answer whether a file is there or not."""
     shown = shown_path(path)
     try:
-        real = path.resolve(strict=True)
-        info = real.stat()
-    except FileNotFoundError:
-        return f"file not found: {shown}"
+        real = path.resolve()  # links followed as far as they lead; no file needed
     except ValueError:  # a NUL character: no file can have this name
         return f"not a valid file name: {shown}"
-    except RuntimeError:  # a symlink loop (Python < 3.13)
+    except RuntimeError:  # a symlink loop (an OSError from Python 3.13)
         return f"cannot resolve {shown}: a symlink loop"
     except OSError as error:
-        return f"cannot resolve {shown}: {error.strerror or error}"
+        why = "a symlink loop" if error.errno == errno.ELOOP else error.strerror or error
+        return f"cannot resolve {shown}: {why}"
     if any(real == p or p in real.parents for p in NEVER_READ):
         return f"{shown} is a kernel or device file ({real}); not read"
-    if not stat.S_ISREG(info.st_mode):
-        return f"{shown} is not a regular file (a folder, device, pipe or socket)"
-    real_roots = [real_path(root) for root in roots]
-    if not any(real == root or root in real.parents for root in real_roots):
+    real_roots = [anchored(root) for root in roots]
+    holding = [root for root in real_roots if root in real.parents]
+    if not holding:
         searched = ", ".join(str(r) for r in real_roots)
         return (
             f"{shown} is outside the task's folder and the search folders ({searched}); "
             "copy it next to the task"
         )
+    innermost = max(holding, key=lambda root: len(root.parts))
+    hidden = next((part for part in real.relative_to(innermost).parts if part[:1] == "."), None)
+    if hidden is not None:
+        return f"{shown} is in the hidden file or folder {hidden!r} of {innermost}; not read"
+    try:
+        info = real.stat()
+    except FileNotFoundError:
+        return f"file not found: {shown}"
+    except OSError as error:
+        return f"cannot read {shown}: {error.strerror or error}"
+    if not stat.S_ISREG(info.st_mode):
+        return f"{shown} is not a regular file (a folder, device, pipe or socket)"
     if info.st_size > max_bytes:
         return (
             f"{shown}: {info.st_size} bytes, more than the {max_bytes} a file of its kind may have"
         )
     return None
+
+
+def anchored(folder: Path) -> Path:
+    """`folder` made absolute with the links above it followed, but not a link that `folder`
+    itself is: a shared task folder's `prompts -> /` stays `<task>/prompts`, inside which no
+    file under `/` lies. Pass a folder the user chose (`$KEYMPS_PROMPTS_PATH`) resolved: its
+    own link is theirs to follow."""
+    absolute = Path(os.path.abspath(folder))
+    if absolute.name in ("", ".", ".."):  # the root folder
+        return real_path(absolute)
+    return real_path(absolute.parent) / absolute.name
 
 
 def others_may_write(folder: Path) -> bool:
@@ -100,18 +126,26 @@ def shared_folders_left_out(folders: Sequence[Path]) -> list[Path]:
 
 def prompt_search_dirs(task_folder: Path) -> list[Path]:
     """Where prompt templates are looked for, first match wins: the task folder's prompts/ and
-    ../prompts, each folder in KEYMPS_PROMPTS_PATH, ./prompts, the bundled prompts."""
+    ../prompts, each folder in KEYMPS_PROMPTS_PATH, ./prompts, the bundled prompts. The user's
+    folders come resolved; the others as written, so that a link which one of them is does
+    not lead the check elsewhere (`anchored`)."""
+    *chosen, bundled = user_prompt_dirs()
+    own = [task_folder / "prompts", *shared_folders_left_out([task_folder.parent / "prompts"])]
+    return [*own, *chosen, *shared_folders_left_out([Path.cwd() / "prompts"]), bundled]
+
+
+def user_prompt_dirs() -> list[Path]:
+    """The prompt folders the user chose (KEYMPS_PROMPTS_PATH) and the bundled one, resolved:
+    what is in them is the user's, not a shared task's."""
     from keymps.bundled import bundled_dir
 
-    dirs = [task_folder / "prompts", *shared_folders_left_out([task_folder.parent / "prompts"])]
-    dirs += [Path(p) for p in os.environ.get("KEYMPS_PROMPTS_PATH", "").split(os.pathsep) if p]
-    dirs += [*shared_folders_left_out([Path.cwd() / "prompts"]), bundled_dir("prompts")]
-    return dirs
+    chosen = [Path(p) for p in os.environ.get("KEYMPS_PROMPTS_PATH", "").split(os.pathsep) if p]
+    return [real_path(folder) for folder in [*chosen, bundled_dir("prompts")]]
 
 
 def prompt_roots(task_folder: Path) -> list[Path]:
     """Folders a prompt file may be in: the task's folder tree and the prompt search folders."""
-    return [task_folder, *prompt_search_dirs(task_folder)]
+    return [real_path(task_folder), *prompt_search_dirs(task_folder)]
 
 
 def real_path(folder: Path) -> Path:

@@ -5,9 +5,15 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field
 
-from keymps.plugin import RegisterExecutor, hookimpl, parse_options, require_validated
+from keymps.plugin import (
+    RegisterExecutor,
+    RunFolderPath,
+    hookimpl,
+    parse_options,
+    require_validated,
+)
 from keymps.types import ExecutionReport, ValidatedTrajectory
 
 if TYPE_CHECKING:
@@ -19,21 +25,10 @@ class FileOptions(BaseModel):
 
     model_config = ConfigDict(defer_build=True, extra="forbid", frozen=True, populate_by_name=True)
 
-    csv: Path | None = Path("trajectory.csv")
+    csv: RunFolderPath | None = Path("trajectory.csv")
     """A file in the run folder (subfolders allowed); null skips the file."""
-    json_path: Path | None = Field(Path("trajectory.json"), alias="json")
+    json_path: RunFolderPath | None = Field(Path("trajectory.json"), alias="json")
     """The task file's `json` key: the ROS JointTrajectory file."""
-
-    @field_validator("csv", "json_path")
-    @classmethod
-    def _inside_the_run_folder(cls, path: Path | None) -> Path | None:
-        # A task file may come from a stranger: it writes nothing outside the run folder.
-        if path is not None and (path.is_absolute() or ".." in path.parts or not path.name):
-            raise ValueError(
-                f"{str(path)!r} leads out of the run folder: name a file in it "
-                "(--out chooses the folder)"
-            )
-        return path
 
 
 class FileExecutor:

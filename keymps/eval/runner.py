@@ -278,6 +278,11 @@ def check_planner_options(suite: Suite, job: Job, options: EvalOptions) -> None:
     from keymps.config.task import load_task
     from keymps.planning.backend_choice import choose_backend
 
+    if options.backend == "replay":  # keymps run's message would point to --cassette
+        raise KeympsError(
+            "--backend replay: keymps eval replays no cassette (every run asks its own "
+            "question); identical requests are answered from the answer cache unless --no-cache"
+        )
     task = load_task(write_task_file(suite, job, options.out))
     given = {"backend": options.backend, "model": options.model, "api_base": options.api_base}
     choose_backend(apply_overrides(task, given), options.backend, options.model, options.api_base)

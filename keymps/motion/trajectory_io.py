@@ -180,13 +180,15 @@ def read_trajectory_csv(path: str | Path) -> dict[str, np.ndarray]:
     }
 
 
+def time_from_start_ns(t: np.ndarray) -> np.ndarray:
+    """(n,) int64 nanoseconds of the times `t` (seconds), rounded to the nearest ns: a ROS
+    Duration is `divmod(ns, 10**9)` of these (sec, nanosec)."""
+    return np.rint(np.asarray(t, dtype=float) * 1e9).astype(np.int64)
+
+
 def joint_trajectory_message(trajectory: Trajectory) -> dict[str, object]:
     """trajectory_msgs/JointTrajectory as plain data (header left for the consumer to stamp)."""
-    t = np.asarray(trajectory.t, dtype=float)
-    seconds = np.floor(t)
-    nanoseconds = np.round((t - seconds) * 1e9)
-    carry = nanoseconds >= 1_000_000_000
-    seconds, nanoseconds = seconds + carry, nanoseconds - carry * 1_000_000_000
+    seconds, nanoseconds = np.divmod(time_from_start_ns(trajectory.t), 1_000_000_000)
     points = [
         {
             "positions": q,

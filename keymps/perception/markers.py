@@ -86,9 +86,33 @@ def find_board_corners(image: np.ndarray, source: str = "the image") -> FoundMar
             "(`keymps calibrate --print-markers FILE.png` prints them)"
         )
     markers = {i: seen[i][0] for i in range(4)}
+    _refuse_out_of_order(markers, source)
     inner = np.array([_touching_corner(i, markers) for i in range(4)])
     ignored = tuple(sorted(i for i in seen if i > 3))
     return FoundMarkers(inner, markers, ignored)
+
+
+def _refuse_out_of_order(markers: dict[int, np.ndarray], source: str) -> None:
+    """Markers 0, 1, 2, 3 must go round the board as its bottom-left, bottom-right, top-right
+    and top-left corners (clockwise on screen); the printed sheet itself, or markers swapped,
+    would otherwise end in a 'non-convex quadrilateral' that names no marker."""
+    centres = np.array([markers[i].mean(axis=0) for i in range(4)])
+    edges = np.roll(centres, -1, axis=0) - centres
+    following = np.roll(edges, -1, axis=0)
+    cross = edges[:, 0] * following[:, 1] - edges[:, 1] * following[:, 0]
+    if np.all(cross < 0):  # y down: that order turns clockwise on screen
+        return
+    middle = centres.mean(axis=0)
+    seen_at = [
+        f"{i} ({CORNER_NAMES[i]}) is at the {'top' if y < middle[1] else 'bottom'}"
+        f"-{'left' if x < middle[0] else 'right'}"
+        for i, (x, y) in enumerate(centres)
+    ]
+    raise KeympsError(
+        f"{source}: markers 0-3 are out of order: {'; '.join(seen_at)}. Place marker 0 at the "
+        "board's bottom-left corner, 1 bottom-right, 2 top-right and 3 top-left, as seen in the "
+        "photo (a photo of the printed sheet itself is no board: cut the markers out)"
+    )
 
 
 def _touching_corner(marker_id: int, markers: dict[int, np.ndarray]) -> np.ndarray:

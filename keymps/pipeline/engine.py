@@ -431,11 +431,9 @@ def run_task(
     problem; nothing after the failing stage runs, above all no executor.
     """
     from keymps.pipeline.folder_lock import FolderLock
-    from keymps.planning.backend_choice import (
-        image_for_an_untrusted_server,
-        untrusted_api_base_warning,
-    )
+    from keymps.planning.backend_choice import untrusted_api_base_warning
     from keymps.planning.planner import choose_backend
+    from keymps.planning.sent_files import files_refused
     from keymps.text_drawing import prepare_text_drawing
 
     if not isinstance(task, Task):
@@ -472,13 +470,14 @@ def run_task(
     backend, reason = choose_backend(
         task, overrides.get("backend"), overrides.get("model"), overrides.get("api_base")
     )
-    if backend not in NO_SERVER and overrides.get("image") is None:
-        refused = image_for_an_untrusted_server(task)
-        if refused:
-            raise KeympsError(refused)
     options = _backend_under_way(task, backend, options)
     prepare_text_drawing()  # OpenCV's font set-up, on the other core until plan.png is drawn
     parts = Components(task, backend, through)
+    if backend not in NO_SERVER:  # what the run may not send its server, before any stage
+        described = {name: p.description for name, p in (parts.primitives or {}).items()}
+        refused = files_refused(task, described, image_given=overrides.get("image") is not None)
+        if refused:
+            raise KeympsError(refused[0])
     folder = _new_run_folder(task, Path(out) if out else None)
     lock = FolderLock(folder).acquire()  # a second run into this folder refuses here
     try:

@@ -48,6 +48,7 @@ def component_problems(
     from keymps.pipeline.engine import Components
     from keymps.planning.backend_choice import untrusted_api_base_warning
     from keymps.planning.planner import choose_backend
+    from keymps.planning.sent_files import files_refused
 
     problems: list[str] = []
     parts = None
@@ -64,6 +65,8 @@ def component_problems(
         if descriptions is not None:
             try:
                 _check_prompt(task, descriptions)
+                if backend is not None and backend not in NO_SERVER:
+                    problems += files_refused(task, descriptions)
             except KeympsError as error:
                 problems.append(str(error))
     if parts is not None and notes is not None and backend not in NO_SERVER:

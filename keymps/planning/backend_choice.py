@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 from typing import TYPE_CHECKING
 
-from keymps.config.trust import is_provider_endpoint, real_path, same_server
+from keymps.config.trust import is_provider_endpoint, same_server
 from keymps.config.user import config_path, load_user_config
 from keymps.errors import KeympsError
 from keymps.planning.redaction import redact_text, url_secrets
@@ -84,27 +84,6 @@ def untrusted_api_base_warning(task: Task) -> str | None:
         f"{task.where('planner', 'api_base')}: planner.api_base {task.planner.api_base} is "
         "named only by the task file, so no API key is sent to it; to send one, pass "
         f"--api-base or list it under trusted_api_bases in {config_path()}"
-    )
-
-
-def image_for_an_untrusted_server(task: Task) -> str | None:
-    """The refusal when a server only the task file names would be sent an image the task file
-    names outside its own folder tree (a shared task could name any photo of yours and a
-    server of its own); None otherwise. Call only when a VLM will be asked and the image is the
-    task's (not --image)."""
-    image = task.scene.image
-    if task.scene.source != "file" or image is None or api_base_trusted(task):
-        return None
-    if real_path(task.folder / image).is_relative_to(
-        real_path(task.folder)
-    ):  # (an absolute image stays)
-        return None
-    return redact_text(
-        f"{task.where('scene', 'image')}: scene.image {image} is outside the task file's folder "
-        f"and planner.api_base {task.planner.api_base} is named only by the task file: keymps "
-        "sends none of your files to a server only a task file names; pass the image with "
-        f"--image, or the server with --api-base, or list it under trusted_api_bases in "
-        f"{config_path()}"
     )
 
 

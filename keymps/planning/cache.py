@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from keymps.config.trust import MAX_CASSETTE_BYTES
 from keymps.errors import KeympsError
 
 
@@ -76,10 +77,6 @@ def append_to_cassette(path: Path, entry: dict[str, Any]) -> None:
             handle.write(json.dumps(entry, sort_keys=True) + "\n")
     except OSError as error:
         raise KeympsError(f"--record: cannot write the cassette {path}: {error.strerror}") from None
-
-
-MAX_CASSETTE_BYTES = 256 * 1024 * 1024
-"""A cassette holds text answers: tens of thousands of them fit in far less."""
 
 
 def read_cassette(path: Path) -> dict[str, dict[str, Any]]:

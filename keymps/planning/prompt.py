@@ -86,7 +86,7 @@ def find_prompt(
     for folder in searched:
         candidate = folder / f"{family}.md"
         if candidate.exists() or candidate.is_symlink():
-            wrong = readable_file_problem(candidate, [folder], MAX_PROMPT_BYTES)
+            wrong = readable_file_problem(candidate, prompt_roots(task_folder), MAX_PROMPT_BYTES)
             if wrong:
                 raise KeympsError(f"prompt template {family}.md: {wrong}")
             return candidate

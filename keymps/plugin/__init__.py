@@ -21,8 +21,8 @@ from keymps.plugin.hookspecs import (
     RegisterVlmBackend,
     hookimpl,
 )
-from keymps.plugin.options import parse_options
-from keymps.plugin.trajectories import require_validated
+from keymps.plugin.options import RunFolderPath, parse_options
+from keymps.plugin.trajectories import require_validated, trajectory_digest
 
 __all__ = [
     "DetectionError",
@@ -36,6 +36,7 @@ __all__ = [
     "RegisterExecutor",
     "RegisterImageSource",
     "RegisterVlmBackend",
+    "RunFolderPath",
     "SafetyError",
     "StageError",
     "StageObserver",
@@ -43,4 +44,5 @@ __all__ = [
     "hookimpl",
     "parse_options",
     "require_validated",
+    "trajectory_digest",
 ]

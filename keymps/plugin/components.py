@@ -20,14 +20,40 @@ if TYPE_CHECKING:
 class ImageSource(Protocol):
     """Produces the scene image: `register_image_sources(register)`; raise ImageSourceError."""
 
-    def load(self, run: Run) -> SceneImage: ...
+    def load(self, run: Run) -> SceneImage:
+        """Produce the scene image of this run.
+
+        Args:
+            run: The run (its `task.scene` says what to load; `task.resolve` finds files).
+
+        Returns:
+            The top-down image (BGR, uint8) and where it came from.
+
+        Raises:
+            ImageSourceError: When there is no image to give (one line, no traceback).
+        """
+        ...
 
 
 class Detector(Protocol):
-    """Finds the object(s) in the scene image: `register_detectors(register)`; raise
-    DetectionError when there is none."""
+    """Finds the object(s) in the scene image: `register_detectors(register)`.
 
-    def detect(self, scene: SceneImage) -> Detection: ...
+    Raise DetectionError when there is none.
+    """
+
+    def detect(self, scene: SceneImage) -> Detection:
+        """Find the object(s) in the scene image.
+
+        Args:
+            scene: The image source's result.
+
+        Returns:
+            The object's box and crop in full-image pixels, every object found, and a report.
+
+        Raises:
+            DetectionError: When there is no object (an empty board is refused, not guessed).
+        """
+        ...
 
 
 class VlmBackend(Protocol):
@@ -39,20 +65,60 @@ class VlmBackend(Protocol):
     """
 
     name: str
+    """The backend's registered name (run.json's `backend`)."""
 
-    def complete(self, request: PlanRequest) -> BackendAnswer: ...
+    def complete(self, request: PlanRequest) -> BackendAnswer:
+        """Answer one planning call.
+
+        Args:
+            request: The rendered chat, the crop, the answer's JSON schema and the limits.
+
+        Returns:
+            The answer's text (the planner's JSON; keymps checks it and asks again on a
+            problem) with its token counts, latency and cost when known.
+
+        Raises:
+            keymps.errors.KeympsError: When no answer can be had (one line, keys redacted).
+        """
+        ...
 
 
 class Executor(Protocol):
-    """Runs a validated trajectory: `register_executors(register)`. It must call
-    keymps.robot.safety.require_validated(validated, name) before moving anything."""
+    """Runs a validated trajectory: `register_executors(register)`.
+
+    It must call `require_validated(validated, name)` before moving anything.
+    """
 
     name: str
+    """The executor's registered name (run.json's `execution.executor`)."""
 
-    def execute(self, validated: ValidatedTrajectory, run: Run) -> ExecutionReport: ...
+    def execute(self, validated: ValidatedTrajectory, run: Run) -> ExecutionReport:
+        """Carry out a trajectory the safety check issued.
+
+        Args:
+            validated: The checked trajectory; `require_validated(validated, name)` gives it
+                back only when it is unchanged since the check.
+            run: The run (its folder for files, `options.confirm` for real robots).
+
+        Returns:
+            What it did: its verdict, one line, the files it wrote and its figures.
+
+        Raises:
+            keymps.errors.SafetyError: When the trajectory was not issued by the check.
+        """
+        ...
 
 
 class StageObserver(Protocol):
     """A plugin that watches runs: its `keymps_stage_done` hook sees each stage's result."""
 
-    def keymps_stage_done(self, stage: str, result: Any, run: Run) -> None: ...
+    def keymps_stage_done(self, stage: str, result: Any, run: Run) -> None:
+        """See a finished stage (and once more with stage "finished" at the end of the run).
+
+        Args:
+            stage: The stage's name (image, detect, plan ... execute), or "finished".
+            result: The stage's typed result (keymps.types); for "finished", the run's error
+                or None.
+            run: The run (its typed context).
+        """
+        ...

@@ -14,6 +14,7 @@ if TYPE_CHECKING:
 
 hookspec = HookspecMarker("keymps")
 hookimpl = HookimplMarker("keymps")
+"""Marks a plugin's hook implementation: `@hookimpl def register_detectors(register): ...`."""
 
 Component = TypeVar("Component")
 Factory = Callable[[dict[str, Any]], Component]
@@ -23,9 +24,13 @@ Register = Callable[[str, Factory[Component]], None]
 component against the Protocol the engine calls."""
 
 RegisterDetector = Register[Detector]
+"""The callback `register_detectors` receives: register(name, factory -> Detector)."""
 RegisterVlmBackend = Register[VlmBackend]
+"""The callback `register_vlm_backends` receives: register(name, factory -> VlmBackend)."""
 RegisterExecutor = Register[Executor]
+"""The callback `register_executors` receives: register(name, factory -> Executor)."""
 RegisterImageSource = Register[ImageSource]
+"""The callback `register_image_sources` receives: register(name, factory -> ImageSource)."""
 
 
 @hookspec

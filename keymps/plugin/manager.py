@@ -27,6 +27,7 @@ DEFAULT_PLUGINS: dict[str, str] = {
     "image_sources": "keymps.default_plugins.image_sources",
     "sim_executor": "keymps.default_plugins.sim.executor",
     "file_executor": "keymps.default_plugins.file_executor",
+    "urscript_executor": "keymps.default_plugins.urscript",
     "rerun_recorder": "keymps.default_plugins.rerun.recorder",
 }
 """Built-in plugin name -> module. KEYMPS_LOAD_PLUGINS can name these too."""

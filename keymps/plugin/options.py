@@ -2,20 +2,45 @@
 
 from __future__ import annotations
 
-from typing import Any, TypeVar
+from pathlib import Path
+from typing import Annotated, Any, TypeVar
 
-from pydantic import BaseModel, ValidationError
+from pydantic import AfterValidator, BaseModel, ValidationError
 
 from keymps.errors import KeympsError
 
 Options = TypeVar("Options", bound=BaseModel)
 
 
-def parse_options(model: type[Options], options: dict[str, Any] | None, component: str) -> Options:
-    """Validate `options` with `model`; on failure raise one KeympsError line naming every problem.
+def _inside_the_run_folder(path: Path) -> Path:
+    # A task file may come from a stranger: a plugin writes nothing outside the run folder.
+    if path.is_absolute() or ".." in path.parts or not path.name:
+        raise ValueError(
+            f"{str(path)!r} leads out of the run folder: name a file in it "
+            "(--out chooses the folder)"
+        )
+    return path
 
-    `component` names the plugin in the message, e.g. "threshold detector" or "executor ur-rtde":
-    "threshold detector: option 'blur': must be odd; option 'x': unknown option (options: ...)".
+
+RunFolderPath = Annotated[Path, AfterValidator(_inside_the_run_folder)]
+"""An option naming a file or folder inside the run folder (subfolders allowed): an absolute
+path or one with `..` is refused in one line. Write it with `run.path(str(option))`."""
+
+
+def parse_options(model: type[Options], options: dict[str, Any] | None, component: str) -> Options:
+    """Validate a plugin's options with its pydantic model.
+
+    Args:
+        model: The options' pydantic model (`extra="forbid"` makes unknown options errors).
+        options: The task file's section for the plugin, without `name`; None for none.
+        component: Names the plugin in the message, e.g. "threshold detector".
+
+    Returns:
+        The validated options.
+
+    Raises:
+        keymps.errors.KeympsError: One line naming every problem, e.g. "threshold detector:
+            option 'blur': must be odd; option 'x': unknown option (options: ...)".
     """
     try:
         return model.model_validate(options or {})

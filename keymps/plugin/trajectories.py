@@ -49,7 +49,21 @@ def issue(trajectory: Trajectory, report: ValidationReport) -> ValidatedTrajecto
 
 
 def require_validated(candidate: object, executor: str) -> Trajectory:
-    """The trajectory inside a ValidatedTrajectory issued by `validate`, unchanged since."""
+    """The trajectory inside a ValidatedTrajectory the safety check issued, unchanged since.
+
+    Every executor calls this before it moves anything.
+
+    Args:
+        candidate: What the executor was given.
+        executor: The executor's name, for the message.
+
+    Returns:
+        The checked trajectory (its arrays read-only).
+
+    Raises:
+        keymps.errors.SafetyError: When `candidate` was not issued by
+            keymps.robot.safety.validate, failed it, or was modified afterwards.
+    """
     entry = _issued.get(id(candidate))
     if (
         not isinstance(candidate, ValidatedTrajectory)
@@ -67,3 +81,10 @@ def require_validated(candidate: object, executor: str) -> Trajectory:
             [f"executor {executor!r} refuses a validated trajectory that was modified afterwards"]
         )
     return candidate.trajectory
+
+
+def trajectory_digest(trajectory: Trajectory) -> str:
+    """The sha256 (hex) of a trajectory's samples, joint names and rate: what
+    `require_validated` compares, and what exported files name to say which trajectory they
+    hold."""
+    return _digest(trajectory)

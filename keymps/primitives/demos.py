@@ -41,11 +41,27 @@ class Preprocessing:
     (both judged on positions averaged over STILL_WINDOW_S)."""
 
     def to_dict(self) -> dict[str, Any]:
+        """The settings as a primitive file's `preprocessing` block.
+
+        Returns:
+            {"rate_hz", "smooth_s", "trim_mm"}.
+        """
         return {"rate_hz": self.rate_hz, "smooth_s": self.smooth_s, "trim_mm": self.trim_mm}
 
 
 def load_demo_csv(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """Read a demonstration CSV with header t,x,y,z (seconds, metres): returns t (T,), y (T, 3)."""
+    """Read a demonstration CSV with the header t,x,y,z (seconds, metres).
+
+    Args:
+        path: The CSV file.
+
+    Returns:
+        t (T,) seconds and y (T, 3) metres, T >= 10, t strictly increasing.
+
+    Raises:
+        DemoError: For a missing or unreadable file, another header, a row that is not four
+            finite numbers, too few samples or time that does not increase, naming the line.
+    """
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")
@@ -85,7 +101,13 @@ def load_demo_csv(path: Path) -> tuple[np.ndarray, np.ndarray]:
 
 
 def write_demo_csv(path: Path, t: np.ndarray, y: np.ndarray) -> None:
-    """Write t (T,), y (T, 3) as CSV t,x,y,z with round-trip precision."""
+    """Write a demonstration as CSV t,x,y,z, every float written to round-trip exactly.
+
+    Args:
+        path: The file to write.
+        t: (T,) seconds.
+        y: (T, 3) metres.
+    """
     lines = [",".join(DEMO_COLUMNS)]
     rows = zip(np.asarray(t).tolist(), np.asarray(y).tolist(), strict=True)
     lines += [f"{ti!r},{p[0]!r},{p[1]!r},{p[2]!r}" for ti, p in rows]
@@ -95,7 +117,21 @@ def write_demo_csv(path: Path, t: np.ndarray, y: np.ndarray) -> None:
 def prepare_demo(
     t: np.ndarray, y: np.ndarray, settings: Preprocessing, where: str = "demonstration"
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Check the units, then resample to a uniform rate, smooth, and trim still ends."""
+    """Clean a recorded demonstration: check the units, resample, smooth, trim still ends.
+
+    Args:
+        t: (T,) time stamps, seconds.
+        y: (T, 3) positions, metres.
+        settings: What to do (rate, smoothing window, trim distance).
+        where: Names the demonstration in messages.
+
+    Returns:
+        t (T',) seconds from 0 and y (T', 3) metres, uniformly sampled.
+
+    Raises:
+        DemoError: For a log in millimetres or milliseconds, a tool that never moves, a
+            smoothing window longer than the demo, or fewer than 10 samples left.
+    """
     t = np.asarray(t, float) - float(t[0])
     y = np.asarray(y, float)
     _check_units(t, y, where)
@@ -162,7 +198,17 @@ def _moving_average(y: np.ndarray, samples: int) -> np.ndarray:
 
 
 def fit_rmse(dmp: DMP, t: np.ndarray, y: np.ndarray) -> float:
-    """RMS distance (metres) between the demo and the fitted rollout at the demo's time stamps."""
+    """How well a DMP reproduces its demonstration.
+
+    Args:
+        dmp: The DMP fitted to the demonstration.
+        t: (T,) the demonstration's time stamps, seconds.
+        y: (T, 3) its positions, metres.
+
+    Returns:
+        The root-mean-square distance between the demo and the DMP's own rollout at the demo's
+        time stamps, metres.
+    """
     fine = dmp.rollout(dmp.demo_start, dmp.demo_goal, num=max(4 * len(t), 1000))
     at = np.stack([np.interp(t - t[0], fine.t, fine.y[:, axis]) for axis in range(3)], axis=1)
     return float(np.sqrt(((at - y) ** 2).sum(axis=1).mean()))

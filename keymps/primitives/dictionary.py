@@ -45,14 +45,17 @@ class Primitive:
     """A named, described, fitted motion primitive the planner can choose."""
 
     name: str
+    """The keyword the planner answers with; the file is NAME.yaml."""
     description: str
     """What the planner (VLM) reads when choosing: what the motion is and when to use it."""
     family: Family
+    """`cutting` or `icing`: which tools the primitive fits (a plan of the other is refused)."""
     mode: str
-    """Default re-targeting mode: similarity | axial | translate (see keymps.primitives.dmp)."""
+    """Default re-targeting mode: one of RETARGET_MODES (see `retarget_map`)."""
     nominal_speed: float
     """Average tool speed along the path the primitive was designed for, m/s."""
     dmp: DMP
+    """The fitted DMP (its weights are in the YAML file)."""
     demo: Path | None = None
     """The demonstration CSV (t, x, y, z) the weights were fitted from."""
     fit_rmse: float = 0.0
@@ -76,9 +79,24 @@ class Primitive:
         mode: str | None = None,
         heading: float | None = None,
     ) -> Rollout:
-        """The primitive re-targeted to start/goal, run at `speed` m/s on average (default: the
-        nominal speed), sampled finely enough that points are at most about `spacing` apart.
-        `heading` (radians about z) orients the demo when the segment is vertical."""
+        """The primitive re-targeted to a start and goal, timed for an average speed.
+
+        Args:
+            start: (3,) where the motion starts, board frame, metres.
+            goal: (3,) where it ends at rest, metres.
+            speed: Average tool speed along the path, m/s; None takes `nominal_speed`.
+            spacing: The largest distance between neighbouring samples, metres (about).
+            mode: One of RETARGET_MODES; None takes the primitive's `mode`.
+            heading: Radians about z: orients the demo when the segment is vertical.
+
+        Returns:
+            Times (num,) seconds, positions (num, 3) metres, velocities and accelerations; num
+            is rounded up to a bin of 12.5 % so that similar segments share a cached rollout.
+
+        Raises:
+            DmpError: For a start or goal that is not a finite [x, y, z], a speed that is not
+                positive, or an unknown mode.
+        """
         start_arr, goal_arr = np.asarray(start, float), np.asarray(goal, float)
         mode = mode or self.mode
         tau = self.dmp.tau_for_speed(start_arr, goal_arr, speed or self.nominal_speed, mode)
@@ -130,8 +148,29 @@ def learn_primitive(
     preprocessing: Preprocessing | None = None,
     out_dir: Path | None = None,
 ) -> Primitive:
-    """Fit a primitive to a demonstration CSV. With out_dir, the prepared demonstration is
-    written there as NAME.csv (unless it is already that file) and the primitive as NAME.yaml."""
+    """Fit a primitive to a demonstration CSV (`keymps primitives learn`).
+
+    Args:
+        name: The primitive's name: lower-case letters, digits, - or _, a letter first.
+        demo: The demonstration CSV (t,x,y,z in seconds and metres).
+        description: What the planner reads when choosing it.
+        family: `cutting` or `icing`.
+        mode: The re-targeting mode; None takes the family's (blade for cutting when the demo
+            descends enough, else axial).
+        nominal_speed: Average tool speed it is run at, m/s.
+        n_basis: Gaussian basis functions per axis.
+        preprocessing: How the recording is cleaned first; None takes the defaults.
+        out_dir: When given, the prepared demonstration is written there as NAME.csv (unless
+            it is already that file) and the primitive as NAME.yaml.
+
+    Returns:
+        The fitted primitive (`path` set when it was saved).
+
+    Raises:
+        PrimitiveError: For a bad name, family, mode or speed.
+        DemoError: For a demonstration that cannot be read or used.
+        DmpError: When the fit is refused (too few samples, n_basis out of range).
+    """
     _check_name(name, "name")
     demo = Path(demo)
     settings = preprocessing or Preprocessing()
@@ -202,7 +241,12 @@ def primitive_to_dict(primitive: Primitive, relative_to: Path | None = None) -> 
 
 
 def save_primitive(primitive: Primitive, path: Path) -> None:
-    """Write the primitive as YAML (floats written to round-trip exactly)."""
+    """Write a primitive file (YAML; floats written to round-trip exactly).
+
+    Args:
+        primitive: The primitive to write.
+        path: The YAML file; the demo path is stored relative to its folder.
+    """
     import yaml
 
     class _Dumper(yaml.SafeDumper):
@@ -231,8 +275,20 @@ _LOADED_LOCK = threading.Lock()
 
 
 def load_primitive(path: Path) -> Primitive:
-    """Read and validate a primitive YAML file; every problem names the file and the field.
-    A file unchanged since it was last read in this process is not read again."""
+    """Read and validate a primitive file.
+
+    A file unchanged since it was last read in this process is not read again.
+
+    Args:
+        path: The primitive's YAML file.
+
+    Returns:
+        The primitive, `path` set.
+
+    Raises:
+        PrimitiveError: For a missing or unreadable file, invalid YAML, an unknown or missing
+            field or a bad value, naming the file (and line for YAML errors) and the field.
+    """
     path = Path(path)
     try:
         status = path.stat()
@@ -361,30 +417,44 @@ BUNDLED_DIR = bundled_dir("primitives")
 
 
 def default_search_dirs(task_folder: Path) -> list[Path]:
-    """Where primitives are looked for, first match wins: the task folder's ../primitives and
-    primitives/, each folder in KEYMPS_PRIMITIVES_PATH, ./primitives, the bundled dictionary.
-    ../primitives and ./primitives are left out when other users may write them (a task in
-    /tmp/x would otherwise read /tmp/primitives: docs/security.md)."""
-    from keymps.config.trust import shared_folders_left_out
+    """Where primitives are looked for, first match wins.
+
+    The task folder's ../primitives and primitives/, each folder in KEYMPS_PRIMITIVES_PATH,
+    ./primitives, then the bundled dictionary. ../primitives and ./primitives are left out when
+    other users may write them (a task in /tmp/x would otherwise read /tmp/primitives:
+    docs/security.md). Those three are not followed when they are links themselves (a shared
+    folder's `primitives -> /` is no search folder at `/`); the user's own folders are.
+
+    Args:
+        task_folder: The task file's folder.
+
+    Returns:
+        The folders, without repeats, in search order.
+    """
+    from keymps.config.trust import anchored, real_path, shared_folders_left_out
 
     task_folder = Path(task_folder)
-    dirs = [
+    own = [
         *shared_folders_left_out([task_folder / ".." / "primitives"]),
         task_folder / "primitives",
     ]
     env = os.environ.get("KEYMPS_PRIMITIVES_PATH", "")
-    dirs += [Path(part) for part in env.split(os.pathsep) if part.strip()]
-    dirs += [*shared_folders_left_out([Path.cwd() / "primitives"]), BUNDLED_DIR]
-    unique: list[Path] = []
-    for folder in dirs:
-        resolved = folder.resolve()
-        if resolved not in unique:
-            unique.append(resolved)
-    return unique
+    chosen = [real_path(Path(part)) for part in env.split(os.pathsep) if part.strip()]
+    dirs = [*map(anchored, own), *chosen]
+    dirs += [*map(anchored, shared_folders_left_out([Path.cwd() / "primitives"]))]
+    dirs.append(real_path(BUNDLED_DIR))
+    return list(dict.fromkeys(dirs))
 
 
 def find_primitive_files(search_dirs: Sequence[Path]) -> dict[str, Path]:
-    """Primitive name -> YAML file, the first search dir holding a name winning."""
+    """The primitive files in some folders.
+
+    Args:
+        search_dirs: Folders in search order (missing ones are skipped).
+
+    Returns:
+        Primitive name -> its NAME.yaml, the first folder holding a name winning.
+    """
     found: dict[str, Path] = {}
     for folder in search_dirs:
         folder = Path(folder)
@@ -396,7 +466,20 @@ def find_primitive_files(search_dirs: Sequence[Path]) -> dict[str, Path]:
 
 
 def load_primitives(names: Sequence[str], search_dirs: Sequence[Path]) -> dict[str, Primitive]:
-    """Load the named primitives from the first search dir that has each (NAME.yaml)."""
+    """Load the named primitives from the first search folder that has each (NAME.yaml).
+
+    Args:
+        names: The primitives to load (a task's `primitives`).
+        search_dirs: Folders in search order (`default_search_dirs`).
+
+    Returns:
+        Name -> Primitive, in the order of `names`.
+
+    Raises:
+        PrimitiveError: For a name no folder has (listing the ones there are), a file that
+            may not be read (a link out of the search folders, too large) or is invalid, or a
+            file whose `name` is not its file name.
+    """
     available = find_primitive_files(search_dirs)
     result: dict[str, Primitive] = {}
     for name in names:

@@ -65,16 +65,17 @@ class Rollout:
     t: np.ndarray
     """(num,) seconds from the start of the primitive."""
     y: np.ndarray
-    """(num, 3) positions."""
+    """(num, 3) positions, metres."""
     yd: np.ndarray
-    """(num, 3) velocities."""
+    """(num, 3) velocities, m/s."""
     ydd: np.ndarray
-    """(num, 3) accelerations."""
+    """(num, 3) accelerations, m/s^2."""
     transform: np.ndarray = field(default_factory=lambda: np.eye(3))
     """The 3x3 map S applied to the demonstration (S (g_d - y0_d) = reached goal - start)."""
 
     @property
     def length_m(self) -> float:
+        """Length of the sampled path, metres."""
         return float(np.linalg.norm(np.diff(self.y, axis=0), axis=1).sum())
 
 
@@ -95,27 +96,41 @@ def _validate_demo(t: np.ndarray, y: np.ndarray, where: str) -> None:
 
 @dataclass(frozen=True, eq=False)
 class DMP:
-    """A 3D discrete DMP fitted to one demonstration (its start, goal and duration kept)."""
+    """A 3D discrete DMP fitted to one demonstration (its start, goal and duration kept).
+
+    ```python
+    dmp = DMP.fit(t, y)                       # t (T,) seconds, y (T, 3) metres
+    cut = dmp.rollout(start=[0.1, 0.0, 0.05], goal=[0.1, 0.1, 0.0], tau=2.0)
+    cut.y                                     # (1000, 3): the demo carried onto the segment
+    ```
+    """
 
     weights: np.ndarray
     """(n_basis, 3) forcing-term weights, metres."""
     demo_start: np.ndarray
+    """(3,) the demonstration's first position, metres."""
     demo_goal: np.ndarray
+    """(3,) the demonstration's last position, metres."""
     demo_duration: float
     """Seconds; the default tau."""
     alpha_z: float = ALPHA_Z
+    """Damping gain (D = alpha_z), 1/s in normalized time; the same on every axis."""
     beta_z: float = BETA_Z
+    """Stiffness ratio (K = alpha_z beta_z); alpha_z / 4 makes the system critically damped."""
     alpha_s: float = ALPHA_S
+    """Decay rate of the phase s (tau s' = -alpha_s s)."""
     _cache: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = field(
         default_factory=dict, repr=False, compare=False
     )
 
     @property
     def n_basis(self) -> int:
+        """Number of Gaussian basis functions per axis."""
         return int(self.weights.shape[0])
 
     @property
     def demo_delta(self) -> np.ndarray:
+        """(3,) goal minus start of the demonstration, metres."""
         return self.demo_goal - self.demo_start
 
     # ---------------------------------------------------------------- fitting
@@ -129,10 +144,25 @@ class DMP:
         *,
         regularization: float = 1e-9,
     ) -> DMP:
-        """Fit by one regularized least-squares solve on positions (time stamps need not be
-        uniform): the rollout is linear in the weights, so each basis function's response is a
-        column and the demo's own start, goal and duration fix the rest. The end is pinned to
-        the demonstrated goal at rest."""
+        """Fit by one regularized least-squares solve on positions.
+
+        The rollout is linear in the weights, so each basis function's response is a column and
+        the demo's own start, goal and duration fix the rest. The end is pinned to the
+        demonstrated goal at rest. Time stamps need not be uniform.
+
+        Args:
+            t: (T,) strictly increasing time stamps, seconds, T >= 10.
+            y: (T, 3) positions, metres.
+            n_basis: Gaussian basis functions per axis, 2 to 1000.
+            regularization: Ridge term, a fraction of the normal equations' mean diagonal.
+
+        Returns:
+            The fitted DMP.
+
+        Raises:
+            DmpError: For shapes that do not match, too few samples, NaN or infinite values,
+                time that does not increase, or n_basis out of range.
+        """
         t_arr = np.asarray(t, dtype=float)
         y_arr = np.asarray(y, dtype=float)
         _validate_demo(t_arr, y_arr, "demonstration")
@@ -151,7 +181,14 @@ class DMP:
     # ---------------------------------------------------------------- rollout
 
     def forcing(self, s: np.ndarray) -> np.ndarray:
-        """f(s) for phases s: (N,) -> (N, 3), before the re-targeting map."""
+        """The forcing term before the re-targeting map.
+
+        Args:
+            s: (N,) phases, in (0, 1].
+
+        Returns:
+            (N, 3) f(s), metres.
+        """
         s = np.asarray(s, dtype=float)
         scratch = workspace("features", (self.n_basis, len(s)))
         return phase_features(s, self.n_basis, self.alpha_s, out=scratch).T @ self.weights
@@ -184,9 +221,26 @@ class DMP:
         mode: str = "similarity",
         heading: float | None = None,
     ) -> Rollout:
-        """Positions, velocities and accelerations from start towards goal over tau seconds
-        (default: the demonstration's duration), num samples including both ends. `heading`
-        (radians about z) orients the demo when the segment is vertical."""
+        """The demonstration re-targeted to a start and goal, sampled uniformly in time.
+
+        Exact: y(t) = start + S (y_fit(t) - demo_start), with S = retarget_map(demo_delta,
+        goal - start, mode, heading) and y_fit the fit's own rollout, cached per `num`.
+
+        Args:
+            start: (3,) where the motion starts, metres.
+            goal: (3,) where it ends at rest, metres.
+            tau: Duration, seconds; None takes the demonstration's.
+            num: Samples, both ends included, at least 2.
+            mode: One of RETARGET_MODES.
+            heading: Radians about z: orients the demo when the segment is vertical.
+
+        Returns:
+            Times (num,), positions, velocities, accelerations (num, 3) and the map S.
+
+        Raises:
+            DmpError: For a start or goal that is not a finite [x, y, z], tau <= 0, num < 2 or
+                an unknown mode.
+        """
         start_arr = _point(start, "start")
         goal_arr = _point(goal, "goal")
         tau = self.demo_duration if tau is None else float(tau)
@@ -212,8 +266,23 @@ class DMP:
         tau: float | None = None,
         num: int = 1000,
     ) -> Rollout:
-        """Integrate the transformation system itself for this start, goal and map S (no
-        re-use of the canonical rollout): the reference that `rollout` must agree with."""
+        """Integrate the transformation system itself for this start, goal and map S.
+
+        No re-use of the canonical rollout: the reference that `rollout` must agree with.
+
+        Args:
+            start: (3,) where the motion starts, metres.
+            goal: (3,) where it ends at rest, metres.
+            transform: (3, 3) the map S applied to the forcing term.
+            tau: Duration, seconds; None takes the demonstration's.
+            num: Samples, both ends included.
+
+        Returns:
+            Times (num,), positions, velocities and accelerations (num, 3), and `transform`.
+
+        Raises:
+            DmpError: For a start or goal that is not a finite [x, y, z].
+        """
         start_arr = _point(start, "start")
         goal_arr = _point(goal, "goal")
         tau = self.demo_duration if tau is None else float(tau)
@@ -233,7 +302,16 @@ class DMP:
         )
 
     def path_length(self, start: np.ndarray, goal: np.ndarray, mode: str = "similarity") -> float:
-        """Length in metres of the re-targeted path (from the cached canonical rollout)."""
+        """Length of the re-targeted path (from the cached canonical rollout).
+
+        Args:
+            start: (3,) where the motion starts, metres.
+            goal: (3,) where it ends, metres.
+            mode: One of RETARGET_MODES.
+
+        Returns:
+            The path's length, metres.
+        """
         delta = _point(goal, "goal") - _point(start, "start")
         transform = retarget_map(self.demo_delta, delta, mode)
         pos = self._canonical(1000)[0] @ transform.T
@@ -242,8 +320,20 @@ class DMP:
     def tau_for_speed(
         self, start: np.ndarray, goal: np.ndarray, speed: float, mode: str = "similarity"
     ) -> float:
-        """Duration that makes the re-targeted path run at `speed` m/s on average (temporal
-        scaling); paths shorter than 0.1 mm keep the demonstration's duration."""
+        """The duration that runs the re-targeted path at a given average speed.
+
+        Args:
+            start: (3,) where the motion starts, metres.
+            goal: (3,) where it ends, metres.
+            speed: Average tool speed along the path, m/s.
+            mode: One of RETARGET_MODES.
+
+        Returns:
+            tau, seconds; paths shorter than 0.1 mm keep the demonstration's duration.
+
+        Raises:
+            DmpError: For a speed that is not a positive number.
+        """
         if not (math.isfinite(speed) and speed > 0):
             raise DmpError(f"speed must be a positive number of m/s, got {speed}")
         length = self.path_length(start, goal, mode)
@@ -252,7 +342,12 @@ class DMP:
     # ---------------------------------------------------------------- (de)serialization
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain Python values (floats as written by repr round-trip exactly)."""
+        """The DMP as plain Python values (a primitive file's `dmp` block).
+
+        Returns:
+            n_basis, the gains, demo_duration, demo_start, demo_goal and weights as lists of
+            floats (repr round-trips them exactly).
+        """
         return {
             "n_basis": self.n_basis,
             "alpha_z": self.alpha_z,
@@ -266,7 +361,19 @@ class DMP:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any], where: str = "DMP") -> DMP:
-        """Inverse of to_dict; every problem raises DmpError naming `where` and the field."""
+        """The inverse of `to_dict`.
+
+        Args:
+            data: A mapping as `to_dict` writes it (gains may be left out: the defaults).
+            where: Names the source in messages (a primitive file's path).
+
+        Returns:
+            The DMP.
+
+        Raises:
+            DmpError: For a missing field, a value that is no number, NaN or infinite values,
+                wrong shapes, or a duration that is not positive, naming `where` and the field.
+        """
         if not isinstance(data, dict):
             raise DmpError(f"{where}: dmp must be a mapping")
         for key in ("n_basis", "demo_duration", "demo_start", "demo_goal", "weights"):

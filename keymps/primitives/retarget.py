@@ -9,6 +9,7 @@ import numpy as np
 from keymps.primitives.system import DmpError
 
 RETARGET_MODES: tuple[str, ...] = ("similarity", "axial", "blade", "translate")
+"""How a demonstration is carried onto a segment (see `retarget_map`)."""
 ZERO_LENGTH_M = 1e-9
 """Segments and demonstrations shorter than this are treated as zero-length (dots)."""
 BLADE_MIN_SLOPE = 0.1
@@ -86,8 +87,20 @@ def retarget_map(
     its own direction and keeps the rest: a dot); blade: see `blade_map` (as axial for a demo
     flatter than BLADE_MIN_SLOPE); translate: identity.
     Zero-length demos, and zero-length deltas in similarity mode, use the identity (the demo is
-    replayed translated). `heading` orients the demo about z when delta is vertical (e.g. the
-    blade's current yaw).
+    replayed translated).
+
+    Args:
+        demo_delta: (3,) the demonstration's goal minus its start, metres.
+        delta: (3,) the segment's goal minus its start, metres.
+        mode: One of RETARGET_MODES.
+        heading: Radians about z: where the demo's heading turns to when `delta` is vertical
+            (e.g. the blade's current yaw); None keeps the minimal rotation.
+
+    Returns:
+        (3, 3) S; a re-targeted rollout is y(t) = start + S (y_demo(t) - demo_start).
+
+    Raises:
+        DmpError: For an unknown mode.
     """
     demo_delta = np.asarray(demo_delta, dtype=float)
     delta = np.asarray(delta, dtype=float)

@@ -6,6 +6,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 from click.testing import CliRunner
 
 from keymps.cli.app import cli
@@ -65,7 +66,7 @@ def test_validate_reports_each_problem_on_one_line_and_exits_1(tmp_path: Path) -
     assert [line.split(": ", 1)[1] for line in lines] == [
         f"scene.image: an empty file (0 bytes), not an image: {tmp_path / 'scene.png'}",
         "motion.work_speed: Input should be greater than 0",
-        "motion.clearence: unknown key",
+        "motion.clearence: unknown key (did you mean 'clearance'?)",
     ]
     assert lines[0].startswith(f"{path}:3:")
     assert all(line.startswith(f"{path}:5:") for line in lines[1:])
@@ -121,3 +122,42 @@ def test_version() -> None:
 
     result = CliRunner().invoke(cli, ["--version"])
     assert result.exit_code == 0 and __version__ in result.output
+
+
+@pytest.mark.parametrize(
+    "command",
+    [
+        ["run"],
+        ["validate"],
+        ["plugins"],
+        ["eval"],
+        ["calibrate"],
+        ["scene", "render"],
+        ["primitives", "list"],
+        ["primitives", "show"],
+        ["primitives", "learn"],
+        ["primitives", "plot"],
+    ],
+)
+def test_help_shows_no_empty_bounds(command: list[str]) -> None:
+    """Was: `keymps scene render --help` showed `[x<=None]` for an unbounded finite number."""
+    done = CliRunner().invoke(cli, [*command, "--help"])
+    assert done.exit_code == 0, done.output
+    assert "None" not in done.output, done.output
+
+
+def test_an_image_that_is_no_image_is_refused_before_the_run_folder_is_made(
+    tmp_path: Path,
+) -> None:
+    text = tmp_path / "photo.png"
+    text.write_text("not a picture\n")
+    out = tmp_path / "run"
+    done = CliRunner().invoke(
+        cli,
+        ["run", str(REPO / "tasks" / "cake_icing.yaml"), "--image", str(text), "--out", str(out)],
+    )
+    assert done.exit_code == 1
+    assert (
+        done.stderr.startswith("error: --image: not an image file") and done.stderr.count("\n") == 1
+    )
+    assert not out.exists()

@@ -12,7 +12,7 @@ from click.testing import CliRunner
 
 from keymps.cli.app import cli
 from keymps.config.task import Task
-from keymps.perception.markers import find_board_corners
+from keymps.perception.markers import CORNER_NAMES, find_board_corners
 from keymps.scenes.perception_cases import photo_case
 
 
@@ -112,8 +112,10 @@ def test_the_printed_sheet_holds_the_four_markers_at_their_size(tmp_path: Path) 
     assert code == 0 and "50 mm squares" in stdout
     page = cv2.imread(str(sheet), cv2.IMREAD_GRAYSCALE)
     assert page.shape == (round(297 * 300 / 25.4), round(210 * 300 / 25.4))
-    found = find_board_corners(page)
-    side_px = np.linalg.norm(np.diff(found.marker_corners_px[0], axis=0), axis=1).mean()
+    detector = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50))
+    corners, ids, _ = detector.detectMarkers(page)
+    assert sorted(ids.ravel().tolist()) == [0, 1, 2, 3]
+    side_px = np.linalg.norm(np.diff(corners[0][0], axis=0), axis=1).mean()
     assert side_px * 25.4 / 300 == pytest.approx(50, abs=0.3)
 
 
@@ -158,3 +160,55 @@ def test_a_board_of_no_size_is_refused(tmp_path: Path) -> None:
     for board in ("0,0.2", "0.3,-0.2", "nan,0.2"):
         code, _, stderr = calibrate(str(tmp_path / "none.png"), "--board", board)
         assert code == 2 and "--board" in stderr, stderr
+
+
+def _board_with_markers(order: tuple[int, ...], rng: np.random.Generator) -> np.ndarray:
+    """A board seen at an angle with markers `order` at its bottom-left, bottom-right,
+    top-right and top-left corners (as in the photo)."""
+    from keymps.perception.markers import marker_image
+
+    image = np.full((900, 1200), 235, np.uint8)
+    x0, y0, x1, y1 = 250, 200, 950, 700
+    image[y0:y1, x0:x1] = 150
+    side = 90
+    places = [(x0 - side, y1), (x1, y1), (x1, y0 - side), (x0 - side, y0 - side)]
+    for marker_id, (x, y) in zip(order, places, strict=True):
+        image[y : y + side, x : x + side] = marker_image(marker_id, side)
+    frame = np.float32([[0, 0], [1200, 0], [1200, 900], [0, 900]])
+    seen = frame + rng.uniform(-60, 60, size=(4, 2)).astype(np.float32)
+    return cv2.warpPerspective(
+        image, cv2.getPerspectiveTransform(frame, seen), (1200, 900), borderValue=235
+    )
+
+
+def test_markers_out_of_order_are_named_for_every_placement(tmp_path: Path) -> None:
+    """Was: the printed sheet, or two markers swapped, gave 'the four corners must be ... of a
+    convex quadrilateral' naming no marker. Every placement of markers 0-3 at the corners,
+    seen at a random angle: the four that go round the board in order (a camera turned by a
+    multiple of 90 degrees) are accepted, the other twenty are refused naming each marker."""
+    import itertools
+
+    from keymps.errors import KeympsError
+
+    rng = np.random.default_rng(7)
+    accepted = []
+    for order in itertools.permutations(range(4)):
+        image = _board_with_markers(order, rng)
+        try:
+            find_board_corners(image, "photo.png")
+        except KeympsError as error:
+            message = str(error)
+            assert message.startswith("photo.png: markers 0-3 are out of order: 0 (bottom-left)")
+            assert "\n" not in message and "convex" not in message
+            assert all(f"{i} ({name})" in message for i, name in enumerate(CORNER_NAMES))
+        else:
+            accepted.append(order)
+    assert sorted(accepted) == [(0, 1, 2, 3), (1, 2, 3, 0), (2, 3, 0, 1), (3, 0, 1, 2)]
+
+
+def test_a_photo_of_the_printed_sheet_is_refused_as_markers_out_of_order(tmp_path: Path) -> None:
+    sheet = tmp_path / "markers.png"
+    assert calibrate("--print-markers", str(sheet))[0] == 0
+    code, _, stderr = calibrate(str(sheet), "--board", "0.38,0.24")
+    assert code == 1 and stderr.count("\n") == 1
+    assert "markers 0-3 are out of order" in stderr and "cut the markers out" in stderr

@@ -405,7 +405,7 @@ def test_a_task_file_given_to_eval_and_a_suite_given_to_run_say_which_command_th
     [
         (["--backend", "nope"], "--backend nope: unknown planner backend 'nope' (available: "),
         (["--api-base", "ftp://x"], "'ftp://x' is not an http(s) URL with a host"),
-        (["--backend", "replay"], "the replay backend needs a cassette"),
+        (["--backend", "replay"], "--backend replay: keymps eval replays no cassette"),
     ],
 )
 def test_planner_options_no_run_could_use_stop_eval_before_its_first_run(
@@ -416,4 +416,5 @@ def test_planner_options_no_run_could_use_stop_eval_before_its_first_run(
     result = CliRunner().invoke(cli, ["eval", "icing", *arguments, "--out", str(out), "--quiet"])
     assert result.exit_code == 1, result.output
     assert message in result.output and result.output.count("\n") == 1, result.output
+    assert "--cassette" not in result.output  # a flag eval does not have
     assert not (out / "results.jsonl").exists() and not (out / "runs").exists()

@@ -108,3 +108,33 @@ def test_progress_is_coloured_on_a_terminal_unless_no_color(
     ticks = [line for line in result.output.splitlines() if "✓" in line]
     assert len(ticks) == 9
     assert all(("\x1b[" in line) is not no_color for line in ticks)
+
+
+def test_a_cached_answer_is_marked_on_the_console(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Was: the second run of a VLM task printed its plan line like a fresh answer, though no
+    model was asked."""
+    from helpers.vlm_server import Reply, VlmServer
+
+    monkeypatch.setenv("KEYMPS_CACHE_DIR", str(tmp_path / "cache"))
+    task = str(REPO / "tasks" / "cake_icing.yaml")
+    dot = {"keyword": "line", "pairs": [[[120, 120], [120, 120]]], "rationale": "a dot"}
+    with VlmServer() as server:
+        server.script(Reply.json_answer(dot))
+        arguments = ["run", task, "--model", "openai/test-vlm", "--api-base", server.openai_base]
+        first = CliRunner().invoke(
+            cli, [*arguments, "--rerun", "off", "--out", str(tmp_path / "a")]
+        )
+        second = CliRunner().invoke(
+            cli, [*arguments, "--rerun", "off", "--out", str(tmp_path / "b")]
+        )
+        assert first.exit_code == 0 and second.exit_code == 0, first.output + second.output
+        asked = len(server.chat_requests)
+    assert asked == 1
+
+    def plan_line(stderr: str) -> str:
+        return next(line for line in stderr.splitlines() if "plan (keyword" in line)
+
+    assert "cached" not in plan_line(first.stderr)
+    assert plan_line(second.stderr).endswith(", cached answer")

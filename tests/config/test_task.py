@@ -66,7 +66,7 @@ BROKEN = [
     (
         "unknown key points at the key",
         VALID.replace("  object_height: 0.02", "  objct_height: 0.02"),
-        ["task.yaml:6:3: scene.objct_height: unknown key"],
+        ["task.yaml:6:3: scene.objct_height: unknown key (did you mean 'object_height'?)"],
     ),
     (
         "missing instruction",
@@ -81,14 +81,19 @@ BROKEN = [
     (
         "workspace in millimetres",
         VALID.replace("size: [0.30, 0.18]", "size: [0.30, 180]"),
-        ["task.yaml:5:28: scene.workspace.size[1]: Input should be less than or equal to 3"],
+        [
+            "task.yaml:5:28: scene.workspace.size[1]: Input should be less than or equal to 3 "
+            "(the unit is metres)"
+        ],
     ),
     (
         "robot base in millimetres",
         VALID + "robot: {base: [150, -200, 0, 90]}\n",
         [
-            "task.yaml:10:16: robot.base[0]: Input should be less than or equal to 3",
-            "task.yaml:10:21: robot.base[1]: Input should be greater than or equal to -3",
+            "task.yaml:10:16: robot.base[0]: Input should be less than or equal to 3 (the unit is "
+            "metres)",
+            "task.yaml:10:21: robot.base[1]: Input should be greater than or equal to -3 (the unit "
+            "is metres)",
         ],
     ),
     (
@@ -143,7 +148,53 @@ BROKEN = [
     (
         "control characters in the instruction",
         VALID.replace("Cut it into 8 equal slices", '"Cut\\x07 it"'),
-        ["task.yaml:2:14: instruction: instruction contains control characters"],
+        [
+            "task.yaml:2:14: instruction: instruction contains a line break, a tab or another "
+            "control character: write it on one line (YAML's folded style, `instruction: >`, joins "
+            "lines with spaces)"
+        ],
+    ),
+    (
+        "a misspelled key gets the nearest one (margn)",
+        VALID + "height: {mode: both, margn: 0.005}\n",
+        ["task.yaml:10:22: height.margn: unknown key (did you mean 'margin'?)"],
+    ),
+    (
+        "a misspelled top-level key",
+        VALID.replace("primitives:", "primitvs:"),
+        [
+            "task.yaml:1:1: primitives: field required",
+            "task.yaml:7:1: primitvs: unknown key (did you mean 'primitives'?)",
+        ],
+    ),
+    (
+        "an unknown key like no other gets no guess",
+        VALID + "motion_blur: 3\n",
+        ["task.yaml:10:1: motion_blur: unknown key"],
+    ),
+    (
+        "an object height in millimetres names the unit",
+        VALID.replace("object_height: 0.02", "object_height: 60"),
+        [
+            "task.yaml:6:18: scene.object_height: Input should be less than or equal to 1 (the unit is metres)"
+        ],
+    ),
+    (
+        "a speed in millimetres per second names the unit",
+        VALID.replace("work_speed: 0.02", "work_speed: 20"),
+        [
+            "task.yaml:9:15: motion.work_speed: Input should be less than or equal to 0.5 (the unit "
+            "is metres per second)"
+        ],
+    ),
+    (
+        "a line break in the instruction (the docs forbid control characters)",
+        VALID.replace("Cut it into 8 equal slices", '"Cut it into\\n8 equal slices"'),
+        [
+            "task.yaml:2:14: instruction: instruction contains a line break, a tab or another "
+            "control character: write it on one line (YAML's folded style, `instruction: >`, joins "
+            "lines with spaces)"
+        ],
     ),
     (
         "booleans where numbers go",

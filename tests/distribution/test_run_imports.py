@@ -29,6 +29,11 @@ NOT_ON_THE_RUN_PATH = (
     "keymps_mujoco.executor",
     "keymps_mujoco.image_source",
     "keymps_ur_rtde.executor",
+    "keymps_ros.rosbag",
+    "keymps_ros.live",
+    "rosbags",
+    "roslibpy",
+    "keymps.robot.identity",  # only exporters read it
     "keymps.eval",
     "keymps.scenes",  # a file scene renders nothing
     "email.parser",  # distribution metadata, read only by `keymps plugins`
@@ -81,7 +86,12 @@ def test_registered_factories_import_their_implementation_on_use() -> None:
     """The plugins' registration modules name factories that load the implementation."""
     manager = build_manager()
     executors = components("executor", manager)
-    for name, implementation in (("ur-rtde", "keymps_ur_rtde.executor"), ("mujoco", None)):
+    for name, implementation in (
+        ("ur-rtde", "keymps_ur_rtde.executor"),
+        ("mujoco", None),
+        ("rosbag", "keymps_ros.rosbag"),
+        ("ros2", "keymps_ros.live"),
+    ):
         if name not in executors:
             continue  # that plugin package is not installed here
         with pytest.raises(KeympsError, match="no_such_option"):

@@ -21,7 +21,7 @@ tomllib = pytest.importorskip("tomllib")  # Python 3.11+
 
 REPO = Path(__file__).resolve().parents[2]
 KNOWN_BAD = {"litellm": {Version("1.82.7"), Version("1.82.8")}}
-PLUGINS = ("keymps-ur-rtde", "keymps-mujoco")
+PLUGINS = ("keymps-ur-rtde", "keymps-mujoco", "keymps-ros")
 PIN = re.compile(r"^([A-Za-z0-9_.\-]+)(?:\[([^\]]*)\])?==([^\s;\\]+)")
 
 
@@ -54,10 +54,22 @@ def _locked_extras() -> dict[str, set[str]]:
 
 
 def _requirements(pyproject: Path, extras: tuple[str, ...] = ()) -> list[Requirement]:
+    """The distribution's dependencies and those of `extras`, its own extras expanded (the
+    test extra's `keymps[bench]` and `keymps[docs]` are their packages, not keymps)."""
     project = tomllib.loads(pyproject.read_text())["project"]
     names = list(project["dependencies"])
-    for extra in extras:
-        names += project["optional-dependencies"][extra]
+    wanted, seen = list(extras), set()
+    while wanted:
+        extra = wanted.pop()
+        if extra in seen:
+            continue
+        seen.add(extra)
+        for text in project["optional-dependencies"][extra]:
+            requirement = Requirement(text)
+            if canonicalize_name(requirement.name) == canonicalize_name(project["name"]):
+                wanted += sorted(requirement.extras)
+            else:
+                names.append(text)
     return [Requirement(name) for name in names]
 
 

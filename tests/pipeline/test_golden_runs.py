@@ -174,7 +174,14 @@ def test_the_same_run_with_numpy_on_its_baseline_instructions(name: str, tmp_pat
     )
     environment = {**os.environ, "NPY_DISABLE_CPU_FEATURES": " ".join(umath.__cpu_dispatch__)}
     done = subprocess.run(
-        [sys.executable, "-c", script, str(REPO / "tests"), json.dumps(case[1:]), str(tmp_path)],
+        [
+            sys.executable,
+            "-c",
+            script,
+            str(Path(__file__).parent),
+            json.dumps(case[1:]),
+            str(tmp_path),
+        ],
         capture_output=True,
         text=True,
         env=environment,

@@ -1,0 +1,63 @@
+"""What exporters read of the run's arm: its model, maker, joint names and controller rate.
+
+The URScript, rosbag and ROS 2 executors learn about the arm only through `arm_identity` and
+`tool_poses`, so a new kind of arm changes these two functions, not the exporters.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from keymps.robot.description import ARMS, JOINT_NAMES
+
+if TYPE_CHECKING:
+    from keymps.robot.model import RobotModel
+    from keymps.run import Run
+
+UNIVERSAL_ROBOTS = "Universal Robots"
+
+
+@dataclass(frozen=True)
+class ArmIdentity:
+    """The run's arm as an exported file names it."""
+
+    model: str
+    """The task's robot.model, e.g. `ur3e`."""
+    maker: str
+    """Who builds it, e.g. `Universal Robots`: URScript runs only on that maker's controllers."""
+    joint_names: tuple[str, ...]
+    """The joints in the order of the trajectory's columns (ROS names, no prefix)."""
+    controller_hz: float
+    """The controller's own cycle rate, Hz (125 for a UR CB3, 500 for an e-Series)."""
+    generation: str
+    """The controller generation, e.g. `CB3` or `e-Series`."""
+
+
+def arm_identity(run: Run) -> ArmIdentity:
+    """The arm `run` planned for (`run.robot`, else the task's robot section)."""
+    model = run.robot.kind if run.robot is not None else run.task.robot.model
+    joints = tuple(run.robot.joint_names) if run.robot is not None else JOINT_NAMES
+    rate = float(ARMS[model].rate_hz)
+    return ArmIdentity(
+        model=model,
+        maker=UNIVERSAL_ROBOTS,
+        joint_names=joints,
+        controller_hz=rate,
+        generation="e-Series" if model.endswith("e") else "CB3",
+    )
+
+
+def tool_poses(run: Run, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(n, 3) tool-tip positions and (n, 3, 3) rotations in the board frame for (n, 6) joint
+    vectors, by the run's arm (built from the task when the run has none)."""
+    robot: RobotModel
+    if run.robot is not None:
+        robot = run.robot
+    else:
+        from keymps.robot.model import RobotModel
+
+        robot = RobotModel.from_task(run.task)
+    return robot.tool_poses(np.asarray(q, dtype=float))
