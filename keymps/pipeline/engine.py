@@ -401,11 +401,11 @@ def _backend_under_way(task: Task, backend: str, options: RunOptions) -> RunOpti
     """The run's options with the plan stage's backend got going before the first stage: its
     calls handed to the warm planner (one is up, or asked to start), or else its own set-up
     (litellm's import, seconds) started on a thread, to overlap the stages before planning."""
+    if backend in NO_SERVER or options.dispatch is not None:  # (eval's broker warms up itself)
+        return options
     from keymps.planning.planner import backend_options, prepare_backend
     from keymps.planning.warm.dispatch import warm_dispatch
 
-    if backend in NO_SERVER or options.dispatch is not None:  # (eval's broker warms up itself)
-        return options
     if backend == AUTO_VLM:
         dispatch = warm_dispatch(options.warm_planner)
         if dispatch is not None:

@@ -97,9 +97,12 @@ class LitellmBackend:
         """Import litellm and set up its first call now: keymps calls this on a thread as soon
         as a run knows it plans with litellm (it then overlaps the stages before planning),
         and once in the warm planner (keymps.default_plugins.litellm.warm_up)."""
-        from keymps.default_plugins.litellm.warm_up import warm_up
+        from keymps.default_plugins.litellm import warm_up as first_call
 
-        warm_up(import_litellm())
+        warm = LitellmBackend(
+            LitellmOptions(model=first_call.WARM_UP_MODEL, api_base=first_call.WARM_UP_API_BASE)
+        )
+        first_call.warm_up(import_litellm(), warm)
 
     def _api_key(self) -> str | None:
         env = self.options.api_key_env

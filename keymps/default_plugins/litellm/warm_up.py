@@ -85,12 +85,10 @@ def _warm_up_request() -> PlanRequest:
     )
 
 
-def warm_up(litellm: Any) -> None:
-    """Set up litellm's first completion in this process (failures are ignored: the first real
-    call then does what is left)."""
-    from keymps.default_plugins.litellm.backend import LitellmBackend, LitellmOptions
-
-    warm = LitellmBackend(LitellmOptions(model=WARM_UP_MODEL, api_base=WARM_UP_API_BASE))
+def warm_up(litellm: Any, warm: Any) -> None:
+    """Set up litellm's first completion in this process, through `warm`, a litellm backend for
+    WARM_UP_MODEL at WARM_UP_API_BASE (failures are ignored: the first real call then does what
+    is left)."""
     with contextlib.suppress(Exception):
         call = warm._prepare(_warm_up_request())
         response = litellm.completion(**call.arguments, client=_in_memory_client())

@@ -11,16 +11,16 @@ to the caller's own process, as without it.
 from __future__ import annotations
 
 import os
-import subprocess
 import warnings
 from typing import TYPE_CHECKING, Any
 
 from keymps.errors import KeympsError
 from keymps.planning.backend_choice import AUTO_VLM
-from keymps.planning.warm.client import PlannerUnavailable, WarmPlanner
-from keymps.planning.warm.place import supported
 
 if TYPE_CHECKING:
+    import subprocess
+
+    from keymps.planning.warm.client import PlannerUnavailable, WarmPlanner
     from keymps.types import BackendAnswer, PlanRequest
 
 MODES = ("off", "use", "start")
@@ -62,6 +62,8 @@ class WarmDispatch:
         """Why the planner is not used any more (the rest of the run asks in this process)."""
 
     def __call__(self, backend: Any, request: PlanRequest) -> BackendAnswer:
+        from keymps.planning.warm.client import PlannerUnavailable
+
         options = self._options(backend)
         if options is not None:
             try:
@@ -77,6 +79,8 @@ class WarmDispatch:
     async def acall(self, backend: Any, request: PlanRequest) -> BackendAnswer:
         """The same on an event loop (`keymps eval`'s broker): waits without a thread."""
         import asyncio
+
+        from keymps.planning.warm.client import PlannerUnavailable
 
         options = self._options(backend)
         if options is not None:
@@ -108,6 +112,9 @@ def warm_dispatch(mode: str) -> WarmDispatch | None:
     """A run's dispatch through the warm planner, or None when the run asks in its own
     process: mode off, or no planner up and `use`. `start` starts one when none is up (the
     run then waits for it at its first request, while its own stages run meanwhile)."""
+    from keymps.planning.warm.client import WarmPlanner
+    from keymps.planning.warm.place import supported
+
     if mode not in MODES:
         raise KeympsError(f"warm_planner={mode!r}: one of {', '.join(MODES)}")
     if mode == "off" or not supported():
