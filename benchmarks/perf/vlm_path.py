@@ -39,6 +39,7 @@ import statistics
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from collections.abc import Callable
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
@@ -50,6 +51,8 @@ TASK = ROOT / "tasks" / "cake_icing.yaml"
 CLI = ["-c", "from keymps.cli import main; main()"]
 CROP = re.compile(r"(\d+) x (\d+) pixels")
 MODEL = "openai/instant-vlm"
+EXCLUDED: set[str] = set()
+"""Processes whose CPU is not keymps' (the VLM server's)."""
 
 
 def answer_for(body: dict[str, Any]) -> str:
@@ -128,6 +131,7 @@ class InstantServer:
         while not port.value:
             time.sleep(0.01)
         self.api_base = f"http://127.0.0.1:{port.value}/v1"
+        EXCLUDED.add(str(self.process.pid))
 
     def close(self) -> None:
         self.process.terminate()
@@ -152,8 +156,14 @@ def timed(arguments: list[str], env: dict[str, str], cwd: Path) -> tuple[float, 
 class Bench:
     """The commands of one benchmark: this checkout's keymps, or the baseline's."""
 
-    def __init__(self, python: str, api_base: str, work: Path, env: dict[str, str]):
-        self.python, self.api_base, self.work, self.env = python, api_base, work, env
+    def __init__(self, name: str, python: str, api_base: str, work: Path, env: dict[str, str]):
+        self.name, self.python, self.api_base, self.work, self.env = (
+            name,
+            python,
+            api_base,
+            work,
+            env,
+        )
         # a baseline runs outside this checkout: `python -c` puts the working folder first on
         # sys.path, where this checkout's keymps would shadow the baseline's
         self.cwd = work if python != sys.executable else ROOT
@@ -177,7 +187,7 @@ class Bench:
 
     def out(self, name: str) -> str:
         self.count += 1
-        return str(self.work / f"{name}-{self.count}")
+        return str(self.work / f"{self.name}-{name}-{self.count}")
 
     def run(self, vlm: bool, warm: str | None = None) -> tuple[float, float]:
         arguments = ["run", str(TASK), "--rerun", "off", "--out", self.out("run")]
@@ -187,21 +197,26 @@ class Bench:
 
     def eval(
         self, suite: str, cases: list[str], repeats: int | None, warm: str | None = None
-    ) -> float:
-        """Runs per second of one whole `keymps eval` command."""
+    ) -> tuple[float, float]:
+        """Runs per second of one whole `keymps eval` command, and its CPU seconds per run (its
+        processes' and the warm planner's, whose children ask the VLM)."""
         arguments = ["eval", suite, "--model", MODEL, "--api-base", self.api_base, "--no-cache"]
         arguments += ["--concurrency", "8", "--quiet", "--out", self.out("eval")]
         for case in cases:
             arguments += ["--case", case]
         if repeats:
             arguments += ["--repeats", str(repeats)]
-        seconds, _ = self.keymps(*arguments, warm=warm)
+        planner = self.planner_pid()
+        before = _planner_cpu_s(planner)
+        with _TreeCpu() as tree:
+            seconds, _ = self.keymps(*arguments, warm=warm)
+        cpu = tree.seconds + _planner_cpu_s(planner) - before
         records = Path(arguments[arguments.index("--out") + 1]) / "results.jsonl"
         lines = [json.loads(line) for line in records.read_text().splitlines()]
         failed = [r for r in lines if not r.get("ok")]
         if failed:
             raise SystemExit(f"{len(failed)} eval runs failed, first: {failed[0]['error']}")
-        return len(lines) / seconds
+        return len(lines) / seconds, cpu / len(lines)
 
     def stop_planner(self) -> None:
         if self.has_planner:
@@ -210,20 +225,84 @@ class Bench:
                 capture_output=True,
             )  # fmt: skip
 
-    def planner_rss_mb(self) -> float | None:
+    def planner_pid(self) -> int | None:
         if not self.has_planner:
             return None
         done = subprocess.run(
             [self.python, *CLI, "planner", "status", "--json"], env=self.env, cwd=self.cwd,
             capture_output=True, text=True,
         )  # fmt: skip
-        if done.returncode != 0:
+        return int(json.loads(done.stdout)["pid"]) if done.returncode == 0 else None
+
+    def planner_rss_mb(self) -> float | None:
+        pid = self.planner_pid()
+        if pid is None:
             return None
-        pid = json.loads(done.stdout)["pid"]
         for line in Path(f"/proc/{pid}/status").read_text().splitlines():
             if line.startswith("VmRSS:"):
                 return int(line.split()[1]) / 1024
         return None
+
+
+def _cpu_s(pid: int | str, reaped: bool = False) -> float:
+    """CPU seconds of a process (and of the children it reaped), 0 once it is gone."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return 0.0
+    ticks = sum(int(v) for v in fields[11 : 15 if reaped else 13])
+    return ticks / os.sysconf("SC_CLK_TCK")
+
+
+def _planner_cpu_s(pid: int | None) -> float:
+    return _cpu_s(pid, reaped=True) if pid is not None else 0.0
+
+
+class _TreeCpu:
+    """CPU seconds of this process's descendants (the VLM server's process left out) while the
+    block runs, sampled every 50 ms: a process that ends keeps its last sample."""
+
+    def __init__(self) -> None:
+        self.last: dict[str, float] = {}
+        self.first: dict[str, float] = {}
+        self.done = threading.Event()
+        self.thread = threading.Thread(target=self._watch, daemon=True)
+
+    def _descendants(self, pid: str) -> list[str]:
+        found = []
+        for task in Path(f"/proc/{pid}/task").glob("*"):
+            try:
+                children = (task / "children").read_text().split()
+            except OSError:
+                continue
+            for child in children:
+                if child not in EXCLUDED:
+                    found += [child, *self._descendants(child)]
+        return found
+
+    def sample(self) -> None:
+        for pid in self._descendants(str(os.getpid())):
+            used = _cpu_s(pid)
+            if used:
+                self.first.setdefault(pid, 0.0 if self.thread.is_alive() else used)
+                self.last[pid] = used
+
+    def _watch(self) -> None:
+        while not self.done.wait(0.05):
+            self.sample()
+
+    def __enter__(self) -> _TreeCpu:
+        self.sample()  # the processes there already count from now
+        self.thread.start()
+        return self
+
+    def __exit__(self, *_: object) -> None:
+        self.done.set()
+        self.thread.join()
+
+    @property
+    def seconds(self) -> float:
+        return sum(self.last[pid] - self.first[pid] for pid in self.last)
 
 
 def one_round(
@@ -253,10 +332,13 @@ def one_round(
     if planner_mb is not None:
         figures["planner_rss_mb"] = planner_mb
     if bench.has_planner:  # with the planner the runs started
-        figures["eval_runs_per_s"] = bench.eval(*eval_args)
-    figures["eval_in_process_runs_per_s"] = bench.eval(*eval_args, warm="0")
+        figures["eval_runs_per_s"], figures["eval_cpu_s"] = bench.eval(*eval_args)
+    figures["eval_in_process_runs_per_s"], figures["eval_in_process_cpu_s"] = bench.eval(
+        *eval_args, warm="0"
+    )
     if baseline is not None:
-        figures["baseline_eval_runs_per_s"] = baseline.eval(*eval_args)
+        runs, cpu = baseline.eval(*eval_args)
+        figures["baseline_eval_runs_per_s"], figures["baseline_eval_cpu_s"] = runs, cpu
     bench.stop_planner()
     return figures
 
@@ -298,6 +380,9 @@ def summarize(rounds: list[dict[str, float]], quick: bool) -> None:
     )
     print(f"eval_vlm_runs_per_s: {median(eval_name):.2f}")
     print(f"eval_vlm_in_process_runs_per_s: {median('eval_in_process_runs_per_s'):.2f}")
+    cpu_name = "eval_cpu_s" if eval_name == "eval_runs_per_s" else "eval_in_process_cpu_s"
+    print(f"eval_vlm_cpu_s_per_run: {median(cpu_name):.3f}")
+    print(f"eval_vlm_in_process_cpu_s_per_run: {median('eval_in_process_cpu_s'):.3f}")
     met = statistics.median(overhead_later) <= 1.0 and median(eval_name) >= 5
     if "baseline_vlm_s" in rounds[0]:
         print(f"baseline_offline_run_s: {median('baseline_offline_s'):.3f}")
@@ -305,6 +390,7 @@ def summarize(rounds: list[dict[str, float]], quick: bool) -> None:
         print(f"baseline_vlm_overhead_s: {paired('baseline_vlm_s', 'baseline_offline_s'):.3f}")
         print(f"baseline_vlm_peak_mb: {median('baseline_vlm_mb'):.0f}")
         print(f"baseline_eval_vlm_runs_per_s: {median('baseline_eval_runs_per_s'):.2f}")
+        print(f"baseline_eval_vlm_cpu_s_per_run: {median('baseline_eval_cpu_s'):.3f}")
         first_vs = paired("vlm_in_process_s", "baseline_vlm_s")
         print(f"first_run_minus_baseline_s: {first_vs:.3f}")
         met = met and first_vs <= 0.0
@@ -336,10 +422,10 @@ def main() -> None:
             "LITELLM_LOCAL_MODEL_COST_MAP": "True",
         }
         env.pop("KEYMPS_WARM_PLANNER", None)
-        bench = Bench(sys.executable, server.api_base, work, env)
+        bench = Bench("this", sys.executable, server.api_base, work, env)
         baseline = None
         if args.baseline_python:
-            baseline = Bench(args.baseline_python, server.api_base, work, env)
+            baseline = Bench("baseline", args.baseline_python, server.api_base, work, env)
         try:
             bench.run(False)  # the file cache warm for everyone
             results = []

@@ -31,7 +31,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -39,7 +39,7 @@ import pytest
 from helpers.fuzz_support import answer_text, task_copy
 from helpers.vlm_server import Recorded, Reply, VlmServer
 
-from keymps.planning.warm.client import WarmPlanner
+from keymps.planning.warm.client import PlannerUnavailable, WarmPlanner
 from keymps.planning.warm.place import Place
 from keymps.planning.warm.wire import PROTOCOL, WireError, receive, send
 
@@ -452,15 +452,34 @@ def test_it_starts_on_demand_exits_when_idle_and_starts_after_a_kill(tmp_path: P
         done = _run(env, task, tmp_path / "second", server)  # none up: the run asks itself
         assert done.returncode == 0, done.stderr
         assert "litellm imported: True" in done.stderr and "warning" not in done.stderr
-        # a new one starts in its place, and stops when told
-        started = _keymps(env, "planner", "start", "--idle-timeout", "1")
-        assert started.returncode == 0, started.stderr
-        assert "exits after 1 s idle" in started.stdout
-        pid = int(re.findall(r"^started: pid (\d+),", started.stdout)[0])
+        # a new one starts in its place; a request longer than its idle timeout is answered,
+        # and it exits once idle after it
+        server.script(Reply.text_answer(_answer(None), delay_s=3))  # type: ignore[arg-type]
+        pid, answer = _slow_request_to_a_new_planner(env, place, server)
+        assert json.loads(answer.text)["rationale"] == "two dots"
         _until(lambda: not _alive(pid), "the idle exit", 120)
         assert re.search(rf"\[{pid}\] exits: idle for \d+ s", place.log.read_text())
         assert not place.socket.exists()
         assert not WarmPlanner(place).lock_held()
+
+
+def _slow_request_to_a_new_planner(
+    env: dict[str, str], place: Place, server: VlmServer
+) -> tuple[int, Any]:
+    """Start a planner with a 1 s idle timeout and ask it at once (again when it left before
+    the request came: the test must not depend on this machine's speed)."""
+    from keymps.default_plugins.litellm.warm_up import _warm_up_request
+
+    request = replace(_warm_up_request(), model=MODEL, timeout_s=60.0)
+    options = {"model": MODEL, "api_base": server.openai_base, "api_base_trusted": True}
+    for _ in range(5):
+        started = _keymps(env, "planner", "start", "--idle-timeout", "1")
+        assert started.returncode == 0, started.stderr
+        assert "exits after 1 s idle" in started.stdout
+        pid = int(re.findall(r"^started: pid (\d+),", started.stdout)[0])
+        with contextlib.suppress(PlannerUnavailable):
+            return pid, WarmPlanner(place).plan(options, request)
+    raise AssertionError("the planner never answered within its 1 s idle timeout")
 
 
 @pytest.mark.parametrize("kind", ["mode 0755", "a link", "another user's"])

@@ -112,13 +112,14 @@ def warm_dispatch(mode: str) -> WarmDispatch | None:
     """A run's dispatch through the warm planner, or None when the run asks in its own
     process: mode off, or no planner up and `use`. `start` starts one when none is up (the
     run then waits for it at its first request, while its own stages run meanwhile)."""
-    from keymps.planning.warm.client import WarmPlanner
     from keymps.planning.warm.place import supported
 
     if mode not in MODES:
         raise KeympsError(f"warm_planner={mode!r}: one of {', '.join(MODES)}")
-    if mode == "off" or not supported():
+    if mode == "off" or not supported():  # (not on Windows, macOS: no SO_PEERCRED)
         return None
+    from keymps.planning.warm.client import WarmPlanner
+
     planner = WarmPlanner()
     if problem := planner.folder_problem():
         warnings.warn(f"{problem}: planning in this process", RuntimeWarning, stacklevel=2)

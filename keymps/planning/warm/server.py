@@ -134,7 +134,9 @@ class Server:
             if not self.children and idle >= self.idle_timeout_s:
                 return f"idle for {idle:.0f} s"
             waiting = [self.listener] if len(self.children) < MAX_CHILDREN else []
-            ready, _, _ = select.select(waiting, [], [], min(1.0, self.idle_timeout_s - idle))
+            # (a request may run past the idle timeout: the clock restarts when it ends)
+            wait_s = min(1.0, max(0.05, self.idle_timeout_s - idle))
+            ready, _, _ = select.select(waiting, [], [], wait_s)
             if ready:
                 connection, _ = self.listener.accept()
                 with connection:
