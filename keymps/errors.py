@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import errno
+import signal
 
 _MAX_LISTED = 12
 """A SafetyError's message lists this many problems, then counts the rest."""
@@ -50,16 +51,56 @@ def os_error_message(error: OSError) -> str:
     return f"cannot {action} {where}: {error.strerror or error}"
 
 
-class RunInterrupted(KeympsError):
-    """A run stopped by the user (Ctrl-C): what run.json records; the KeyboardInterrupt goes on."""
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C, SIGTERM or SIGHUP, raised in the main thread by the handler the keymps command
+    installs (keymps.interrupts): a KeyboardInterrupt, so every `except KeyboardInterrupt` (an
+    executor stopping the arm) treats the three alike."""
 
-    def __init__(self, running: str | None, done: str | None = None):
+    def __init__(self, signum: int = signal.SIGINT):
+        self.signum = int(signum)
+        super().__init__(self.name)
+
+    def __reduce__(self) -> tuple[type[Interrupted], tuple[int]]:
+        return Interrupted, (self.signum,)  # (args holds the name, not the number)
+
+    @property
+    def name(self) -> str:
+        """How the user stopped it: Ctrl-C, SIGTERM, SIGHUP."""
+        if self.signum == signal.SIGINT:
+            return "Ctrl-C"
+        return signal.Signals(self.signum).name
+
+    @property
+    def exit_code(self) -> int:
+        """128 + the signal's number, what shells report (130 for Ctrl-C, 143 for SIGTERM)."""
+        return 128 + self.signum
+
+
+def interrupt_name(interrupt: BaseException) -> str:
+    """What stopped the command, in the words its messages use.
+
+    Args:
+        interrupt: a KeyboardInterrupt (the keymps command raises `Interrupted` for Ctrl-C,
+            SIGTERM and SIGHUP; a plain KeyboardInterrupt is a Ctrl-C).
+
+    Returns:
+        'Ctrl-C', 'SIGTERM' or 'SIGHUP'.
+    """
+    return interrupt.name if isinstance(interrupt, Interrupted) else "Ctrl-C"
+
+
+class RunInterrupted(KeympsError):
+    """A run stopped by the user (Ctrl-C, SIGTERM, SIGHUP): what run.json records; the
+    KeyboardInterrupt goes on."""
+
+    def __init__(self, running: str | None, done: str | None = None, by: str = "Ctrl-C"):
         self.stage = running
         if running:
             where = f"during stage {running!r}"
         else:
             where = f"after stage {done!r}" if done else "before its first stage"
-        super().__init__(f"interrupted by the user (Ctrl-C) {where}; nothing after it ran")
+        who = "the user (Ctrl-C)" if by == "Ctrl-C" else by
+        super().__init__(f"interrupted by {who} {where}; nothing after it ran")
 
 
 class StageError(KeympsError):

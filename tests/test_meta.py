@@ -1,10 +1,15 @@
 """Meta-tests: every hook is tested and documented; the import rules hold (no cycles, the
-layers of docs/architecture.md, checked by import-linter)."""
+layers of docs/architecture.md, checked by import-linter); every keymps name the docstrings
+and docs/ give exists."""
 
 from __future__ import annotations
 
+import ast
+import importlib
 import inspect
 import re
+from collections import defaultdict
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -113,3 +118,62 @@ def test_the_import_contracts_hold() -> None:
         timeout=120,
     )
     assert lint.returncode == 0, lint.stdout[-3000:]
+
+
+DOTTED_NAME = re.compile(r"(?<![\w./-])keymps(?:\.[A-Za-z_]\w*)+")
+"""keymps.x.y as docstrings and docs write a module or an object in one (not a path)."""
+
+
+def _docstrings(path: Path) -> Iterator[str]:
+    """Every string statement of a module: the docstrings of it, its classes and functions,
+    and those under its attributes."""
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        value = node.value if isinstance(node, ast.Expr) else None
+        if isinstance(value, ast.Constant) and isinstance(value.value, str):
+            yield value.value
+
+
+def _dotted_names() -> dict[str, set[str]]:
+    """Each dotted keymps name in the docstrings of keymps and its plugins and in docs/, with
+    the files that give it."""
+    found: dict[str, set[str]] = defaultdict(set)
+    modules = [*(REPO / "keymps").rglob("*.py"), *(REPO / "plugins").glob("*/keymps_*/**/*.py")]
+    texts = [(path, text) for path in modules for text in _docstrings(path)]
+    texts += [(path, path.read_text(encoding="utf-8")) for path in (REPO / "docs").rglob("*.md")]
+    for path, text in texts:
+        for name in DOTTED_NAME.findall(text):
+            found[name].add(str(path.relative_to(REPO)))
+    return found
+
+
+def _resolves(name: str) -> bool:
+    """Whether `name` is a module, or an attribute or a declared field (dataclass, pydantic,
+    annotated) of something in one."""
+    parts = name.split(".")
+    for size in range(len(parts), 0, -1):
+        try:
+            target: object = importlib.import_module(".".join(parts[:size]))
+            break
+        except ImportError:
+            continue
+    for part in parts[size:]:
+        if hasattr(target, part):
+            target = getattr(target, part)
+            continue
+        declared = {
+            **getattr(target, "__dataclass_fields__", {}),
+            **getattr(target, "model_fields", {}),
+        }
+        for owner in getattr(target, "__mro__", ()):
+            declared.update(getattr(owner, "__annotations__", {}))
+        return part in declared and part == parts[-1]
+    return True
+
+
+def test_the_dotted_names_in_docstrings_and_docs_exist() -> None:
+    names = _dotted_names()
+    assert len(names) > 50  # the search finds them: docs/ and the docstrings name many
+    missing = [
+        f"{name} ({', '.join(sorted(names[name]))})" for name in names if not _resolves(name)
+    ]
+    assert not missing, "no such keymps names: " + "; ".join(sorted(missing))

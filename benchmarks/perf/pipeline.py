@@ -212,13 +212,14 @@ def _stage_pairs(
     xy: Any,
     outline: Any,
 ) -> dict[str, Callable[[], Any]]:
-    from keymps.motion.timing import _sample_profile, _sample_profile_by_calls
+    from keymps.motion.timing import _sample_profile_by_calls
     from keymps.robot.safety_geometry import outside_distance
 
+    reference = _reference_timing()
     return {
         "ik_closed_form": lambda: model.solve_points(points, yaws, seed),
         "ik_iterative": lambda: model.solve_points(points, yaws, seed, method="iterative"),
-        "profile_numpy": lambda: _sample_profile(profile, times),
+        "profile_numpy": lambda: reference.sample_profile(profile, times),
         "profile_calls": lambda: _sample_profile_by_calls(profile, times),
         "fk_batched": lambda: model.tool_poses(qs),
         "fk_per_call": lambda: model.pinocchio_tool_poses(qs),
@@ -233,8 +234,9 @@ def _timing_pair(
     """The joint-limit timing of every stroke: all strokes at once against one by one."""
     import math
 
-    from keymps.motion.timing import Limits, split_strokes, time_stroke, time_strokes_at_once
+    from keymps.motion.timing import Limits, split_strokes, time_strokes_at_once
 
+    time_stroke = _reference_timing().time_stroke
     strokes = split_strokes(model, tool_path, joint_path)
     limits = Limits(math.inf, task.robot.max_tool_acceleration, task.robot.max_tool_jerk)
     period = 1.0 / float(task.robot.rate_hz or model.rate_hz)
@@ -242,6 +244,17 @@ def _timing_pair(
         "timing_at_once": lambda: time_strokes_at_once(model, strokes, limits, period),
         "timing_by_stroke": lambda: [time_stroke(model, s, limits, period) for s in strokes],
     }
+
+
+def _reference_timing() -> Any:
+    """tests/helpers/reference_timing.py: the timing one profile and one stroke at a time, as
+    it was before the batched paths replaced it (and the reference the tests hold them to)."""
+    tests = str(ROOT / "tests")
+    if tests not in sys.path:
+        sys.path.append(tests)
+    from helpers import reference_timing
+
+    return reference_timing
 
 
 def _footprint_per_point(points: Any, polygon: Any) -> Any:

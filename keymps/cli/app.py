@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import atexit
+import contextlib
 import importlib
 import importlib.util
 import os
@@ -166,6 +167,7 @@ def validate(task_files: tuple[Path, ...]) -> None:
 
 @cli.command()
 @click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
+@user_errors
 def plugins(as_json: bool) -> None:
     """List every plugin: name, what it provides, distribution and version."""
     from keymps.cli.output import print_plugins
@@ -197,28 +199,37 @@ exported wins."""
 
 def main() -> None:
     from keymps._memory import keep_freed_memory
+    from keymps.interrupts import signals_stop_the_command
 
     for name in SINGLE_THREADED:
         os.environ.setdefault(name, "1")
     keep_freed_memory()  # freed arrays reused, not faulted in again page by page
     warnings.formatwarning = _one_line_warning
     try:
-        cli(prog_name="keymps")
+        with signals_stop_the_command() as signals:  # SIGTERM, SIGHUP stop a run as Ctrl-C does
+            cli(prog_name="keymps")
     except SystemExit as done:
+        if signals and isinstance(done.code, int):
+            _exit_now(done.code, run_atexit=False)
         if not (_finished_cleanly and done.code in (None, 0)):
             raise
     else:  # pragma: no cover - click always ends with SystemExit in standalone mode
         return
-    _exit_now()
+    _exit_now(0)
 
 
-def _exit_now() -> None:
-    """Exit 0 without the interpreter's teardown (0.1-0.25 s of module and extension
-    destructors after a run): the atexit handlers run first, then the streams are flushed."""
-    atexit._run_exitfuncs()
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os._exit(0)
+def _exit_now(code: int, run_atexit: bool = True) -> None:
+    """Exit without the interpreter's teardown (0.1-0.25 s of module and extension destructors
+    after a run): the atexit handlers run first, then the streams are flushed. A command a
+    signal stopped skips the atexit handlers and the wait for other threads too: the signal
+    may have cut an import short and left Python's import lock held, and a thread importing
+    then waited for it forever (1 SIGTERM in 30 hung the process)."""
+    if run_atexit:
+        atexit._run_exitfuncs()
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    os._exit(code)
 
 
 if __name__ == "__main__":

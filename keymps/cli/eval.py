@@ -139,7 +139,8 @@ def eval_command(
         start_up_done()
         try:
             records = _run(suite, options, quiet)
-        except KeyboardInterrupt:
+        except KeyboardInterrupt as interrupt:
+            from keymps.cli.errors import interrupted_exit_code
             from keymps.eval.runner import RESULTS_FILE, read_results
 
             kept = len(read_results(folder / RESULTS_FILE))
@@ -148,7 +149,7 @@ def eval_command(
                 "command again to resume",
                 err=True,
             )
-            sys.exit(130)
+            sys.exit(interrupted_exit_code(interrupt))
         rows = write_summary(records, suite, folder)
         click.echo(markdown_table(rows, suite))
         failed = sum(1 for r in records if not r.get("ok"))

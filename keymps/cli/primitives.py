@@ -5,11 +5,17 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import click
 
 from keymps.cli.errors import user_errors
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from keymps.primitives.dictionary import Primitive
+    from keymps.primitives.dmp import DMP
 
 
 def _search_dirs(extra: tuple[Path, ...]) -> list[Path]:
@@ -240,6 +246,27 @@ def plot(
     """Draw the demonstration and re-targeted rollouts in 3D, red -> green -> blue over time.
 
     Without --to: the fit, the segment turned 90 degrees about z, and 1.5 times longer."""
+    plt = _pyplot()
+    out = _writable_by_matplotlib(out or Path(f"{name}.png"))
+    import numpy as np
+
+    from keymps.primitives.dictionary import load_primitives
+
+    primitive = load_primitives([name], _search_dirs(dirs))[name]
+    origin = np.array(_point(start)) if start else primitive.dmp.demo_start
+    goals, labels = _plot_goals(primitive.dmp, origin, targets)
+    figure = plt.figure(figsize=(7, 6))
+    axes = figure.add_subplot(projection="3d")
+    _plot_demo(axes, primitive, origin)
+    _plot_rollouts(axes, primitive, origin, goals, labels, mode)
+    _finish_axes(axes, primitive, origin, goals, mode)
+    figure.savefig(out, dpi=120, bbox_inches="tight")
+    plt.close(figure)
+    click.echo(f"wrote {out}")
+
+
+def _pyplot() -> Any:
+    """matplotlib.pyplot on the Agg backend; one line of error when matplotlib is missing."""
     try:
         import matplotlib
 
@@ -247,47 +274,71 @@ def plot(
         import matplotlib.pyplot as plt
     except ImportError:
         raise click.ClickException("plot needs matplotlib: pip install matplotlib") from None
+    return plt
+
+
+def _writable_by_matplotlib(out: Path) -> Path:
+    """`out`, unless matplotlib writes no files of its suffix (a usage error then)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
-    out = out or Path(f"{name}.png")
     suffix = out.suffix.lstrip(".").lower()
-    if suffix and suffix not in FigureCanvasAgg.get_supported_filetypes():
-        known = ", ".join(sorted(FigureCanvasAgg.get_supported_filetypes()))
+    supported = FigureCanvasAgg.get_supported_filetypes()
+    if suffix and suffix not in supported:
+        known = ", ".join(sorted(supported))
         raise click.BadParameter(
             f"{out}: matplotlib writes no .{suffix} files (one of: {known})", param_hint="'--out'"
         )
+    return out
+
+
+def _plot_goals(
+    dmp: DMP, origin: np.ndarray, targets: tuple[str, ...]
+) -> tuple[list[np.ndarray], list[str]]:
+    """The goals (3,) to roll out to, metres, and their legend labels: those of --to, or three
+    that show how the demonstration re-targets."""
     import numpy as np
 
-    from keymps.primitives.demos import load_demo_csv
-    from keymps.primitives.dictionary import load_primitives
-
-    p = load_primitives([name], _search_dirs(dirs))[name]
-    dmp = p.dmp
-    origin = np.array(_point(start)) if start else dmp.demo_start
     if targets:
         goals = [np.array(_point(text)) for text in targets]
-        labels = [f"to ({', '.join(f'{v:g}' for v in goal)})" for goal in goals]
-    else:
-        c, s = 0.0, 1.0
-        turned = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]) @ dmp.demo_delta
-        goals = [origin + dmp.demo_delta, origin + turned, origin + 1.5 * dmp.demo_delta]
-        labels = [
-            "fit: the demonstration's own goal",
-            "goal turned 90 degrees about z",
-            "1.5 times longer",
-        ]
-    figure = plt.figure(figsize=(7, 6))
-    axes = figure.add_subplot(projection="3d")
-    if p.demo is not None and p.demo.is_file():
-        _, demo_y = load_demo_csv(p.demo)
-        demo_y = demo_y - dmp.demo_start + origin
-        axes.plot(*demo_y.T, color="0.6", linewidth=3, alpha=0.5, label="demonstration")
+        return goals, [f"to ({', '.join(f'{v:g}' for v in goal)})" for goal in goals]
+    c, s = 0.0, 1.0
+    turned = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]) @ dmp.demo_delta
+    goals = [origin + dmp.demo_delta, origin + turned, origin + 1.5 * dmp.demo_delta]
+    labels = [
+        "fit: the demonstration's own goal",
+        "goal turned 90 degrees about z",
+        "1.5 times longer",
+    ]
+    return goals, labels
+
+
+def _plot_demo(axes: Any, primitive: Primitive, origin: np.ndarray) -> None:
+    """The demonstration in grey, moved to start at origin (when its file is there)."""
+    from keymps.primitives.demos import load_demo_csv
+
+    if primitive.demo is None or not primitive.demo.is_file():
+        return
+    _, demo_y = load_demo_csv(primitive.demo)
+    demo_y = demo_y - primitive.dmp.demo_start + origin
+    axes.plot(*demo_y.T, color="0.6", linewidth=3, alpha=0.5, label="demonstration")
+
+
+def _plot_rollouts(
+    axes: Any,
+    primitive: Primitive,
+    origin: np.ndarray,
+    goals: list[np.ndarray],
+    labels: list[str],
+    mode: str | None,
+) -> None:
+    """Each rollout from origin, coloured by time, its goal marked and numbered."""
+    import numpy as np
     from mpl_toolkits.mplot3d.art3d import Line3DCollection
 
     colors = _time_colors(np)
     markers = "x^sdvP*"
     for number, (goal, label) in enumerate(zip(goals, labels, strict=True), start=1):
-        y = p.rollout(origin, goal, mode=mode, spacing=0.0005).y
+        y = primitive.rollout(origin, goal, mode=mode, spacing=0.0005).y
         pieces = np.stack([y[:-1], y[1:]], axis=1)
         axes.add_collection(
             Line3DCollection(pieces, colors=colors(np.linspace(0, 1, len(pieces))), linewidth=2)
@@ -296,17 +347,22 @@ def plot(
         marker = markers[(number - 1) % len(markers)]
         axes.scatter(*goal, marker=marker, color="k", s=40, label=f"{number}: {label}")
         axes.text(*goal, f" {number}", color="k")
+
+
+def _finish_axes(
+    axes: Any, primitive: Primitive, origin: np.ndarray, goals: list[np.ndarray], mode: str | None
+) -> None:
+    """The start marked, the axes labelled and equally scaled, the title and the legend."""
+    import numpy as np
+
     axes.scatter(*origin, marker="o", color="k", s=20, label="start")
     axes.set_xlabel("x [m]")
     axes.set_ylabel("y [m]")
     axes.set_zlabel("z [m]")
-    axes.set_title(f"{p.name} ({p.mode}): time red -> green -> blue")
+    axes.set_title(f"{primitive.name} ({primitive.mode}): time red -> green -> blue")
     axes.legend(loc="upper left")
     points = np.vstack([origin, *goals])
-    _equal_axes(axes, np, points, [p.rollout(origin, g, mode=mode).y for g in goals])
-    figure.savefig(out, dpi=120, bbox_inches="tight")
-    plt.close(figure)
-    click.echo(f"wrote {out}")
+    _equal_axes(axes, np, points, [primitive.rollout(origin, g, mode=mode).y for g in goals])
 
 
 def _time_colors(np: Any) -> Callable[[Any], Any]:

@@ -188,11 +188,6 @@ def check_image_pixels(size_px: tuple[int, int], max_pixels: int, what: str) -> 
         )
 
 
-def path_length_m(tool_path: ToolPath) -> float:
-    """Total length of the tool path's pieces, metres."""
-    return float(sum(piece.length_m for piece in tool_path.pieces if len(piece.points) > 1))
-
-
 BELOW_BOARD_M = 0.001
 """A planned point this far below the board can never pass the safety check (0.5 mm board
 tolerance plus 0.5 mm path tolerance): say so before inverse kinematics, naming the pair."""
@@ -215,7 +210,7 @@ def check_tool_path(tool_path: ToolPath, task: Task) -> ToolPath:
             )
     motion = task.motion
     moving = [(p.length_m, p.speed) for p in tool_path.pieces if len(p.points) > 1]
-    length = float(sum(piece_length for piece_length, _ in moving))  # path_length_m's sum
+    length = float(sum(piece_length for piece_length, _ in moving))
     if not np.isfinite(length) or length > motion.max_path_length:
         raise KeympsError(
             f"the tool path is {length:.1f} m long ({len(tool_path.pieces)} pieces), more than "

@@ -337,8 +337,8 @@ class Task(StrictModel):
             raise ValueError("instruction is empty")
         if any(ord(c) < 32 or ord(c) == 127 for c in value):
             raise ValueError(
-                "instruction contains a line break, a tab or another control character: write "
-                "it on one line (YAML's folded style, `instruction: >`, joins lines with spaces)"
+                "instruction contains control characters (a line break, a tab ...): write it on "
+                "one line (YAML's folded style, `instruction: >`, joins lines with spaces)"
             )
         return value
 

@@ -97,46 +97,110 @@ def draw_box_plot(
 def _draw_box_plot(
     values: dict[str, dict[str, list[float]]], cases: Sequence[str], title: str
 ) -> np.ndarray:
-    import cv2
-
+    """`draw_box_plot`'s drawing (on the text thread)."""
     methods = sorted(values)
     width_in = min(16.0, max(6.0, 0.45 * len(cases) * len(methods) + 2))
-    width, height = round(width_in * DPI), HEIGHT_PX
-    image = np.full((height, width, 3), 255, np.uint8)
+    image = np.full((HEIGHT_PX, round(width_in * DPI), 3), 255, np.uint8)
     stats = {(m, c): box_stats(values[m][c]) for m in methods for c in cases if values[m].get(c)}
-    reached = [v for s in stats.values() for v in (s.low, s.high, *s.fliers)]
+    low, high = _value_range(list(stats.values()))
+    ticks, labels = _value_ticks(low, high)
+    axes = _plot_area(image.shape[1], image.shape[0], title, labels, (low, high), len(cases))
+    _draw_value_grid(image, axes, ticks, labels)
+    _draw_boxes(image, axes, stats, methods, cases)
+    _draw_case_ticks(image, axes, cases)
+    _draw_frame_and_titles(image, axes, title)
+    _legend(image, methods, axes.left + axes.width - 10, axes.top + 10)
+    return image
+
+
+_TICK_SCALE, _LABEL_SCALE, _TITLE_SCALE = 0.42, 0.48, 0.55
+"""OpenCV font scales of the tick labels, the axis labels and the title."""
+
+
+@dataclass(frozen=True)
+class _PlotArea:
+    """The plot's rectangle in the image (pixels) and what its axes show: values low-high (mm)
+    upwards, case positions 0 to `cases` - 1 left to right."""
+
+    left: int
+    top: int
+    width: int
+    height: int
+    low: float
+    high: float
+    cases: int
+
+    def y(self, value: float) -> float:
+        """The pixel row of a value (mm)."""
+        return self.top + self.height * (self.high - value) / (self.high - self.low)
+
+    def x(self, position: float) -> float:
+        """The pixel column of a case position (the case's number; boxes sit beside it)."""
+        return self.left + self.width * (position + 0.75) / (self.cases + 0.5)
+
+
+def _value_range(stats: list[BoxStats]) -> tuple[float, float]:
+    """The values (mm) the axis spans: everything the boxes reach, 5 % more on each side."""
+    reached = [v for s in stats for v in (s.low, s.high, *s.fliers)]
     low, high = (min(reached), max(reached)) if reached else (0.0, 1.0)
     margin = 0.05 * (high - low) if high > low else max(0.05 * abs(high), 0.05)
-    low, high = low - margin, high + margin
+    return low - margin, high + margin
+
+
+def _value_ticks(low: float, high: float) -> tuple[list[float], list[str]]:
+    """The round values inside low-high and their labels, all with one number of decimals."""
     ticks = [t for t in nice_ticks(low, high) if low <= t <= high]
     step = ticks[1] - ticks[0] if len(ticks) > 1 else max(abs(high), 1.0)
-    labels = [_tick_label(t, step) for t in ticks]
+    return ticks, [_tick_label(t, step) for t in ticks]
 
-    tick_scale, label_scale, title_scale = 0.42, 0.48, 0.55
-    label_h = cv2.getTextSize("Dg", FONT, label_scale, 1)[0][1]
-    widest = max((cv2.getTextSize(s, FONT, tick_scale, 1)[0][0] for s in labels), default=0)
+
+def _plot_area(
+    width: int, height: int, title: str, labels: list[str], span: tuple[float, float], cases: int
+) -> _PlotArea:
+    """The plot's rectangle in a width x height image: room on the left for the axis label and
+    the widest tick label, above for the title, below for the case labels."""
+    import cv2
+
+    label_h = cv2.getTextSize("Dg", FONT, _LABEL_SCALE, 1)[0][1]
+    widest = max((cv2.getTextSize(s, FONT, _TICK_SCALE, 1)[0][0] for s in labels), default=0)
     left = 12 + label_h + 10 + widest + 8
-    top = 16 + cv2.getTextSize(title, FONT, title_scale, 1)[0][1] + 14
+    top = 16 + cv2.getTextSize(title, FONT, _TITLE_SCALE, 1)[0][1] + 14
     right, bottom = 18, 62
-    plot_w, plot_h = width - left - right, height - top - bottom
+    return _PlotArea(left, top, width - left - right, height - top - bottom, *span, cases)
 
-    def to_y(value: float) -> float:
-        return top + plot_h * (high - value) / (high - low)
 
-    def to_x(position: float) -> float:
-        return left + plot_w * (position + 0.75) / (len(cases) + 0.5)
+def _text(image: np.ndarray, label: str, x: float, y: float, scale: float, anchor: str) -> None:
+    """Black text vertically centred on y, its `anchor` (left, centre or right) at x."""
+    import cv2
 
-    def text(label: str, x: float, y: float, scale: float, anchor: str) -> None:
-        (w, h), _ = cv2.getTextSize(label, FONT, scale, 1)
-        dx = {"centre": -w / 2, "right": -w, "left": 0.0}[anchor]
-        cv2.putText(image, label, (round(x + dx), round(y + h / 2)), FONT, scale, INK_BGR, 1,
-                    cv2.LINE_AA)  # fmt: skip
+    (w, h), _ = cv2.getTextSize(label, FONT, scale, 1)
+    dx = {"centre": -w / 2, "right": -w, "left": 0.0}[anchor]
+    cv2.putText(image, label, (round(x + dx), round(y + h / 2)), FONT, scale, INK_BGR, 1,
+                cv2.LINE_AA)  # fmt: skip
+
+
+def _draw_value_grid(
+    image: np.ndarray, axes: _PlotArea, ticks: list[float], labels: list[str]
+) -> None:
+    """A grid line, a tick and its label at each tick value."""
+    import cv2
 
     for tick, label in zip(ticks, labels, strict=True):
-        y = to_y(tick)
-        cv2.line(image, (left, round(y)), (left + plot_w, round(y)), GRID_BGR, 1)
-        cv2.line(image, (left - 5, round(y)), (left, round(y)), INK_BGR, 1)
-        text(label, left - 8, y, tick_scale, "right")
+        y = axes.y(tick)
+        row = round(y)
+        cv2.line(image, (axes.left, row), (axes.left + axes.width, row), GRID_BGR, 1)
+        cv2.line(image, (axes.left - 5, row), (axes.left, row), INK_BGR, 1)
+        _text(image, label, axes.left - 8, y, _TICK_SCALE, "right")
+
+
+def _draw_boxes(
+    image: np.ndarray,
+    axes: _PlotArea,
+    stats: dict[tuple[str, str], BoxStats],
+    methods: list[str],
+    cases: Sequence[str],
+) -> None:
+    """Each case's boxes side by side, one colour per method (in the order of `methods`)."""
     box_w = 0.8 / max(1, len(methods))
     for index, method in enumerate(methods):
         fill = _blend(PALETTE_RGB[index % len(PALETTE_RGB)])
@@ -144,21 +208,35 @@ def _draw_box_plot(
             box = stats.get((method, case))
             if box is not None:
                 centre = number + (index - (len(methods) - 1) / 2) * box_w
-                _draw_box(image, box, to_x(centre), to_x(box_w * 0.45) - to_x(0), to_y, fill)
-    # every case has its tick; labels are written every `stride` cases if they would overlap
-    label_w = max((cv2.getTextSize(c, FONT, tick_scale, 1)[0][0] for c in cases), default=0) + 8
-    stride = max(1, math.ceil(label_w / (to_x(1) - to_x(0))))
+                half_width = axes.x(box_w * 0.45) - axes.x(0)
+                _draw_box(image, box, axes.x(centre), half_width, axes.y, fill)
+
+
+def _draw_case_ticks(image: np.ndarray, axes: _PlotArea, cases: Sequence[str]) -> None:
+    """Every case has its tick; labels are written every `stride` cases if they would overlap."""
+    import cv2
+
+    label_w = max((cv2.getTextSize(c, FONT, _TICK_SCALE, 1)[0][0] for c in cases), default=0) + 8
+    stride = max(1, math.ceil(label_w / (axes.x(1) - axes.x(0))))
+    bottom = axes.top + axes.height
     for number, case in enumerate(cases):
-        x = to_x(number)
-        cv2.line(image, (round(x), top + plot_h), (round(x), top + plot_h + 5), INK_BGR, 1)
+        x = axes.x(number)
+        cv2.line(image, (round(x), bottom), (round(x), bottom + 5), INK_BGR, 1)
         if number % stride == 0:
-            text(case, x, top + plot_h + 18, tick_scale, "centre")
-    cv2.rectangle(image, (left, top), (left + plot_w, top + plot_h), INK_BGR, 1)
-    text("case", left + plot_w / 2, height - 16, label_scale, "centre")
-    text(title, width / 2, 16 + label_h / 2 + 4, title_scale, "centre")
-    _vertical_label(image, "D (mm)", 12, top + plot_h / 2, label_scale)
-    _legend(image, methods, left + plot_w - 10, top + 10)
-    return image
+            _text(image, case, x, bottom + 18, _TICK_SCALE, "centre")
+
+
+def _draw_frame_and_titles(image: np.ndarray, axes: _PlotArea, title: str) -> None:
+    """The plot's frame, the axis labels and the title."""
+    import cv2
+
+    height, width = image.shape[:2]
+    right, bottom = axes.left + axes.width, axes.top + axes.height
+    cv2.rectangle(image, (axes.left, axes.top), (right, bottom), INK_BGR, 1)
+    _text(image, "case", axes.left + axes.width / 2, height - 16, _LABEL_SCALE, "centre")
+    label_h = cv2.getTextSize("Dg", FONT, _LABEL_SCALE, 1)[0][1]
+    _text(image, title, width / 2, 16 + label_h / 2 + 4, _TITLE_SCALE, "centre")
+    _vertical_label(image, "D (mm)", 12, axes.top + axes.height / 2, _LABEL_SCALE)
 
 
 def _blend(rgb: tuple[int, int, int]) -> tuple[int, int, int]:

@@ -12,7 +12,6 @@ Three measurements, each for the board detector and the paper's threshold detect
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -116,7 +115,8 @@ def _task(case: PhotoCase, corners: np.ndarray, intrinsics: bool, detector: dict
 
 
 def _offline_design(task: Any, detection: Detection, scene: SceneImage) -> Plan:
-    """The offline planner's design, made the way a run makes it (keymps.planning.make_plan)."""
+    """The offline planner's design, made the way a run makes it
+    (keymps.planning.planner.make_plan)."""
     import tempfile
     from pathlib import Path
 
@@ -268,13 +268,3 @@ def _mm(value: float, tally: Tally) -> str:
     return (
         text if not tally.failures or missing == 0 else f"{text} (failures: {len(tally.failures)})"
     )
-
-
-def run_benchmark(
-    flat_count: int, photo_count: int, progress: Callable[[str], None] | None = None
-) -> str:
-    flat = flat_benchmark(flat_count)
-    if progress:
-        progress("flat boards done")
-    photos = photo_benchmark(photo_count)
-    return table(flat, photos)

@@ -28,6 +28,7 @@ As in any multiprocessing program, a script that runs a suite with processes > 1
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import gc
 import multiprocessing
@@ -122,8 +123,12 @@ def _worker(
     calls go to the parent's broker (keymps.eval.broker)."""
     import signal
 
-    # Ctrl-C reaches the whole process group: the parent alone stops, then ends its workers
+    # Ctrl-C and a closed terminal's SIGHUP reach the whole process group: the parent alone
+    # stops, then ends its workers (SIGTERM, which ends a worker at once, not the parent's
+    # orderly stop a forked worker would inherit)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
     os.environ.clear()
     os.environ.update(environment)
     from keymps.eval.broker import BROKERED_BACKEND, BrokerClient
@@ -158,7 +163,10 @@ def _take_jobs(
                 "ok": False,
                 "error": f"internal error {type(error).__name__}: {error}",
             }
-        results.put((job, record))
+        # stopped (Ctrl-C) and the queue closed: the run is not in results.jsonl, so the next
+        # `keymps eval` does it again
+        with contextlib.suppress(ValueError, OSError):
+            results.put((job, record))
         free.release()
 
     with ThreadPoolExecutor(max_workers=threads) as pool:

@@ -1,4 +1,4 @@
-"""Imported once by the fork server that starts `keymps eval`'s worker processes (eval_pool).
+"""Imported once by the fork server that starts `keymps eval`'s worker processes (keymps.eval.pool).
 
 Its whole job is importing what a run needs, so that each forked worker starts with it loaded
 instead of spending a second or more importing. litellm is not among them: the workers hand

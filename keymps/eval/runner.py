@@ -10,7 +10,7 @@ Jobs run in threads of this process or of worker processes (keymps.eval.pool); t
 are made by one asyncio event loop in this process (keymps.eval.broker), at most `concurrency`
 at once, so the waits overlap each other and the other runs' CPU work. With litellm, a few more
 runs than that are in flight, preparing their calls while the others wait
-(eval_pool.runs_in_flight).
+(keymps.eval.pool.runs_in_flight).
 """
 
 from __future__ import annotations

@@ -14,7 +14,6 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from keymps.errors import KeympsError
-from keymps.sorted_values import distinct
 from keymps.types import JointPath, Piece, ToolPath
 
 if TYPE_CHECKING:
@@ -55,18 +54,8 @@ class Stroke:
 
 
 def _parameter_steps(points: np.ndarray, yaw: np.ndarray) -> np.ndarray:
-    """(n-1, 4) steps in (x, y, z, YAW_RADIUS * yaw): the path parameter's geometry."""
+    """(n-1, 4) steps in (x, y, z, YAW_RADIUS_M * yaw): the path parameter's geometry."""
     return np.column_stack([np.diff(points, axis=0), YAW_RADIUS_M * np.diff(yaw)])
-
-
-def _corner_indexes(points: np.ndarray, yaw: np.ndarray) -> list[int]:
-    """Point indexes where the path turns sharper than CORNER_ANGLE_RAD.
-
-    Directions are chords of at least CORNER_CHORD_M on each side of a point, so that the
-    sub-millimetre jitter of a rollout turning round (the bottom of a dot) makes one corner,
-    not many; of a run of neighbouring corner points the middle one is kept.
-    """
-    return _corner_indexes_all([(points, yaw)])[0]
 
 
 TIE_M = 1e-9
@@ -101,8 +90,13 @@ def _geometry_of_all(
 
 
 def _corner_indexes_all(parts: list[tuple[np.ndarray, np.ndarray]]) -> list[list[int]]:
-    """`_corner_indexes` of every (points, yaw) part: each part's arc length and chord search
-    on its own, the directions of all points in one pass (the same values)."""
+    """Point indexes where each (points, yaw) part turns sharper than CORNER_ANGLE_RAD.
+
+    Directions are chords of at least CORNER_CHORD_M on each side of a point, so that the
+    sub-millimetre jitter of a rollout turning round (the bottom of a dot) makes one corner,
+    not many; of a run of neighbouring corner points the middle one is kept. Each part's arc
+    length and chord search are its own; the directions of all points come in one pass.
+    """
     if not parts:
         return []
     geometry, steps, starts = _geometry_of_all(parts)
@@ -260,7 +254,9 @@ def _dense_points_all(
 
 
 def _every_few_all(parts: list[tuple[np.ndarray, np.ndarray]]) -> list[np.ndarray]:
-    """`_every_few` of every (points, yaw) part (the arc parameters in one pass)."""
+    """Indexes of points about CARRY_SPACING_M apart along the path parameter of each (points,
+    yaw) part (a turn of the tool counts as in `_parameter_steps`), both ends included; the
+    arc parameters of all parts in one pass."""
     out = []
     for arc in _arc_parameters(parts):
         bins = np.floor(arc / CARRY_SPACING_M)
@@ -271,15 +267,6 @@ def _every_few_all(parts: list[tuple[np.ndarray, np.ndarray]]) -> list[np.ndarra
 
 CARRY_SPACING_M = 0.005
 """Points of a part with nothing inserted are re-solved this far apart (see _densify_all)."""
-
-
-def _every_few(points: np.ndarray, yaw: np.ndarray) -> np.ndarray:
-    """Indexes of points about CARRY_SPACING_M apart along the path parameter (a turn of the
-    tool counts as in `_parameter_steps`), both ends included."""
-    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(_parameter_steps(points, yaw), axis=1))])
-    bins = np.floor(arc / CARRY_SPACING_M)
-    keep = np.flatnonzero(np.diff(bins, prepend=-1.0) > 0)
-    return distinct(np.concatenate([keep, [0, len(points) - 1]]))
 
 
 def _densify(
@@ -324,18 +311,14 @@ def _densify_iterative(
     return np.concatenate(out_p), np.concatenate(out_y), np.concatenate(out_q)
 
 
-def _significant_points(points: np.ndarray, yaw: np.ndarray) -> np.ndarray:
-    """Indexes of the points that move at least MIN_STEP_M from the last one kept.
+def _significant_points_all(parts: list[tuple[np.ndarray, np.ndarray]]) -> list[np.ndarray]:
+    """Indexes of the points of each (points, yaw) part that move at least MIN_STEP_M from the
+    last one kept (the steps of all parts in one pass).
 
     A rollout that dwells jitters; every wiggle would be a direction reversal of the path, a
     cusp the joints cannot follow at speed. Dropping those points moves the path by less than
     MIN_STEP_M.
     """
-    return _significant_points_all([(points, yaw)])[0]
-
-
-def _significant_points_all(parts: list[tuple[np.ndarray, np.ndarray]]) -> list[np.ndarray]:
-    """`_significant_points` of every (points, yaw) part (the steps of all in one pass)."""
     if not parts:
         return []
     geometry, steps, starts = _geometry_of_all(parts)
@@ -348,7 +331,7 @@ def _significant_points_all(parts: list[tuple[np.ndarray, np.ndarray]]) -> list[
 
 
 def _significant_in(geometry: np.ndarray, steps: np.ndarray) -> np.ndarray:
-    """`_significant_points` of one part's geometry and steps (see `_geometry_of_all`)."""
+    """`_significant_points_all` of one part's geometry and steps (see `_geometry_of_all`)."""
     n = len(geometry)
     # The test is the distance (1-D norm) from the last point kept. Row norms and sums of
     # squares in Python floats (other summation orders) decide only where they are clear of

@@ -99,34 +99,11 @@ def _profile(length: float, limits: Limits, period: float) -> tuple[Any, float]:
     return profile, rounded
 
 
-def _sample_profile(profile: Any, times: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Position, velocity and acceleration of a 1-DOF Ruckig profile at `times`.
-
-    A Ruckig profile is seven constant-jerk phases: inside a phase the state is the cubic
-    Ruckig's own `at_time` integrates (same formula, same order of operations), evaluated here
-    for all times at once; past the end the final state continues at zero jerk, as in Ruckig.
-    """
-    phases = profile.profiles[0][0]
-    if len(profile.profiles) != 1 or phases.brake.duration > 0:
-        return _sample_profile_by_calls(profile, times)  # never for rest-to-rest strokes
-    t_sum = np.cumsum(phases.t)
-    jerk = np.append(np.asarray(phases.j, dtype=float), 0.0)
-    p0, v0, a0 = (np.asarray(values, dtype=float) for values in (phases.p, phases.v, phases.a))
-    times = np.asarray(times, dtype=float)
-    index = np.searchsorted(t_sum, times, side="right")  # Ruckig's upper_bound
-    start = np.concatenate([[0.0], t_sum])[index]
-    t = times - start
-    j, a, v, p = jerk[index], a0[index], v0[index], p0[index]
-    position = p + t * (v + t * (a / 2 + t * j / 6))
-    velocity = v + t * (a + t * j / 2)
-    acceleration = a + t * j
-    return position, velocity, acceleration
-
-
 def _sample_profile_by_calls(
     profile: Any, times: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The same with one Ruckig call per time (the reference the numpy version is tested on)."""
+    """Position, velocity and acceleration of a Ruckig profile at `times`, one Ruckig call per
+    time: for a profile that is not one rest-to-rest phase list (never one of `_profile`'s)."""
     values = np.array([[v[0] for v in profile.at_time(float(t))] for t in times])
     return values[:, 0], values[:, 1], values[:, 2]
 
@@ -134,8 +111,14 @@ def _sample_profile_by_calls(
 def _sample_profiles(
     profiles: list[Any], times: list[np.ndarray]
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """`_sample_profile` of many profiles, `times[k]` on `profiles[k]`, end to end: the phase
-    search per profile, the cubic for all samples in one pass (the same values)."""
+    """Position, velocity and acceleration of 1-DOF Ruckig profiles, `times[k]` on
+    `profiles[k]`, end to end.
+
+    A Ruckig profile is seven constant-jerk phases: inside a phase the state is the cubic
+    Ruckig's own `at_time` integrates (same formula, same order of operations), evaluated here
+    for all samples in one pass after a phase search per profile; past the end the final state
+    continues at zero jerk, as in Ruckig.
+    """
     count = len(profiles)
     phase_lists: list[list[Any]] = [[], [], [], [], []]
     by_calls = []
@@ -175,27 +158,10 @@ def _sample_profiles(
     return position, velocity, acceleration
 
 
-def _joint_motion(
-    stroke: Stroke, s: np.ndarray, sd: np.ndarray, sdd: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """q, q dot, q double dot from q(s) and the timing of s (chain rule)."""
-    s = np.clip(s, 0.0, stroke.length)
-    q, dq, ddq = stroke.q_of_s.with_derivatives(s)
-    return q, dq * sd[:, None], ddq * (sd**2)[:, None] + dq * sdd[:, None]
-
-
-def _joint_rates(
-    stroke: Stroke, s: np.ndarray, sd: np.ndarray, sdd: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """q dot and q double dot of `_joint_motion`, without q (the limit check needs no more)."""
-    dq, ddq = stroke.q_of_s.derivatives(np.clip(s, 0.0, stroke.length))
-    return dq * sd[:, None], ddq * (sd**2)[:, None] + dq * sdd[:, None]
-
-
 class _StrokeRates:
-    """q, q dot and q double dot (`_joint_motion`) of many strokes at once: their splines in
-    one SplineTable; a stroke whose q(s) is no CubicSpline (or a shift of one) is evaluated on
-    its own."""
+    """q, q dot and q double dot of many strokes at once, from q(s) and the timing of s (chain
+    rule): their splines in one SplineTable; a stroke whose q(s) is no CubicSpline (or a shift
+    of one) is evaluated on its own."""
 
     def __init__(self, strokes: list[Stroke]):
         self.strokes = strokes
@@ -225,7 +191,7 @@ class _StrokeRates:
     def motion(
         self, k: int, s: np.ndarray, sd: np.ndarray, sdd: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """`_joint_motion` of stroke k, (m, 6) each, through the table."""
+        """q, q dot and q double dot of stroke k, (m, 6) each, through the table."""
         chunks = list(self.chunks([k], s, [len(s)], sd, sdd))
         q, qd, qdd = (np.concatenate([c[i] for c in chunks], axis=1).T for i in (1, 2, 3))
         return q, qd, qdd
@@ -272,16 +238,6 @@ class _StrokeRates:
             yield part, q, dq, ddq
 
 
-def _limit_ratios(
-    model: RobotModel, qd: np.ndarray, qdd: np.ndarray, period: float
-) -> tuple[float, float, float]:
-    """The largest |qd|/limit, |qdd|/limit, |jerk|/limit (jerk by differences of qdd)."""
-    velocity = float((np.abs(qd) / model.velocity_limits).max())
-    acceleration = float((np.abs(qdd) / model.acceleration_limits).max())
-    jerk = np.diff(qdd, axis=0) / period if len(qdd) > 1 else np.zeros((1, 6))
-    return velocity, acceleration, float((np.abs(jerk) / model.jerk_limits).max())
-
-
 def _worst_place(
     model: RobotModel, s: np.ndarray, qd: np.ndarray, qdd: np.ndarray, period: float
 ) -> float:
@@ -294,39 +250,6 @@ def _worst_place(
     return float(s[int(np.argmax(np.maximum(np.maximum(velocity, acceleration), jerk)))])
 
 
-def time_stroke(
-    model: RobotModel, stroke: Stroke, tool_limits: Limits, period: float
-) -> TimedStroke:
-    """The fastest profile (tool limits first) whose joints stay inside every joint limit."""
-    limits = Limits(min(stroke.speed, tool_limits.velocity), *_tail(tool_limits))
-    check_period = min(period, 1.0 / CHECK_RATE_HZ)
-    first_duration, first_place = None, 0.0
-    for attempt in range(MAX_RETIMES):
-        profile, duration = _profile(stroke.length, limits, period)
-        times = np.arange(0.0, duration + 0.5 * check_period, check_period)
-        times[-1] = min(times[-1], duration)
-        s, sd, sdd = _sample_profile(profile, times)
-        qd, qdd = _joint_rates(stroke, s, sd, sdd)
-        if first_duration is None:
-            first_duration = duration
-            first_place = _worst_place(model, s, qd, qdd, check_period)
-        rv, ra, rj = _limit_ratios(model, qd, qdd, check_period)
-        if max(rv, ra, rj) <= 1.0:
-            slowdown = duration / first_duration
-            worst_s = first_place if slowdown >= STOP_SLOWDOWN else 0.0
-            return TimedStroke(stroke, profile, duration, limits, slowdown, worst_s)
-        if attempt < MAX_RETIMES // 2:
-            # lower only what is violated: keeps the profile fast where it can be
-            limits = Limits(
-                limits.velocity / max(rv / LIMIT_MARGIN, 1.0),
-                limits.acceleration / max(ra / LIMIT_MARGIN, 1.0),
-                limits.jerk / max(rj / LIMIT_MARGIN, 1.0),
-            )
-        else:
-            limits = limits.scaled(max(rv, math.sqrt(ra), rj ** (1 / 3)) / LIMIT_MARGIN)
-    raise _untimeable(stroke)
-
-
 def _check_profiles(
     model: RobotModel,
     rates: _StrokeRates,
@@ -335,8 +258,8 @@ def _check_profiles(
     durations: list[float],
     check_period: float,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """`_limit_ratios` of every profile (on stroke `which[k]`) in one pass: the ratios per
-    profile (velocity, acceleration, jerk).
+    """The largest |q dot|, |q double dot| and |jerk| (by differences of q double dot) over
+    their joint limits, of every profile (on stroke `which[k]`) in one pass: (count,) each.
 
     Dividing by a limit is monotone, so the largest ratio is the largest magnitude per joint
     divided by its limit: the same number as dividing every sample first.
@@ -404,9 +327,9 @@ def _worst_places(
 def time_strokes_at_once(
     model: RobotModel, strokes: list[Stroke], tool_limits: Limits, period: float
 ) -> list[TimedStroke | KeympsError]:
-    """`time_stroke` of every stroke (the same profiles), each round's 1 kHz limit checks of
-    all strokes still being slowed down in one pass; a stroke that cannot be timed gets the
-    error `time_stroke` raises for it."""
+    """Each stroke's fastest profile (tool limits first) whose joints keep every joint limit at
+    CHECK_RATE_HZ (or 1 / period if faster), each round's checks of all strokes still too fast
+    in one pass; a stroke that cannot be timed gets its error in its place."""
     rates = _StrokeRates(strokes)
     check_period = min(period, 1.0 / CHECK_RATE_HZ)
     limits = [
@@ -584,7 +507,7 @@ def sample_trajectory(
     xyz = np.empty((len(s), 3))
     for item, start, count in zip(timed, np.cumsum(counts) - counts, counts, strict=True):
         part = slice(start, start + count)
-        for k in range(3):  # `_planned_points`, all strokes clipped in one call
+        for k in range(3):  # the planned polyline at s, all strokes clipped in one call
             xyz[part, k] = np.interp(on_path[part], item.stroke.s, item.stroke.points[:, k])
     piece_index = np.repeat([item.stroke.piece_index for item in timed], counts).astype(int)
 
@@ -603,9 +526,3 @@ def sample_trajectory(
     trajectory.qd[[0, -1]] = 0.0  # at rest; removes 1e-17 residues of the profile
     trajectory.qdd[[0, -1]] = 0.0
     return trajectory
-
-
-def _planned_points(stroke: Stroke, s: np.ndarray) -> np.ndarray:
-    """The tool path's polyline at arc parameter s (what the tool should be doing)."""
-    s = np.clip(s, 0.0, stroke.length)
-    return np.column_stack([np.interp(s, stroke.s, stroke.points[:, k]) for k in range(3)])

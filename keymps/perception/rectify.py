@@ -27,11 +27,6 @@ if TYPE_CHECKING:
     from keymps.config.task import Task
 
 
-def _to_continuous() -> np.ndarray:
-    """OpenCV pixel indices (centre of the first pixel at 0) -> continuous coordinates."""
-    return np.array([[1.0, 0, 0.5], [0, 1.0, 0.5], [0, 0, 1.0]])
-
-
 def camera_matrix(task: Task) -> tuple[np.ndarray, np.ndarray] | None:
     """(K, distortion) from scene.camera.intrinsics, or None."""
     given = task.scene.camera.intrinsics
@@ -176,53 +171,21 @@ def top_surface(detection: Detection, scene: SceneImage) -> Detection:
     the sides fill the band between, so the silhouette S is the union of F scaled by 1 to k.
     The top is what lies in S *and* in S scaled by k about c: exact for a prism, a close bound
     for a rounded object."""
-    import cv2
-
     info = scene.rectification
     if info is None or info.camera_position_m is None or info.plane_z <= 0:
         return detection
-    width, height = scene.size_px
     cz = info.camera_position_m[2]
     grow = cz / (cz - info.plane_z)
     assert info.camera_foot_px is not None
-    foot = np.asarray(info.camera_foot_px, float)
-    centre = foot - 0.5  # warpAffine works in pixel indices
-    affine = np.array([[grow, 0, centre[0] * (1 - grow)], [0, grow, centre[1] * (1 - grow)]])
-
-    def refine(mask: np.ndarray | None) -> np.ndarray | None:
-        if mask is None:
-            return None
-        grown = cv2.warpAffine(
-            mask.astype(np.uint8), affine, (width, height), flags=cv2.INTER_NEAREST
-        )
-        top = (mask & (grown > 0)).astype(np.uint8)
-        contours, _ = cv2.findContours(top, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-        if not contours:
-            return None
-        largest = max(contours, key=cv2.contourArea)
-        filled = np.zeros_like(top)
-        cv2.drawContours(filled, [largest], -1, 1, cv2.FILLED)
-        return filled > 0
-
-    top = refine(detection.mask)
+    scaling = _scaling_about(info.camera_foot_px, grow)
+    top = _top_mask(detection.mask, scaling, scene.size_px)
     if top is None:
         raise DetectionError(
             f"the object (box {list(detection.bbox_px)}) has no top surface once its sides are "
             f"removed for scene.object_height {info.plane_z:g} m: is the height right?",
         )
     bbox, contour = _box_and_contour(top)
-    pad_x = max(0, detection.bbox_px[0] - detection.crop_origin_px[0])
-    pad_y = max(0, detection.bbox_px[1] - detection.crop_origin_px[1])
-    pad = max(pad_x, pad_y)
-    cx0, cy0 = max(0, bbox[0] - pad), max(0, bbox[1] - pad)
-    cx1, cy1 = min(width, bbox[2] + pad), min(height, bbox[3] + pad)
-    objects = []
-    for item in detection.objects:
-        refined = refine(item.mask)
-        if refined is None:
-            continue
-        box, outline = _box_and_contour(refined)
-        objects.append(DetectedObject(item.id, box, outline, float(refined.sum()), refined))
+    x0, y0, x1, y1 = _padded_crop(bbox, detection, scene.size_px)
     report = dict(detection.report)
     report["top_surface"] = {
         "camera_position_m": [round(v, 4) for v in info.camera_position_m],
@@ -234,13 +197,70 @@ def top_surface(detection: Detection, scene: SceneImage) -> Detection:
     return dataclasses.replace(
         detection,
         bbox_px=bbox,
-        crop=np.ascontiguousarray(scene.image[cy0:cy1, cx0:cx1]),
-        crop_origin_px=(cx0, cy0),
+        crop=np.ascontiguousarray(scene.image[y0:y1, x0:x1]),
+        crop_origin_px=(x0, y0),
         contour_px=contour,
         mask=top,
-        objects=tuple(objects),
+        objects=_top_objects(detection.objects, scaling, scene.size_px),
         report=report,
     )
+
+
+def _scaling_about(point_px: tuple[float, float], factor: float) -> np.ndarray:
+    """(2, 3) the affine map of pixel indices that scales by `factor` about a point given in
+    continuous pixels."""
+    centre = np.asarray(point_px, float) - 0.5  # warpAffine works in pixel indices
+    return np.array([[factor, 0, centre[0] * (1 - factor)], [0, factor, centre[1] * (1 - factor)]])
+
+
+def _top_mask(
+    mask: np.ndarray | None, scaling: np.ndarray, size_px: tuple[int, int]
+) -> np.ndarray | None:
+    """The largest region of the silhouette `mask` (H, W bool) that its copy moved by
+    `scaling` also covers, filled; None without a mask or when nothing is left."""
+    import cv2
+
+    if mask is None:
+        return None
+    grown = cv2.warpAffine(mask.astype(np.uint8), scaling, size_px, flags=cv2.INTER_NEAREST)
+    top = (mask & (grown > 0)).astype(np.uint8)
+    contours, _ = cv2.findContours(top, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    if not contours:
+        return None
+    largest = max(contours, key=cv2.contourArea)
+    filled = np.zeros_like(top)
+    cv2.drawContours(filled, [largest], -1, 1, cv2.FILLED)
+    return filled > 0
+
+
+def _padded_crop(
+    bbox: tuple[int, int, int, int], detection: Detection, size_px: tuple[int, int]
+) -> tuple[int, int, int, int]:
+    """(x0, y0, x1, y1) of a crop around bbox with the detection's own padding, in the image."""
+    width, height = size_px
+    pad_x = max(0, detection.bbox_px[0] - detection.crop_origin_px[0])
+    pad_y = max(0, detection.bbox_px[1] - detection.crop_origin_px[1])
+    pad = max(pad_x, pad_y)
+    return (
+        max(0, bbox[0] - pad),
+        max(0, bbox[1] - pad),
+        min(width, bbox[2] + pad),
+        min(height, bbox[3] + pad),
+    )
+
+
+def _top_objects(
+    objects: tuple[DetectedObject, ...], scaling: np.ndarray, size_px: tuple[int, int]
+) -> tuple[DetectedObject, ...]:
+    """Each object's top (`_top_mask` of its mask); an object with none is left out."""
+    tops = []
+    for item in objects:
+        top = _top_mask(item.mask, scaling, size_px)
+        if top is None:
+            continue
+        box, outline = _box_and_contour(top)
+        tops.append(DetectedObject(item.id, box, outline, float(top.sum()), top))
+    return tuple(tops)
 
 
 def _box_and_contour(mask: np.ndarray) -> tuple[tuple[int, int, int, int], np.ndarray]:

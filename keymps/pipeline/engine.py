@@ -13,10 +13,18 @@ from typing import Any, TypeVar
 
 from keymps.config.overrides import apply_overrides
 from keymps.config.task import Task, load_task
-from keymps.errors import KeympsError, RunInterrupted, StageError, TaskFileError, os_error_message
-from keymps.interrupts import interrupts_deferred
+from keymps.errors import (
+    Interrupted,
+    KeympsError,
+    RunInterrupted,
+    StageError,
+    TaskFileError,
+    interrupt_name,
+    os_error_message,
+)
+from keymps.interrupts import first_signal, interrupts_deferred, signals_received
 from keymps.planning.backend_choice import AUTO_VLM, NO_SERVER
-from keymps.plugin.manager import create_component, get_manager
+from keymps.plugin.manager import call_each, create_component, get_manager
 from keymps.run import IMAGE_FORMATS, STAGES, Run, RunOptions, clear_earlier_run
 from keymps.types import Detection, ExecutionReport, SceneImage
 
@@ -193,6 +201,7 @@ class _Pipeline:
     def stage(self, name: str, work: Callable[[], Any]) -> Any:
         started = time.perf_counter()
         self.current = name
+        signals_before = signals_received()
         try:
             result = work()
         except StageError as error:
@@ -222,6 +231,9 @@ class _Pipeline:
                 f"(a bug in {suspects}; KEYMPS_DEBUG=1 shows the traceback)",
             ) from error
         seconds = time.perf_counter() - started
+        if signals_received() > signals_before:  # a stop signal the stage's code swallowed (an
+            self.run.stages.record(name, result)  # executor that stopped the arm and returned)
+            raise Interrupted(first_signal())
         self.current, self.done = None, name
         self.run.stages.record(name, result)
         self.run.timings_s[name] = seconds
@@ -251,27 +263,13 @@ class _Pipeline:
         }.get(stage)
 
     def announce(self, name: str, result: Any) -> None:
-        """Tell the observers, each on its own: one that raises is reported (by name) and the
-        others, the Rerun recorder among them, still see the stage."""
-        observers = [impl.plugin for impl in self.manager.hook.keymps_stage_done.get_hookimpls()]
-        pressed: KeyboardInterrupt | None = None
-        for observer in reversed(observers):  # pluggy's order: the last registered first
-            others = [plugin for plugin in observers if plugin is not observer]
-            only = self.manager.subset_hook_caller("keymps_stage_done", remove_plugins=others)
-            try:
-                only(stage=name, result=result, run=self.run)
-            except KeyboardInterrupt as interrupt:  # the others still hear of it (the recorder
-                pressed = interrupt  # closes run.rrd at "finished"); the Ctrl-C then goes on
-            except Exception as error:
-                plugin = self.manager.get_name(observer)
-                message = (
-                    f"an observer of stage {name!r} failed (plugin {plugin!r}): "
-                    f"{type(error).__name__}: {error}"
-                )
-                self.run.warnings.append(message)
-                warnings.warn(message, RuntimeWarning, stacklevel=2)
-        if pressed is not None:
-            raise pressed
+        """Tell the observers, each on its own: one that raises is unregistered with one
+        warning naming it, and the others, the Rerun recorder among them, still see the
+        stage (the user's Ctrl-C goes on after them)."""
+        problems = call_each(
+            self.manager, "keymps_stage_done", stage=name, result=result, run=self.run
+        )
+        self.run.warnings.extend(problems)
 
     def execute_all(self) -> None:
         from keymps.config.limits import check_duration, check_tool_path
@@ -389,7 +387,7 @@ def _write_record(run: Run, error: BaseException | None, pipeline: _Pipeline) ->
     from keymps.pipeline.run_folder import write_run_json
 
     if isinstance(error, KeyboardInterrupt):
-        error = RunInterrupted(pipeline.current, pipeline.done)
+        error = RunInterrupted(pipeline.current, pipeline.done, interrupt_name(error))
     try:
         write_run_json(run, error)
     except OSError as failure:
@@ -412,6 +410,21 @@ def _backend_under_way(task: Task, backend: str, options: RunOptions) -> RunOpti
             return replace(options, dispatch=dispatch)
     prepare_backend(backend, backend_options(task))
     return options
+
+
+def _prepare_folder(run: Run) -> None:
+    """Remove an earlier run's files, then write the placeholder run.json that holds the disk
+    space of the record (a run.json that is a folder, a full disk: refused before any stage)."""
+    from keymps.pipeline.run_folder import reserve_run_json
+
+    clear_earlier_run(run.folder)
+    with interrupts_deferred():
+        try:
+            reserve_run_json(run)
+        except OSError as error:
+            raise KeympsError(
+                f"{os_error_message(error)} (run.json is written before the first stage)"
+            ) from None
 
 
 def run_task(
@@ -480,12 +493,12 @@ def run_task(
             raise KeympsError(refused[0])
     folder = _new_run_folder(task, Path(out) if out else None)
     lock = FolderLock(folder).acquire()  # a second run into this folder refuses here
+    run = Run(task=task, folder=folder, options=options)
     try:
-        clear_earlier_run(folder)
-    except KeympsError:
+        _prepare_folder(run)
+    except BaseException:
         lock.release()
         raise
-    run = Run(task=task, folder=folder, options=options)
     run.backend, run.backend_reason, run.robot = backend, reason, parts.robot
     keyless = untrusted_api_base_warning(task) if backend not in NO_SERVER else None
     if keyless:

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import errno
 import json
 import math
+import os
 from typing import Any
 
 from keymps._version import __version__
@@ -12,8 +14,15 @@ from keymps.robot.safety import SafetyError
 from keymps.run import Run, write_atomically
 from keymps.types import ValidatedTrajectory
 
-SCHEMA_VERSION = "1.1"
-"""1.1: `status` (ok, failed, interrupted)."""
+SCHEMA_VERSION = "1.2"
+"""1.1: `status` (ok, failed, interrupted). 1.2: `unfinished`, the placeholder written before the
+first stage."""
+
+RESERVED_BYTES = 16384
+"""run.json's placeholder holds this much disk space until the run ends (typical records are
+5-10 kB), so that a disk the run fills up still has room for its record."""
+
+_NO_SPACE = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG}
 
 
 def _rounded(values: Any, digits: int = 6) -> Any:
@@ -80,7 +89,7 @@ def _image_record(scene: Any) -> dict[str, Any]:
 
 
 def _status(error: BaseException | None) -> str:
-    """ok, failed, or interrupted (Ctrl-C)."""
+    """ok, failed, or interrupted (Ctrl-C, SIGTERM, SIGHUP)."""
     if error is None:
         return "ok"
     return "interrupted" if isinstance(error, (RunInterrupted, KeyboardInterrupt)) else "failed"
@@ -168,8 +177,76 @@ def _objects(run: Run) -> list[dict[str, Any]]:
 
 
 def write_run_json(run: Run, error: BaseException | None = None) -> None:
-    """Write run.json (secrets redacted) atomically: never empty or cut, even on a full disk."""
+    """Write run.json (secrets redacted) atomically: never empty or cut. On a full disk it goes
+    into the space its placeholder holds (reserve_run_json), the whole record if it fits, else
+    the short one (SHORT_FIELDS)."""
     from keymps.planning.redaction import redact
 
     record = redact(run_record(run, error))
-    write_atomically(run.path("run.json"), json.dumps(record, indent=2) + "\n")
+    text = json.dumps(record, indent=2) + "\n"
+    try:
+        write_atomically(run.path("run.json"), text)
+    except OSError as error_writing:
+        if error_writing.errno not in _NO_SPACE:
+            raise
+        short = {key: record[key] for key in SHORT_FIELDS} | {"short": True}
+        for fallback in (text, json.dumps(short) + "\n"):
+            if _overwrite_in_place(run.path("run.json"), fallback.encode()):
+                return
+        raise
+
+
+SHORT_FIELDS = (
+    "schema_version", "keymps_version", "ok", "status", "error", "task", "task_file",
+    "backend", "execution", "warnings",
+)  # fmt: skip
+"""What run.json keeps when the disk is full and the whole record does not fit its reserved
+space (`"short": true` says so)."""
+
+
+def reserve_run_json(run: Run) -> None:
+    """Write the placeholder run.json (`"status": "unfinished"`) before the first stage, padded to
+    RESERVED_BYTES (less where the disk has less room): it holds the disk space the record needs
+    at the end, and says that the run never finished if its process is killed (kill -9, power
+    loss). Raises OSError when not even the bare placeholder can be written."""
+    record = {
+        "schema_version": SCHEMA_VERSION,
+        "keymps_version": __version__,
+        "ok": False,
+        "status": "unfinished",
+        "error": "the run has not ended: it is running, or its process was killed before it "
+        "could write this record (kill -9, a crash, a power loss); if it had reached its "
+        "executor, a real arm may have moved",
+        "task": run.task.name,
+        "task_file": str(run.task.path) if run.task.path else None,
+        "instruction": run.task.instruction,
+    }
+    text = json.dumps(record, indent=2) + "\n"
+    for size in (RESERVED_BYTES, 4096, 0):
+        try:
+            write_atomically(run.path("run.json"), text.ljust(size - 1) + "\n" if size else text)
+            return
+        except OSError as error:
+            if error.errno not in _NO_SPACE or not size:
+                raise
+
+
+def _overwrite_in_place(path: Any, data: bytes) -> bool:
+    """Write `data` over the placeholder's own disk blocks (no new ones: a full disk has none);
+    False when it does not fit them. Not atomic: only for a disk too full for the atomic way."""
+    try:
+        descriptor = os.open(path, os.O_WRONLY | os.O_NOFOLLOW)
+    except OSError:
+        return False
+    try:
+        status = os.fstat(descriptor)
+        if len(data) > max(status.st_size, status.st_blocks * 512):
+            return False
+        os.pwrite(descriptor, data, 0)
+        os.ftruncate(descriptor, len(data))
+        os.fsync(descriptor)
+        return True
+    except OSError:
+        return False
+    finally:
+        os.close(descriptor)

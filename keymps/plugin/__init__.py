@@ -11,7 +11,15 @@ def register_detectors(register: RegisterDetector) -> None:
 See docs/plugins.md for every hook and docs/architecture.md for where plugins sit.
 """
 
-from keymps.errors import DetectionError, ImageSourceError, KeympsError, SafetyError, StageError
+from keymps.errors import (
+    DetectionError,
+    ImageSourceError,
+    KeympsError,
+    SafetyError,
+    StageError,
+    interrupt_name,
+)
+from keymps.interrupts import interrupts_deferred
 from keymps.plugin.components import Detector, Executor, ImageSource, StageObserver, VlmBackend
 from keymps.plugin.hookspecs import (
     Register,
@@ -42,6 +50,8 @@ __all__ = [
     "StageObserver",
     "VlmBackend",
     "hookimpl",
+    "interrupt_name",
+    "interrupts_deferred",
     "parse_options",
     "require_validated",
     "trajectory_digest",

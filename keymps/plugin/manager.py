@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import importlib
 import os
 import sys
@@ -14,6 +15,7 @@ from typing import Any
 import pluggy
 
 from keymps.errors import KeympsError
+from keymps.interrupts import handling_signals, signals_received
 from keymps.plugin import hookspecs
 
 ENTRY_POINT_GROUP = "keymps"
@@ -82,11 +84,21 @@ def _trace_hook_calls(manager: pluggy.PluginManager) -> None:
     manager.add_hookcall_monitoring(before, after)
 
 
+def _warn_plugin(message: str) -> None:
+    """A warning about a plugin, a warning even under `-W error` / PYTHONWARNINGS=error: a
+    broken plugin must not break unrelated commands ('ignore' still silences it)."""
+    try:
+        warnings.warn(message, PluginLoadWarning, stacklevel=4)
+    except PluginLoadWarning:
+        with warnings.catch_warnings():
+            warnings.simplefilter("default", PluginLoadWarning)
+            warnings.warn(message, PluginLoadWarning, stacklevel=4)
+
+
 def _warn_broken(name: str, error: BaseException) -> str:
     """Warn about a plugin that failed to load; returns the error as one line."""
-    detail = " ".join(f"{type(error).__name__}: {error}".split())
-    message = f"keymps: plugin {name!r} failed to load and was skipped: {detail}"
-    warnings.warn(message, PluginLoadWarning, stacklevel=3)
+    detail = " ".join(f"{type(error).__name__}: {error}".split()) or type(error).__name__
+    _warn_plugin(f"keymps: plugin {name!r} failed to load and was skipped: {detail}")
     return detail
 
 
@@ -112,28 +124,97 @@ def build_manager() -> KeympsPluginManager:
     manager = KeympsPluginManager()
     manager.add_hookspecs(hookspecs)
     for name, module_name in DEFAULT_PLUGINS.items():
-        if not _selected(name, None):
-            continue
-        try:
-            manager.register(importlib.import_module(module_name), name=name)
-        except Exception as error:  # a broken plugin must not break unrelated commands
-            _forget(manager, name)
-            manager.failures[name] = _warn_broken(name, error)
+        if _selected(name, None):
+            _load(manager, name, functools.partial(importlib.import_module, module_name))
     for entry_point in _keymps_entry_points():
         dist = entry_point.dist
         if not _selected(entry_point.name, dist) or manager.has_plugin(entry_point.name):
             continue
         if dist is not None:
             manager.sources[entry_point.name] = dist
-        try:
-            manager.register(entry_point.load(), name=entry_point.name)
-        except Exception as error:
-            _forget(manager, entry_point.name)
-            manager.failures[entry_point.name] = _warn_broken(entry_point.name, error)
+        _load(manager, entry_point.name, entry_point.load)
     _warn_unknown_hooks(manager)
     if os.environ.get("KEYMPS_TRACE_PLUGINS"):
         _trace_hook_calls(manager)
     return manager
+
+
+def _load(manager: KeympsPluginManager, name: str, load: Callable[[], object]) -> None:
+    """Import and register one plugin; a broken one (whatever it raises: SystemExit too) is
+    skipped with one warning naming it, and the rest of keymps keeps working."""
+    signals_before = signals_received()
+    try:
+        manager.register(load(), name=name)
+    except BaseException as error:
+        _forget(manager, name)
+        if _a_real_interrupt(error, signals_before):  # the user's Ctrl-C stops the command
+            _warn_plugin(f"keymps: interrupted while plugin {name!r} was loading")
+            raise
+        manager.failures[name] = _warn_broken(name, error)
+
+
+def _a_real_interrupt(error: BaseException, signals_before: int) -> bool:
+    """A KeyboardInterrupt from the user, not one a plugin raised itself: with the keymps
+    command's handler, only one that came with a signal (without it, any one)."""
+    if not isinstance(error, KeyboardInterrupt):
+        return False
+    return not handling_signals() or signals_received() > signals_before
+
+
+def _disable(manager: pluggy.PluginManager, name: str, error: BaseException, where: str) -> str:
+    """Unregister a plugin whose hook raised; the one warning naming it, returned too."""
+    detail = " ".join(f"{type(error).__name__}: {error}".split())
+    message = f"keymps: plugin {name!r} failed in {where} and was unregistered: {detail}"
+    if manager.has_plugin(name):
+        manager.unregister(name=name)
+    failures = getattr(manager, "failures", None)
+    if failures is not None:
+        failures[name] = detail
+    _warn_plugin(message)
+    return message
+
+
+def call_each(manager: pluggy.PluginManager, hook_name: str, **kwargs: Any) -> list[str]:
+    """Call a hook on each plugin on its own, in pluggy's order (the last registered first),
+    so that one that raises hides nothing from the others. A plugin that raises anything
+    (SystemExit, its own KeyboardInterrupt) is unregistered with one warning naming it; the
+    user's Ctrl-C goes on once every plugin has been called. Returns the warnings."""
+    impls = getattr(manager.hook, hook_name).get_hookimpls()
+    problems: list[str] = []
+    pressed: BaseException | None = None
+    for impl in reversed(impls):
+        try:
+            problem = _call_one(manager, hook_name, impl, impls, kwargs)
+        except KeyboardInterrupt as interrupt:  # the others still hear of it (the recorder
+            pressed = interrupt  # closes run.rrd at "finished"); the Ctrl-C then goes on
+            continue
+        if problem:
+            problems.append(problem)
+    if pressed is not None:
+        raise pressed
+    return problems
+
+
+def _call_one(
+    manager: pluggy.PluginManager, hook_name: str, impl: Any, impls: list[Any], kwargs: Any
+) -> str | None:
+    """Call one plugin's implementation of a hook; the warning if it raised (and was
+    unregistered). The user's Ctrl-C is raised."""
+    others = [other.plugin for other in impls if other.plugin is not impl.plugin]
+    only = manager.subset_hook_caller(hook_name, remove_plugins=others)
+    signals_before = signals_received()
+    try:
+        only(**kwargs)
+    except BaseException as error:
+        if _a_real_interrupt(error, signals_before):
+            raise
+        return _disable(manager, impl.plugin_name, error, f"{hook_name}({_shown(kwargs)})")
+    return None
+
+
+def _shown(kwargs: dict[str, Any]) -> str:
+    """A hook call's arguments worth naming in a warning (the stage of keymps_stage_done)."""
+    return f"stage={kwargs['stage']!r}" if "stage" in kwargs else ""
 
 
 def _forget(manager: KeympsPluginManager, name: str) -> None:
@@ -154,11 +235,9 @@ def _warn_unknown_hooks(manager: KeympsPluginManager) -> None:
         close = difflib.get_close_matches(name, known, n=1)
         hint = f" (did you mean {close[0]!r}?)" if close else ""
         for impl in caller.get_hookimpls():
-            warnings.warn(
+            _warn_plugin(
                 f"keymps: plugin {impl.plugin_name!r} implements {name!r}, which is no keymps "
-                f"hook{hint}: it is never called",
-                PluginLoadWarning,
-                stacklevel=3,
+                f"hook{hint}: it is never called"
             )
 
 
@@ -217,49 +296,63 @@ def reset_manager() -> None:
     _manager = None
 
 
+def registrations(
+    kind: str, manager: pluggy.PluginManager | None = None
+) -> dict[str, list[tuple[str, Callable[..., Any]]]]:
+    """Plugin name -> the (name, factory) pairs it registers of one kind, in pluggy's order.
+
+    Each plugin's hook is called on its own: one that raises, or registers a name that is no
+    non-empty string or a factory that cannot be called, is unregistered with one warning and
+    registers nothing."""
+    manager = manager or get_manager()
+    hook_name = COMPONENT_HOOKS[kind]
+    impls = getattr(manager.hook, hook_name).get_hookimpls()
+    found: dict[str, list[tuple[str, Callable[..., Any]]]] = {}
+    for impl in reversed(impls):
+        own: list[tuple[str, Callable[..., Any]]] = []
+
+        def register(name: str, factory: Callable[..., Any], own: list[Any] = own) -> None:
+            if not isinstance(name, str) or not name.strip():
+                raise TypeError(f"register({name!r}, ...): a component's name is a string")
+            if not callable(factory):
+                raise TypeError(f"register({name!r}, {factory!r}): the factory is not callable")
+            own.append((name, factory))
+
+        if _call_one(manager, hook_name, impl, impls, {"register": register}) is None:
+            found[impl.plugin_name] = own
+    return found
+
+
 def components(
     kind: str, manager: pluggy.PluginManager | None = None
 ) -> dict[str, Callable[..., Any]]:
     """Every registered factory of one kind ('detector', 'vlm_backend', ...), by name."""
-    manager = manager or get_manager()
+    return _merged(kind, registrations(kind, manager))
+
+
+def _merged(
+    kind: str, registered: dict[str, list[tuple[str, Callable[..., Any]]]]
+) -> dict[str, Callable[..., Any]]:
+    """One factory per name; a replaced one is said once per process."""
     found: dict[str, Callable[..., Any]] = {}
-    clashes: list[str] = []
-
-    def register(name: str, factory: Callable[..., Any]) -> None:
-        # pluggy calls the plugin registered last first: an installed plugin's component
-        # replaces a built-in of the same name (what docs/plugins.md promises)
-        if name in found and found[name] is not factory:
-            clashes.append(name)
-        found.setdefault(name, factory)
-
-    hook = getattr(manager.hook, COMPONENT_HOOKS[kind])
-    hook(register=register)
-    if clashes:
-        _warn_replaced(kind, clashes, hook)
-    return found
-
-
-def _warn_replaced(kind: str, names: list[str], hook: Any) -> None:
-    """Say once which plugin's component replaces which (asking each plugin on its own)."""
     owners: dict[str, list[str]] = {}
-    for impl in reversed(hook.get_hookimpls()):
-        impl.function(
-            register=lambda name, _factory, by=impl.plugin_name: owners.setdefault(name, []).append(
-                by
-            )
-        )
-    for name in names:
-        used, *others = owners.get(name, ["?"])
+    # pluggy's order, the plugin registered last first: an installed plugin's component
+    # replaces a built-in of the same name (what docs/plugins.md promises)
+    for plugin, pairs in registered.items():
+        for name, factory in pairs:
+            found.setdefault(name, factory)
+            owners.setdefault(name, []).append(plugin)
+    for name, plugins in owners.items():
+        used, *others = plugins
         for other in others:
             if (kind, name, other) in _replaced or other == used:
                 continue
             _replaced.add((kind, name, other))
-            warnings.warn(
+            _warn_plugin(
                 f"keymps: {kind.replace('_', ' ')} {name!r} of plugin {used!r} replaces the one "
-                f"of plugin {other!r}",
-                PluginLoadWarning,
-                stacklevel=3,
+                f"of plugin {other!r}"
             )
+    return found
 
 
 _replaced: set[tuple[str, str, str]] = set()
@@ -272,38 +365,44 @@ def create_component(
     options: dict[str, Any] | None = None,
     manager: pluggy.PluginManager | None = None,
 ) -> Any:
-    """Build the named component from its factory, or raise a KeympsError listing the choices."""
-    factories = components(kind, manager)
+    """Build the named component from its factory, or raise a KeympsError listing the choices.
+    A factory that raises anything but a KeympsError is one line naming its plugin."""
+    found = registrations(kind, manager)
+    factories = _merged(kind, found)
     if name not in factories:
         choices = ", ".join(sorted(factories)) or "none installed"
         raise KeympsError(f"unknown {kind.replace('_', ' ')} {name!r} (available: {choices})")
-    return factories[name](dict(options or {}))
+    factory = factories[name]
+    signals_before = signals_received()
+    try:
+        return factory(dict(options or {}))
+    except KeympsError:
+        raise
+    except BaseException as error:
+        if _a_real_interrupt(error, signals_before) or os.environ.get("KEYMPS_DEBUG"):
+            raise
+        plugin = next((p for p, pairs in found.items() if (name, factory) in pairs), "?")
+        detail = " ".join(f"{type(error).__name__}: {error}".split())
+        raise KeympsError(
+            f"{kind.replace('_', ' ')} {name!r} of plugin {plugin!r} could not be built: {detail}"
+        ) from None
 
 
-def _registered_names(hook: Callable[..., None]) -> list[str]:
-    names: list[str] = []
-    hook(register=lambda name, factory: names.append(name))
-    return names
-
-
-def _provides(plugin: object) -> tuple[str, ...]:
-    provided: list[str] = []
-    for kind, hook_name in COMPONENT_HOOKS.items():
-        hook = getattr(plugin, hook_name, None)
-        if hook is None:
-            continue
-        names = _registered_names(hook)
-        provided.extend(f"{kind.replace('_', ' ')} {name}" for name in names)
-    if hasattr(plugin, "keymps_stage_done"):
-        provided.append("stage observer")
-    return tuple(provided)
+def _provides(kinds: dict[str, dict[str, list[tuple[str, Any]]]], plugin_name: str) -> list[str]:
+    return [
+        f"{kind.replace('_', ' ')} {name}"
+        for kind, found in kinds.items()
+        for name, _ in found.get(plugin_name, [])
+    ]
 
 
 def plugin_infos(manager: pluggy.PluginManager | None = None) -> list[PluginInfo]:
-    """What `keymps plugins` shows: every plugin with what it provides and where it comes from."""
+    """What `keymps plugins` shows: every plugin with what it provides and where it comes from.
+    A plugin whose hooks raise is listed with its error (and warned about once)."""
     from keymps._version import __version__
 
     manager = manager or get_manager()
+    kinds = {kind: registrations(kind, manager) for kind in COMPONENT_HOOKS}
     known = getattr(manager, "distributions", {})
     infos = []
     for name, plugin in manager.list_name_plugin():
@@ -314,7 +413,10 @@ def plugin_infos(manager: pluggy.PluginManager | None = None) -> list[PluginInfo
             dist, version = "keymps", __version__
         else:
             dist, version = known.get(name, ("(registered in code)", ""))
-        infos.append(PluginInfo(name, _provides(plugin), dist, version, hooks))
+        provides = _provides(kinds, name)
+        if hasattr(plugin, "keymps_stage_done"):
+            provides.append("stage observer")
+        infos.append(PluginInfo(name, tuple(provides), dist, version, hooks))
     for name, error in getattr(manager, "failures", {}).items():
         dist, version = known.get(
             name, ("keymps", __version__) if name in DEFAULT_PLUGINS else ("?", "")

@@ -84,7 +84,15 @@ def require_validated(candidate: object, executor: str) -> Trajectory:
 
 
 def trajectory_digest(trajectory: Trajectory) -> str:
-    """The sha256 (hex) of a trajectory's samples, joint names and rate: what
-    `require_validated` compares, and what exported files name to say which trajectory they
-    hold."""
+    """The sha256 of a trajectory's samples, joint names and rate.
+
+    It is what `require_validated` compares, and what exported files name to say which
+    trajectory they hold.
+
+    Args:
+        trajectory: The timed trajectory (a `ValidatedTrajectory`'s `.trajectory`).
+
+    Returns:
+        64 hexadecimal characters.
+    """
     return _digest(trajectory)

@@ -307,36 +307,10 @@ def load_primitive(path: Path) -> Primitive:
 
 
 def _read_primitive(path: Path) -> Primitive:
-    import yaml
-
-    loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)  # libyaml: the same data, 10x faster
-    try:
-        data = yaml.load(path.read_text(encoding="utf-8"), Loader=loader)
-    except FileNotFoundError:
-        raise PrimitiveError(f"{path}: primitive file not found") from None
-    except (OSError, UnicodeDecodeError) as error:
-        raise PrimitiveError(f"{path}: cannot read primitive ({error})") from None
-    except yaml.YAMLError as error:
-        mark = getattr(error, "problem_mark", None)
-        where = f"{path}:{mark.line + 1}:{mark.column + 1}" if mark else str(path)
-        raise PrimitiveError(
-            f"{where}: invalid YAML ({getattr(error, 'problem', error)})"
-        ) from None
+    """The primitive in a YAML file, each field checked; an error names the file and field."""
+    data = _load_yaml(path)
     where = str(path)
-    if not isinstance(data, dict):
-        raise PrimitiveError(f"{where}: expected a mapping of primitive fields")
-    known = {
-        "format", "name", "description", "family", "mode", "nominal_speed", "demo", "source",
-        "source_preprocessing", "fit_rmse_m", "preprocessing", "dmp",
-    }  # fmt: skip
-    unknown = sorted(set(data) - known)
-    if unknown:
-        raise PrimitiveError(f"{where}: unknown field {unknown[0]!r}")
-    if data.get("format", FORMAT) != FORMAT:
-        raise PrimitiveError(f"{where}: format {data.get('format')!r} is not {FORMAT!r}")
-    for key in ("name", "description", "family", "dmp"):
-        if key not in data:
-            raise PrimitiveError(f"{where}: field {key!r} is missing")
+    _check_fields(data, where)
     name = _check_name(data["name"], f"{where}: name")
     description = data["description"]
     if not isinstance(description, str) or not description.strip():
@@ -354,7 +328,7 @@ def _read_primitive(path: Path) -> Primitive:
     demo = data.get("demo")
     if demo is not None and not isinstance(demo, str):
         raise PrimitiveError(f"{where}: demo must be a file name")
-    source = data.get("source")
+    source, source_preprocessing = data.get("source"), data.get("source_preprocessing")
     return Primitive(
         name=name,
         description=description.strip(),
@@ -366,11 +340,54 @@ def _read_primitive(path: Path) -> Primitive:
         fit_rmse=float(rmse),
         preprocessing=_preprocessing(data.get("preprocessing") or {}, where),
         source=str(source) if source is not None else None,
-        source_preprocessing=_preprocessing(data["source_preprocessing"], where)
-        if data.get("source_preprocessing") is not None
-        else None,
+        source_preprocessing=None
+        if source_preprocessing is None
+        else _preprocessing(source_preprocessing, where),
         path=path,
     )
+
+
+def _load_yaml(path: Path) -> Any:
+    """The data of a YAML file; a missing, unreadable or invalid one is a PrimitiveError
+    naming it (and the line and column of a YAML error)."""
+    import yaml
+
+    loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)  # libyaml: the same data, 10x faster
+    try:
+        return yaml.load(path.read_text(encoding="utf-8"), Loader=loader)
+    except FileNotFoundError:
+        raise PrimitiveError(f"{path}: primitive file not found") from None
+    except (OSError, UnicodeDecodeError) as error:
+        raise PrimitiveError(f"{path}: cannot read primitive ({error})") from None
+    except yaml.YAMLError as error:
+        mark = getattr(error, "problem_mark", None)
+        where = f"{path}:{mark.line + 1}:{mark.column + 1}" if mark else str(path)
+        raise PrimitiveError(
+            f"{where}: invalid YAML ({getattr(error, 'problem', error)})"
+        ) from None
+
+
+_FIELDS = frozenset(
+    {
+        "format", "name", "description", "family", "mode", "nominal_speed", "demo", "source",
+        "source_preprocessing", "fit_rmse_m", "preprocessing", "dmp",
+    }
+)  # fmt: skip
+"""The fields a primitive file may have (name, description, family and dmp it must)."""
+
+
+def _check_fields(data: Any, where: str) -> None:
+    """Refuse anything but a mapping of known fields in FORMAT with the required ones."""
+    if not isinstance(data, dict):
+        raise PrimitiveError(f"{where}: expected a mapping of primitive fields")
+    unknown = sorted(set(data) - _FIELDS, key=str)  # YAML keys may be numbers too
+    if unknown:
+        raise PrimitiveError(f"{where}: unknown field {unknown[0]!r}")
+    if data.get("format", FORMAT) != FORMAT:
+        raise PrimitiveError(f"{where}: format {data.get('format')!r} is not {FORMAT!r}")
+    for key in ("name", "description", "family", "dmp"):
+        if key not in data:
+            raise PrimitiveError(f"{where}: field {key!r} is missing")
 
 
 def _preprocessing(data: Any, where: str) -> Preprocessing:

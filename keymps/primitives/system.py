@@ -201,39 +201,43 @@ _FIT_BASES: dict[tuple[int, int, float], FitBasis] = {}
 
 
 def fit_basis(phase_time: np.ndarray, n_basis: int, regularization: float) -> FitBasis:
-    """The least-squares basis for samples at normalized times phase_time (0 ... 1)."""
-    from scipy.linalg.blas import dsyrk
-    from scipy.linalg.lapack import dpotrf
+    """The least-squares basis for samples at normalized times phase_time (0 ... 1).
 
+    Args:
+        phase_time: (T,) increasing sample times, normalized to 0 ... 1.
+        n_basis: Basis functions per axis.
+        regularization: Ridge weight, relative to the mean diagonal of the normal equations.
+
+    Returns:
+        The basis; uniform samples share one cached basis per (T, n_basis, regularization).
+    """
     steps = np.diff(phase_time)
     uniform = bool(np.abs(steps - steps[0]).max() <= 1e-6 * steps[0])
     key = (len(phase_time), n_basis, regularization)
     if uniform and key in _FIT_BASES:
         return _FIT_BASES[key]
-    stiffness, damping = ALPHA_Z * BETA_Z, ALPHA_Z
     num = len(phase_time) if uniform else max(len(phase_time), 1000)
-    # Inputs as rows (one per basis function, then the goal term): the filters run along rows,
-    # zero-padded to whole blocks so that block_convolve reads them in place.
-    padded = -(-num // BLOCK) * BLOCK
-    times = np.arange(padded) * (1.0 / (num - 1))
-    s = np.exp(-ALPHA_S * times)
-    grid = times[:num]
-    # A fresh array: the block convolution turns it into the responses, which the cache keeps.
-    inputs = np.empty((n_basis + 1, padded))
-    phase_features(s, n_basis, ALPHA_S, out=inputs[:n_basis], scale=stiffness)
-    np.multiply(stiffness, 1.0 - s, out=inputs[n_basis])
-    inputs[:, num:] = 0.0
+    grid, pos, vel_end = _uniform_responses(num, n_basis)
+    if not uniform:
+        pos = _interp_rows(grid, pos.T, phase_time).T
+        # Samples weighted by the time each stands for, so dense stretches do not dominate.
+        sample_weight = np.gradient(phase_time) * len(phase_time)
+        return _factored(pos, vel_end, n_basis, regularization, sample_weight)
+    basis = _factored(pos, vel_end, n_basis, regularization, None)
+    if len(_FIT_BASES) >= MAX_CACHED_GRIDS:
+        _FIT_BASES.pop(next(iter(_FIT_BASES)))
+    _FIT_BASES[key] = basis
+    return basis
+
+
+def _uniform_responses(num: int, n_basis: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The system's response to each basis function, then to a unit goal offset, from rest on
+    `num` uniform samples of 0 ... 1: the grid (num,), positions (n_basis + 1, num) and the
+    velocities at the last sample (n_basis + 1,)."""
+    stiffness, damping = ALPHA_Z * BETA_Z, ALPHA_Z
+    inputs, grid = _basis_inputs(num, n_basis, stiffness)
     filters = discretize(float(grid[1]), stiffness, damping)
-    impulse = np.zeros(num + BLOCK + 2)  # block_convolve needs BLOCK + 2 samples at least
-    impulse[0] = 1.0
-    free = all_pole(filters.a, impulse)
-    # The four responses a fit needs, in one product with the lagged all-pole response: the
-    # numerators for positions and velocities, and the corrections for u[0] (below).
-    lagged = np.zeros((3, len(free)))
-    lagged[0] = free
-    lagged[1, 1:] = free[:-1]
-    lagged[2, 2:] = free[:-2]
-    position, correction, velocity, velocity_correction = filters.numerators @ lagged
+    position, correction, velocity, velocity_correction = _impulse_responses(filters, num)
     # Only the last velocity is needed: one dot product with the reversed impulse response.
     first = inputs[:, 0].copy()
     vel_end = inputs[:, :num] @ velocity[num - 1 :: -1].copy()
@@ -244,14 +248,54 @@ def fit_basis(phase_time: np.ndarray, n_basis: int, regularization: float) -> Fi
     magnitude = np.abs(first)
     active = int(np.flatnonzero(magnitude > 1e-14 * magnitude.max())[-1]) + 1
     pos[:active] -= np.outer(first[:active], correction[:num])
-    if not uniform:
-        pos = _interp_rows(grid, pos.T, phase_time).T
+    return grid, pos, vel_end
+
+
+def _basis_inputs(num: int, n_basis: int, stiffness: float) -> tuple[np.ndarray, np.ndarray]:
+    """The inputs as rows, one per basis function, then the goal term ((n_basis + 1, P), P
+    the samples zero-padded to whole blocks, so that block_convolve reads them in place), and
+    the times of the `num` samples (num,)."""
+    padded = -(-num // BLOCK) * BLOCK
+    times = np.arange(padded) * (1.0 / (num - 1))
+    s = np.exp(-ALPHA_S * times)
+    # A fresh array: the block convolution turns it into the responses, which the cache keeps.
+    inputs = np.empty((n_basis + 1, padded))
+    phase_features(s, n_basis, ALPHA_S, out=inputs[:n_basis], scale=stiffness)
+    np.multiply(stiffness, 1.0 - s, out=inputs[n_basis])
+    inputs[:, num:] = 0.0
+    return inputs, times[:num]
+
+
+def _impulse_responses(filters: Filters, num: int) -> np.ndarray:
+    """(4, num + BLOCK + 2): the numerators for positions and velocities and the corrections
+    for u[0] (Filters.numerators' rows) applied to the all-pole impulse response, in one
+    product with its lagged copies (block_convolve needs BLOCK + 2 samples at least)."""
+    impulse = np.zeros(num + BLOCK + 2)
+    impulse[0] = 1.0
+    free = all_pole(filters.a, impulse)
+    lagged = np.zeros((3, len(free)))
+    lagged[0] = free
+    lagged[1, 1:] = free[:-1]
+    lagged[2, 2:] = free[:-2]
+    return filters.numerators @ lagged
+
+
+def _factored(
+    pos: np.ndarray,
+    vel_end: np.ndarray,
+    n_basis: int,
+    regularization: float,
+    sample_weight: np.ndarray | None,
+) -> FitBasis:
+    """The basis from the responses at the samples (`_uniform_responses`' pos, on the fit's
+    samples) and at the end, each sample weighted by `sample_weight` (None: all alike)."""
+    from scipy.linalg.blas import dsyrk
+    from scipy.linalg.lapack import dpotrf
+
     design = pos[:n_basis]
-    if uniform:
+    if sample_weight is None:
         weighted, root_weighted = design, design
     else:
-        # Samples weighted by the time each stands for, so dense stretches do not dominate.
-        sample_weight = np.gradient(phase_time) * len(phase_time)
         weighted, root_weighted = design * sample_weight, design * np.sqrt(sample_weight)
     # Upper triangle of design W design^T; the transpose is Fortran-ordered, so BLAS reads the
     # rows in place instead of f2py copying them.
@@ -264,7 +308,7 @@ def fit_basis(phase_time: np.ndarray, n_basis: int, regularization: float) -> Fi
     factor, info = dpotrf(gram, lower=0, clean=0, overwrite_a=1)
     if info != 0:  # pragma: no cover - regularized normal equations are positive definite
         raise DmpError(f"internal error: Cholesky factorization failed (info {info})")
-    basis = FitBasis(
+    return FitBasis(
         weighted_design=weighted,
         end_position=ends[0],
         end_velocity=ends[1],
@@ -272,11 +316,6 @@ def fit_basis(phase_time: np.ndarray, n_basis: int, regularization: float) -> Fi
         goal_end_velocity=float(vel_end[n_basis]),
         factor=(factor, False),
     )
-    if uniform:
-        if len(_FIT_BASES) >= MAX_CACHED_GRIDS:
-            _FIT_BASES.pop(next(iter(_FIT_BASES)))
-        _FIT_BASES[key] = basis
-    return basis
 
 
 def clear_caches() -> None:

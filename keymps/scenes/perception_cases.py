@@ -15,7 +15,7 @@ without four ArUco markers outside the board's corners (keymps.perception.marker
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -173,6 +173,17 @@ def _alpha(polygon_px: np.ndarray, size: tuple[int, int]) -> tuple[np.ndarray, l
     return alpha, half_covered_box(part, (x0, y0))
 
 
+@dataclass(frozen=True)
+class _Objects:
+    """What lies on a board: coverage (H, W) 0-1, colour (H, W, 3) float BGR where covered, the
+    largest object's box and every object's box (px)."""
+
+    alpha: np.ndarray
+    colour: np.ndarray
+    truth: tuple[int, int, int, int] | None
+    boxes: list[tuple[float, float, float, float]]
+
+
 def flat_case(
     seed: int,
     *,
@@ -186,9 +197,42 @@ def flat_case(
 ) -> FlatScene:
     """One random board, with its true box (see the module docstring). `round_cake`: one
     round object (aspect at most 1.15), nothing else on the board."""
-    import cv2
-
     rng = np.random.default_rng([seed, 17])
+    width, height = size_px
+    board_lab, board, variation = _random_board(rng, size_px)
+    objects = _Objects(
+        np.zeros((height, width), np.float32), np.zeros((height, width, 3), np.float32), None, []
+    )
+    if not empty:
+        share = coverage if coverage is not None else float(rng.uniform(0.05, 0.6))
+        objects = _main_object(rng, board_lab, size_px, share, hue_only, round_cake, variation)
+        if rng.random() < 0.3 and not round_cake:  # drawn first: each seed keeps its scene
+            objects = _with_second_object(
+                rng, objects, board_lab, size_px, share, hue_only, variation
+            )
+    if rng.random() < 0.35:
+        board = _with_crumbs(rng, board, board_lab, objects.boxes, variation)
+    if not empty and rng.random() < 0.4:
+        board = _with_shadow(rng, board, objects.alpha, variation)
+    image = board * (1 - objects.alpha[..., None]) + objects.colour * objects.alpha[..., None]
+    light = _lighting(rng, size_px, variation)
+    image = image * light[..., None]
+    pixels = (
+        _finish(rng, image, variation, jpeg)
+        if finish
+        else np.clip(np.rint(image), 0, 255).astype(np.uint8)
+    )
+    return FlatScene(
+        pixels, objects.truth, board * light[..., None], None if empty else objects.alpha,
+        None if empty else objects.colour * light[..., None], variation,
+    )  # fmt: skip
+
+
+def _random_board(
+    rng: np.random.Generator, size_px: tuple[int, int]
+) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
+    """A board colour (Lab, one of BOARDS varied), the textured board (H, W, 3 float BGR 0-255)
+    and the variation entries that name them."""
     width, height = size_px
     board_name = str(rng.choice(list(BOARDS)))
     board_lab = np.array(BOARDS[board_name]) + rng.normal(0, [4, 2, 3])
@@ -197,81 +241,91 @@ def flat_case(
         lab_to_bgr(board_lab)[0][None, None, :]
         * _texture(rng, (height, width), texture_kind)[..., None]
     )
-    variation: dict[str, Any] = {"board": board_name, "board_texture": texture_kind}
-    alpha_all = np.zeros((height, width), np.float32)
-    colour_all = np.zeros((height, width, 3), np.float32)
-    truth: tuple[int, int, int, int] | None = None
-    boxes: list[tuple[float, float, float, float]] = []
-    main_alpha = None
-    if not empty:
-        share = coverage if coverage is not None else float(rng.uniform(0.05, 0.6))
-        near_edge = bool(rng.random() < 0.3)
-        polygon, shape, aspect = _outline(
-            rng, share * width * height, (width - 24, height - 24), round_cake
-        )
-        placed = _place(rng, polygon, size_px, near_edge, [], 6)
-        if placed is None:
-            placed = polygon - polygon.mean(axis=0) + (width / 2, height / 2)
-        main_alpha, box = _alpha(placed, size_px)
-        truth = (box[0], box[1], box[2], box[3])
-        boxes.append(_box(box))
-        object_lab = _object_lab(rng, board_lab, hue_only)
-        colour = _paint_object(rng, object_lab, (height, width), board_lab)
-        alpha_all, colour_all = main_alpha, colour
-        variation |= {"coverage": round(float(main_alpha.sum()) / (width * height), 3),
-                      "shape": shape, "aspect": round(aspect, 3),
-                      "near_edge": near_edge, "hue_only": hue_only,
-                      "object_lab": np.round(object_lab, 1).tolist()}  # fmt: skip
-        if rng.random() < 0.3 and not round_cake:
-            second, _, _ = _outline(
-                rng, share * width * height * rng.uniform(0.1, 0.4), (width / 3, height / 2)
-            )
-            spot = _place(rng, second, size_px, False, boxes, 14)
-            if spot is not None:
-                alpha2, box2 = _alpha(spot, size_px)
-                colour2 = _paint_object(
-                    rng, _object_lab(rng, board_lab, hue_only), (height, width), board_lab
-                )
-                alpha_all = np.maximum(alpha_all, alpha2)
-                colour_all = np.where(alpha2[..., None] > 0, colour2, colour_all)
-                boxes.append(_box(box2))
-                variation["second_object"] = box2
-    if rng.random() < 0.35:  # crumbs: specks of a few pixels, away from the objects
-        count = int(rng.integers(5, 30))
-        crumb_colour = lab_to_bgr(_object_lab(rng, board_lab, False))[0]
-        crumbs = np.zeros((height, width), np.uint8)
-        for _ in range(count):
-            x, y = rng.uniform(4, width - 4), rng.uniform(4, height - 4)
-            if any(k[0] - 10 < x < k[2] + 10 and k[1] - 10 < y < k[3] + 10 for k in boxes):
-                continue
-            cv2.circle(crumbs, (int(x), int(y)), int(rng.integers(1, 4)), 255, -1, cv2.LINE_AA)
-        weight = crumbs.astype(np.float32)[..., None] / 255.0
-        board = board * (1 - weight) + crumb_colour * weight
-        variation["crumbs"] = count
-    if main_alpha is not None and rng.random() < 0.4:  # a soft shadow beside the object
-        shift = rng.uniform(3, 8) * np.array([np.cos(a := rng.uniform(0, 6.3)), np.sin(a)])
-        moved = cv2.warpAffine(
-            alpha_all, np.array([[1, 0, shift[0]], [0, 1, shift[1]]]), (width, height)
-        )
-        sigma = rng.uniform(3, 6)
-        soft = cv2.GaussianBlur(moved, (0, 0), sigma)
-        darkness = rng.uniform(0.15, 0.35)
-        board = board * (1 - darkness * soft)[..., None]
-        variation["shadow"] = {"darkness": round(darkness, 2), "sigma_px": round(sigma, 1)}
-    image = board * (1 - alpha_all[..., None]) + colour_all * alpha_all[..., None]
-    light = _lighting(rng, (width, height), variation)
-    image = image * light[..., None]
-    board_lit = board * light[..., None]
-    colour_lit = colour_all * light[..., None]
-    pixels = (
-        _finish(rng, image, variation, jpeg)
-        if finish
-        else np.clip(np.rint(image), 0, 255).astype(np.uint8)
+    return board_lab, board, {"board": board_name, "board_texture": texture_kind}
+
+
+def _main_object(
+    rng: np.random.Generator, board_lab: np.ndarray, size_px: tuple[int, int], share: float,
+    hue_only: bool, round_cake: bool, variation: dict[str, Any],
+) -> _Objects:  # fmt: skip
+    """The largest object: `share` of the board's area, 30 % of the time near an edge."""
+    width, height = size_px
+    near_edge = bool(rng.random() < 0.3)
+    polygon, shape, aspect = _outline(
+        rng, share * width * height, (width - 24, height - 24), round_cake
     )
-    return FlatScene(
-        pixels, truth, board_lit, alpha_all if not empty else None,
-        colour_lit if not empty else None, variation,
-    )  # fmt: skip
+    placed = _place(rng, polygon, size_px, near_edge, [], 6)
+    if placed is None:
+        placed = polygon - polygon.mean(axis=0) + (width / 2, height / 2)
+    alpha, box = _alpha(placed, size_px)
+    object_lab = _object_lab(rng, board_lab, hue_only)
+    colour = _paint_object(rng, object_lab, (height, width), board_lab)
+    variation |= {"coverage": round(float(alpha.sum()) / (width * height), 3),
+                  "shape": shape, "aspect": round(aspect, 3),
+                  "near_edge": near_edge, "hue_only": hue_only,
+                  "object_lab": np.round(object_lab, 1).tolist()}  # fmt: skip
+    return _Objects(alpha, colour, (box[0], box[1], box[2], box[3]), [_box(box)])
+
+
+def _with_second_object(
+    rng: np.random.Generator, objects: _Objects, board_lab: np.ndarray, size_px: tuple[int, int],
+    share: float, hue_only: bool, variation: dict[str, Any],
+) -> _Objects:  # fmt: skip
+    """The objects and a second, 10-40 % the size of the first, clear of it (when one fits)."""
+    width, height = size_px
+    second, _, _ = _outline(
+        rng, share * width * height * rng.uniform(0.1, 0.4), (width / 3, height / 2)
+    )
+    spot = _place(rng, second, size_px, False, objects.boxes, 14)
+    if spot is None:
+        return objects
+    alpha, box = _alpha(spot, size_px)
+    colour = _paint_object(rng, _object_lab(rng, board_lab, hue_only), (height, width), board_lab)
+    variation["second_object"] = box
+    return _Objects(
+        np.maximum(objects.alpha, alpha),
+        np.where(alpha[..., None] > 0, colour, objects.colour),
+        objects.truth,
+        [*objects.boxes, _box(box)],
+    )
+
+
+def _with_crumbs(
+    rng: np.random.Generator, board: np.ndarray, board_lab: np.ndarray,
+    boxes: list[tuple[float, float, float, float]], variation: dict[str, Any],
+) -> np.ndarray:  # fmt: skip
+    """The board with 5-30 crumbs (specks of a few pixels) away from the objects' boxes."""
+    import cv2
+
+    height, width = board.shape[:2]
+    count = int(rng.integers(5, 30))
+    crumb_colour = lab_to_bgr(_object_lab(rng, board_lab, False))[0]
+    crumbs = np.zeros((height, width), np.uint8)
+    for _ in range(count):
+        x, y = rng.uniform(4, width - 4), rng.uniform(4, height - 4)
+        if any(k[0] - 10 < x < k[2] + 10 and k[1] - 10 < y < k[3] + 10 for k in boxes):
+            continue
+        cv2.circle(crumbs, (int(x), int(y)), int(rng.integers(1, 4)), 255, -1, cv2.LINE_AA)
+    weight = crumbs.astype(np.float32)[..., None] / 255.0
+    variation["crumbs"] = count
+    return board * (1 - weight) + crumb_colour * weight
+
+
+def _with_shadow(
+    rng: np.random.Generator, board: np.ndarray, alpha: np.ndarray, variation: dict[str, Any]
+) -> np.ndarray:
+    """The board darkened 15-35 % by the objects' coverage `alpha`, shifted 3-8 px and
+    blurred."""
+    import cv2
+
+    height, width = alpha.shape
+    shift = rng.uniform(3, 8) * np.array([np.cos(a := rng.uniform(0, 6.3)), np.sin(a)])
+    moved = cv2.warpAffine(alpha, np.array([[1, 0, shift[0]], [0, 1, shift[1]]]), (width, height))
+    sigma = rng.uniform(3, 6)
+    soft = cv2.GaussianBlur(moved, (0, 0), sigma)
+    darkness = rng.uniform(0.15, 0.35)
+    variation["shadow"] = {"darkness": round(darkness, 2), "sigma_px": round(sigma, 1)}
+    return board * (1 - darkness * soft)[..., None]
 
 
 def _paint_object(
@@ -355,22 +409,65 @@ def _look_at(
     return rotation, -rotation @ centre
 
 
-def _plane_homography(
-    matrix: np.ndarray, rotation: np.ndarray, translation: np.ndarray, z: float
-) -> np.ndarray:
-    """Board metres (x, y) on the plane at height z -> ideal photo pixel indices."""
-    return matrix @ np.c_[rotation[:, 0], rotation[:, 1], translation + z * rotation[:, 2]]
+TABLE_MARGIN_M = 0.06
+"""The table seen around the board on each side of a photo case, metres."""
+
+
+@dataclass(frozen=True)
+class _Camera:
+    """A pinhole camera looking at the board: K, lens distortion (OpenCV's k1, k2, p1, p2, k3)
+    and the board frame in the camera frame (x_cam = rotation @ x_board + translation)."""
+
+    focal: float
+    """Pixels, the same along x and y."""
+    matrix: np.ndarray
+    distortion: np.ndarray
+    rotation: np.ndarray
+    translation: np.ndarray
+    tilt_deg: float
+    """The optical axis from straight down, degrees."""
+
+    @property
+    def centre(self) -> np.ndarray:
+        """(3,) the camera's position in the board frame, metres."""
+        return -self.rotation.T @ self.translation
+
+    def plane_to_photo(self, z: float) -> np.ndarray:
+        """(3, 3) board metres (x, y) on the plane at height z -> ideal photo pixel indices."""
+        rotation = self.rotation
+        return (
+            self.matrix
+            @ np.c_[rotation[:, 0], rotation[:, 1], self.translation + z * rotation[:, 2]]
+        )
 
 
 def photo_case(seed: int, *, markers: bool, flat_object: bool = False) -> PhotoCase:
     """A board with one object photographed from 20-45 degrees (see the module docstring)."""
-    import cv2
-
-    from keymps.perception.markers import marker_image
-
     rng = np.random.default_rng([seed, 29])
     height_m = 0.0 if flat_object else float(rng.uniform(0.02, 0.06))
-    size = PHOTO_SIZE_PX
+    camera = _random_camera(rng)
+    flat = _photo_board(seed, camera.centre, height_m)
+    canvas = _table_canvas(rng, flat.board)
+    if markers:
+        _paste_markers(rng, canvas, flat.board)
+    photo = _photograph_board(camera, canvas)
+    if flat.object_alpha is not None and flat.object_colour is not None:
+        photo = _photograph_object(camera, flat.object_alpha, flat.object_colour, height_m, photo)
+    variation = dict(flat.variation)
+    pixels = _finish(rng, _through_lens(camera, photo), variation, None)
+    intrinsics = {"fx": camera.focal, "fy": camera.focal,
+                  "cx": float(camera.matrix[0, 2]), "cy": float(camera.matrix[1, 2]),
+                  "distortion": [float(v) for v in camera.distortion]}  # fmt: skip
+    return PhotoCase(
+        pixels, replace(flat, variation=variation), _board_corners_in_photo(camera), intrinsics,
+        height_m, camera.tilt_deg, markers,
+    )  # fmt: skip
+
+
+def _random_camera(rng: np.random.Generator) -> _Camera:
+    """A camera 0.5-0.6 m from the board's centre, tilted 20-45 degrees from straight down and
+    turned up to 20 degrees about the vertical; focal length 750-900 px, its principal point
+    within 12 px of the centre of a PHOTO_SIZE_PX image, a mild radial distortion."""
     focal = float(rng.uniform(750, 900))
     matrix = np.array(
         [
@@ -385,81 +482,100 @@ def photo_case(seed: int, *, markers: bool, flat_object: bool = False) -> PhotoC
         np.array([BOARD_M[0] / 2, BOARD_M[1] / 2, 0.0]), np.radians(tilt),
         np.radians(rng.uniform(-20, 20)), float(rng.uniform(0.5, 0.6)),
     )  # fmt: skip
-    centre = -rotation.T @ translation
-    flat = _photo_board(seed, centre, height_m)
-    margin, scale = 0.06, 1.0 / PX_PER_M
+    return _Camera(focal, matrix, distortion, rotation, translation, tilt)
+
+
+def _table_canvas(rng: np.random.Generator, board: np.ndarray) -> np.ndarray:
+    """The board (float BGR, PX_PER_M) on a dark mottled table TABLE_MARGIN_M wider each side."""
     canvas_px = (
-        round((BOARD_M[0] + 2 * margin) * PX_PER_M),
-        round((BOARD_M[1] + 2 * margin) * PX_PER_M),
+        round((BOARD_M[0] + 2 * TABLE_MARGIN_M) * PX_PER_M),
+        round((BOARD_M[1] + 2 * TABLE_MARGIN_M) * PX_PER_M),
     )
     table_lab = np.array([rng.uniform(20, 45), rng.uniform(-5, 10), rng.uniform(-10, 15)])
     canvas = np.broadcast_to(lab_to_bgr(table_lab)[0], (canvas_px[1], canvas_px[0], 3)).astype(
         np.float32
     )
     canvas = canvas * _texture(rng, (canvas_px[1], canvas_px[0]), "mottled")[..., None]
-    off = round(margin * PX_PER_M)
-    canvas[off : off + flat.board.shape[0], off : off + flat.board.shape[1]] = flat.board
-    if markers:
-        side = round(MARKER_M * PX_PER_M)
-        quiet = round(0.006 * PX_PER_M)
-        bw, bh = flat.board.shape[1], flat.board.shape[0]
-        for marker_id, (cx, cy, sx, sy) in enumerate(
-            [
-                (off, off + bh, -1, 1),
-                (off + bw, off + bh, 1, 1),
-                (off + bw, off, 1, -1),
-                (off, off, -1, -1),
-            ]
-        ):
-            square = np.rot90(marker_image(marker_id, side), int(rng.integers(4))).astype(
-                np.float32
-            )
-            x0 = cx if sx > 0 else cx - side
-            y0 = cy if sy > 0 else cy - side
-            wx0, wy0 = (
-                (x0 - quiet if sx > 0 else x0 - quiet),
-                (y0 - quiet if sy > 0 else y0 - quiet),
-            )
-            white = canvas[max(wy0, 0) : y0 + side + quiet, max(wx0, 0) : x0 + side + quiet]
-            white[:] = 235.0
-            canvas[y0 : y0 + side, x0 : x0 + side] = square[..., None] * (235.0 / 255.0)
-            # the board keeps its corner: the quiet zone stays on the table's side
-            canvas[off : off + bh, off : off + bw] = flat.board
-    canvas_to_board = np.array([[scale, 0, -margin], [0, -scale, BOARD_M[1] + margin], [0, 0, 1]])
-    to_index = np.array([[1.0, 0, -0.5], [0, 1, -0.5], [0, 0, 1]])
-    from_index = np.linalg.inv(to_index)
-    board_plane = _plane_homography(matrix, rotation, translation, 0.0)
-    photo = cv2.warpPerspective(
-        canvas, board_plane @ canvas_to_board @ from_index, size, flags=cv2.INTER_AREA
+    off = round(TABLE_MARGIN_M * PX_PER_M)
+    canvas[off : off + board.shape[0], off : off + board.shape[1]] = board
+    return canvas
+
+
+def _paste_markers(rng: np.random.Generator, canvas: np.ndarray, board: np.ndarray) -> None:
+    """ArUco markers 0-3 (each turned at random) on white quiet zones outside the board's
+    corners, bottom-left first, drawn into `canvas`."""
+    from keymps.perception.markers import marker_image
+
+    off = round(TABLE_MARGIN_M * PX_PER_M)
+    side = round(MARKER_M * PX_PER_M)
+    quiet = round(0.006 * PX_PER_M)
+    bh, bw = board.shape[:2]
+    corners = [(off, off + bh, -1, 1), (off + bw, off + bh, 1, 1), (off + bw, off, 1, -1),
+               (off, off, -1, -1)]  # fmt: skip
+    for marker_id, (cx, cy, sx, sy) in enumerate(corners):
+        square = np.rot90(marker_image(marker_id, side), int(rng.integers(4))).astype(np.float32)
+        x0 = cx if sx > 0 else cx - side
+        y0 = cy if sy > 0 else cy - side
+        canvas[max(y0 - quiet, 0) : y0 + side + quiet, max(x0 - quiet, 0) : x0 + side + quiet] = 235
+        canvas[y0 : y0 + side, x0 : x0 + side] = square[..., None] * (235.0 / 255.0)
+    # the board keeps its corners: the quiet zones stay on the table's side
+    canvas[off : off + bh, off : off + bw] = board
+
+
+def _index_to_continuous() -> np.ndarray:
+    """OpenCV pixel indices -> continuous pixels (the first pixel's centre at 0.5)."""
+    return np.linalg.inv(np.array([[1.0, 0, -0.5], [0, 1, -0.5], [0, 0, 1]]))
+
+
+def _photograph_board(camera: _Camera, canvas: np.ndarray) -> np.ndarray:
+    """The table canvas as the ideal (distortion-free) camera sees it, float BGR."""
+    import cv2
+
+    scale = 1.0 / PX_PER_M
+    canvas_to_board = np.array(
+        [[scale, 0, -TABLE_MARGIN_M], [0, -scale, BOARD_M[1] + TABLE_MARGIN_M], [0, 0, 1]]
     )
+    to_photo = camera.plane_to_photo(0.0) @ canvas_to_board @ _index_to_continuous()
+    return cv2.warpPerspective(canvas, to_photo, PHOTO_SIZE_PX, flags=cv2.INTER_AREA)
+
+
+def _photograph_object(
+    camera: _Camera, alpha: np.ndarray, colour: np.ndarray, height_m: float, photo: np.ndarray
+) -> np.ndarray:
+    """The photo with the object (coverage `alpha` and `colour` of the top-down board) over it:
+    one slice per height from the board to the top, the sides shaded, the top last."""
+    import cv2
+
+    scale = 1.0 / PX_PER_M
     board_to_m = np.array([[scale, 0, 0], [0, -scale, BOARD_M[1]], [0, 0, 1]])
-    if flat.object_alpha is not None and flat.object_colour is not None:
-        top_px = focal * height_m * np.tan(np.radians(tilt)) / 0.5
-        levels = np.linspace(0.0, height_m, max(2, int(np.ceil(top_px / 2.0)) + 1))
-        for z in levels:
-            warp = (
-                _plane_homography(matrix, rotation, translation, float(z)) @ board_to_m @ from_index
-            )
-            alpha = cv2.warpPerspective(flat.object_alpha, warp, size, flags=cv2.INTER_LINEAR)
-            colour = cv2.warpPerspective(flat.object_colour, warp, size, flags=cv2.INTER_LINEAR)
-            shade = 1.0 if z == levels[-1] else 0.72
-            photo = photo * (1 - alpha[..., None]) + colour * shade * alpha[..., None]
-    # the lens: each photo pixel shows the ideal pixel its ray would reach
-    # (on a grid every 4 px, interpolated: the distortion is smooth)
-    step = 4
+    # slices at most about 2 px apart in the photo, so that the sides show no gaps
+    top_px = camera.focal * height_m * np.tan(np.radians(camera.tilt_deg)) / 0.5
+    levels = np.linspace(0.0, height_m, max(2, int(np.ceil(top_px / 2.0)) + 1))
+    for z in levels:
+        warp = camera.plane_to_photo(float(z)) @ board_to_m @ _index_to_continuous()
+        seen = cv2.warpPerspective(alpha, warp, PHOTO_SIZE_PX, flags=cv2.INTER_LINEAR)
+        painted = cv2.warpPerspective(colour, warp, PHOTO_SIZE_PX, flags=cv2.INTER_LINEAR)
+        shade = 1.0 if z == levels[-1] else 0.72
+        photo = photo * (1 - seen[..., None]) + painted * shade * seen[..., None]
+    return photo
+
+
+def _through_lens(camera: _Camera, photo: np.ndarray) -> np.ndarray:
+    """The ideal photo as the camera's lens distorts it (float32 BGR): each photo pixel shows
+    the ideal pixel its ray would reach, found on a grid every 4 px and interpolated (the
+    distortion is smooth)."""
+    import cv2
+
+    size, step = PHOTO_SIZE_PX, 4
     cols, rows = np.arange(0, size[0] + step, step), np.arange(0, size[1] + step, step)
     grid = np.stack(np.meshgrid(cols, rows), -1).reshape(-1, 1, 2).astype(np.float64)
-    coarse = cv2.undistortPoints(grid, matrix, distortion, P=matrix).reshape(
-        len(rows), len(cols), 2
-    )
+    coarse = cv2.undistortPoints(grid, camera.matrix, camera.distortion, P=camera.matrix)
     fine = cv2.resize(
-        coarse.astype(np.float32),
+        coarse.reshape(len(rows), len(cols), 2).astype(np.float32),
         (len(cols) * step, len(rows) * step),
         interpolation=cv2.INTER_LINEAR,
     )
-    shift = (
-        step - 1
-    ) / 2  # resize aligns pixel centres: coarse sample k sits at fine k*step + shift
+    shift = (step - 1) / 2  # resize aligns pixel centres: coarse sample k sits at k*step + shift
     fine = cv2.warpAffine(
         fine,
         np.array([[1, 0, -shift], [0, 1, -shift]]),
@@ -467,24 +583,22 @@ def photo_case(seed: int, *, markers: bool, flat_object: bool = False) -> PhotoC
         borderMode=cv2.BORDER_REPLICATE,
     )
     ideal = fine[: size[1], : size[0]]
-    photo = cv2.remap(photo.astype(np.float32), ideal[..., 0], ideal[..., 1], cv2.INTER_LINEAR)
-    variation = dict(flat.variation)
-    pixels = _finish(rng, photo, variation, None)
+    return cv2.remap(photo.astype(np.float32), ideal[..., 0], ideal[..., 1], cv2.INTER_LINEAR)
+
+
+def _board_corners_in_photo(camera: _Camera) -> np.ndarray:
+    """(4, 2) the board's corners in the photo (distortion included, continuous pixels),
+    bottom-left first."""
+    import cv2
+
     corners_m = np.array(
         [[0, 0], [BOARD_M[0], 0], [BOARD_M[0], BOARD_M[1]], [0, BOARD_M[1]]], float
     )
-    corners3 = np.c_[corners_m, np.zeros(4)]
     projected, _ = cv2.projectPoints(
-        corners3, cv2.Rodrigues(rotation)[0], translation, matrix, distortion
-    )
-    intrinsics = {"fx": focal, "fy": focal, "cx": float(matrix[0, 2]), "cy": float(matrix[1, 2]),
-                  "distortion": [float(v) for v in distortion]}  # fmt: skip
-    flat_with = FlatScene(
-        flat.image, flat.truth_bbox, flat.board, flat.object_alpha, flat.object_colour, variation
-    )
-    return PhotoCase(
-        pixels, flat_with, projected.reshape(4, 2) + 0.5, intrinsics, height_m, tilt, markers
-    )
+        np.c_[corners_m, np.zeros(4)], cv2.Rodrigues(camera.rotation)[0], camera.translation,
+        camera.matrix, camera.distortion,
+    )  # fmt: skip
+    return projected.reshape(4, 2) + 0.5
 
 
 def _photo_board(seed: int, camera: np.ndarray, height_m: float) -> FlatScene:

@@ -348,9 +348,3 @@ def _object_truth(
         "hole_m": np.round(hole_m, 6).tolist() if hole_m is not None else None,
         "outline_px": np.round(outline_px, 3).tolist(),
     }
-
-
-def render_to_file(spec: SceneSpec, path: str | Path) -> tuple[RenderedScene, Path, Path]:
-    scene = render_scene(spec)
-    png, sidecar = scene.save(path)
-    return scene, png, sidecar

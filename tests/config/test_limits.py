@@ -24,7 +24,7 @@ from helpers.fuzz_support import (
 )
 
 import keymps
-from keymps.config.limits import check_duration, check_tool_path, max_answer_chars, path_length_m
+from keymps.config.limits import check_duration, check_tool_path, max_answer_chars
 from keymps.errors import KeympsError, TaskFileError
 from keymps.types import Piece, ToolPath
 
@@ -102,14 +102,22 @@ def test_the_measured_duration_is_checked_after_timing(keymps_plugins: Any, tmp_
         check_duration(trajectory, task)
 
 
-def test_path_length_sums_every_piece() -> None:
+def test_the_path_length_is_every_moving_piece_summed(tmp_path: Path) -> None:
     line = np.array([[0.0, 0.0, 0.1], [0.3, 0.0, 0.1], [0.3, 0.4, 0.1]])
     dot = np.array([[0.1, 0.1, 0.1]])
     path = ToolPath(
         (Piece("travel", 0, line, np.zeros(3), 0.1), Piece("work", 0, dot, np.zeros(1), 0.03)),
         "line",
     )
-    assert path_length_m(path) == pytest.approx(0.7)
+    task = keymps.load_task(task_copy(tmp_path / "task"))
+
+    def limited(metres: float) -> Any:
+        motion = task.motion.model_copy(update={"max_path_length": metres})
+        return task.model_copy(update={"motion": motion})
+
+    assert check_tool_path(path, limited(0.71)) is path
+    with pytest.raises(KeympsError, match=r"the tool path is 0\.7 m long \(2 pieces\)"):
+        check_tool_path(path, limited(0.69))
 
 
 def test_answer_length_follows_max_pairs() -> None:

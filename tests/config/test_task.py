@@ -149,9 +149,9 @@ BROKEN = [
         "control characters in the instruction",
         VALID.replace("Cut it into 8 equal slices", '"Cut\\x07 it"'),
         [
-            "task.yaml:2:14: instruction: instruction contains a line break, a tab or another "
-            "control character: write it on one line (YAML's folded style, `instruction: >`, joins "
-            "lines with spaces)"
+            "task.yaml:2:14: instruction: instruction contains control characters (a line break, "
+            "a tab ...): write it on one line (YAML's folded style, `instruction: >`, joins lines "
+            "with spaces)"
         ],
     ),
     (
@@ -191,9 +191,9 @@ BROKEN = [
         "a line break in the instruction (the docs forbid control characters)",
         VALID.replace("Cut it into 8 equal slices", '"Cut it into\\n8 equal slices"'),
         [
-            "task.yaml:2:14: instruction: instruction contains a line break, a tab or another "
-            "control character: write it on one line (YAML's folded style, `instruction: >`, joins "
-            "lines with spaces)"
+            "task.yaml:2:14: instruction: instruction contains control characters (a line break, "
+            "a tab ...): write it on one line (YAML's folded style, `instruction: >`, joins lines "
+            "with spaces)"
         ],
     ),
     (

@@ -341,6 +341,44 @@ def test_eval_records_exhausted_retries_as_one_line(
     assert "Traceback" not in result.output
 
 
+@pytest.mark.parametrize(
+    ("finished", "signum", "to_group"),
+    [(1, signal.SIGINT, True), (12, signal.SIGINT, True), (6, signal.SIGTERM, False)],
+    ids=["Ctrl-C after 1", "Ctrl-C after 12", "SIGTERM to the main process after 6"],
+)
+def test_stopping_an_offline_eval_is_one_line(
+    finished: int, signum: int, to_group: bool, tmp_path: Path
+) -> None:
+    """Ctrl-C to the process group (a terminal's) or SIGTERM to the main process (a service
+    manager's) once `finished` runs are recorded. The offline suite runs in this process too:
+    its run in flight ended after the queues had closed and printed `ValueError: Queue ... is
+    closed` (6 of 6 Ctrl-Cs); SIGTERM killed the suite with no word."""
+    out = tmp_path / "offline"
+    command = ["eval", "cutting_sim", "--backend", "offline", "--repeats", "3"]
+    process = subprocess.Popen(
+        [sys.executable, "-c", "from keymps.cli.app import main; main()", *command]
+        + ["--processes", "2", "--quiet", "--out", str(out)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        start_new_session=True,
+        text=True,
+    )
+    deadline = time.monotonic() + 120
+    while len(read_results(out / "results.jsonl")) < finished and process.poll() is None:
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
+    if to_group:
+        os.killpg(process.pid, signum)
+    else:
+        os.kill(process.pid, signum)
+    _, stderr = process.communicate(timeout=60)
+    if process.returncode == 0:
+        pytest.skip("the suite ended before the signal")
+    assert process.returncode == 128 + signum, stderr
+    assert "Traceback" not in stderr and "is closed" not in stderr, stderr
+    assert stderr.strip().splitlines()[-1].startswith("interrupted: "), stderr
+
+
 def test_ctrl_c_keeps_every_finished_run_and_a_rerun_does_the_rest(tmp_path: Path) -> None:
     """Ctrl-C (SIGINT to the process group, as a terminal sends it) in the middle of a suite:
     it stops within seconds with one line, results.jsonl holds whole records only, and the

@@ -180,7 +180,7 @@ def test_where_a_stroke_ends_at_a_corner_does_not_follow_the_last_bit_of_roundin
     """Sharp Vs sampled unevenly: perturbing every coordinate by a few units in the last place
     (what another CPU's rounding does) never moves a corner to another point. (With the
     nearest point to the middle chosen by the bare minimum, most of these paths move it.)"""
-    from keymps.motion.strokes import _corner_indexes
+    from keymps.motion.strokes import _corner_indexes_all
 
     rng = np.random.default_rng(3)
     step = 2.5e-4
@@ -188,8 +188,9 @@ def test_where_a_stroke_ends_at_a_corner_does_not_follow_the_last_bit_of_roundin
         x = (np.arange(-40, 40) + 0.5) * step + rng.uniform(-2e-5, 2e-5, 80)
         points = np.column_stack([0.1 + x, 0.054 - np.abs(x), np.full(len(x), 0.06)])
         yaw = np.zeros(len(points))
-        corners = _corner_indexes(points, yaw)
+        corners = _corner_indexes_all([(points, yaw)])[0]
         assert len(corners) == 1 and abs(corners[0] - 39.5) < 3  # at the tip
         for _ in range(10):
             ulps = rng.integers(-4, 5, size=points.shape)
-            assert _corner_indexes(points + ulps * np.spacing(points), yaw) == corners
+            turned = points + ulps * np.spacing(points)
+            assert _corner_indexes_all([(turned, yaw)])[0] == corners

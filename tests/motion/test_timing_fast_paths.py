@@ -9,10 +9,17 @@ from typing import Any
 
 import numpy as np
 import pytest
+from helpers.reference_timing import (
+    joint_motion,
+    planned_points,
+    sample_profile,
+    time_stroke,
+)
 from helpers.robot_toolpaths import radial_cuts, ring_of_dots
 
 from keymps.errors import KeympsError
 from keymps.robot.model import RobotModel, Tool, solve_path
+from keymps.sorted_values import distinct
 from keymps.types import ToolPath
 
 RNG_SEED = 20261201
@@ -42,20 +49,20 @@ def _solve(model: RobotModel, tool_path: ToolPath) -> tuple[Any, str | None]:
 
 
 def test_ruckig_phases_in_numpy_match_at_time() -> None:
-    from keymps.motion.timing import Limits, _profile, _sample_profile, _sample_profile_by_calls
+    from keymps.motion.timing import Limits, _profile, _sample_profile_by_calls
 
     rng = np.random.default_rng(RNG_SEED + 3)
     for _ in range(60):
         limits = Limits(rng.uniform(0.005, 0.3), rng.uniform(0.05, 3.0), rng.uniform(0.5, 60.0))
         profile, duration = _profile(float(rng.uniform(1e-5, 0.4)), limits, 1 / 125)
         times = np.append(np.arange(0.0, duration + 0.01, 0.002), [duration, 0.0])
-        fast = np.array(_sample_profile(profile, times))
+        fast = np.array(sample_profile(profile, times))
         reference = np.array(_sample_profile_by_calls(profile, times))
         assert np.abs(fast - reference).max() < 1e-12
 
 
 def test_sampling_many_profiles_at_once_is_each_profile_alone() -> None:
-    from keymps.motion.timing import Limits, _profile, _sample_profile, _sample_profiles
+    from keymps.motion.timing import Limits, _profile, _sample_profiles
 
     rng = np.random.default_rng(RNG_SEED + 21)
     profiles, times = [], []
@@ -66,7 +73,7 @@ def test_sampling_many_profiles_at_once_is_each_profile_alone() -> None:
         times.append(np.append(np.arange(0.0, duration + 0.01, 0.001), [duration, 0.0]))
     together = np.array(_sample_profiles(profiles, times))
     alone = np.concatenate(
-        [np.array(_sample_profile(p, t)) for p, t in zip(profiles, times, strict=True)], axis=1
+        [np.array(sample_profile(p, t)) for p, t in zip(profiles, times, strict=True)], axis=1
     )
     assert together.tobytes() == alone.tobytes()
 
@@ -147,7 +154,7 @@ def _generated_strokes(
 
 def test_timing_all_strokes_at_once_matches_stroke_by_stroke(monkeypatch: Any) -> None:
     from keymps.motion.spline import SplineTable
-    from keymps.motion.timing import Limits, time_stroke, time_strokes_at_once
+    from keymps.motion.timing import Limits, time_strokes_at_once
 
     monkeypatch.setattr(SplineTable, "CHUNK", 257)  # many chunk boundaries inside strokes
     rng = np.random.default_rng(RNG_SEED + 16)
@@ -176,14 +183,7 @@ def test_timing_all_strokes_at_once_matches_stroke_by_stroke(monkeypatch: Any) -
 
 
 def test_sampling_all_strokes_at_once_matches_stroke_by_stroke() -> None:
-    from keymps.motion.timing import (
-        Limits,
-        _joint_motion,
-        _planned_points,
-        _sample_profile,
-        sample_trajectory,
-        time_strokes_at_once,
-    )
+    from keymps.motion.timing import Limits, sample_trajectory, time_strokes_at_once
 
     rng = np.random.default_rng(RNG_SEED + 17)
     for model, tool_path, strokes in _generated_strokes(rng, 2):
@@ -194,9 +194,9 @@ def test_sampling_all_strokes_at_once_matches_stroke_by_stroke() -> None:
         parts = []
         for number, item in enumerate(timed):
             steps = round(item.duration * rate) + (number == len(timed) - 1)
-            s, sd, sdd = _sample_profile(item.profile, np.arange(steps) * (1 / rate))
-            q, qd, qdd = _joint_motion(item.stroke, s, sd, sdd)
-            parts.append((q, qd, qdd, _planned_points(item.stroke, s)))
+            s, sd, sdd = sample_profile(item.profile, np.arange(steps) * (1 / rate))
+            q, qd, qdd = joint_motion(item.stroke, s, sd, sdd)
+            parts.append((q, qd, qdd, planned_points(item.stroke, s)))
         q, qd, qdd, xyz = (np.concatenate(column) for column in zip(*parts, strict=True))
         qd[[0, -1]] = qdd[[0, -1]] = 0.0
         for a, b in ((got.q, q), (got.qd, qd), (got.qdd, qdd), (got.tool_xyz, xyz)):
@@ -235,7 +235,8 @@ def test_spline_table_is_each_spline_bit_for_bit(monkeypatch: Any) -> None:
 
 
 def _significant_points_one_by_one(points: np.ndarray, yaw: np.ndarray) -> np.ndarray:
-    """The straightforward `_significant_points`: every point's distance from the last kept."""
+    """`_significant_points_all` of one part, straightforwardly: every point's distance from
+    the last one kept."""
     from keymps.motion.strokes import MIN_STEP_M, YAW_RADIUS_M
 
     geometry = np.column_stack([points, YAW_RADIUS_M * yaw])
@@ -249,7 +250,7 @@ def _significant_points_one_by_one(points: np.ndarray, yaw: np.ndarray) -> np.nd
 
 
 def _corner_indexes_point_by_point(points: np.ndarray, yaw: np.ndarray) -> list[int]:
-    """The straightforward `_corner_indexes` loop over every point (the same directions)."""
+    """`_corner_indexes_all` of one part as a loop over every point (the same directions)."""
     from keymps.motion import strokes
 
     geometry = np.column_stack([points, strokes.YAW_RADIUS_M * yaw])
@@ -279,6 +280,17 @@ def _corner_indexes_point_by_point(points: np.ndarray, yaw: np.ndarray) -> list[
         corners.append(index + int(np.flatnonzero(distance <= distance.min() + strokes.TIE_M)[0]))
         index = end + 1
     return corners
+
+
+def _every_few_one_by_one(points: np.ndarray, yaw: np.ndarray) -> np.ndarray:
+    """`_every_few_all` of one part, from its own arc parameter: the bins' first points and
+    both ends, sorted and distinct."""
+    from keymps.motion.strokes import CARRY_SPACING_M, _parameter_steps
+
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(_parameter_steps(points, yaw), axis=1))])
+    bins = np.floor(arc / CARRY_SPACING_M)
+    keep = np.flatnonzero(np.diff(bins, prepend=-1.0) > 0)
+    return distinct(np.concatenate([keep, [0, len(points) - 1]]))
 
 
 def _wandering_path(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -342,7 +354,7 @@ def test_splines_side_by_side_are_the_splines_one_by_one() -> None:
 
 
 def test_inserting_knots_in_all_parts_at_once_matches_part_by_part() -> None:
-    from keymps.motion.strokes import _dense_points, _dense_points_all, _every_few, _every_few_all
+    from keymps.motion.strokes import _dense_points, _dense_points_all, _every_few_all
 
     rng = np.random.default_rng(RNG_SEED + 22)
     for _ in range(60):
@@ -358,7 +370,7 @@ def test_inserting_knots_in_all_parts_at_once_matches_part_by_part() -> None:
             for a, b in zip(got, want, strict=True):
                 assert a.shape == b.shape and a.tobytes() == b.tobytes()
         for (points, yaw), got in zip(parts, _every_few_all(parts), strict=True):
-            want = _every_few(points, yaw)
+            want = _every_few_one_by_one(points, yaw)
             assert got.dtype == want.dtype and np.array_equal(got, want)
 
 
@@ -378,7 +390,7 @@ class _OtherSpline:
 def test_strokes_of_other_splines_are_timed_and_sampled_alike() -> None:
     import dataclasses
 
-    from keymps.motion.timing import Limits, sample_trajectory, time_stroke, time_strokes_at_once
+    from keymps.motion.timing import Limits, sample_trajectory, time_strokes_at_once
 
     rng = np.random.default_rng(RNG_SEED + 24)
     for model, tool_path, strokes in _generated_strokes(rng, 1):

@@ -190,16 +190,16 @@ def _scene_files(folder: Path) -> dict[str, bytes]:
 
 
 EXPECTED = {
-    "empty.png": "empty (0 bytes)",
+    "empty.png": "empty file (0 bytes)",
     "one-pixel.png": "no object found",
     "corrupt.png": None,  # PNG decoders may keep the rows they got: a scene, or a clean refusal
-    "garbage.jpg": "cannot decode scene image",
+    "garbage.jpg": "not an image file",
     "12-bit-unscaled.png": "is 16-bit, but no sample reaches 4096",
     "12-bit-unscaled.tiff": "is 16-bit, but no sample reaches 4096",
     "20000x20000.png": "20000 x 20000 pixels (400.0 MP), more than scene.max_image_pixels",
     "20000x20000.jpg": "20000 x 20000 pixels (400.0 MP), more than scene.max_image_pixels",
     "huge-bmp.bmp": "more than scene.max_image_pixels",
-    "text.png": "cannot decode scene image",
+    "text.png": "not an image file",
 }
 
 

@@ -42,7 +42,7 @@ def test_run_folder_is_complete(runs: dict[str, Path], task: str) -> None:
     for name in ("run.json", "plan.png", "outcome.png", "trajectory.csv", "run.rrd"):
         assert (folder / name).stat().st_size > 0, name
     record = _record(folder)
-    assert record["schema_version"] == "1.1"
+    assert record["schema_version"] == "1.2"
     assert record["ok"] is True and record["error"] is None
     assert record["backend"] == "offline"
     assert record["validation"]["verdict"] == "pass"

@@ -141,7 +141,7 @@ def test_a_failing_observer_is_a_warning_not_a_failed_run(tmp_path: Path, keymps
                 raise RuntimeError("observer bug")
 
     keymps_plugins.register(Exploding(), name="exploding")
-    with pytest.warns(RuntimeWarning, match="observer of stage 'plan' failed"):
+    with pytest.warns(UserWarning, match=r"failed in keymps_stage_done\(stage='plan'\)"):
         run = keymps.run_task(_task_copy(tmp_path), out=tmp_path / "run", rerun="off")
     assert run.stages.execute is not None
     assert any("observer bug" in w for w in run.warnings)
@@ -160,16 +160,18 @@ def test_a_failing_observer_hides_no_stage_from_the_others(
                 raise RuntimeError("observer bug")
 
     keymps_plugins.register(Exploding(), name="exploding")
-    with pytest.warns(RuntimeWarning) as caught:
+    with pytest.warns(UserWarning) as caught:
         run = keymps.run_task(
             _task_copy(tmp_path), executor="recording", out=tmp_path / "run", rerun="off"
         )
     assert [stage for stage, _ in observer.events] == ["image", *STAGES, "finished"]
     expected = (
-        "an observer of stage 'detect' failed (plugin 'exploding'): RuntimeError: observer bug"
-    )
-    assert [str(w.message) for w in caught if "observer" in str(w.message)] == [expected]
+        "keymps: plugin 'exploding' failed in keymps_stage_done(stage='detect') and was "
+        "unregistered: RuntimeError: observer bug"
+    )  # once: it is not called again
+    assert [str(w.message) for w in caught if "exploding" in str(w.message)] == [expected]
     assert expected in run.warnings
+    assert not keymps_plugins.manager.has_plugin("exploding")
 
 
 class _CrashingDetector:

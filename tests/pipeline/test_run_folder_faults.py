@@ -251,15 +251,56 @@ def test_a_full_disk_ends_in_one_line_and_a_whole_run_json(
         line = _one_error_line(done.stderr)
         assert str(out) in line, line
         assert "No space left on device" in line or "File too large" in line, line
-        record = out / "run.json"
-        if record.exists():  # written whole, or not at all
-            data = json.loads(record.read_text())
-            assert data["status"] == "failed" and data["execution"] is None
+        data = json.loads((out / "run.json").read_text())  # written whole, always
+        assert data["status"] == "failed" and data["execution"] is None
         assert not [p for p in out.glob(".*.tmp")], "a temporary file was left behind"
         outcomes.append(line)
         fuzz_counter.add(f"disks/full ({kind})", (attempt, line), "refused")
         shutil.rmtree(out, ignore_errors=True)
     assert len(outcomes) == 3
+
+
+@pytest.mark.parametrize("size", ["16k", "64k"])
+def test_a_tiny_disk_still_gets_a_whole_run_json(
+    size: str, tmp_path: Path, fuzz_counter: Any
+) -> None:
+    """A 16 kB or 64 kB tmpfs used to leave no run.json (the images and the recording filled
+    it first); the placeholder written before the first stage holds the record's space."""
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    mounted = sys.platform.startswith("linux") and os.geteuid() == 0
+    command = ["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(disk)]
+    if not mounted or subprocess.run(command, capture_output=True, timeout=30).returncode:
+        pytest.skip("mounting a tmpfs needs root on Linux")
+    try:
+        out = disk / "run"
+        done = _run_cli(
+            ["run", str(REPO / "tasks/object_cutting.yaml"), "--backend", "offline"]
+            + ["--out", str(out)]
+        )
+        assert done.returncode == 1, done.stderr[-2000:]
+        line = _one_error_line(done.stderr)
+        assert "No space left on device" in line, line
+        record = json.loads((out / "run.json").read_text())
+        assert record["status"] == "failed" and record["error"] == line.removeprefix("error: ")
+        assert not [p for p in out.glob(".*.tmp")], "a temporary file was left behind"
+        fuzz_counter.add("disks/tiny tmpfs", size, "short record" if "short" in record else "whole")
+    finally:
+        subprocess.run(["umount", "-l", str(disk)], capture_output=True, timeout=30)
+
+
+def test_a_run_json_folder_is_refused_before_the_first_stage(tmp_path: Path) -> None:
+    """A folder named run.json inside --out let the whole run execute, then fail."""
+    out = tmp_path / "run"
+    (out / "run.json").mkdir(parents=True)
+    done = _run_cli(
+        ["run", str(REPO / "tasks/cake_icing.yaml"), "--backend", "offline", "--out", str(out)]
+    )
+    assert done.returncode == 1
+    line = _one_error_line(done.stderr)
+    assert f"{out / 'run.json'}: Is a directory" in line, line
+    assert "load image" not in done.stderr  # not one stage ran
+    assert sorted(p.name for p in out.iterdir() if p.name != ".keymps.lock") == ["run.json"]
 
 
 @pytest.mark.parametrize("case", ["read-only", "name too long", "symlink loop", "loop below"])
@@ -332,8 +373,10 @@ def test_atomic_writes_keep_the_old_file_on_failure(tmp_path: Path) -> None:
 # -- Ctrl-C --
 
 
-def _interrupted_run(out: Path, after_line: str, delay_s: float = 0.0) -> tuple[int, str]:
-    """Start `keymps run`, send SIGINT `delay_s` after stderr shows `after_line`; (exit code,
+def _interrupted_run(
+    out: Path, after_line: str, delay_s: float = 0.0, signum: int = signal.SIGINT
+) -> tuple[int, str]:
+    """Start `keymps run`, send `signum` `delay_s` after stderr shows `after_line`; (exit code,
     stderr)."""
     process = subprocess.Popen(
         [*KEYMPS, "run", str(REPO / "tasks/object_cutting.yaml"), "--backend", "offline"]
@@ -350,7 +393,7 @@ def _interrupted_run(out: Path, after_line: str, delay_s: float = 0.0) -> tuple[
         seen.append(line)
         if after_line in line:
             time.sleep(delay_s)
-            process.send_signal(signal.SIGINT)
+            process.send_signal(signum)
             break
         assert time.monotonic() < deadline
     rest = process.communicate(timeout=60)[1]
@@ -358,32 +401,64 @@ def _interrupted_run(out: Path, after_line: str, delay_s: float = 0.0) -> tuple[
 
 
 RANDOM_DELAYS = [round(random.Random(seed).uniform(0.0, 2.5), 2) for seed in range(3)]
+SIGNALS = {signal.SIGINT: "Ctrl-C", signal.SIGTERM: "SIGTERM", signal.SIGHUP: "SIGHUP"}
 
 
+@pytest.mark.parametrize("signum", list(SIGNALS), ids=list(SIGNALS.values()))
 @pytest.mark.parametrize(
     ("after", "delay_s"),
     [("load image", 0.0), ("inverse kinematics", 0.0)]
     + [("load image", delay) for delay in RANDOM_DELAYS],
 )
-def test_ctrl_c_records_interrupted_and_exits_130(
-    after: str, delay_s: float, tmp_path: Path, fuzz_counter: Any
+def test_ctrl_c_sigterm_sighup_record_interrupted_and_exit_128_plus_the_signal(
+    after: str, delay_s: float, signum: int, tmp_path: Path, fuzz_counter: Any
 ) -> None:
-    code, stderr = _interrupted_run(tmp_path / "run", after, delay_s)
+    """SIGTERM and SIGHUP killed the run at once (no run.json); now all three stop it alike."""
+    name = SIGNALS[signum]
+    code, stderr = _interrupted_run(tmp_path / "run", after, delay_s, signum)
     if code == 0:
         pytest.skip("the run finished before the interrupt arrived")
-    assert code == 130, stderr[-2000:]
-    assert _one_error_line(stderr) == "error: interrupted (Ctrl-C)"
+    assert code == 128 + signum, stderr[-2000:]
+    assert _one_error_line(stderr) == f"error: interrupted ({name})"
     record = json.loads((tmp_path / "run" / "run.json").read_text())  # written, always
     if record["status"] == "ok":  # the run had ended; the summary was printing
         assert record["execution"]["ok"]
-        fuzz_counter.add("interrupts/Ctrl-C in a run", (after, delay_s), "after run.json")
+        fuzz_counter.add(f"interrupts/{name} in a run", (after, delay_s), "after run.json")
         return
     assert record["ok"] is False and record["status"] == "interrupted"
-    assert record["error"].startswith("interrupted by the user (Ctrl-C) ")
+    by = "the user (Ctrl-C)" if name == "Ctrl-C" else name
+    assert record["error"].startswith(f"interrupted by {by} ")
     if "after stage 'execute'" not in record["error"]:
         assert record["execution"] is None  # nothing executed after the interrupt
-    where = record["error"].split("(Ctrl-C) ")[1].split(";")[0]
-    fuzz_counter.add("interrupts/Ctrl-C in a run", (after, delay_s), where)
+    where = record["error"].split(f"{by} ")[1].split(";")[0]
+    fuzz_counter.add(f"interrupts/{name} in a run", (after, delay_s), where)
+
+
+def test_a_second_ctrl_c_soon_after_the_first_waits_for_the_orderly_stop(tmp_path: Path) -> None:
+    """A second Ctrl-C 50 ms after the first (while run.json is written, the recording closes)
+    used to kill the process; it now waits for the first one's stop."""
+    for attempt, after in enumerate(["load image", "inverse kinematics", "safety check"]):
+        out = tmp_path / f"run{attempt}"
+        process = subprocess.Popen(
+            [*KEYMPS, "run", str(REPO / "tasks/object_cutting.yaml"), "--backend", "offline"]
+            + ["--out", str(out)],
+            stderr=subprocess.PIPE,
+            stdout=subprocess.DEVNULL,
+            text=True,
+        )
+        assert process.stderr is not None
+        for line in process.stderr:
+            if after in line:
+                process.send_signal(signal.SIGINT)
+                time.sleep(0.05)
+                process.send_signal(signal.SIGINT)
+                break
+        stderr = process.communicate(timeout=60)[1]
+        if process.returncode == 0:
+            continue  # the run ended between the two lines
+        assert process.returncode == 130, stderr[-2000:]
+        assert _one_error_line(stderr) == "error: interrupted (Ctrl-C)"
+        assert json.loads((out / "run.json").read_text())["status"] in ("interrupted", "ok")
 
 
 # -- one run at a time in a run folder --

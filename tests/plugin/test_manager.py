@@ -318,3 +318,93 @@ def test_the_entry_points_read_ahead_serve_one_manager_and_a_later_one_reads_aga
     monkeypatch.syspath_prepend(str(tmp_path))
     assert not build_manager().has_plugin("late")  # installed after the read it was given
     assert build_manager().has_plugin("late")
+
+
+# -- a broken plugin is one warning naming it, in every command --
+
+REPO = Path(__file__).resolve().parents[2]
+BROKEN = {
+    "register raises": "@hookimpl\ndef register_detectors(register):\n    raise RuntimeError('x')\n",
+    "register exits": "@hookimpl\ndef register_executors(register):\n    raise SystemExit(4)\n",
+    "exit at import": "raise SystemExit(3)\n",
+    "own Ctrl-C at import": "raise KeyboardInterrupt\n",
+    "name no string": "@hookimpl\ndef register_detectors(register):\n    register(42, dict)\n",
+    "factory no callable": "@hookimpl\ndef register_executors(register):\n    register('e', 7)\n",
+    "observer exits": "@hookimpl\ndef keymps_stage_done(stage, result, run):\n    raise SystemExit(5)\n",
+}
+
+
+def _entry_point_plugin(site: Path, code: str) -> dict[str, str]:
+    """A plugin distribution `evil-plugin` (entry point `evil`) on PYTHONPATH: a module and a
+    .dist-info folder, as pip would leave them."""
+    (site / "evil_plugin.py").write_text("from keymps.plugin import hookimpl\n" + code)
+    info = site / "evil_plugin-1.0.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: evil-plugin\nVersion: 1.0\n")
+    (info / "entry_points.txt").write_text("[keymps]\nevil = evil_plugin\n")
+    return {"PYTHONPATH": str(site)}
+
+
+@pytest.mark.parametrize("warnings_as_errors", [False, True], ids=["", "PYTHONWARNINGS=error"])
+@pytest.mark.parametrize("case", list(BROKEN))
+def test_a_broken_plugin_is_one_warning_in_plugins_validate_and_run(
+    case: str, warnings_as_errors: bool, tmp_path: Path
+) -> None:
+    """Was: tracebacks (a raising or SystemExit hook, a non-string name, PYTHONWARNINGS=error),
+    or a silent exit 3, 4, 5 or 130 naming no plugin."""
+    env = _entry_point_plugin(tmp_path, BROKEN[case])
+    if warnings_as_errors:
+        env["PYTHONWARNINGS"] = "error"
+    task = str(REPO / "tasks/object_cutting.yaml")
+    out = str(tmp_path / "run")
+    for command in (
+        ["plugins"],
+        ["validate", task],
+        ["run", task, "--backend", "offline", "--rerun", "off", "--out", out],
+    ):
+        done = _keymps(*command, env_extra=env)
+        said = [line for line in done.stderr.splitlines() if "'evil'" in line]
+        assert done.returncode == 0, (command, done.stderr[-2000:])
+        assert "Traceback" not in done.stderr, done.stderr[-3000:]
+        if command[0] == "run" and case == "observer exits":
+            assert said == [  # once, at the first stage: it is not called again
+                "warning: keymps: plugin 'evil' failed in keymps_stage_done(stage='image') and "
+                "was unregistered: SystemExit: 5"
+            ], done.stderr
+        elif case != "observer exits":
+            assert len(said) == 1 and said[0].startswith("warning: keymps: plugin 'evil' fail")
+    record = json.loads((tmp_path / "run" / "run.json").read_text())
+    assert record["status"] == "ok"
+
+
+def test_a_factory_that_raises_is_one_line_naming_its_plugin(tmp_path: Path) -> None:
+    """Was: a traceback in `keymps validate` for a task that uses the component."""
+    env = _entry_point_plugin(
+        tmp_path,
+        "@hookimpl\ndef register_detectors(register):\n    register('evil', make)\n"
+        "def make(options):\n    raise ZeroDivisionError('in the factory')\n",
+    )
+    task = tmp_path / "task.yaml"
+    text = (REPO / "tasks/object_cutting.yaml").read_text()
+    text = text.replace("scenes/pizza.png", str(REPO / "tasks/scenes/pizza.png"))
+    text = text.replace("prompt: ../prompts/", f"prompt: {REPO}/prompts/")
+    task.write_text(text.replace("detector: {name: board}", "detector: {name: evil}"))
+    done = _keymps("validate", str(task), env_extra=env)
+    assert done.returncode == 1 and "Traceback" not in done.stderr, done.stderr[-3000:]
+    assert done.stderr.splitlines() == [
+        f"{task}:8:11: detector: detector 'evil' of plugin 'evil' could not be built: "
+        "ZeroDivisionError: in the factory"
+    ]
+
+
+def test_a_ctrl_c_while_a_plugin_loads_stops_the_command_and_names_it(tmp_path: Path) -> None:
+    """The user's Ctrl-C (a real SIGINT) during a plugin's import is no broken plugin."""
+    env = _entry_point_plugin(
+        tmp_path, "import os, signal, time\nos.kill(os.getpid(), signal.SIGINT)\ntime.sleep(5)\n"
+    )
+    done = _keymps("plugins", env_extra=env)
+    assert done.returncode == 130, done.stderr
+    assert done.stderr.splitlines() == [
+        "warning: keymps: interrupted while plugin 'evil' was loading",
+        "error: interrupted (Ctrl-C)",
+    ]

@@ -186,6 +186,7 @@ def test_bad_demo_files_give_one_line_naming_the_file(
         (lambda d: d.update(mode="mirror"), "mode 'mirror'"),
         (lambda d: d.update(nominal_speed=-1), "nominal_speed must be positive"),
         (lambda d: d.update(speed=1), "unknown field 'speed'"),
+        (lambda d: d.update({1: 2, "speed": 1}), "unknown field 1"),
     ],
 )
 def test_bad_primitive_files_give_one_line_naming_the_file(

@@ -6,9 +6,12 @@ near the arm's current joints, and that the moveJ from there to the first sample
 same safety check as the trajectory; then (only with --confirm) connect the control interface,
 moveJ slowly to the first point, and stream every sample with servoJ at the controller rate,
 watching the receive interface, the safety mode and the following error at every sample. Any
-error, safety stop, stale state or Ctrl-C stops the arm (servoStop, stopScript) and disconnects.
-Without --confirm it is a dry run: the checks run, nothing moves. What ur_rtde's C++ code
-prints itself goes to ur_rtde.log in the run folder, not to the console.
+error, safety stop, stale state or stop signal (Ctrl-C, SIGTERM, SIGHUP) stops the arm
+(servoStop, stopScript) and disconnects; a signal then goes on, so that run.json records the run
+as interrupted, with how far the arm got. The controller's RTDE watchdog stops the arm when
+keymps is killed outright (kill -9): it expects a command from keymps at least `watchdog_hz`
+times a second. Without --confirm it is a dry run: the checks run, nothing moves. What ur_rtde's
+C++ code prints itself goes to ur_rtde.log in the run folder, not to the console.
 """
 
 from __future__ import annotations
@@ -28,7 +31,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from keymps.errors import KeympsError
-from keymps.plugin import parse_options, require_validated
+from keymps.plugin import interrupt_name, interrupts_deferred, parse_options, require_validated
 from keymps.types import ExecutionReport
 from keymps_ur_rtde import NAME
 
@@ -89,6 +92,9 @@ class UrRtdeOptions(BaseModel):
     """Refuse when any joint is further than this from the first point, rad."""
     max_following_error: float = Field(0.2, gt=0, le=1.0)
     """Stop when any joint lags the command by more than this while streaming, rad."""
+    watchdog_hz: float = Field(10.0, ge=1.0, le=125.0)
+    """The controller stops the arm when keymps sends it nothing for 1/watchdog_hz s (keymps
+    killed, frozen or cut off), Hz."""
 
 
 def _connect_receive(host: str, frequency: float) -> Any:
@@ -172,6 +178,8 @@ class UrRtdeExecutor:
     ):
         self.options = options
         self.samples_sent = 0
+        self.stopped: ExecutionReport | None = None
+        """The report of a run a stop signal ended (recorded before the signal goes on)."""
         self.connect_receive = connect_receive
         self.connect_control = connect_control
 
@@ -181,16 +189,20 @@ class UrRtdeExecutor:
         confirm = bool(getattr(run.options, "confirm", False))
         mode = "--confirm" if confirm else "dry run"
         log = run.path(LOG_NAME)
+        self.stopped = None
         try:
             with native_output(log):
                 report = self._checked_execute(trajectory, run, confirm)
         except KeympsError as error:
             message = str(error).replace(f"executor {NAME}: ", f"executor {NAME} ({mode}): ", 1)
             report = ExecutionReport(self.name, False, message)
-        files = (str(log),) if log.stat().st_size else ()
-        if not files:
-            log.unlink()
-        return replace(report, files=report.files + files, dry_run=not confirm)
+        except KeyboardInterrupt as interrupt:  # the arm is stopped: run.json says how far it
+            stopped = self.stopped or ExecutionReport(  # got, and the run ends as interrupted
+                self.name, False, f"stopped by {interrupt_name(interrupt)}; nothing moved"
+            )
+            run.stages.record("execute", _with_log(stopped, log, confirm))
+            raise
+        return _with_log(report, log, confirm)
 
     def _checked_execute(self, trajectory: Any, run: Any, confirm: bool) -> ExecutionReport:
         rate = float(trajectory.rate_hz)
@@ -305,10 +317,14 @@ class UrRtdeExecutor:
         started = time.monotonic()
         self.samples_sent = 0
         try:
+            if not control.setWatchdog(options.watchdog_hz):
+                raise StreamStopped("the controller refused to set the RTDE watchdog")
             self._approach(control, receive, trajectory, figures["start_offset_rad"])
             self._stream(control, receive, trajectory)
-        except KeyboardInterrupt:
-            return self._stopped(control, trajectory, "stopped by Ctrl-C", figures)
+        except KeyboardInterrupt as interrupt:
+            why = f"stopped by {interrupt_name(interrupt)}"
+            self.stopped = self._stopped(control, trajectory, why, figures)
+            raise
         except StreamStopped as reason:
             return self._stopped(control, trajectory, str(reason), figures)
         except Exception as error:  # anything from ur_rtde: stop first, then report
@@ -340,6 +356,7 @@ class UrRtdeExecutor:
         )
         deadline = time.monotonic() + 2.0 * expected + 2.0
         while control.getAsyncOperationProgress() >= 0:
+            control.kickWatchdog()
             self._check_safety(receive, "during the move to the first point")
             if time.monotonic() > deadline:
                 _quietly(lambda: control.stopJ(options.approach_acceleration))
@@ -437,10 +454,20 @@ class _Freshness:
 
 
 def _stop(control: Any) -> None:
-    """Stop servoing, stop the control script, disconnect; never raise while stopping."""
-    _quietly(control.servoStop)
-    _quietly(control.stopScript)
-    _quietly(control.disconnect)
+    """Stop servoing, stop the control script, disconnect; never raise while stopping, and a
+    second Ctrl-C or SIGTERM waits until the arm is stopped."""
+    with interrupts_deferred():
+        _quietly(control.servoStop)
+        _quietly(control.stopScript)
+        _quietly(control.disconnect)
+
+
+def _with_log(report: ExecutionReport, log: Path, confirm: bool) -> ExecutionReport:
+    """The report with ur_rtde.log among its files (removed when empty) and dry run or not."""
+    files = (str(log),) if log.is_file() and log.stat().st_size else ()
+    if not files:
+        log.unlink(missing_ok=True)
+    return replace(report, files=report.files + files, dry_run=not confirm)
 
 
 def _quietly(action: Callable[[], Any]) -> None:

@@ -224,9 +224,17 @@ def test_ctrl_c_or_an_error_stops_the_arm(
         return bool(follow(q, *args))
 
     control.servoJ.side_effect = servo
-    report = executor(control).execute(validated, make_run(tmp_path, confirm=True))
+    run = make_run(tmp_path, confirm=True)
+    if isinstance(failure, KeyboardInterrupt):  # stops the arm, records, then goes on
+        with pytest.raises(KeyboardInterrupt):
+            executor(control).execute(validated, run)
+        report = run.stages.execute
+        assert report is not None and report.dry_run is False
+    else:
+        report = executor(control).execute(validated, run)
     assert not report.ok and report.message.startswith(expected)
     assert "stopped after 9 of" in report.message
+    control.setWatchdog.assert_called_once_with(10.0)
     control.servoStop.assert_called_once()
     control.stopScript.assert_called_once()
     control.disconnect.assert_called_once()
