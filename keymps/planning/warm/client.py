@@ -9,7 +9,6 @@ working folder and `call_environment`: the variables the call may read, nothing 
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import os
 import socket
 import subprocess
@@ -84,7 +83,8 @@ def server_environment() -> dict[str, str]:
 def answer_deadline_s(options: dict[str, Any]) -> float:
     """How long a request may take in the planner: each try's deadline and the longest waits
     between tries (keymps.default_plugins.litellm.retry), and a margin."""
-    tries = int(options.get("retries") or 3) + 1
+    retries = options.get("retries")
+    tries = (3 if retries is None else int(retries)) + 1
     return tries * (float(options.get("timeout_s") or 60.0) + 31.0) + 10.0
 
 
@@ -150,6 +150,8 @@ class WarmPlanner:
 
     def lock_held(self) -> bool:
         """Is a planner running or starting (its lock held)?"""
+        import fcntl
+
         try:
             descriptor = os.open(self.place.lock, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC)
         except OSError:

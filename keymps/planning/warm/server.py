@@ -22,7 +22,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import fcntl
-import gc
 import os
 import select
 import signal
@@ -105,10 +104,6 @@ class Server:
         self.loaded = {k: v for k, v in os.environ.items() if before.get(k) != v}
         os.environ.clear()
         os.environ.update(before)
-        # what is there now is never scanned by a child's collector: fewer of its pages are
-        # copied into each child (Python's recipe for forking servers; 15 % of a child's CPU)
-        gc.collect()
-        gc.freeze()
 
     def listen(self) -> None:
         path = self.place.socket
