@@ -1,5 +1,6 @@
-"""Memory settings of keymps' own processes: freed memory kept for the next allocation (glibc's
-malloc, Linux), and no garbage-collector passes over what start-up built.
+"""Memory of keymps' own processes: freed memory kept for the next allocation (glibc's malloc,
+Linux), no garbage-collector passes over what start-up built, and how much memory a process may
+still take (`memory_left`, for the budget of a large image: keymps.config.limits).
 
 A run allocates and frees arrays of the same sizes stage after stage (full-image planes in the
 detector, per-sample columns in timing, checking and the simulator). By default glibc gives
@@ -15,9 +16,11 @@ from __future__ import annotations
 
 import gc
 import os
+import re
 import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from pathlib import Path
 
 MMAP_THRESHOLD = 32 << 20
 """Blocks under this come from the heap, not from mmap (glibc's own maximum for its dynamic
@@ -78,3 +81,66 @@ def collector_paused_for_start_up() -> Iterator[Callable[[], None]]:
         end_start_up()
         if not was_frozen:
             gc.unfreeze()
+
+
+def memory_left() -> tuple[int, str] | None:
+    """How many bytes this process may still allocate and what bounds it: the memory this
+    machine has available, the container's memory limit (cgroup v2 or v1), or the address-space
+    limit (ulimit -v), whichever leaves least; None where none can be read (not Linux)."""
+    found = [
+        (left, why)
+        for left, why in (
+            (_meminfo_available(), "the memory this machine has available"),
+            (_cgroup_left(), "the container's memory limit (cgroup)"),
+            (_address_space_left(), "this process's address-space limit (ulimit -v)"),
+        )
+        if left is not None
+    ]
+    return min(found) if found else None
+
+
+def _meminfo_available() -> int | None:
+    try:
+        text = Path("/proc/meminfo").read_text()
+    except OSError:
+        return None
+    found = re.search(r"^MemAvailable:\s+(\d+) kB", text, re.MULTILINE)
+    return int(found.group(1)) * 1024 if found else None
+
+
+def _cgroup_left() -> int | None:
+    """The limit minus the usage of this process's memory cgroup (v2, else v1), if it has one."""
+    try:
+        entries = Path("/proc/self/cgroup").read_text().splitlines()
+    except OSError:
+        return None
+    own = next((e.split(":", 2)[2] for e in entries if e.startswith("0::")), "/")
+    candidates = [
+        (Path("/sys/fs/cgroup") / own.lstrip("/"), "memory.max", "memory.current"),
+        (Path("/sys/fs/cgroup/memory"), "memory.limit_in_bytes", "memory.usage_in_bytes"),
+    ]
+    for folder, limit_file, usage_file in candidates:
+        try:
+            limit = (folder / limit_file).read_text().strip()
+            usage = int((folder / usage_file).read_text().strip())
+        except (OSError, ValueError):
+            continue
+        if limit.isdigit() and int(limit) < 2**60:  # v1 writes a huge number for none
+            return max(0, int(limit) - usage)
+        return None
+    return None
+
+
+def _address_space_left() -> int | None:
+    """The soft RLIMIT_AS minus this process's virtual size, when a limit is set."""
+    try:
+        import resource
+
+        soft, _hard = resource.getrlimit(resource.RLIMIT_AS)
+        status = Path("/proc/self/status").read_text()
+    except (ImportError, OSError):
+        return None
+    size = re.search(r"^VmSize:\s+(\d+) kB", status, re.MULTILINE)
+    if soft == resource.RLIM_INFINITY or size is None:
+        return None
+    return max(0, soft - int(size.group(1)) * 1024)

@@ -223,6 +223,16 @@ EARLIER_RUN_FILES = (
 """What a run and the bundled plugins write beside run.json (docs/run-folder.md)."""
 
 
+RUN_OWN_FILES = (
+    "run.json",
+    "run.rrd",
+    *(f"{stem}.{suffix}" for stem in ("plan", "plan_photo") for suffix in IMAGE_FORMATS),
+)
+"""What the run itself writes in its folder whichever executor runs, beside trajectory.csv
+(which the file executor names too: the same CSV), vlm/ and its hidden lock and temporary
+files: no plugin option may name one of them (keymps.plugin.RunFolderPath)."""
+
+
 def clear_earlier_run(folder: Path) -> None:
     """Remove an earlier run's files (EARLIER_RUN_FILES, vlm/'s files, run.json last) from a
     folder holding its run.json, so that no file of that run passes for the new run's (a failed

@@ -392,6 +392,27 @@ class Piece:
     """Requested tool speed along the path, m/s."""
     object_id: int = 1
     """The object of the pair this piece belongs to."""
+    pairs: tuple[int, ...] = ()
+    """For a work piece, the keypoint pairs it pipes, in order: several when icing lines that
+    meet are one continuous stroke (then `pair_index` is the first); empty: `pair_index` only."""
+
+    @property
+    def piped_pairs(self) -> tuple[int, ...]:
+        """The keypoint pairs this piece works on (`pairs`, or `pair_index` alone)."""
+        return self.pairs or (self.pair_index,)
+
+    def pairs_label(self) -> str:
+        """The pairs this piece works on, for messages.
+
+        Returns:
+            'pair 3', 'pairs 14-61' or 'pairs 1, 2, 5, 3': numbered from 1, as in plan.png.
+        """
+        numbers = [k + 1 for k in self.piped_pairs]
+        if len(numbers) == 1:
+            return f"pair {numbers[0]}"
+        if numbers == list(range(numbers[0], numbers[0] + len(numbers))):
+            return f"pairs {numbers[0]}-{numbers[-1]}"
+        return "pairs " + ", ".join(str(n) for n in numbers)
 
     @property
     def length_m(self) -> float:

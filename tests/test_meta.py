@@ -30,6 +30,7 @@ def test_hookspecs_found() -> None:
         "register_detectors",
         "register_executors",
         "register_image_sources",
+        "register_robots",
         "register_vlm_backends",
     ]
 

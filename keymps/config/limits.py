@@ -96,6 +96,12 @@ def image_size_from_header(data: bytes) -> tuple[int, int] | None:
 
 
 def _jpeg_size(data: bytes) -> tuple[int, int] | None:
+    frame = _jpeg_frame(data)
+    return frame[:2] if frame else None
+
+
+def _jpeg_frame(data: bytes) -> tuple[int, int, int, int] | None:
+    """(width, height, bits per sample, components) from a JPEG's frame header."""
     index = 2
     while index + 9 < len(data):
         if data[index] != 0xFF:  # libjpeg skips stray bytes before a marker: so does this
@@ -115,7 +121,7 @@ def _jpeg_size(data: bytes) -> tuple[int, int] | None:
         length = struct.unpack(">H", data[index + 2 : index + 4])[0]
         if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):  # start of frame
             height, width = struct.unpack(">HH", data[index + 5 : index + 9])
-            return int(width), int(height)
+            return int(width), int(height), data[index + 4], data[index + 9]
         index += 2 + length
     return None
 
@@ -188,6 +194,57 @@ def check_image_pixels(size_px: tuple[int, int], max_pixels: int, what: str) -> 
         )
 
 
+DETECTION_BYTES_PER_PIXEL = 96
+"""Peak memory a run takes per pixel of its scene, over what it held before: 86 bytes
+measured (a whole offline run, peak in detection: the board detector's float32 Lab image,
+board-model planes and masks; 6 to 24 MP, gray to RGBA, 8 and 16 bit alike), rounded up."""
+UNKNOWN_LAYOUT = (4, 4)
+"""Channels and bytes per sample assumed for a format whose header keymps does not read (a
+float TIFF with alpha is the largest OpenCV decodes)."""
+
+
+def image_layout_from_header(data: bytes) -> tuple[int, int] | None:
+    """(channels, bytes per sample) OpenCV decodes a PNG or JPEG into, from its header; None
+    for other formats."""
+    try:
+        if data[:8] == b"\x89PNG\r\n\x1a\n" and data[12:16] == b"IHDR":
+            depth, colour = data[24], data[25]  # palette and gray+alpha decode to 4 channels
+            return {0: 1, 2: 3, 3: 4, 4: 4, 6: 4}.get(colour, 4), 2 if depth == 16 else 1
+        if data[:2] == b"\xff\xd8":
+            frame = _jpeg_frame(data)
+            return (frame[3], 2 if frame[2] > 8 else 1) if frame else None
+    except (IndexError, struct.error):
+        return None
+    return None
+
+
+def image_bytes_needed(size_px: tuple[int, int], layout: tuple[int, int] | None) -> int:
+    """The memory reading and detecting an image takes at its peak, bytes: decoding (the
+    decoded samples, and for 16-bit or float samples two 32-bit working copies on the way to
+    8-bit BGR) or detection (DETECTION_BYTES_PER_PIXEL), whichever is more."""
+    channels, sample_bytes = layout or UNKNOWN_LAYOUT
+    decoding = channels * sample_bytes + (2 * 4 * channels if sample_bytes > 1 else 0) + 3
+    return size_px[0] * size_px[1] * max(decoding, DETECTION_BYTES_PER_PIXEL)
+
+
+def check_image_memory(size_px: tuple[int, int], layout: tuple[int, int] | None, what: str) -> None:
+    """Refuse an image the process has not the memory to read and detect (before decoding it),
+    naming what bounds the memory; nothing is checked where that cannot be read."""
+    from keymps._memory import memory_left
+
+    left = memory_left()
+    needed = image_bytes_needed(size_px, layout)
+    if left is None or needed <= left[0]:
+        return
+    channels, sample_bytes = layout or UNKNOWN_LAYOUT
+    described = f"{channels} channel{'s' * (channels > 1)} of {8 * sample_bytes} bits"
+    raise KeympsError(
+        f"{what} is {size_px[0]} x {size_px[1]} pixels, {described}: reading and detecting it "
+        f"takes about {needed / 2**30:.1f} GB, more than the {left[0] / 2**30:.1f} GB "
+        f"{left[1]} leaves this run; use a smaller image"
+    )
+
+
 BELOW_BOARD_M = 0.001
 """A planned point this far below the board can never pass the safety check (0.5 mm board
 tolerance plus 0.5 mm path tolerance): say so before inverse kinematics, naming the pair."""
@@ -203,10 +260,10 @@ def check_tool_path(tool_path: ToolPath, task: Task) -> ToolPath:
                 if piece.kind == "work"
                 else "the travel move to its start"
             )
+            at = piece.pairs_label() if piece.kind == "work" else f"pair {piece.pair_index + 1}"
             raise KeympsError(
-                f"the tool path goes {-lowest * 1000:.1f} mm below the board at pair "
-                f"{piece.pair_index + 1} ({where}); raise height.margin or keep that pair's "
-                "keypoints off the board"
+                f"the tool path goes {-lowest * 1000:.1f} mm below the board at {at} "
+                f"({where}); raise height.margin or keep that pair's keypoints off the board"
             )
     motion = task.motion
     moving = [(p.length_m, p.speed) for p in tool_path.pieces if len(p.points) > 1]

@@ -258,18 +258,55 @@ class ToolSpec(StrictModel):
     0.004, knife none). The offline planner refuses designs whose strokes would merge."""
 
 
+JointLimit = Annotated[float, Field(gt=0, le=1e6, allow_inf_nan=False), NUMBER]
+JointAngle = Annotated[float, Field(ge=-100.0, le=100.0, allow_inf_nan=False), NUMBER]
+"""radians (or metres for a prism joint): no joint turns 16 times."""
+ModelName = Annotated[str, Field(pattern=r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")]
+"""A registered robot's name (`keymps plugins` lists them): letters, digits, _ . -"""
+LinkName = Annotated[str, Field(min_length=1, max_length=200)]
+MAX_URDF_BYTES = 5_000_000
+"""A robot's URDF is tens of kilobytes (keymps.robot.urdf_model reads at most this)."""
+
+
+class RobotLimits(StrictModel):
+    """A URDF arm's limits the URDF does not hold: one value for every joint, or one per joint."""
+
+    velocity: JointLimit | list[JointLimit] | None = None
+    """rad/s (a URDF's own `<limit velocity>` when omitted)."""
+    acceleration: JointLimit | list[JointLimit] | None = None
+    """rad/s^2 (3.0 when omitted)."""
+    jerk: JointLimit | list[JointLimit] | None = None
+    """rad/s^3 (100 when omitted)."""
+
+
 class Robot(StrictModel):
-    model: Literal["ur3", "ur3e"] = "ur3"
-    base: tuple[BaseOffset, BaseOffset, BaseOffset, Degrees] = (0.15, -0.20, 0.0, 90.0)
-    """x, y, z in metres and yaw in degrees of the robot base in the board frame."""
+    model: ModelName | None = None
+    """A registered arm (ur3, ur5e, panda, so101, a plugin's); ur3 when neither this nor
+    urdf is given."""
+    urdf: Path | None = None
+    """Your own arm's URDF, relative to this file and inside its folder tree."""
+    tip_link: LinkName | None = None
+    """With urdf: the link the tool is mounted on (its z axis the tool's direction)."""
+    joints: list[LinkName] | None = Field(default=None, min_length=1, max_length=12)
+    """With urdf: the arm's joints in the controller's order (default: root to tip_link)."""
+    limits: RobotLimits | None = None
+    home: list[JointAngle] | None = Field(default=None, min_length=1, max_length=12)
+    """With urdf: the configuration the inverse kinematics starts from (radians)."""
+    base: tuple[BaseOffset, BaseOffset, BaseOffset, Degrees] | None = None
+    """x, y, z in metres and yaw in degrees of the robot base in the board frame; the arm's
+    own default for the board when omitted."""
     tool: ToolSpec = ToolSpec(name="knife")
     rate_hz: Annotated[float, Field(ge=10, le=1000, allow_inf_nan=False), NUMBER] | None = None
-    """Controller rate: 125 Hz for CB3, 500 Hz for e-Series when omitted."""
-    max_joint_acceleration: Annotated[float, Field(ge=0.05, le=50, allow_inf_nan=False), NUMBER] = (
-        3.0
+    """Controller rate: the arm's own when omitted (UR: 125 Hz CB3, 500 Hz e-Series)."""
+    max_joint_acceleration: (
+        Annotated[float, Field(ge=0.05, le=50, allow_inf_nan=False), NUMBER] | None
+    ) = None
+    """rad/s^2, a cap on every joint's limit (the arm's own when omitted: UR 3.0, the maker
+    publishes none)."""
+    max_joint_jerk: Annotated[float, Field(ge=0.5, le=5000, allow_inf_nan=False), NUMBER] | None = (
+        None
     )
-    """rad/s^2, every joint (the maker publishes none; a conservative default)."""
-    max_joint_jerk: Annotated[float, Field(ge=0.5, le=5000, allow_inf_nan=False), NUMBER] = 100.0
+    """rad/s^3, a cap on every joint's limit (the arm's own when omitted: UR 100)."""
     max_tool_acceleration: Annotated[float, Field(ge=0.01, le=10, allow_inf_nan=False), NUMBER] = (
         0.5
     )
@@ -280,6 +317,54 @@ class Robot(StrictModel):
     @classmethod
     def _tool_by_name(cls, value: Any) -> Any:
         return {"name": value} if isinstance(value, str) else value
+
+    @model_validator(mode="after")
+    def _one_arm(self) -> Robot:
+        if self.model is not None and self.urdf is not None:
+            raise ValueError("give either model (a registered arm) or urdf (your own), not both")
+        if self.urdf is not None and self.tip_link is None:
+            raise ValueError("urdf needs tip_link: the link the tool is mounted on")
+        if self.urdf is None:
+            given = [k for k in ("tip_link", "joints", "limits", "home") if getattr(self, k)]
+            if given:
+                raise ValueError(f"{', '.join(given)} describe a urdf arm; add urdf")
+        return self
+
+    def base_xy(self, workspace: Workspace) -> tuple[float, float]:
+        """Where the base stands on the board, roughly: `base`, else in front of the middle of
+        the workspace's near edge (where every built-in arm's default placement is)."""
+        if self.base is not None:
+            return self.base[0], self.base[1]
+        return workspace.shift[0] + workspace.size[0] / 2, workspace.shift[1] - 0.2
+
+    @property
+    def arm_name(self) -> str:
+        """The registered robot the task's arm is built by (its own URDF: `urdf`)."""
+        return self.model or ("urdf" if self.urdf is not None else "ur3")
+
+    def arm_component(self, folder: Path) -> tuple[str, dict[str, Any]]:
+        """(robot name, factory options): a task's own URDF with its path resolved against the
+        task's folder and its meshes kept inside the URDF's package folder."""
+        if self.urdf is None:
+            return self.arm_name, {}
+        urdf = self.urdf if self.urdf.is_absolute() else folder / self.urdf
+        package = urdf.parent.parent if urdf.parent.name == "urdf" else urdf.parent
+        options: dict[str, Any] = {
+            "urdf": urdf,
+            "tip_link": self.tip_link,
+            "package_dirs": [package],
+        }
+        if self.joints:
+            options["joints"] = list(self.joints)
+        if self.home:
+            options["home"] = list(self.home)
+        if self.rate_hz is not None:
+            options["rate_hz"] = self.rate_hz
+        for name in ("velocity", "acceleration", "jerk"):
+            value = getattr(self.limits, name, None) if self.limits else None
+            if value is not None:
+                options[name] = [value] if isinstance(value, float) else list(value)
+        return "urdf", options
 
 
 class Task(StrictModel):
@@ -598,6 +683,12 @@ def _check_trust(task: Task, source: str, parsed: PositionedYaml) -> list[str]:
         wrong = trust.api_key_env_problem(env, allowed)
         if wrong:
             problem(("planner", "api_key_env"), wrong)
+    if task.robot.urdf is not None:
+        wrong = trust.readable_file_problem(
+            task.resolve(task.robot.urdf), [task.folder], MAX_URDF_BYTES
+        )
+        if wrong:
+            problem(("robot", "urdf"), wrong)
     if task.planner.prompt is not None:
         wrong = trust.readable_file_problem(
             task.resolve(task.planner.prompt),

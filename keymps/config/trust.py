@@ -19,8 +19,9 @@ from collections.abc import Sequence
 from pathlib import Path
 from urllib.parse import urlsplit
 
-KEY_ENV_PATTERN = re.compile(r"^[A-Z][A-Z0-9_]*_API_(KEY|TOKEN)$")
-"""Names a task's planner.api_key_env may use: OPENAI_API_KEY, LAB_VLM_API_KEY, ..."""
+KEY_ENV_PATTERN = re.compile(r"[A-Z][A-Z0-9_]*_API_(KEY|TOKEN)")
+"""Names a task's planner.api_key_env may use: OPENAI_API_KEY, LAB_VLM_API_KEY, ... Matched
+whole (`fullmatch`: a `$` also matches before a final newline, which let "X_API_KEY\n" pass)."""
 KNOWN_KEY_ENVS = frozenset({"HF_TOKEN", "WATSONX_APIKEY", "AZURE_AD_TOKEN"})
 """Provider variables litellm documents that do not follow KEY_ENV_PATTERN."""
 NEVER_READ = (Path("/proc"), Path("/sys"), Path("/dev"))
@@ -35,7 +36,7 @@ MAX_CASSETTE_BYTES = 256 * 1024 * 1024
 
 def api_key_env_problem(name: str, allowed: Sequence[str] = ()) -> str | None:
     """Why a task file may not name the variable `name` (None when it may)."""
-    if KEY_ENV_PATTERN.match(name) or name in KNOWN_KEY_ENVS or name in allowed:
+    if KEY_ENV_PATTERN.fullmatch(name) or name in KNOWN_KEY_ENVS or name in allowed:
         return None
     return (
         f"{name!r} is not a provider key variable: a task file may name only NAME_API_KEY "

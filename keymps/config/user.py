@@ -23,7 +23,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from keymps.errors import KeympsError
 
 MAX_CONFIG_BYTES = 64 * 1024
-ENV_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+ENV_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 
 
 class _ConfigFile(BaseModel):
@@ -45,7 +45,7 @@ class _ConfigFile(BaseModel):
     @classmethod
     def _names(cls, values: list[str]) -> list[str]:
         for value in values:
-            if not ENV_NAME.match(value):
+            if not ENV_NAME.fullmatch(value):
                 raise ValueError(f"{value!r} is not an environment variable name")
         return values
 

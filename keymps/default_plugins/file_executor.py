@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator
 
 from keymps.plugin import (
     RegisterExecutor,
@@ -29,6 +29,19 @@ class FileOptions(BaseModel):
     """A file in the run folder (subfolders allowed); null skips the file."""
     json_path: RunFolderPath | None = Field(Path("trajectory.json"), alias="json")
     """The task file's `json` key: the ROS JointTrajectory file."""
+
+    @field_validator("json_path")
+    @classmethod
+    def _not_the_csv(cls, path: Path | None, info: ValidationInfo) -> Path | None:
+        # RunFolderPath keeps the run's own files out; these two are this executor's
+        if path is None:
+            return path
+        if str(path).casefold() == "trajectory.csv":
+            raise ValueError("'trajectory.csv' is the run's own CSV: name another file")
+        csv = info.data.get("csv")
+        if csv is not None and str(csv).casefold() == str(path).casefold():
+            raise ValueError(f"{str(path)!r} is the csv file too: name two files")
+        return path
 
 
 class FileExecutor:

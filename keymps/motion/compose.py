@@ -8,6 +8,8 @@ from collections.abc import Sequence
 import numpy as np
 
 from keymps.errors import KeympsError
+from keymps.motion.chains import Chain, pipe_chains
+from keymps.motion.polyline import limit_along, rollout_along
 from keymps.primitives.dictionary import Primitive
 from keymps.types import GroundedObject, Piece, Segment, ToolPath
 
@@ -40,10 +42,18 @@ def compose_tool_path(
     home_yaw: float = 0.0,
     footprint: np.ndarray | None = None,
     objects: Sequence[GroundedObject] = (),
+    join_distance: float = 0.0,
 ) -> ToolPath:
     """From `home`, per segment a travel piece (rise to object_top + clearance, move over,
     descend to the start) then a work piece (the primitive re-targeted to start/goal), and a
     last travel piece back to `home`. Every piece starts and ends at rest.
+
+    Icing lines that meet are one continuous stroke (keymps.motion.chains): with an icing
+    primitive and a fixed-yaw tool, pairs whose ends lie within `join_distance` (metres; 0:
+    only ends that coincide) are piped as one work piece, the primitive run once along their
+    polyline (keymps.motion.polyline), with no travel move between them; where they branch,
+    each connected group is piped in as few strokes as it allows. Cuts and dots keep a piece
+    per pair.
 
     yaw_mode 'follow' (a blade): the work piece's yaw is the segment's horizontal direction,
     taken modulo 180 degrees to turn the wrist least (and kept within +-180 degrees); 'fixed'
@@ -60,69 +70,115 @@ def compose_tool_path(
     _check_settings(object_top, clearance, work_speed, travel_speed, yaw_mode)
     if not segments:
         raise MotionError("compose: the plan has no keypoint pairs to execute")
-    travel_z = object_top + clearance
-    pieces: list[Piece] = []
-    yaws = _work_yaws(segments, yaw_mode, home_yaw)
-    work_paths = [
-        primitive.rollout(
-            _finite_point(seg.start, f"segment {k + 1} start"),
-            _finite_point(seg.goal, f"segment {k + 1} goal"),
-            speed=work_speed,
-            spacing=WORK_SPACING_M,
-            # A plunge has no direction of its own: a blade's demo keeps the blade's yaw.
-            heading=yaws[k] if yaw_mode == "follow" else None,
-        ).y
-        for k, seg in enumerate(segments)
-    ]
-    outlines = {o.id: np.asarray(o.outline_m, dtype=float).reshape(-1, 2) for o in objects}
-    if footprint is not None or outlines:
-        single = (
-            np.asarray(footprint, dtype=float).reshape(-1, 2) if footprint is not None else None
-        )
-        work_paths = [
-            keep_strokes_near(
-                points,
-                np.asarray(seg.start, float),
-                np.asarray(seg.goal, float),
-                outline,  # each cut's own object's outline, with several objects
-            )
-            if (outline := outlines.get(seg.object_id, single)) is not None and len(outline) >= 3
-            else points
-            for points, seg in zip(work_paths, segments, strict=True)
+    if not (math.isfinite(join_distance) and join_distance >= 0):
+        raise MotionError(f"compose: join_distance must be metres >= 0, got {join_distance}")
+    ends = np.array(
+        [
+            [
+                _finite_point(s.start, f"segment {k + 1} start"),
+                _finite_point(s.goal, f"segment {k + 1} goal"),
+            ]
+            for k, s in enumerate(segments)
         ]
-    position, yaw = home_arr, yaws[0] if yaw_mode == "follow" else home_yaw
-    by_id = {o.id: o for o in objects}
-    here: int | None = None  # the object the tool is over (None: home)
-    # travel leg k ends at work piece k's start; the last one goes home
-    leg_starts = [home_arr] + [points[-1] for points in work_paths]
-    leg_ends = [points[0] for points in work_paths] + [home_arr]
-    crossings = [_crossed_legs(leg_starts, leg_ends, o.outline_m) for o in objects]
-
-    def leg_z(leg: int, ends: tuple[int | None, int | None]) -> float:
-        if not by_id:
-            return travel_z
-        crossed = [by_id[i].height for i in ends if i in by_id]
-        crossed += [o.height for o, hit in zip(objects, crossings, strict=True) if hit[leg]]
-        return max(crossed, default=0.0) + clearance
-
-    for index, (points, work_yaw) in enumerate(zip(work_paths, yaws, strict=True)):
-        owner = segments[index].object_id
-        z = leg_z(index, (here, owner))
-        travel_points, travel_yaw = _travel(position, points[0], z, yaw, work_yaw)
-        pieces.append(Piece("travel", index, travel_points, travel_yaw, float(travel_speed), owner))
-        pieces.append(
-            Piece("work", index, points, np.full(len(points), work_yaw), float(work_speed), owner)
+    )
+    joined = primitive.family == "icing" and yaw_mode == "fixed"
+    strokes = (
+        pipe_chains(ends, [s.object_id for s in segments], join_distance)
+        if joined
+        else [Chain((k,), (False,), ends[k]) for k in range(len(segments))]
+    )
+    yaws = _work_yaws([segments[c.pairs[0]] for c in strokes], yaw_mode, home_yaw)
+    owners = [segments[c.pairs[0]].object_id for c in strokes]
+    outlines = {o.id: np.asarray(o.outline_m, dtype=float).reshape(-1, 2) for o in objects}
+    single = np.asarray(footprint, dtype=float).reshape(-1, 2) if footprint is not None else None
+    work_paths = [
+        _work_path(
+            primitive, chain, work_speed, yaw if yaw_mode == "follow" else None,
+            outlines.get(owner, single),
         )
-        position, yaw, here = points[-1], work_yaw, owner
-    z = leg_z(len(segments), (here, None))
-    travel_points, travel_yaw = _travel(position, home_arr, z, yaw, yaw)
-    pieces.append(
-        Piece(
-            "travel", len(segments) - 1, travel_points, travel_yaw, float(travel_speed),
-            segments[-1].object_id,
-        )
-    )  # fmt: skip
+        for chain, yaw, owner in zip(strokes, yaws, owners, strict=True)
+    ]  # fmt: skip
+    heights = _leg_heights(work_paths, owners, home_arr, objects, object_top, clearance)
+    first_yaw = yaws[0] if yaw_mode == "follow" else home_yaw
+    speeds = (float(work_speed), float(travel_speed))
+    pieces = _pieces(strokes, owners, work_paths, yaws, heights, home_arr, first_yaw, speeds)
     return ToolPath(pieces=tuple(pieces), keyword=primitive.name)
+
+
+def _work_path(
+    primitive: Primitive,
+    chain: Chain,
+    speed: float,
+    heading: float | None,
+    outline: np.ndarray | None,
+) -> np.ndarray:
+    """The work piece's points: the primitive re-targeted to the pair, or run once along the
+    chain's polyline; kept near the outline's footprint margin when one is known."""
+    usable = outline if outline is not None and len(outline) >= 3 else None
+    start, goal = chain.vertices[0], chain.vertices[-1]
+    if len(chain.pairs) > 1:
+        reach = end_reaches(start, goal, usable) if usable is not None else (math.inf, math.inf)
+        return rollout_along(
+            primitive, chain.vertices, speed=speed, spacing=WORK_SPACING_M, reach=reach
+        )
+    # A plunge has no direction of its own: a blade's demo keeps the blade's yaw.
+    points = primitive.rollout(start, goal, speed=speed, spacing=WORK_SPACING_M, heading=heading).y
+    return points if usable is None else keep_strokes_near(points, start, goal, usable)
+
+
+def _leg_heights(
+    work_paths: Sequence[np.ndarray],
+    owners: Sequence[int],
+    home: np.ndarray,
+    objects: Sequence[GroundedObject],
+    object_top: float,
+    clearance: float,
+) -> list[float]:
+    """Per travel leg (to each stroke's start, then home), the height it moves over at:
+    clearance above object_top, or with `objects` above the tallest object it leaves, reaches
+    or passes over."""
+    if not objects:
+        return [object_top + clearance] * (len(work_paths) + 1)
+    by_id = {o.id: o for o in objects}
+    starts = [home] + [points[-1] for points in work_paths]
+    ends = [points[0] for points in work_paths] + [home]
+    crossings = [_crossed_legs(starts, ends, o.outline_m) for o in objects]
+    touching = list(zip([None, *owners], [*owners, None], strict=True))  # left, reached
+    heights = []
+    for leg, near in enumerate(touching):
+        crossed = [by_id[i].height for i in near if i in by_id]
+        crossed += [o.height for o, hit in zip(objects, crossings, strict=True) if hit[leg]]
+        heights.append(max(crossed, default=0.0) + clearance)
+    return heights
+
+
+def _pieces(
+    strokes: Sequence[Chain],
+    owners: Sequence[int],
+    work_paths: Sequence[np.ndarray],
+    yaws: Sequence[float],
+    heights: Sequence[float],
+    home: np.ndarray,
+    yaw: float,
+    speeds: tuple[float, float],
+) -> list[Piece]:
+    """Travel to each stroke (at its leg's height), the stroke, and travel home."""
+    work_speed, travel_speed = speeds
+    pieces: list[Piece] = []
+    position = home
+    for chain, owner, points, work_yaw, height in zip(
+        strokes, owners, work_paths, yaws, heights, strict=False
+    ):
+        first = chain.pairs[0]
+        travel_points, travel_yaw = _travel(position, points[0], height, yaw, work_yaw)
+        pieces.append(Piece("travel", first, travel_points, travel_yaw, travel_speed, owner))
+        work_yaws = np.full(len(points), work_yaw)
+        pieces.append(Piece("work", first, points, work_yaws, work_speed, owner, chain.pairs))
+        position, yaw = points[-1], work_yaw
+    travel_points, travel_yaw = _travel(position, home, heights[-1], yaw, yaw)
+    last = strokes[-1].pairs[-1]
+    pieces.append(Piece("travel", last, travel_points, travel_yaw, travel_speed, owners[-1]))
+    return pieces
 
 
 def keep_strokes_near(
@@ -137,34 +193,32 @@ def keep_strokes_near(
     reach), identity to second order at the end: strokes there become shorter, smoothly.
     Paths already within reach are returned unchanged.
     """
-    from keymps.robot.safety import FOOTPRINT_MARGIN_M
-    from keymps.robot.safety_geometry import outside_distance
-
     axis = goal[:2] - start[:2]
     length = float(np.linalg.norm(axis))
     if length < NO_HEADING_M:
         return points
     direction = axis / length
     along = (points[:, :2] - start[:2]) @ direction
-    allowed = FOOTPRINT_MARGIN_M - FOOTPRINT_SLACK_M
-    ends = outside_distance(np.array([start[:2], goal[:2]]), outline)
-    reach_start, reach_goal = (max(0.0, allowed - float(d)) for d in ends)
+    reach_start, reach_goal = end_reaches(start, goal, outline)
     before, after = np.maximum(-along, 0.0), np.maximum(along - length, 0.0)
     if before.max() <= reach_start and after.max() <= reach_goal:
         return points
-    limited = along.copy()
-    limited[along < 0] = -_soft_limit(before[along < 0], reach_start)
-    limited[along > length] = length + _soft_limit(after[along > length], reach_goal)
+    limited = limit_along(along, length, reach_start, reach_goal)
     shifted = points.copy()
     shifted[:, :2] += (limited - along)[:, None] * direction
     return shifted
 
 
-def _soft_limit(distance: np.ndarray, reach: float) -> np.ndarray:
-    """reach * tanh(distance / reach): about `distance` when small, never beyond `reach`."""
-    if reach <= 0.0:
-        return np.zeros_like(distance)
-    return reach * np.tanh(distance / reach)
+def end_reaches(start: np.ndarray, goal: np.ndarray, outline: np.ndarray) -> tuple[float, float]:
+    """How far work may pass its start and its goal (board xy) and stay within the safety
+    check's footprint margin, less FOOTPRINT_SLACK_M, of the outline."""
+    from keymps.robot.safety import FOOTPRINT_MARGIN_M
+    from keymps.robot.safety_geometry import outside_distance
+
+    allowed = FOOTPRINT_MARGIN_M - FOOTPRINT_SLACK_M
+    ends = outside_distance(np.array([start[:2], goal[:2]]), outline)
+    reach_start, reach_goal = (max(0.0, allowed - float(d)) for d in ends)
+    return reach_start, reach_goal
 
 
 def _leg_samples(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -435,8 +435,13 @@ def slow_piece_warnings(
         length = sum(item.stroke.length for item in mine)
         worst = max(mine, key=lambda item: item.slowdown)
         where = ", ".join(f"{v:.3f}" for v in worst.stroke.points[len(worst.stroke.points) // 2])
+        what = (
+            f"work piece {piece.pair_index + 1}"
+            if len(piece.piped_pairs) == 1
+            else f"the stroke through {piece.pairs_label()}"
+        )
         lines.append(
-            f"work piece {piece.pair_index + 1} takes {duration:.1f} s, "
+            f"{what} takes {duration:.1f} s, "
             f"{duration / at_tool_limits:.0f}x longer than at motion.work_speed "
             f"{work_speed:g} m/s (on average {1000 * length / duration:.1f} mm/s): the joints "
             f"cannot follow its path that fast near ({where}) m; a path with a sharp wiggle "

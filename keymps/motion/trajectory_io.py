@@ -12,6 +12,12 @@ from keymps.run import write_atomically
 from keymps.types import Trajectory
 
 CSV_HEADER = "t,q1,q2,q3,q4,q5,q6,x,y,z,piece,kind"
+"""The header of a six-joint arm's trajectory; an arm of n joints has q1..qn (csv_header)."""
+
+
+def csv_header(joints: int) -> str:
+    """`t,q1,...,qN,x,y,z,piece,kind` for an arm of `joints` joints."""
+    return ",".join(["t", *(f"q{i}" for i in range(1, joints + 1)), "x", "y", "z", "piece", "kind"])
 
 
 def write_trajectory_csv(trajectory: Trajectory, path: str | Path) -> Path:
@@ -26,11 +32,17 @@ def trajectory_csv(trajectory: Trajectory) -> bytes:
     formatted column by column in numpy (Python's float formatting would take most of a run's
     writing time)."""
     rows = len(np.asarray(trajectory.t).reshape(-1))
+    joints = (
+        int(np.shape(trajectory.q)[1])
+        if np.ndim(trajectory.q) == 2
+        else len(trajectory.joint_names)
+    )
+    header = csv_header(joints)
     if rows == 0:
-        return (CSV_HEADER + "\n").encode()
+        return (header + "\n").encode()
     fields = [
         _number_chars(np.asarray(trajectory.t, dtype=float).reshape(-1, 1), 6),
-        _number_chars(np.asarray(trajectory.q, dtype=float).reshape(rows, 6), 9),
+        _number_chars(np.asarray(trajectory.q, dtype=float).reshape(rows, joints), 9),
         _number_chars(np.asarray(trajectory.tool_xyz, dtype=float).reshape(rows, 3), 6),
         _number_chars(np.asarray(trajectory.piece_index).astype(float).reshape(-1, 1), None),
         _string_chars([str(kind) for kind in trajectory.kind])[:, None, :],
@@ -42,11 +54,12 @@ def trajectory_csv(trajectory: Trajectory) -> bytes:
     chars = np.concatenate([cell.reshape(rows, -1) for cell in cells], axis=1)
     chars[:, -1] = ord("\n")  # the last field's comma
     flat = chars.ravel()
-    return (CSV_HEADER + "\n").encode() + flat[flat != _PAD].tobytes()
+    return (header + "\n").encode() + flat[flat != _PAD].tobytes()
 
 
 ROW = ",".join(["%.6f"] + ["%.9f"] * 6 + ["%.6f"] * 3 + ["%d", "%s"])
-"""The format of one row (what `trajectory_csv` writes, without Python's per-value cost)."""
+"""The format of one row of a six-joint arm (what `trajectory_csv` writes, without Python's
+per-value cost): one "%.9f" per joint."""
 _PAD = 0
 """Fills each value's characters up to its column's widest; dropped when the rows are joined."""
 _QUADS: np.ndarray | None = None
@@ -152,30 +165,33 @@ def _string_chars(texts: list[str]) -> np.ndarray:
 
 
 def read_trajectory_csv(path: str | Path) -> dict[str, np.ndarray]:
-    """The columns of a trajectory CSV: t (n,), q (n, 6), xyz (n, 3), piece (n,), kind (n,)."""
+    """The columns of a trajectory CSV: t (n,), q (n, joints), xyz (n, 3), piece (n,), kind (n,)."""
     path = Path(path)
     try:
         lines = path.read_text(encoding="utf-8").splitlines()
     except OSError as error:
         raise KeympsError(f"{path}: cannot read: {error.strerror}") from None
-    if not lines or lines[0].strip() != CSV_HEADER:
-        raise KeympsError(f"{path}:1: expected the header {CSV_HEADER}")
+    names = lines[0].strip().split(",") if lines else []
+    joints = len(names) - 6
+    if joints < 1 or lines[0].strip() != csv_header(joints):
+        raise KeympsError(f"{path}:1: expected the header {CSV_HEADER} (q1..qN for N joints)")
+    width = len(names)
     numbers, kinds = [], []
     for number, line in enumerate(lines[1:], start=2):
         fields = line.split(",")
         try:
-            if len(fields) != 12:
-                raise ValueError(f"{len(fields)} fields instead of 12")
-            numbers.append([float(v) for v in fields[:11]])
+            if len(fields) != width:
+                raise ValueError(f"{len(fields)} fields instead of {width}")
+            numbers.append([float(v) for v in fields[: width - 1]])
         except ValueError as error:
             raise KeympsError(f"{path}:{number}: {error}") from None
-        kinds.append(fields[11].strip())
-    table = np.array(numbers, dtype=float).reshape(-1, 11)
+        kinds.append(fields[width - 1].strip())
+    table = np.array(numbers, dtype=float).reshape(-1, width - 1)
     return {
         "t": table[:, 0],
-        "q": table[:, 1:7],
-        "xyz": table[:, 7:10],
-        "piece": table[:, 10].astype(int),
+        "q": table[:, 1 : 1 + joints],
+        "xyz": table[:, 1 + joints : 4 + joints],
+        "piece": table[:, 4 + joints].astype(int),
         "kind": np.array(kinds),
     }
 

@@ -49,7 +49,7 @@ def read_image(path: Path, max_pixels: int | None = None) -> np.ndarray:
     """
     import cv2
 
-    from keymps.config.limits import image_size_from_header
+    from keymps.config.limits import image_layout_from_header, image_size_from_header
 
     if not path.exists():
         raise ImageSourceError(f"scene image not found: {path}")
@@ -70,8 +70,10 @@ def read_image(path: Path, max_pixels: int | None = None) -> np.ndarray:
     if not data:
         raise ImageSourceError(f"scene image is empty (0 bytes): {path}")
     header_size = image_size_from_header(data)
-    if max_pixels is not None and header_size is not None:
-        _check_pixels(header_size, max_pixels, path)
+    if header_size is not None:
+        if max_pixels is not None:
+            _check_pixels(header_size, max_pixels, path)
+        _check_memory(header_size, image_layout_from_header(data), path)
     try:
         decoded = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
     except cv2.error as error:  # OpenCV asserts on some corrupt headers (e.g. a BMP 1 x 1048577)
@@ -83,8 +85,12 @@ def read_image(path: Path, max_pixels: int | None = None) -> np.ndarray:
             f"cannot decode scene image {path}: not an image OpenCV can read "
             "(PNG, JPEG, TIFF, BMP, WebP ...) or the file is corrupt"
         )
-    if max_pixels is not None:  # a format whose header keymps does not read
-        _check_pixels((decoded.shape[1], decoded.shape[0]), max_pixels, path)
+    if header_size is None:  # a format whose header keymps does not read: checked decoded
+        size = (decoded.shape[1], decoded.shape[0])
+        if max_pixels is not None:
+            _check_pixels(size, max_pixels, path)
+        channels = decoded.shape[2] if decoded.ndim == 3 else 1
+        _check_memory(size, (channels, decoded.dtype.itemsize), path)
     return to_bgr8(decoded, _sample_max(decoded, data, path))
 
 
@@ -137,6 +143,15 @@ def _png_significant_max(data: bytes) -> int | None:
             return 2**bits - 1 if 1 <= bits <= 16 else None
         at += 12 + length
     return None
+
+
+def _check_memory(size_px: tuple[int, int], layout: tuple[int, int] | None, path: Path) -> None:
+    from keymps.config.limits import check_image_memory
+
+    try:
+        check_image_memory(size_px, layout, f"scene image {path}")
+    except KeympsError as error:
+        raise ImageSourceError(str(error)) from None
 
 
 def _check_pixels(size_px: tuple[int, int], max_pixels: int, path: Path) -> None:

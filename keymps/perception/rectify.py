@@ -103,6 +103,11 @@ def rectify_scene(scene: SceneImage, task: Task) -> SceneImage:
         rotation, translation = board_pose(ideal, board_m, matrix)
         centre = -rotation.T @ translation
         height = float(task.scene.object_height)
+        if centre[2] > 0.05 and centre[2] <= height + 0.01:
+            raise KeympsError(
+                f"scene.object_height: {height:g} m is not below the camera, which the board "
+                f"corners and intrinsics put {centre[2]:.3f} m above the board: the unit is metres"
+            )
         if centre[2] <= height + 0.01:
             raise KeympsError(
                 f"scene.camera: the camera found from the board corners is {centre[2]:.3f} m "

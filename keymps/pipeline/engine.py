@@ -115,10 +115,37 @@ def _primitives(task: Task, load: Callable[..., Any], search: Any) -> Any:
 
 
 def _robot(task: Task, model: Any) -> Any:
+    """The task's arm, built by the robot plugin that registered it (`robot.model`, or `urdf`
+    for the task's own URDF), placed and tooled; every error located in the task file."""
+    from keymps.robot.model import arm_by_name
+
+    field = ("robot", "urdf") if task.robot.urdf is not None else ("robot", "model")
+    where = f"{task.where(*field)}: {'.'.join(field)}"
     try:
-        return model.from_task(task)
+        arm = arm_by_name(*task.robot.arm_component(task.folder))
     except KeympsError as error:
-        raise _located(task, error) from None
+        raise KeympsError(f"{where}: {error}") from None
+    try:
+        robot = model.from_task(task, arm)
+    except KeympsError as error:
+        located = _located(task, error)
+        if located is error and str(error).startswith("robot: arm "):
+            located = KeympsError(f"{where}: {str(error).removeprefix('robot: ')}")
+        raise located from None
+    too_high = robot.height_problem()  # a height error, not "out of reach" after planning
+    if too_high:
+        field, name = _tallest_height_field(task)
+        raise KeympsError(f"{task.where(*field)}: {name}: {too_high}")
+    return robot
+
+
+def _tallest_height_field(task: Task) -> tuple[tuple[Any, ...], str]:
+    """Where the task file sets its tallest object's height, and the field's name."""
+    tallest = task.scene.tallest_object_height
+    for index, spec in enumerate(task.scene.objects or ()):
+        if spec.height is not None and spec.height == tallest:
+            return ("scene", "objects", index, "height"), f"scene.objects[{index}].height"
+    return ("scene", "object_height"), "scene.object_height"
 
 
 _FIELD_PREFIX = re.compile(r"^([a-z_]+(?:\.[a-z_]+)+): ")
@@ -273,6 +300,7 @@ class _Pipeline:
 
     def execute_all(self) -> None:
         from keymps.config.limits import check_duration, check_tool_path
+        from keymps.motion.chains import JOIN_LINE_WIDTHS
         from keymps.motion.compose import compose_tool_path
         from keymps.motion.timing import time_trajectory
         from keymps.motion.trajectory_io import write_trajectory_csv
@@ -352,6 +380,7 @@ class _Pipeline:
                     home=robot.home_tool_position(),
                     footprint=run.outline_m,
                     objects=grounding.objects,
+                    join_distance=JOIN_LINE_WIDTHS * tool.line_width,
                 ),
                 task,
             ),

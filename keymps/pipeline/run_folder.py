@@ -12,11 +12,11 @@ from keymps._version import __version__
 from keymps.errors import RunInterrupted, StageError
 from keymps.robot.safety import SafetyError
 from keymps.run import Run, write_atomically
-from keymps.types import ValidatedTrajectory
+from keymps.types import ToolPath, ValidatedTrajectory
 
-SCHEMA_VERSION = "1.2"
+SCHEMA_VERSION = "1.3"
 """1.1: `status` (ok, failed, interrupted). 1.2: `unfinished`, the placeholder written before the
-first stage."""
+first stage. 1.3: `pieces` (the tool path's pieces: the kind and the keypoint pairs of each)."""
 
 RESERVED_BYTES = 16384
 """run.json's placeholder holds this much disk space until the run ends (typical records are
@@ -131,6 +131,7 @@ def run_record(run: Run, error: BaseException | None) -> dict[str, Any]:
         "pairs_crop_px": _rounded(plan.pairs_crop_px.tolist(), 2) if plan is not None else None,
         "answer": _answer_form(plan),
         "segments_m": _rounded(grounding.segments_m.tolist()) if grounding is not None else None,
+        "pieces": _pieces(stages.compose),
         "timings_s": {k: _rounded(v, 4) for k, v in run.timings_s.items()},
         "vlm": _vlm_summary(plan),
         "trajectory": None
@@ -154,6 +155,20 @@ def run_record(run: Run, error: BaseException | None) -> dict[str, Any]:
         },
         "warnings": list(run.warnings),
     }
+
+
+def _pieces(tool_path: ToolPath | None) -> list[dict[str, Any]] | None:
+    """Per tool path piece (trajectory.csv's `piece`), its kind and the pairs it works on: a
+    travel piece the pair it leads to, a work piece every pair it pipes, in order."""
+    if tool_path is None:
+        return None
+    return [
+        {
+            "kind": piece.kind,
+            "pairs": list(piece.piped_pairs) if piece.kind == "work" else [piece.pair_index],
+        }
+        for piece in tool_path.pieces
+    ]
 
 
 def _objects(run: Run) -> list[dict[str, Any]]:

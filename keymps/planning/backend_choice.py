@@ -26,11 +26,27 @@ PROVIDER_KEYS: dict[str, tuple[str, ...]] = {
     "xai": ("XAI_API_KEY",),
     "deepseek": ("DEEPSEEK_API_KEY",),
     "bedrock": ("AWS_ACCESS_KEY_ID",),
-    "ollama": ("OLLAMA_API_BASE",),
-    "ollama_chat": ("OLLAMA_API_BASE",),
+    "ollama": ("OLLAMA_API_BASE", "OLLAMA_API_KEY"),
+    "ollama_chat": ("OLLAMA_API_BASE", "OLLAMA_API_KEY"),
+    "llamafile": ("LLAMAFILE_API_BASE", "LLAMAFILE_API_KEY"),
+    "lemonade": ("LEMONADE_API_BASE", "LEMONADE_API_KEY"),
+    "docker_model_runner": ("DOCKER_MODEL_RUNNER_API_BASE", "DOCKER_MODEL_RUNNER_API_KEY"),
     "hosted_vllm": ("HOSTED_VLLM_API_BASE",),
 }
 """litellm provider prefix -> environment variables that configure it (any one suffices)."""
+
+LOCAL_DEFAULTS: dict[str, tuple[str, str]] = {
+    "ollama": ("http://localhost:11434", "OLLAMA_API_BASE"),
+    "ollama_chat": ("http://localhost:11434", "OLLAMA_API_BASE"),
+    "llamafile": ("http://127.0.0.1:8080/v1", "LLAMAFILE_API_BASE"),
+    "lemonade": ("http://localhost:8000/api/v1", "LEMONADE_API_BASE"),
+    "docker_model_runner": (
+        "http://localhost:22088/engines/llama.cpp",
+        "DOCKER_MODEL_RUNNER_API_BASE",
+    ),
+}
+"""Providers litellm sends to a port of this machine when no api_base is given: that address,
+and the variable that names another. Any user of the machine may listen on a free port."""
 
 
 AUTO_VLM = "litellm"
@@ -64,26 +80,61 @@ def credential_source(task: Task, model: str) -> str | None:
 
 
 def api_base_trusted(task: Task) -> bool:
-    """May a backend send the user's key to planner.api_base? Yes when it is unset (the
-    provider's own endpoint), given by the user (--api-base, run_task(api_base=...), a task
-    built in code), listed in the user config, or the provider's own https endpoint; no when
-    only the task file names it (docs/security.md)."""
+    """May a backend send the user's key to the task's server? Yes when that is the provider's
+    own endpoint (no api_base, or its https host), an api_base the user gave (--api-base,
+    run_task(api_base=...), a task built in code) or one listed in the user config; no when
+    only the task file names it, and no for a provider's default address on this machine
+    (`default_local_endpoint`) unless the user config lists it (docs/security.md)."""
     if not task.api_base_from_file:
-        return True
+        local = default_local_endpoint(task)
+        return local is None or _listed(local)
     api_base = task.planner.api_base or ""
     if is_provider_endpoint(api_base, model_provider(task.planner.model or "")):
         return True
-    return any(same_server(api_base, t) for t in load_user_config().trusted_api_bases)
+    return _listed(api_base)
+
+
+def _listed(url: str) -> bool:
+    return any(same_server(url, trusted) for trusted in load_user_config().trusted_api_bases)
+
+
+def default_local_endpoint(task: Task) -> str | None:
+    """The address on this machine litellm sends the task's model to when no server is named
+    (Ollama's http://localhost:11434 ...: LOCAL_DEFAULTS); None when planner.api_base or the
+    provider's own variable (OLLAMA_API_BASE ...) names one, or the provider has none."""
+    if task.planner.api_base:
+        return None
+    default = LOCAL_DEFAULTS.get(model_provider(task.planner.model or ""))
+    if default is None or os.environ.get(default[1]):
+        return None
+    return default[0]
+
+
+def untrusted_server(task: Task) -> str:
+    """The task's server the user did not name, in words: 'planner.api_base URL is named only
+    by the task file', or the default local address only the task chose."""
+    local = default_local_endpoint(task)
+    if local is not None:
+        return (
+            f"planner.model {task.planner.model} is served at its provider's default address "
+            f"{local}, which only the task file chose and any user of this machine may listen on"
+        )
+    return f"planner.api_base {task.planner.api_base} is named only by the task file"
 
 
 def untrusted_api_base_warning(task: Task) -> str | None:
-    """The one line a run prints when it sends no key because only the task names the server."""
+    """The one line a run prints when it sends no key because only the task chose the server
+    (at a default local address: only when a key is there to withhold)."""
     if api_base_trusted(task):
         return None
+    local = default_local_endpoint(task)
+    if local is not None and not keys_the_task_may_send(task):
+        return None
+    field = "model" if local is not None else "api_base"
+    lift = f"--api-base {local}" if local is not None else "--api-base"
     return redact_text(
-        f"{task.where('planner', 'api_base')}: planner.api_base {task.planner.api_base} is "
-        "named only by the task file, so no API key is sent to it; to send one, pass "
-        f"--api-base or list it under trusted_api_bases in {config_path()}"
+        f"{task.where('planner', field)}: {untrusted_server(task)}, so no API key is sent to "
+        f"it; to send one, pass {lift} or list it under trusted_api_bases in {config_path()}"
     )
 
 

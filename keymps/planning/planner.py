@@ -6,7 +6,8 @@ attempt under run.folder/vlm, and answers from the cache or records to a cassett
 
 Backends implement keymps.plugin.VlmBackend (see docs/vlm.md). The factory receives the planner options: model, api_base, api_key_env, temperature,
 timeout_s, cassette (None when unset), and api_base_trusted: False when only the task file
-names api_base, and then a backend sends no key from the environment (docs/security.md).
+chose the server (its api_base, or a provider's default port on this machine), and then a
+backend sends no key from the environment (docs/security.md).
 """
 
 from __future__ import annotations
@@ -315,7 +316,7 @@ def _by_object(
 
     owners = assign_pairs(pairs_crop, objects)
     frame = ImageFrame.for_scene(task, scene)
-    base_px = frame.to_pixels(np.array([task.robot.base[:2]], dtype=float))[0]
+    base_px = frame.to_pixels(np.array([task.robot.base_xy(task.scene.workspace)], dtype=float))[0]
     start = base_px - np.asarray(detection.crop_origin_px, dtype=float)
     order = visit_order(owners, objects, (float(start[0]), float(start[1])))
     return pairs_crop[order], tuple(owners[k] for k in order)

@@ -8,7 +8,9 @@ Secrets are matched by value, not by the name of the field they sit in:
   SECRET, PASSWORD or CREDENTIALS) of at least MIN_ENV_SECRET characters, as servers may quote
   any of them back;
 - the userinfo of any URL (`https://user:key@host`) and key-like query parameters
-  (`?api_key=`, `?key=`, `&token=` ...).
+  (`?api_key=`, `?key=`, `&token=` ...);
+- each of those secrets however a server quotes it back: encoded (base64, hex, %XX, \\uXXXX,
+  reversed) or, for a key that is sent, in pieces (keymps.planning.secret_forms).
 
 run.json, vlm/ records, cassettes, the answer cache, the Rerun recording, the console and eval
 outputs all pass through `redact` (docs/security.md).
@@ -16,12 +18,10 @@ outputs all pass through `redact` (docs/security.md).
 
 from __future__ import annotations
 
-import functools
-import json
 import os
 import re
 import threading
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from typing import Any
 
 REDACTED = "[redacted]"
@@ -83,43 +83,84 @@ def url_secrets(url: str | None) -> list[str]:
     return [value for value in found if value]
 
 
-def environment_secrets() -> list[str]:
-    """Values of credential-like environment variables, at least MIN_ENV_SECRET long."""
-    return [
-        value
+def secret_variables() -> dict[str, str]:
+    """Credential-like environment variables (name -> value), values at least MIN_ENV_SECRET
+    long."""
+    return {
+        name: value
         for name, value in os.environ.items()
         if SECRET_ENV_NAME.search(name) and len(value) >= MIN_ENV_SECRET
-    ]
+    }
 
 
-def known_secrets(extra: Iterable[str] = ()) -> list[str]:
-    """Every secret value to remove, longest first (a key containing another goes whole)."""
+def environment_secrets() -> list[str]:
+    """Values of credential-like environment variables, at least MIN_ENV_SECRET long."""
+    return list(secret_variables().values())
+
+
+Form = str | re.Pattern[str]
+"""A secret as written somewhere: a literal, or a pattern (its \\uXXXX escapes)."""
+
+
+def known_secrets(extra: Iterable[str] = ()) -> list[Form]:
+    """Every form of every secret to remove: each value as it is, JSON-escaped and encoded
+    (base64, hex, %XX, reversed; its \\uXXXX escapes as a pattern), and the pieces of every
+    key that is sent or may be (`remember`, `extra`) however a server splits it
+    (keymps.planning.secret_forms)."""
+    from keymps.planning.secret_forms import encoded_forms, escape_pattern, fragments
+
     with _lock:
-        values = set(_remembered)
-    values.update(environment_secrets())
-    values.update(s for s in extra if s and s not in NOT_SECRETS)
-    values -= NOT_SECRETS
-    forms = set(values)
-    for value in values:  # as it appears inside JSON text (escaped quotes, slashes, unicode)
-        forms.add(json.dumps(value)[1:-1])
-        forms.add(json.dumps(value, ensure_ascii=False)[1:-1])
-    return sorted(forms, key=len, reverse=True)
+        sent = set(_remembered)
+    sent.update(s for s in extra if s)
+    sent -= NOT_SECRETS
+    values = sent | set(environment_secrets())
+    forms: set[str] = set()
+    for value in values:
+        forms |= encoded_forms(value)
+    for value in sent:
+        forms |= fragments(value)
+    escaped = escape_pattern(values)
+    return [*sorted(forms - NOT_SECRETS, key=len, reverse=True), *([escaped] if escaped else [])]
 
 
-def redact_text(text: str, secrets: Iterable[str] | None = None) -> str:
-    """`text` with every secret, URL userinfo and key-like URL parameter replaced."""
-    pattern = _pattern(tuple(known_secrets() if secrets is None else secrets))
-    if pattern is not None:  # one pass: a replacement is never searched again
-        text = pattern.sub(REDACTED, text)
+def redact_text(text: str, secrets: Iterable[Form] | None = None) -> str:
+    """`text` with every secret (`known_secrets`, or the forms given), URL userinfo and
+    key-like URL parameter replaced; overlapping or adjoining pieces of a secret become one
+    `[redacted]`."""
+    forms = known_secrets() if secrets is None else secrets
+    text = _replace_runs([form for form in forms if form and form not in NOT_SECRETS], text)
     text = _URL_USERINFO.sub(lambda m: m.group("scheme") + REDACTED + "@", text)
     return _KEY_QUERY.sub(lambda m: m.group("name") + REDACTED, text)
 
 
-@functools.lru_cache(maxsize=16)
-def _pattern(secrets: tuple[str, ...]) -> re.Pattern[str] | None:
-    """One regular expression matching any of `secrets`, the longest first."""
-    ordered = sorted(set(secrets) - NOT_SECRETS, key=len, reverse=True)
-    return re.compile("|".join(map(re.escape, ordered))) if ordered else None
+def _replace_runs(forms: list[Form], text: str) -> str:
+    """`text` with every stretch that occurrences of `forms` cover, overlapping ones joined,
+    replaced by one REDACTED (the pieces of a split key overlap). str.find per form: a few
+    hundred forms cost milliseconds per megabyte, where one regular expression of them all
+    tried every alternative at every character."""
+    spans = sorted(span for form in forms for span in _occurrences(form, text))
+    merged: list[list[int]] = []
+    for start, end in spans:
+        if merged and start < merged[-1][1]:
+            merged[-1][1] = max(merged[-1][1], end)
+        else:
+            merged.append([start, end])
+    pieces, done = [], 0
+    for start, end in merged:
+        pieces += [text[done:start], REDACTED]
+        done = end
+    return "".join([*pieces, text[done:]])
+
+
+def _occurrences(form: Form, text: str) -> Iterator[tuple[int, int]]:
+    """(start, end) of every occurrence of `form` in `text`, overlapping literals included."""
+    if isinstance(form, re.Pattern):
+        yield from (found.span() for found in form.finditer(text))
+        return
+    at = text.find(form)
+    while at >= 0:
+        yield at, at + len(form)
+        at = text.find(form, at + 1)
 
 
 def redact(value: Any, extra: Iterable[str] = ()) -> Any:
@@ -129,7 +170,7 @@ def redact(value: Any, extra: Iterable[str] = ()) -> Any:
     return _redact(value, secrets)
 
 
-def _redact(value: Any, secrets: list[str]) -> Any:
+def _redact(value: Any, secrets: list[Form]) -> Any:
     if isinstance(value, str):
         return redact_text(value, secrets)
     if isinstance(value, dict):

@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING
 
 from keymps.config.trust import real_path, shown_path, user_prompt_dirs
 from keymps.config.user import config_path
-from keymps.planning.backend_choice import api_base_trusted
+from keymps.planning.backend_choice import api_base_trusted, untrusted_server
 from keymps.planning.redaction import redact_text
 
 if TYPE_CHECKING:
@@ -109,9 +109,8 @@ def _hard_link(names: int) -> str:
 def _line(task: Task, what: str, own_choice: str) -> str:
     """The refusal: what is refused, and the user's ways to lift it."""
     return redact_text(
-        f"{what}, and planner.api_base {task.planner.api_base} is named only by the task "
-        f"file: keymps sends none of your files to a server only a task file names; copy the "
-        f"file so that it has one name inside the task's folder, {own_choice}, "
-        f"or pass the server with --api-base, or list it under trusted_api_bases in "
-        f"{config_path()}"
+        f"{what}, and {untrusted_server(task)}: keymps sends none of your files to a server "
+        f"only a task file names; copy the file so that it has one name inside the task's "
+        f"folder, {own_choice}, or pass the server with --api-base, or list it under "
+        f"trusted_api_bases in {config_path()}"
     )

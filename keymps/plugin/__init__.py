@@ -20,12 +20,21 @@ from keymps.errors import (
     interrupt_name,
 )
 from keymps.interrupts import interrupts_deferred
-from keymps.plugin.components import Detector, Executor, ImageSource, StageObserver, VlmBackend
+from keymps.plugin.arms import DEFAULT_ACCELERATION, DEFAULT_JERK, ArmSpec, degrees
+from keymps.plugin.components import (
+    Arm,
+    Detector,
+    Executor,
+    ImageSource,
+    StageObserver,
+    VlmBackend,
+)
 from keymps.plugin.hookspecs import (
     Register,
     RegisterDetector,
     RegisterExecutor,
     RegisterImageSource,
+    RegisterRobot,
     RegisterVlmBackend,
     hookimpl,
 )
@@ -33,6 +42,10 @@ from keymps.plugin.options import RunFolderPath, parse_options
 from keymps.plugin.trajectories import require_validated, trajectory_digest
 
 __all__ = [
+    "DEFAULT_ACCELERATION",
+    "DEFAULT_JERK",
+    "Arm",
+    "ArmSpec",
     "DetectionError",
     "Detector",
     "Executor",
@@ -43,12 +56,14 @@ __all__ = [
     "RegisterDetector",
     "RegisterExecutor",
     "RegisterImageSource",
+    "RegisterRobot",
     "RegisterVlmBackend",
     "RunFolderPath",
     "SafetyError",
     "StageError",
     "StageObserver",
     "VlmBackend",
+    "degrees",
     "hookimpl",
     "interrupt_name",
     "interrupts_deferred",

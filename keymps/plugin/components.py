@@ -6,6 +6,9 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any, Protocol
 
 if TYPE_CHECKING:
+    from pathlib import Path
+
+    from keymps.plugin.arms import Pose4
     from keymps.run import Run
     from keymps.types import (
         BackendAnswer,
@@ -122,5 +125,103 @@ class StageObserver(Protocol):
             result: The stage's typed result (keymps.types); for "finished", the run's error
                 or None.
             run: The run (its typed context).
+        """
+        ...
+
+
+class Arm(Protocol):
+    """A robot arm: what `register_robots` factories return.
+
+    Usually a keymps.plugin.ArmSpec, whose fields document each of these.
+    """
+
+    @property
+    def name(self) -> str:
+        """The model name (`robot.model`)."""
+        ...
+
+    @property
+    def urdf(self) -> Path:
+        """The URDF file."""
+        ...
+
+    @property
+    def tip_link(self) -> str:
+        """The link the tool is mounted on."""
+        ...
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        """The arm's joints in the controller's order (() for root to tip)."""
+        ...
+
+    @property
+    def velocity_limits(self) -> tuple[float, ...] | None:
+        """rad/s per joint (None: the URDF's)."""
+        ...
+
+    @property
+    def acceleration_limits(self) -> tuple[float, ...] | None:
+        """rad/s^2 per joint (None: keymps' default)."""
+        ...
+
+    @property
+    def jerk_limits(self) -> tuple[float, ...] | None:
+        """rad/s^3 per joint (None: keymps' default)."""
+        ...
+
+    @property
+    def position_limits(self) -> tuple[tuple[float, float], ...] | None:
+        """(lower, upper) per joint (None: the URDF's)."""
+        ...
+
+    @property
+    def effort_limits(self) -> tuple[float, ...] | None:
+        """N m per joint (None: the URDF's)."""
+        ...
+
+    @property
+    def home(self) -> tuple[float, ...] | None:
+        """Where the inverse kinematics starts (None: zeros)."""
+        ...
+
+    @property
+    def rate_hz(self) -> float:
+        """The controller's rate, Hz."""
+        ...
+
+    @property
+    def dh(self) -> tuple[float, float, float, float, float, float] | None:
+        """A UR-type DH table (the closed-form IK), or None."""
+        ...
+
+    @property
+    def package_dirs(self) -> tuple[Path, ...]:
+        """Folders the URDF's meshes may be read from."""
+        ...
+
+    @property
+    def collision_padding(self) -> float:
+        """Metres added to every clearance the safety check demands."""
+        ...
+
+    @property
+    def mesh_scales(self) -> tuple[tuple[str, tuple[float, float, float]], ...]:
+        """(link, scale) extra scales of links' meshes."""
+        ...
+
+    @property
+    def description(self) -> str:
+        """One line naming the arm."""
+        ...
+
+    def base_for(self, board_size: tuple[float, float]) -> Pose4:
+        """The default placement on a board.
+
+        Args:
+            board_size: The board's (width, height), metres.
+
+        Returns:
+            (x, y, z, yaw) of the root link in the board frame, metres and degrees.
         """
         ...

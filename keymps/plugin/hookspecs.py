@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 from pluggy import HookimplMarker, HookspecMarker
 
-from keymps.plugin.components import Detector, Executor, ImageSource, VlmBackend
+from keymps.plugin.components import Arm, Detector, Executor, ImageSource, VlmBackend
 
 if TYPE_CHECKING:
     from keymps.run import Run
@@ -31,6 +31,8 @@ RegisterExecutor = Register[Executor]
 """The callback `register_executors` receives: register(name, factory -> Executor)."""
 RegisterImageSource = Register[ImageSource]
 """The callback `register_image_sources` receives: register(name, factory -> ImageSource)."""
+RegisterRobot = Register[Arm]
+"""The callback `register_robots` receives: register(name, factory -> Arm, e.g. an ArmSpec)."""
 
 
 @hookspec
@@ -51,6 +53,11 @@ def register_executors(register: RegisterExecutor) -> None:
 @hookspec
 def register_image_sources(register: RegisterImageSource) -> None:
     """Register image sources: factory(options) -> ImageSource."""
+
+
+@hookspec
+def register_robots(register: RegisterRobot) -> None:
+    """Register robot arms: factory(options) -> Arm (an ArmSpec), selected by `robot.model`."""
 
 
 @hookspec

@@ -31,6 +31,7 @@ DEFAULT_PLUGINS: dict[str, str] = {
     "file_executor": "keymps.default_plugins.file_executor",
     "urscript_executor": "keymps.default_plugins.urscript",
     "rerun_recorder": "keymps.default_plugins.rerun.recorder",
+    "robots": "keymps.default_plugins.robots",
 }
 """Built-in plugin name -> module. KEYMPS_LOAD_PLUGINS can name these too."""
 
@@ -39,6 +40,7 @@ COMPONENT_HOOKS: dict[str, str] = {
     "vlm_backend": "register_vlm_backends",
     "executor": "register_executors",
     "image_source": "register_image_sources",
+    "robot": "register_robots",
 }
 
 

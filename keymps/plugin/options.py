@@ -13,18 +13,42 @@ Options = TypeVar("Options", bound=BaseModel)
 
 
 def _inside_the_run_folder(path: Path) -> Path:
-    # A task file may come from a stranger: a plugin writes nothing outside the run folder.
+    # A task file may come from a stranger: a plugin writes nothing outside the run folder,
+    # and nothing over the run's own files in it
     if path.is_absolute() or ".." in path.parts or not path.name:
         raise ValueError(
             f"{str(path)!r} leads out of the run folder: name a file in it "
             "(--out chooses the folder)"
         )
+    problem = run_file_clash(path)
+    if problem:
+        raise ValueError(problem)
     return path
+
+
+def run_file_clash(path: Path) -> str | None:
+    """Why a plugin may not write `path` (relative) in the run folder, None when it may: a
+    control character in it, a file the run writes itself (keymps.run.RUN_OWN_FILES, compared
+    case-folded), its vlm/ records, or a hidden name (the lock, the temporary files every file
+    is written through)."""
+    from keymps.run import RUN_OWN_FILES
+
+    text = str(path)
+    if any(ord(c) < 32 or ord(c) == 127 for c in text):
+        return f"{text!r} holds a control character (a NUL or a newline): name a plain file"
+    if path.parts[0].casefold() == "vlm":
+        return f"{text!r} is inside vlm/, the run's VLM records: name another file"
+    if any(part.startswith(".") for part in path.parts):
+        return f"{text!r} is a hidden name, as the run's lock and temporary files are"
+    if len(path.parts) == 1 and text.casefold() in {name.casefold() for name in RUN_OWN_FILES}:
+        return f"{text!r} is one of the run's own files (docs/run-folder.md): name another file"
+    return None
 
 
 RunFolderPath = Annotated[Path, AfterValidator(_inside_the_run_folder)]
 """An option naming a file or folder inside the run folder (subfolders allowed): an absolute
-path or one with `..` is refused in one line. Write it with `run.path(str(option))`."""
+path, one with `..` or a control character, a hidden name, vlm/ and the run's own files
+(run.json, plan.png ...) are refused in one line. Write it with `run.path(str(option))`."""
 
 
 def parse_options(model: type[Options], options: dict[str, Any] | None, component: str) -> Options:

@@ -29,7 +29,7 @@ from keymps.primitives.retarget import blade_applies
 Family = Literal["cutting", "icing"]
 FAMILIES: tuple[str, ...] = ("cutting", "icing")
 FORMAT = "keymps-primitive/1"
-NAME_PATTERN = re.compile(r"^[a-z][a-z0-9_-]{0,63}$")
+NAME_PATTERN = re.compile(r"[a-z][a-z0-9_-]{0,63}")
 DEFAULT_MODES = {"cutting": "blade", "icing": "axial"}
 """Re-targeting mode of a learned primitive when none is given, by family."""
 MAX_FIT_RMSE = 0.0005
@@ -405,7 +405,7 @@ def _preprocessing(data: Any, where: str) -> Preprocessing:
 
 
 def _check_name(name: Any, where: str) -> str:
-    if not isinstance(name, str) or not NAME_PATTERN.match(name):
+    if not isinstance(name, str) or not NAME_PATTERN.fullmatch(name):
         raise PrimitiveError(
             f"{where}: primitive name {name!r} must be lower-case letters, digits, - or _ "
             "(starting with a letter)"

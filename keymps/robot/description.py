@@ -1,21 +1,16 @@
-"""The UR arms keymps knows (DH lengths, URDF, joint speed limits) and the tools on them.
-
-The kinematic model is the UR3 URDF shipped by the example-robot-data wheel, with its link
-lengths set to the arm's standard DH table (exact for both the UR3 and the UR3e), its root
-placed in the board frame and a `tcp` frame at the tool tip.
-"""
+"""The Universal Robots DH lengths (for the closed-form IK) and the tools on an arm's flange."""
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from importlib import metadata
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from keymps.errors import KeympsError
+from keymps.robot.catalog import UR_ARMS, example_robot_data
 
 if TYPE_CHECKING:
     from keymps.config.task import Task
@@ -49,15 +44,17 @@ class ArmGeometry:
     rate_hz: float
 
 
-_DEG = math.pi / 180.0
-_UR_JOINT_SPEEDS = (180 * _DEG, 180 * _DEG, 180 * _DEG, 360 * _DEG, 360 * _DEG, 360 * _DEG)
+def ur_geometry(dh: tuple[float, ...], speeds: tuple[float, ...], rate_hz: float) -> ArmGeometry:
+    """The ArmGeometry of a UR-type DH table (d1, a2, a3, d4, d5, d6; a2, a3 negative)."""
+    d1, a2, a3, d4, d5, d6 = (float(v) for v in dh)
+    return ArmGeometry(d1, -a2, -a3, d4, d5, d6, tuple(speeds), rate_hz)
+
 
 ARMS: dict[str, ArmGeometry] = {
-    "ur3": ArmGeometry(0.1519, 0.24365, 0.21325, 0.11235, 0.08535, 0.0819, _UR_JOINT_SPEEDS, 125.0),
-    "ur3e": ArmGeometry(
-        0.15185, 0.24355, 0.2132, 0.13105, 0.08535, 0.0921, _UR_JOINT_SPEEDS, 500.0
-    ),
+    name: ur_geometry(table["dh"], table["speed"], table["rate"])  # type: ignore[arg-type]
+    for name, table in UR_ARMS.items()
 }
+"""The DH lengths of the Universal Robots arms keymps ships (keymps.robot.catalog)."""
 
 
 @dataclass(frozen=True)
@@ -102,18 +99,9 @@ def tool_from_task(task: Task) -> Tool:
     return Tool(spec.name, (tcp[0], tcp[1], tcp[2]), yaw, float(blade), float(line))
 
 
-def ur_urdf_path() -> Path:
-    """The UR3 URDF shipped (with meshes) by the example-robot-data wheel."""
-    relative = "cmeel.prefix/share/example-robot-data/robots/ur_description/urdf/ur3_robot.urdf"
-    try:
-        path = Path(str(metadata.distribution("example-robot-data").locate_file(relative)))
-    except metadata.PackageNotFoundError:
-        raise KeympsError(
-            "the example-robot-data package is not installed (pip install example-robot-data)"
-        ) from None
-    if not path.is_file():
-        raise KeympsError(f"example-robot-data is installed but {path} is missing")
-    return path
+def ur_urdf_path(name: str = "ur3") -> Path:
+    """A UR URDF shipped (with meshes) by the example-robot-data wheel."""
+    return example_robot_data(f"ur_description/urdf/{name}_robot.urdf")
 
 
 def tool_rotation(yaw: float) -> np.ndarray:
@@ -131,37 +119,3 @@ def se3(rotation: np.ndarray, translation: np.ndarray) -> Any:
 def rz(angle: float) -> np.ndarray:
     c, s = math.cos(angle), math.sin(angle)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
-def build_pinocchio_model(arm: ArmGeometry, base_in_board: Any, tool: Tool) -> tuple[Any, int]:
-    """The UR3 URDF, its lengths set to `arm`, its base in the board frame, a 'tcp' frame."""
-    import pinocchio as pin
-
-    model = pin.buildModelFromUrdf(str(ur_urdf_path()))
-    ids = {name: model.getJointId(name) for name in JOINT_NAMES}
-    # The URDF splits d4 over three lateral offsets (0.1198 - 0.0925 + 0.08505); the last one
-    # absorbs the e-Series difference, which keeps the kinematics exact.
-    translations = {
-        "shoulder_pan_joint": (0.0, 0.0, arm.d1),
-        "elbow_joint": (0.0, -0.0925, arm.upper_arm),
-        "wrist_1_joint": (0.0, 0.0, arm.forearm),
-        "wrist_2_joint": (0.0, arm.d4 - 0.1198 + 0.0925, 0.0),
-        "wrist_3_joint": (0.0, 0.0, arm.d5),
-    }
-    for name, translation in translations.items():
-        placement = model.jointPlacements[ids[name]].copy()
-        placement.translation = np.array(translation)
-        model.jointPlacements[ids[name]] = placement
-    pan = ids["shoulder_pan_joint"]
-    model.jointPlacements[pan] = base_in_board * model.jointPlacements[pan]
-    tool0 = model.frames[model.getFrameId("tool0")]
-    flange = tool0.placement.copy()
-    flange.translation = np.array([0.0, arm.d6, 0.0])
-    tcp = flange * se3(np.eye(3), np.array(tool.tcp))
-    frame_id = model.addFrame(
-        pin.Frame("tcp", tool0.parentJoint, tool0.parentFrame, tcp, pin.FrameType.OP_FRAME)
-    )
-    model.addFrame(
-        pin.Frame("flange", tool0.parentJoint, tool0.parentFrame, flange, pin.FrameType.OP_FRAME)
-    )
-    return model, frame_id

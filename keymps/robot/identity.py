@@ -13,6 +13,8 @@ import numpy as np
 
 from keymps.robot.description import ARMS, JOINT_NAMES
 
+__all__ = ["JOINT_NAMES", "UNIVERSAL_ROBOTS", "ArmIdentity", "arm_identity", "tool_poses"]
+
 if TYPE_CHECKING:
     from keymps.robot.model import RobotModel
     from keymps.run import Run
@@ -37,16 +39,22 @@ class ArmIdentity:
 
 
 def arm_identity(run: Run) -> ArmIdentity:
-    """The arm `run` planned for (`run.robot`, else the task's robot section)."""
-    model = run.robot.kind if run.robot is not None else run.task.robot.model
-    joints = tuple(run.robot.joint_names) if run.robot is not None else JOINT_NAMES
-    rate = float(ARMS[model].rate_hz)
+    """The arm `run` planned for (`run.robot`, else the arm the task's robot section names)."""
+    robot = run.robot
+    if robot is None:
+        from keymps.robot.model import RobotModel
+
+        robot = RobotModel.from_task(run.task)
+    model = robot.model_name
+    universal = model in ARMS
     return ArmIdentity(
         model=model,
-        maker=UNIVERSAL_ROBOTS,
-        joint_names=joints,
-        controller_hz=rate,
-        generation="e-Series" if model.endswith("e") else "CB3",
+        maker=UNIVERSAL_ROBOTS if universal else (robot.spec.description or model),
+        joint_names=tuple(robot.joint_names),
+        controller_hz=float(robot.rate_hz),
+        generation=("e-Series" if model.endswith("e") or model == "ur20" else "CB3")
+        if universal
+        else "",
     )
 
 

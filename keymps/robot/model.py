@@ -1,13 +1,16 @@
-"""The UR3 (or UR3e) in Pinocchio: base placed in the board frame, tool TCP, FK and IK.
+"""An arm placed on the board with a tool: FK, IK and limits, for any arm a robot plugin
+describes (keymps.plugin.ArmSpec).
 
 Conventions:
-- task.robot.base = (x, y, z, yaw_deg) is the pose of the URDF root link `base_link` (ROS
-  convention: z up through joint 1, x towards where the arm points at shoulder_pan = 0) in the
-  board frame. The controller's own base frame (teach pendant, RTDE poses) is base_link turned
-  by 180 degrees about z.
+- task.robot.base = (x, y, z, yaw_deg) is the pose of the arm's URDF root link (for a UR arm
+  `base_link`: the ROS convention, z up through joint 1, x towards where the arm points at
+  shoulder_pan = 0) in the board frame. A UR controller's own base frame (teach pendant, RTDE
+  poses) is base_link turned by 180 degrees about z. Without it, the arm's default placement
+  for the board (ArmSpec.base_for).
 - The tool points straight down (tool z = -board z); its yaw is the angle of the tool x axis
-  about board z. Rotation of the tool frame: Rz(yaw) @ diag(1, -1, -1).
-- Joint angles are the controller's (same zero and sign as the UR pendant and ur_rtde).
+  about board z. Rotation of the tool frame: Rz(yaw) @ diag(1, -1, -1). The tool's tcp is
+  given in the arm's tool mount frame (ArmSpec.tip_link: a UR's flange tool0).
+- Joint angles are the controller's (for a UR: the same zero and sign as the pendant).
 """
 
 from __future__ import annotations
@@ -22,22 +25,23 @@ from keymps.errors import KeympsError
 from keymps.robot.batch_fk import CHUNK as BATCH_CHUNK
 from keymps.robot.batch_fk import BatchKinematics
 from keymps.robot.closed_form import ClosedFormIk
+from keymps.robot.collision import Clearances
 from keymps.robot.description import (
     ARMS,
     BUILTIN_TOOLS,
     JOINT_NAMES,
-    POSITION_TOLERANCE_M,
     REACH_MARGIN_M,
-    ROTATION_TOLERANCE_RAD,
     ArmGeometry,
     Tool,
-    build_pinocchio_model,
     rz,
     se3,
     tool_from_task,
     tool_rotation,
+    ur_geometry,
     ur_urdf_path,
 )
+from keymps.robot.iterative_ik import IkResult, IterativeIk
+from keymps.robot.urdf_model import ArmModel, load_arm
 from keymps.types import JointPath, Piece, ToolPath
 
 __all__ = [
@@ -48,6 +52,7 @@ __all__ = [
     "IkResult",
     "RobotModel",
     "Tool",
+    "arm_by_name",
     "solve_path",
     "tool_from_task",
     "tool_rotation",
@@ -56,23 +61,23 @@ __all__ = [
 
 if TYPE_CHECKING:
     from keymps.config.task import Task
+    from keymps.plugin.components import Arm
 
 
-@dataclass(frozen=True)
-class IkResult:
-    """One inverse-kinematics solution and how far its pose is from the asked one."""
+def arm_by_name(name: str, options: dict[str, Any] | None = None) -> Arm:
+    """The arm a robot plugin registered as `name` (`robot.model`), built with `options`; a
+    factory that fails is one line naming it."""
+    from keymps.plugin.manager import create_component
 
-    q: np.ndarray
-    position_error_m: float
-    rotation_error_rad: float
-    iterations: int
-
-    @property
-    def converged(self) -> bool:
-        return (
-            self.position_error_m <= POSITION_TOLERANCE_M
-            and self.rotation_error_rad <= ROTATION_TOLERANCE_RAD
-        )
+    try:
+        return create_component("robot", name, options)  # type: ignore[no-any-return]
+    except KeympsError:
+        raise
+    except Exception as error:  # a broken plugin: one line, never a traceback
+        detail = " ".join(str(error).split()) or "no message"
+        raise KeympsError(
+            f"robot {name!r} failed to build: {type(error).__name__}: {detail}"
+        ) from None
 
 
 @dataclass(frozen=True)
@@ -88,72 +93,90 @@ class _Kinematics:
 
 
 _KINEMATICS: dict[tuple[Any, ...], _Kinematics] = {}
-"""Per process, by (kind, base, tool): `keymps eval` builds the same robot for every run."""
+"""Per process, by (arm, base, tool): `keymps eval` builds the same robot for every run."""
 KINEMATICS_KEPT = 16
+FLANGE_FRAME, TCP_FRAME = "keymps_tool_mount", "keymps_tcp"
+"""The frames keymps adds to an arm's model: its tool mount (ArmSpec.tip_link) and the tool's
+tip (names no URDF of an arm uses: "flange" and "tcp" are common link names)."""
+_CLEARANCES: dict[tuple[Any, ...], Clearances] = {}
 
 
 class RobotModel:
-    """A UR arm placed on the board with a tool: FK, IK and limits."""
+    """An arm placed on the board with a tool: FK, IK and limits (`run.robot`)."""
 
     def __init__(
         self,
-        kind: str = "ur3",
-        base: tuple[float, float, float, float] = (0.15, -0.20, 0.0, 90.0),
+        kind: str | Arm = "ur3",
+        base: tuple[float, float, float, float] | None = None,
         tool: Tool = BUILTIN_TOOLS["knife"],
         *,
-        max_joint_acceleration: float = 3.0,
-        max_joint_jerk: float = 30.0,
+        max_joint_acceleration: float | None = None,
+        max_joint_jerk: float | None = None,
         board_size: tuple[float, float] = (0.30, 0.18),
         object_height: float = 0.05,
         clearance: float = 0.03,
     ):
-        if kind not in ARMS:
-            raise KeympsError(f"robot.model: unknown arm {kind!r} (available: {', '.join(ARMS)})")
-        self.kind = kind
-        self.arm = ARMS[kind]
-        self.base = tuple(float(v) for v in base)
+        spec = arm_by_name(kind) if isinstance(kind, str) else kind
+        self.arm_model: ArmModel = load_arm(spec)
+        self.spec = spec
+        self.kind = spec.name
+        self.base = tuple(float(v) for v in (base or spec.base_for(board_size)))
         self.tool = tool
         self.board_size = board_size
         self.object_height = float(object_height)
         self.clearance = float(clearance)
         x, y, z, yaw_deg = self.base
         self.base_in_board = se3(rz(math.radians(yaw_deg)), np.array([x, y, z]))
-        key = (kind, self.base, tool)
+        key = (spec, self.base, tool)
         known = _KINEMATICS.get(key)
         if known is None:
-            self.model, self.tcp_frame = build_pinocchio_model(self.arm, self.base_in_board, tool)
+            self.model, self.tcp_frame = place_arm(self.arm_model, self.base_in_board, tool)
         else:
             self.model, self.tcp_frame = known.model, known.tcp_frame
-        self.flange_frame = self.model.getFrameId("flange")
+        self.flange_frame = self.model.getFrameId(FLANGE_FRAME)
         self.data = self.model.createData()
-        self.joint_names = JOINT_NAMES
-        self.lower = np.array(self.model.lowerPositionLimit, dtype=float)
-        self.upper = np.array(self.model.upperPositionLimit, dtype=float)
-        self.velocity_limits = np.array(self.arm.joint_speed_limits, dtype=float)
-        self.acceleration_limits = np.full(6, float(max_joint_acceleration))
-        self.jerk_limits = np.full(6, float(max_joint_jerk))
-        self.urdf_path = ur_urdf_path()
+        arm = self.arm_model
+        self.joint_names = arm.joint_names
+        self.lower, self.upper = arm.lower.copy(), arm.upper.copy()
+        self.velocity_limits = arm.velocity.copy()
+        self.acceleration_limits = _capped(arm.acceleration, max_joint_acceleration)
+        self.jerk_limits = _capped(arm.jerk, max_joint_jerk)
+        self.effort_limits = arm.effort.copy()
+        self.urdf_path = spec.urdf
+        self.arm: ArmGeometry | None = (
+            None if spec.dh is None else ur_geometry(spec.dh, tuple(arm.velocity), spec.rate_hz)
+        )
+        """The DH lengths of a UR-type arm (the closed-form IK), None for any other arm."""
         self._tcp_frame = self.model.frames[self.tcp_frame]
         self._flange = self.model.frames[self.flange_frame]
+        self.solver = IterativeIk(self.model, self.tcp_frame, self.lower, self.upper)
         if known is None:
-            batch = BatchKinematics.for_model(self.model)
-            closed_form = ClosedFormIk.for_model(self.arm, self.base_in_board.homogeneous, self.fk)
-            if len(_KINEMATICS) >= KINEMATICS_KEPT:
-                _KINEMATICS.pop(next(iter(_KINEMATICS)), None)  # the oldest
-            known = _KINEMATICS.setdefault(
-                key, _Kinematics(self.model, self.tcp_frame, batch, closed_form)
-            )
+            known = self._check_kinematics(key)
         self.batch = known.batch
         """Forward kinematics of many configurations at once (None: one Pinocchio call each)."""
         self.closed_form = known.closed_form
-        """The analytic IK, None when the DH chain does not reproduce this model (then every
-        point is solved iteratively)."""
+        """The analytic IK, None for an arm without one or when the DH chain does not
+        reproduce this model (then every point is solved iteratively)."""
+
+    def _check_kinematics(self, key: tuple[Any, ...]) -> _Kinematics:
+        batch = BatchKinematics.for_model(self.model)
+        closed_form = None
+        if self.arm is not None and self.dof == 6:
+            closed_form = ClosedFormIk.for_model(self.arm, self.base_in_board.homogeneous, self.fk)
+        if len(_KINEMATICS) >= KINEMATICS_KEPT:
+            _KINEMATICS.pop(next(iter(_KINEMATICS)), None)  # the oldest
+        return _KINEMATICS.setdefault(
+            key, _Kinematics(self.model, self.tcp_frame, batch, closed_form)
+        )
 
     @classmethod
-    def from_task(cls, task: Task) -> RobotModel:
+    def from_task(cls, task: Task, arm: Arm | None = None) -> RobotModel:
+        """The task's arm (`arm`, or the one its robot section names), placed and tooled."""
         robot = task.robot
+        if arm is None:
+            arm = arm_by_name(*robot.arm_component(task.folder))
         return cls(
-            robot.model,
+            arm,
             robot.base,
             tool_from_task(task),
             max_joint_acceleration=robot.max_joint_acceleration,
@@ -163,10 +186,37 @@ class RobotModel:
             clearance=task.motion.clearance,
         )
 
+    def clearances(self) -> Clearances:
+        """The arm's collision model on the board (built on first use, kept per arm and base)."""
+        key = (self.spec, self.base)
+        found = _CLEARANCES.get(key)
+        if found is None:
+            found = Clearances(
+                self.model, self.arm_model.collision, self.arm_model.home, self.base_in_board
+            )
+            if len(_CLEARANCES) >= KINEMATICS_KEPT:
+                _CLEARANCES.pop(next(iter(_CLEARANCES)), None)
+            _CLEARANCES[key] = found
+        return found
+
+    @property
+    def model_name(self) -> str:
+        """The arm's model name (`robot.model`: "ur5e", "panda"; a URDF's file stem)."""
+        return self.spec.name
+
+    @property
+    def label(self) -> str:
+        """The arm as error messages name it ("the UR5E", "the panda")."""
+        return f"the {self.kind.upper()}" if self.arm is not None else f"the {self.kind}"
+
+    @property
+    def dof(self) -> int:
+        return len(self.joint_names)
+
     @property
     def rate_hz(self) -> float:
-        """The controller's default rate: 125 Hz (CB3) or 500 Hz (e-Series)."""
-        return self.arm.rate_hz
+        """The controller's default rate (UR: 125 Hz CB3, 500 Hz e-Series)."""
+        return float(self.spec.rate_hz)
 
     # -- forward kinematics --------------------------------------------------------------------
 
@@ -179,14 +229,14 @@ class RobotModel:
         return np.array(pose.translation), np.array(pose.rotation)
 
     def tool_positions(self, qs: np.ndarray) -> np.ndarray:
-        """(n, 3) tool tip positions for (n, 6) joint vectors."""
+        """(n, 3) tool tip positions for (n, dof) joint vectors."""
         return self.tool_poses(qs)[0]
 
     def tool_poses(
         self, qs: np.ndarray, cos_sin: tuple[np.ndarray, np.ndarray] | None = None
     ) -> tuple[np.ndarray, np.ndarray]:
-        """(n, 3) tool tip positions and (n, 3, 3) rotations for (n, 6) joint vectors
-        (`cos_sin`: their cosines and sines, (6, n) each, when the caller has them)."""
+        """(n, 3) tool tip positions and (n, 3, 3) rotations for (n, dof) joint vectors
+        (`cos_sin`: their cosines and sines, (dof, n) each, when the caller has them)."""
         if self.batch is None or len(qs) == 0:
             return self.pinocchio_tool_poses(qs)
         frame = self._tcp_frame
@@ -195,7 +245,7 @@ class RobotModel:
     def tool_positions_and_x_axes(
         self, qs: np.ndarray, cos_sin: tuple[np.ndarray, np.ndarray] | None = None
     ) -> tuple[np.ndarray, np.ndarray]:
-        """(n, 3) tool tip positions and tool x axes (the rotations' first columns) for (n, 6)
+        """(n, 3) tool tip positions and tool x axes (the rotations' first columns) for (n, dof)
         joint vectors, as `tool_poses` gives them, without the rest of the rotations."""
         if self.batch is None or len(qs) == 0 or len(qs) > BATCH_CHUNK:
             positions, rotations = self.tool_poses(qs, cos_sin)
@@ -208,7 +258,7 @@ class RobotModel:
     def tool_poses_and_joint_origins(
         self, qs: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """`tool_poses` and `joint_origins_many` of (n, 6) joint vectors, in one pass when
+        """`tool_poses` and `joint_origins_many` of (n, dof) joint vectors, in one pass when
         batched."""
         if self.batch is None or len(qs) == 0:
             return (*self.tool_poses(qs), self.joint_origins_many(qs))
@@ -230,18 +280,18 @@ class RobotModel:
         return poses[:, :3, 3].copy(), poses[:, :3, :3].copy()
 
     def joint_origins(self, q: np.ndarray) -> np.ndarray:
-        """(7, 3): the origins of the six joints and of the flange, board frame."""
+        """(dof + 1, 3): the origins of the joints and of the tool mount, board frame."""
         import pinocchio as pin
 
         pin.framesForwardKinematics(self.model, self.data, np.asarray(q, dtype=float))
-        points = [np.array(self.data.oMi[j].translation) for j in range(1, 7)]
+        points = [np.array(self.data.oMi[j].translation) for j in range(1, self.model.njoints)]
         points.append(np.array(self.data.oMf[self.flange_frame].translation))
         return np.array(points)
 
     def joint_origins_many(self, qs: np.ndarray) -> np.ndarray:
-        """(n, 7, 3): `joint_origins` of each of (n, 6) joint vectors."""
+        """(n, dof + 1, 3): `joint_origins` of each of (n, dof) joint vectors."""
         if self.batch is None:
-            return np.array([self.joint_origins(q) for q in qs]).reshape(-1, 7, 3)
+            return np.array([self.joint_origins(q) for q in qs]).reshape(-1, self.dof + 1, 3)
         return self.batch.origins(qs, (self._flange.parentJoint, self._flange.placement))
 
     # -- inverse kinematics --------------------------------------------------------------------
@@ -255,43 +305,79 @@ class RobotModel:
         max_iterations: int = 100,
         damping: float = 1e-3,
     ) -> IkResult:
-        """Damped least squares on the SE(3) error from `seed`; converges far below 0.1 mm."""
-        import pinocchio as pin
-
-        model, data, frame = self.model, self.data, self.tcp_frame
-        target_p = np.asarray(position, dtype=float)
-        target_r = tool_rotation(yaw)
-        q = np.array(seed, dtype=float)
-        damping2 = damping * damping
-        error = np.zeros(6)
-        pos_err = rot_err = math.inf
-        for iteration in range(max_iterations + 1):
-            pin.forwardKinematics(model, data, q)
-            pose = pin.updateFramePlacement(model, data, frame)
-            error[:3] = target_p - pose.translation
-            rot_local = pin.log3(pose.rotation.T @ target_r)
-            error[3:] = pose.rotation @ rot_local
-            pos_err = float(np.linalg.norm(error[:3]))
-            rot_err = float(np.linalg.norm(rot_local))
-            # Converge far below the 0.1 mm / 0.1 degree contract: the joint path is later
-            # differentiated twice, and solver noise would show up as acceleration.
-            if pos_err < 1e-9 and rot_err < 1e-8:
-                break
-            if iteration == max_iterations:
-                break
-            jacobian = pin.computeFrameJacobian(
-                model, data, q, frame, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
-            )
-            step = jacobian.T @ np.linalg.solve(jacobian @ jacobian.T + damping2 * np.eye(6), error)
-            largest = float(np.abs(step).max())
-            if largest > 0.3:  # big steps can jump to another arm configuration
-                step *= 0.3 / largest
-            q = q + step
-        return IkResult(q, pos_err, rot_err, iteration)
+        """Damped least squares on the SE(3) error from `seed` (keymps.robot.iterative_ik)."""
+        return self.solver.solve(
+            position, tool_rotation(yaw), seed, max_iterations=max_iterations, damping=damping
+        )
 
     def tool_down_seed(self, position: np.ndarray, yaw: float) -> np.ndarray:
-        """Closed-form elbow-up, wrist-outward joints for a tool pointing down (the IK seed)."""
+        """Joints for the tool pointing down at `position` with `yaw`, to start a path from: a UR
+        arm's closed-form elbow-up, wrist-outward solution; any other arm's IK solution from its
+        home configuration (turned towards the point), else from spread-out configurations.
+        Raises a KeympsError naming the point and the arm when there is none."""
+        if self.arm is not None:
+            return self._ur_seed(position, yaw)
+        seeds = self._seeds_towards(position)
+        result = self.solver.solve_from_anywhere(position, tool_rotation(yaw), seeds)
+        if not result.converged:
+            raise KeympsError(self._unreachable(position, yaw, result, "the path's first point"))
+        return result.q
+
+    def _seeds_towards(self, position: np.ndarray) -> list[np.ndarray]:
+        """The home configuration turned to face `position` (its first joint), with its last
+        joint (the tool's roll on a table arm) at seven places across its range: a roll limit
+        the solver would run into is then approached from the other side."""
+        home = self.arm_model.home
+        turned = home.copy()
+        turned[0] = np.clip(
+            home[0] + self._azimuth_change(position, home), self.lower[0], self.upper[0]
+        )
+        seeds = [turned]
+        for roll in np.linspace(self.lower[-1], self.upper[-1], 9)[1:-1]:
+            seeds.append(turned.copy())
+            seeds[-1][-1] = roll
+        return [*seeds, home]
+
+    def _azimuth_change(self, position: np.ndarray, q: np.ndarray) -> float:
+        """How far the first joint (a vertical axis on a table arm) turns the tool from its
+        place at `q` to face `position`, both seen from the base."""
+        here, _ = self.fk(q)
+        local = [self._in_base_link(p) for p in (here, np.asarray(position, float))]
+        return float(
+            _wrap(math.atan2(local[1][1], local[1][0]) - math.atan2(local[0][1], local[0][0]))
+        )
+
+    def _unreachable(self, position: np.ndarray, yaw: float, result: IkResult, where: str) -> str:
+        """Why a point cannot be solved, naming the arm and the point: out of reach, or (an arm
+        of fewer than six joints) reachable with the tool down but not at this yaw."""
+        x, y, z = (float(v) for v in position)
+        point = f"board point ({x:.3f}, {y:.3f}, {z:.3f}) m"
+        held = [
+            other
+            for other in np.linspace(-math.pi, math.pi, 12, endpoint=False)
+            if self.dof < 6 and self.reachable(position, float(other))
+        ]
+        if held:
+            what = (
+                f"cannot hold the tool pointing down at yaw {math.degrees(yaw):.0f} degrees at "
+                f"{point} ({where}; with {self.dof} joints its yaw there is limited, e.g. "
+                f"{math.degrees(held[0]):.0f} degrees works)"
+            )
+        else:
+            what = (
+                f"cannot reach {point} with the tool pointing down ({where}; "
+                f"{result.position_error_m * 1000:.1f} mm short)"
+            )
+        bx, by, bz, byaw = self.base
+        return (
+            f"robot: {self.spec.description or self.kind} {what}; move the base (task "
+            f"robot.base, now [{bx:g}, {by:g}, {bz:g}, {byaw:g}]) or the work"
+        )
+
+    def _ur_seed(self, position: np.ndarray, yaw: float) -> np.ndarray:
+        """Closed-form elbow-up, wrist-outward joints of a UR arm, tool pointing down."""
         arm = self.arm
+        assert arm is not None
         flange = np.asarray(position, dtype=float) + np.array([0.0, 0.0, self.tool.tcp[2]])
         local = self._in_base_link(flange)
         radius = math.hypot(local[0], local[1])
@@ -320,12 +406,15 @@ class RobotModel:
         return math.atan2(rotation[1, 0], rotation[0, 0])
 
     def _in_base_link(self, point: np.ndarray) -> np.ndarray:
-        """A board point in the URDF root frame (base_link, z up through joint 1)."""
+        """A board point in the arm's root frame (a UR's base_link, z up through joint 1)."""
         return np.array(self.base_in_board.actInv(np.asarray(point, dtype=float)))
 
     def reach_shortfall(self, points: np.ndarray) -> np.ndarray:
-        """(n,) metres by which each tool-down tip position is out of reach (<= 0: reachable)."""
+        """(n,) metres by which each tool-down tip position is out of a UR arm's reach (<= 0:
+        reachable), in closed form; for any other arm zeros (its IK decides)."""
         arm = self.arm
+        if arm is None:
+            return np.zeros(len(points))
         flange = np.asarray(points, dtype=float) + np.array([0.0, 0.0, self.tool.tcp[2]])
         base = self.base_in_board
         local = (flange - base.translation) @ base.rotation
@@ -338,28 +427,56 @@ class RobotModel:
         folded = (abs(arm.upper_arm - arm.forearm) + REACH_MARGIN_M) - wrist
         return np.maximum.reduce([too_close, too_far, folded])
 
+    def reachable(self, point: np.ndarray, yaw: float = 0.0) -> bool:
+        """Whether the tool can point down at `point` (closed form for a UR arm, else IK)."""
+        if self.arm is not None:
+            return bool(self.reach_shortfall(np.asarray(point, float)[None])[0] <= 0)
+        seeds = self._seeds_towards(point)
+        return self.solver.solve_from_anywhere(point, tool_rotation(yaw), seeds, tries=0).converged
+
+    def height_problem(self) -> str | None:
+        """Why the object's top is beyond the arm (None when the arm can work there): the tool,
+        pointing down, must reach the top plus the travel clearance somewhere over the board.
+        Tried at the board's middle first (one IK for most tasks), then at eight more points."""
+        width, height = self.board_size
+        z = self.object_height + self.clearance
+        for fx, fy in [(0.5, 0.5), *[(a, b) for a in (0.2, 0.5, 0.8) for b in (0.2, 0.5, 0.8)]]:
+            if self.reachable(np.array([fx * width, fy * height, z])):
+                return None
+        bx, by, bz, byaw = self.base
+        return (
+            f"{self.object_height:g} m: {self.label} cannot reach {z:.3f} m above the board (the "
+            f"object's top plus motion.clearance) anywhere over it with its base at [{bx:g}, "
+            f"{by:g}, {bz:g}, {byaw:g}]: the unit is metres, or move robot.base"
+        )
+
     def home_tool_position(self) -> np.ndarray:
         """Above the middle of the board, clear of the object (or as high as reachable)."""
         width, height = self.board_size
         z = self.object_height + self.clearance + 0.05
         point = np.array([width / 2, height / 2, z])
-        while z > self.object_height + self.clearance and self.reach_shortfall(point[None])[0] > 0:
+        while z > self.object_height + self.clearance and not self.reachable(point):
             z -= 0.005
             point[2] = z
         return point
 
     def configuration_problem(self, q: np.ndarray) -> str | None:
-        """Why `q` is not the elbow-up, wrist-outward configuration (None when it is)."""
-        if q[2] <= 0.05:
-            return "elbow down or stretched"
-        if math.sin(q[4]) > -0.2:
-            return "wrist flipped or singular"
+        """Why `q` is not a configuration paths may use (None when it is): inside the joint
+        limits, and for a UR arm elbow up with the wrist outward."""
+        if self.arm is not None:
+            if q[2] <= 0.05:
+                return "elbow down or stretched"
+            if math.sin(q[4]) > -0.2:
+                return "wrist flipped or singular"
         if np.any(q < self.lower) or np.any(q > self.upper):
             return "outside the joint limits"
         return None
 
     def check_reachable(self, tool_path: ToolPath) -> None:
-        """Raise a KeympsError naming the piece furthest out of reach, and by how much."""
+        """Raise a KeympsError naming the piece furthest out of a UR arm's reach, and by how
+        much (any other arm: its IK names the first point it cannot reach)."""
+        if self.arm is None:
+            return
         shortfalls = [self.reach_shortfall(piece.points) for piece in tool_path.pieces]
         out = [i for i, s in enumerate(shortfalls) if s.max() > 0]
         if not out:
@@ -389,7 +506,7 @@ class RobotModel:
         where: str = "path",
         method: str = "auto",
     ) -> tuple[np.ndarray, float, float]:
-        """IK along consecutive points, continuous from `seed`: (n, 6) joints, max position
+        """IK along consecutive points, continuous from `seed`: (n, dof) joints, max position
         and rotation error. `method` 'auto' takes the closed form when it exists and every
         solution checks out, else the iterative solver; 'iterative' forces the latter."""
         if method not in ("auto", "iterative"):
@@ -429,9 +546,9 @@ class RobotModel:
         self, points: np.ndarray, yaws: np.ndarray, seed: np.ndarray, where: str
     ) -> tuple[np.ndarray, float, float]:
         """Warm-started damped least squares, point after point."""
-        qs = np.empty((len(points), 6))
+        qs = np.empty((len(points), self.dof))
         previous = np.array(seed, dtype=float)
-        velocity = np.zeros(6)
+        velocity = np.zeros(self.dof)
         worst_p = worst_r = 0.0
         for i, (point, yaw) in enumerate(zip(points, yaws, strict=True)):
             result = self.ik(point, float(yaw), previous + velocity)
@@ -439,18 +556,18 @@ class RobotModel:
                 result = self.ik(point, float(yaw), previous, max_iterations=300)
             if not result.converged:
                 raise KeympsError(
-                    f"robot: inverse kinematics failed at {where} point {i} "
-                    f"({point[0]:.3f}, {point[1]:.3f}, {point[2]:.3f}) m: "
-                    f"{result.position_error_m * 1000:.2f} mm off; move the base (task robot.base)"
+                    self._unreachable(point, float(yaw), result, f"{where} point {i}")
                 )
             problem = self.configuration_problem(result.q)
+            if problem is None and i and np.abs(result.q - previous).max() > MAX_BRANCH_STEP_RAD:
+                problem = "a jump to another configuration"
             if problem is not None:
                 raise KeympsError(
                     f"robot: at {where} point {i} ({point[0]:.3f}, {point[1]:.3f}, "
-                    f"{point[2]:.3f}) m the arm would leave its configuration ({problem}); "
+                    f"{point[2]:.3f}) m {self.label} would leave its configuration ({problem}); "
                     "move the base (task robot.base)"
                 )
-            velocity = result.q - previous if i else np.zeros(6)
+            velocity = result.q - previous if i else np.zeros(self.dof)
             previous = result.q
             qs[i] = result.q
             worst_p = max(worst_p, result.position_error_m)
@@ -528,6 +645,34 @@ def choose_continuous_branch(branches: np.ndarray, seed: np.ndarray) -> np.ndarr
         if np.any(gaps[:, branch] > BRANCH_MARGIN * others):
             return None
     return path
+
+
+def _capped(limits: np.ndarray, cap: float | None) -> np.ndarray:
+    """The arm's per-joint limits, none above the task's `cap` (None: no cap)."""
+    return np.array(limits if cap is None else np.minimum(limits, float(cap)), dtype=float)
+
+
+def place_arm(arm: ArmModel, base_in_board: Any, tool: Tool) -> tuple[Any, int]:
+    """A copy of the arm's Pinocchio model with its root at `base_in_board` (pinocchio.SE3) and
+    two frames on the tool mount: FLANGE_FRAME (ArmSpec.tip_link) and TCP_FRAME (the tool's
+    tip)."""
+    import pinocchio as pin
+
+    model = arm.model.copy()
+    for joint in range(1, model.njoints):
+        if model.parents[joint] == 0:
+            model.jointPlacements[joint] = base_in_board * model.jointPlacements[joint]
+    for frame in model.frames:
+        if frame.parentJoint == 0 and frame.name != "universe":
+            frame.placement = base_in_board * frame.placement
+    mount = arm.flange_placement
+    parent = model.frames[model.getFrameId(arm.spec.tip_link)].parentFrame
+    tcp = mount * se3(np.eye(3), np.array(tool.tcp))
+    frame_id = model.addFrame(
+        pin.Frame(TCP_FRAME, arm.flange_joint, parent, tcp, pin.FrameType.OP_FRAME)
+    )
+    model.addFrame(pin.Frame(FLANGE_FRAME, arm.flange_joint, parent, mount, pin.FrameType.OP_FRAME))
+    return model, frame_id
 
 
 def _wrap(angle: float) -> float:

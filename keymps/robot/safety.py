@@ -38,7 +38,11 @@ TILT_TOLERANCE_RAD = math.radians(0.5)
 WORKSPACE_TOLERANCE_M = 0.001
 """The tool tip stays over the workspace (the board area the image shows) within this."""
 ARM_CLEARANCE_M = 0.01
-"""Elbow, wrists and flange stay this far above the board surface."""
+"""Elbow, wrists and flange stay this far above the board surface, and so does every part of
+the arm's collision model (its links; not the base, not what only turns about the vertical
+first joint, not the tool)."""
+SELF_CLEARANCE_M = 0.0
+"""The arm's links (convex hulls) stay apart from each other by this much."""
 LIMIT_TOLERANCE = {"velocity": 1e-3, "acceleration": 0.01, "jerk": 0.05}
 """Relative slack on limits measured by finite differences (rounding, not physics)."""
 
@@ -66,6 +70,7 @@ def validate(
     )
     _check_path(trajectory, tool_path, positions, problems, figures)
     _check_board(trajectory, positions, rotations, origins, problems, figures)
+    _check_collisions(model, trajectory, problems, figures)
     _check_footprint(trajectory, tool_path, positions, outline_m, problems, figures)
     _check_workspace(trajectory, tool_path, positions, task, problems, figures)
     if problems:
@@ -80,11 +85,11 @@ def _at(trajectory: Trajectory, index: int) -> str:
 def _check_structure(
     model: RobotModel, trajectory: Trajectory, tool_path: ToolPath, problems: list[str]
 ) -> bool:
-    n = len(trajectory.t)
+    n, dof = len(trajectory.t), model.dof
     shapes = {
-        "q": (n, 6),
-        "qd": (n, 6),
-        "qdd": (n, 6),
+        "q": (n, dof),
+        "qd": (n, dof),
+        "qdd": (n, dof),
         "tool_xyz": (n, 3),
         "piece_index": (n,),
         "kind": (n,),
@@ -133,7 +138,7 @@ def _check_joints(
     period = 1.0 / trajectory.rate_hz
 
     below, above = q < model.lower, q > model.upper
-    for joint in range(6):
+    for joint in range(model.dof):
         outside = np.flatnonzero(below[:, joint] | above[:, joint])
         if len(outside):
             i = int(outside[0])
@@ -234,11 +239,41 @@ def _check_board(
 
 
 def _lowest_arm_point(origins: np.ndarray) -> tuple[float, int]:
-    """The lowest height of the elbow, wrists and flange over every sample (`origins`: each
-    sample's joint origins and flange, (n, 7, 3)), and its index."""
+    """The lowest height of the joints after the second (a UR's elbow and wrists) and the
+    tool mount over every sample (`origins`: each sample's joint origins and tool mount,
+    (n, dof + 1, 3)), and its index."""
     heights = origins[:, 2:, 2].min(axis=1)  # joint origins 2..6 and the flange
     index = int(np.argmin(heights))
     return float(heights[index]), index
+
+
+def _check_collisions(
+    model: RobotModel, trajectory: Trajectory, problems: list[str], figures: dict[str, float]
+) -> None:
+    """The arm's collision model (keymps.robot.collision) against the board's plane and itself,
+    at samples close enough together that nothing between them can come nearer unseen."""
+    clearances = model.clearances()
+    q = np.asarray(trajectory.q, dtype=float)
+    picked, board, apart, closest = clearances.distances(q)
+    padding = model.spec.collision_padding
+    if len(board) and np.isfinite(board).any():
+        i = int(np.argmin(board))
+        figures["min_arm_board_clearance_mm"] = float(board[i] * 1000)
+        if board[i] < ARM_CLEARANCE_M + padding:
+            problems.append(
+                f"the arm ({model.label}'s collision model) comes within "
+                f"{max(board[i], 0.0) * 1000:.0f} mm of the board surface at "
+                f"{_at(trajectory, int(picked[i]))} (at least "
+                f"{(ARM_CLEARANCE_M + padding) * 1000:.0f} mm): move the base (task robot.base)"
+            )
+    if len(apart) and np.isfinite(apart).any():
+        i = int(np.argmin(apart))
+        figures["min_self_clearance_mm"] = float(apart[i] * 1000)
+        if apart[i] < SELF_CLEARANCE_M + padding:
+            problems.append(
+                f"the arm would hit itself ({closest[i]}) at {_at(trajectory, int(picked[i]))}: "
+                "move the base (task robot.base)"
+            )
 
 
 def _check_footprint(
@@ -325,10 +360,9 @@ def _workspace_hint(tool_path: ToolPath, index: int) -> str:
     """Which pair left the workspace. Keypoints are inside the image, so a work piece leaves it
     only where its primitive reaches past the pair's ends (a sawing stroke at the edge)."""
     piece = tool_path.pieces[index]
-    pair = piece.pair_index + 1
     if piece.kind != "work":
-        return f"on the travel move to pair {pair}"
+        return f"on the travel move to pair {piece.pair_index + 1}"
     return (
-        f"during pair {pair}: primitive {tool_path.keyword!r} reaches past the pair's ends "
-        "(leave more board around the object, or choose a primitive without strokes)"
+        f"during {piece.pairs_label()}: primitive {tool_path.keyword!r} reaches past the "
+        "pair's ends (leave more board around the object, or choose a primitive without strokes)"
     )

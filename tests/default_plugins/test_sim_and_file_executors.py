@@ -28,14 +28,15 @@ from keymps.types import SceneImage, ToolPath, ValidatedTrajectory, ValidationRe
 CENTER = (0.15, 0.09)
 
 
-def make_task(tool: str, height: float) -> Task:
+def make_task(tool: str, height: float, base: list[float] | None = None) -> Task:
+    robot: dict[str, Any] = {"tool": tool} if base is None else {"tool": tool, "base": base}
     return Task.model_validate(
         {
             "name": "t",
             "instruction": "do it",
             "scene": {"image": "x.png", "object_height": height},
             "primitives": ["line"],
-            "robot": {"tool": tool},
+            "robot": robot,
         }
     )
 
@@ -57,7 +58,11 @@ def planned(kind: str) -> tuple[Task, ToolPath, Any]:
     if kind == "icing":
         task, path, radius = make_task("piping_bag", 0.06), ring_of_dots(count=6), 0.06
     else:
-        task, path, radius = make_task("knife", 0.02), radial_cuts(count=4, top=0.025), 0.09
+        # 5 cm further back than the UR3's default: the cut towards the base ends 5 mm from the
+        # board's edge, where at the default place the elbow folds until the upper arm's and
+        # wrist 1's collision meshes overlap (the safety check refuses that)
+        knife = make_task("knife", 0.02, [0.15, -0.25, 0.0, 90.0])
+        task, path, radius = knife, radial_cuts(count=4, top=0.025), 0.09
     model = RobotModel.from_task(task)
     trajectory = time_trajectory(model, path, solve_path(model, path), task)
     return task, path, (model, trajectory, radius)

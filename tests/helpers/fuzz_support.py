@@ -99,6 +99,22 @@ def task_copy(folder: Path, source: str = "cake_icing.yaml", **replace: str) -> 
     return path
 
 
+def plan_request(timeout_s: float, schema: dict[str, Any] | None = None) -> PlanRequest:
+    """A small one-dot planning request for a backend called directly (no run around it)."""
+    return PlanRequest(
+        instruction="Put 1 icing dot",
+        crop=np.zeros((8, 8, 3), np.uint8),
+        crop_mask=None,
+        metres_per_px=(0.001, 0.001),
+        primitives={"line": "a line"},
+        object_height=0.05,
+        max_pairs=4,
+        messages=[{"role": "user", "content": "plan"}],
+        schema=schema or {},
+        timeout_s=timeout_s,
+    )
+
+
 def answer_text(keyword: str, pairs: Any, rationale: str = "fuzz") -> str:
     return json.dumps({"keyword": keyword, "pairs": pairs, "rationale": rationale})
 

@@ -1,7 +1,8 @@
 """A real local VLM server for tests: OpenAI-compatible and Ollama-style endpoints on 127.0.0.1.
 
 Answers are scripted: queue them with `server.script(...)`; when the queue is empty the default
-responder answers. Every request is recorded (path, headers, JSON body) for assertions.
+responder answers. Every request is recorded (path, headers, JSON body; None for a GET) for
+assertions.
 
     with VlmServer() as server:
         server.script(Reply.text("not json"), Reply.text('{"keyword": ...}'))
@@ -61,7 +62,7 @@ class Reply:
 
     @staticmethod
     def redirect(status: int, to_path: str) -> Reply:
-        """A redirect (301, 302, 307 ...) to this path on the same server."""
+        """A redirect (301, 302, 307 ...) to this path on the same server, or to this URL."""
         return Reply("redirect", status=status, text=to_path)
 
     @staticmethod
@@ -107,6 +108,7 @@ class Recorded:
     body: Any
     at: float = field(default_factory=time.monotonic)
     """When the request arrived (time.monotonic)."""
+    method: str = "POST"
 
 
 Responder = Callable[[Recorded], str]
@@ -150,15 +152,16 @@ def _ollama_completion(
 
 
 class VlmServer:
-    """Serves on 127.0.0.1 at an ephemeral port, in a background thread."""
+    """Serves on 127.0.0.1 at an ephemeral port (or the one given), in a background thread."""
 
-    def __init__(self, responder: Responder | None = None):
+    def __init__(self, responder: Responder | None = None, port: int = 0):
+        """`port`: 0 for a free one; another is taken as it is (OSError when in use)."""
         self.responder = responder or (lambda request: '{"keyword": "x", "pairs": []}')
         self.requests: list[Recorded] = []
         self._queue: list[Reply] = []
         self._lock = threading.Lock()
         self._closing = threading.Event()
-        self._server = ThreadingHTTPServer(("127.0.0.1", 0), self._handler_class())
+        self._server = ThreadingHTTPServer(("127.0.0.1", port), self._handler_class())
         self._server.daemon_threads = True
         self._thread = threading.Thread(target=self._server.serve_forever, daemon=True)
 
@@ -188,7 +191,8 @@ class VlmServer:
         return [
             r
             for r in self.requests
-            if r.path.endswith(("/chat/completions", "/api/chat", "/api/generate"))
+            if r.method == "POST"
+            and r.path.endswith(("/chat/completions", "/api/chat", "/api/generate"))
         ]
 
     def __enter__(self) -> VlmServer:
@@ -255,6 +259,10 @@ class VlmServer:
                 self.close_connection = True
 
             def do_GET(self) -> None:
+                headers = {k.lower(): v for k, v in self.headers.items()}
+                record = Recorded(self.path, headers, None, method="GET")
+                with server._lock:
+                    server.requests.append(record)
                 if self.path.rstrip("/").endswith(("/models", "/api/tags")):
                     self._send_json(200, {"object": "list", "data": [], "models": []})
                 else:
@@ -300,7 +308,8 @@ class VlmServer:
                     return
                 if reply.kind == "redirect":
                     self.send_response(reply.status)
-                    self.send_header("Location", f"{server.url}{reply.text}")
+                    elsewhere = reply.text.startswith(("http://", "https://"))
+                    self.send_header("Location", ("" if elsewhere else server.url) + reply.text)
                     self.send_header("Content-Length", "0")
                     self.end_headers()
                     return

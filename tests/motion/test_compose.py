@@ -249,3 +249,70 @@ def test_a_sawing_path_runs_on_the_real_ur3_pipeline(dictionary: dict) -> None:
     timed = trajectory.tool_xyz[work][::10]
     distance = np.linalg.norm(timed[:, None, :] - composed[None, ::2, :], axis=2).min(axis=1)
     assert distance.max() < 0.001
+
+
+def spiral_and_dots() -> list[Segment]:
+    """Paper Table IV case 3 as the offline planner lays it out: dots round the edge, then a
+    spiral of 48 segments that meet end to end."""
+    from keymps.designs.patterns import ring_points, spiral
+
+    dots = [dot_or_line(x, y, x, y) for x, y in ring_points((0.15, 0.09), 0.05, 12)]
+    lines = [dot_or_line(*a, *b) for a, b in spiral((0.15, 0.09), 0.002, 0.035, 3.0, 48)]
+    return dots + lines
+
+
+def test_icing_lines_that_meet_are_one_stroke_with_no_travel_between(dictionary: dict) -> None:
+    """Eq. 6 with an empty travel move: the spiral is one work piece (the nozzle goes down once
+    and up once), not 48 pieces each followed by a 3 cm lift; the dots stay dots."""
+    segments = spiral_and_dots()
+    path = compose(segments, dictionary["line"], yaw_mode="fixed", join_distance=0.002)
+    kinds = [p.kind for p in path.pieces]
+    assert kinds == ["travel", "work"] * 13 + ["travel"]
+    works = [p for p in path.pieces if p.kind == "work"]
+    assert [p.pairs for p in works] == [(k,) for k in range(12)] + [tuple(range(12, 60))]
+    assert [p.pair_index for p in works] == list(range(13))
+    spiral_piece = works[-1]
+    drawing = TOP + MARGIN - 0.004
+    inner = np.linalg.norm(spiral_piece.points[:, :2] - segments[12].start[:2], axis=1) > 1e-3
+    inner &= np.linalg.norm(spiral_piece.points[:, :2] - segments[-1].goal[:2], axis=1) > 1e-3
+    assert np.abs(spiral_piece.points[inner, 2] - drawing).max() < 5e-5  # no lift at a joint
+    for before, after in zip(path.pieces[:-1], path.pieces[1:], strict=True):
+        assert np.array_equal(before.points[-1], after.points[0])
+
+
+def test_cuts_that_meet_keep_their_retract(dictionary: dict) -> None:
+    """A knife must leave its cut: cuts whose ends meet are still one piece each, with the
+    lift between them, as are icing lines with a blade-following tool."""
+    corner = [cut(0.10, 0.05, 0.15, 0.05), cut(0.15, 0.05, 0.15, 0.10)]
+    for kind in ("straight", "sawing"):
+        path = compose(corner, dictionary[kind], join_distance=0.002)
+        assert [p.kind for p in path.pieces] == ["travel", "work"] * 2 + ["travel"]
+        assert path.pieces[2].points[:, 2].max() == pytest.approx(TOP + CLEARANCE)
+    lines = [dot_or_line(0.10, 0.05, 0.15, 0.05), dot_or_line(0.15, 0.05, 0.15, 0.10)]
+    followed = compose(lines, dictionary["line"], yaw_mode="follow", join_distance=0.002)
+    assert len([p for p in followed.pieces if p.kind == "work"]) == 2
+
+
+def test_a_star_is_piped_round_in_one_stroke_whatever_order_the_plan_gives(
+    dictionary: dict,
+) -> None:
+    """The offline star lists its 5 lines tip to every second tip, not end to start; a VLM may
+    give any order and direction. The stroke visits each line once and closes on itself."""
+    from keymps.designs.patterns import star
+
+    lines = star((0.15, 0.09), 0.04, 5)
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        order = rng.permutation(5)
+        flips = rng.random(5) < 0.5
+        segments = [
+            dot_or_line(*(lines[k][::-1] if f else lines[k]).ravel())
+            for k, f in zip(order, flips, strict=True)
+        ]
+        path = compose(segments, dictionary["line"], yaw_mode="fixed", join_distance=0.002)
+        (work,) = [p for p in path.pieces if p.kind == "work"]
+        assert sorted(work.pairs) == list(range(5)) and work.pair_index == work.pairs[0]
+        assert np.linalg.norm(work.points[0] - work.points[-1]) < 1e-5
+        tips = np.array([t[0] for t in lines])
+        for tip in tips:  # every tip is reached exactly
+            assert np.abs(work.points[:, :2] - tip).sum(axis=1).min() < 1e-12

@@ -194,3 +194,43 @@ def test_where_a_stroke_ends_at_a_corner_does_not_follow_the_last_bit_of_roundin
             ulps = rng.integers(-4, 5, size=points.shape)
             turned = points + ulps * np.spacing(points)
             assert _corner_indexes_all([(turned, yaw)])[0] == corners
+
+
+def test_a_spiral_piped_as_one_stroke_does_not_stop_at_its_48_joints() -> None:
+    """Consecutive spiral segments turn by about 20 degrees, less than the corner angle: the
+    tool runs through every joint at the work speed and rests only where the nozzle goes down
+    and comes up (three timing strokes for 48 pairs), inside every joint limit."""
+    from keymps.designs.patterns import spiral
+    from keymps.motion.compose import compose_tool_path
+    from keymps.motion.strokes import split_strokes
+    from keymps.primitives.dictionary import BUNDLED_DIR, load_primitives
+    from keymps.robot.safety import validate
+    from keymps.types import Segment
+
+    z = 0.065
+    segments = [
+        Segment(np.array([*a, z]), np.array([*b, z]), (0, 0), (0, 0))
+        for a, b in spiral((0.15, 0.09), 0.002, 0.035, 3.0, 48)
+    ]
+    line = load_primitives(["line"], [BUNDLED_DIR])["line"]
+    task = make_task(tool="piping_bag")
+    model = RobotModel.from_task(task)
+    path = compose_tool_path(
+        segments, line, object_top=0.06, clearance=0.03, work_speed=0.03, travel_speed=0.15,
+        yaw_mode="fixed", home=model.home_tool_position(), join_distance=0.002,
+    )  # fmt: skip
+    joints = solve_path(model, path)
+    assert [s.piece_index for s in split_strokes(model, path, joints)].count(1) == 3
+    trajectory = time_trajectory(model, path, joints, task)
+    cake = 0.15 + 0.06 * np.column_stack(
+        [np.cos(np.arange(72) / 72 * 2 * np.pi), np.sin(np.arange(72) / 72 * 2 * np.pi)]
+    )
+    cake[:, 1] -= 0.06
+    validate(model, trajectory, path, cake, task)  # raises on any broken limit
+    on_spiral = (trajectory.piece_index == 1) & (trajectory.tool_xyz[:, 2] < z - 0.0039)
+    speed = np.linalg.norm(np.diff(trajectory.tool_xyz, axis=0), axis=1) * trajectory.rate_hz
+    moving = speed[on_spiral[1:] & on_spiral[:-1]]
+    assert moving.max() <= 0.03 * 1.01
+    assert np.mean(moving > 0.029) > 0.9  # at the work speed, not stopping at each joint
+    rests = (moving[1:-1] < 1e-4) & (moving[1:-1] <= moving[:-2]) & (moving[1:-1] <= moving[2:])
+    assert rests.sum() <= 2  # where it reaches the drawing height and where it leaves it

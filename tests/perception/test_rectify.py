@@ -116,8 +116,12 @@ def test_camera_errors_are_one_line(tall: object, tmp_path: Path) -> None:
         TaskFileError, match=r"t.yaml:\d+:\d+: scene.camera.intrinsics.distortion: .*4, 5 or 8"
     ):
         parse_task(camera_yaml(tall).replace("distortion: [", "distortion: [0.1, "), "t.yaml")
-    task = task_of(camera_yaml(tall, height=0.9))
-    with pytest.raises(KeympsError, match=r"camera found from the board corners is 0\.\d+ m above"):
+    task = task_of(camera_yaml(tall, height=0.9))  # an object above the camera: a height error
+    with pytest.raises(
+        KeympsError,
+        match=r"^scene.object_height: 0.9 m is not below the camera, which the board corners and "
+        r"intrinsics put 0\.\d+ m above the board: the unit is metres$",
+    ):
         rectify_scene(SceneImage(tall.photo, "photo"), task)  # type: ignore[attr-defined]
     text = camera_yaml(tall, intrinsics=False).replace("mode: both", "mode: both")
     corners = tall.corners_px  # type: ignore[attr-defined]

@@ -42,7 +42,7 @@ def test_run_folder_is_complete(runs: dict[str, Path], task: str) -> None:
     for name in ("run.json", "plan.png", "outcome.png", "trajectory.csv", "run.rrd"):
         assert (folder / name).stat().st_size > 0, name
     record = _record(folder)
-    assert record["schema_version"] == "1.2"
+    assert record["schema_version"] == "1.3"
     assert record["ok"] is True and record["error"] is None
     assert record["backend"] == "offline"
     assert record["validation"]["verdict"] == "pass"
@@ -78,6 +78,10 @@ def test_trajectory_csv_matches_run_json(runs: dict[str, Path]) -> None:
         assert np.allclose(np.diff(t), 1 / record["trajectory"]["rate_hz"], atol=1e-6)
         assert abs(t[-1] - record["trajectory"]["duration_s"]) < 1e-3
         assert {r[11] for r in rows[1:]} == {"work", "travel"}
+        pieces = record["pieces"]  # the csv's piece column indexes run.json's pieces
+        assert all(pieces[int(r[10])]["kind"] == r[11] for r in rows[1:])
+        piped = sorted(k for piece in pieces if piece["kind"] == "work" for k in piece["pairs"])
+        assert piped == list(range(len(record["pairs_px"])))  # every pair, once
         z = np.array([float(r[9]) for r in rows[1:]])
         assert z.min() >= -0.0005
 

@@ -6,7 +6,9 @@ executor's report with tests/data/golden/, recorded from main at 91cb8e4 (before
 fast paths for recordings, warm stages, start-up and eval). icing_spiral and icing_star were
 recorded again from 91cb8e4 with one change, the corner rule that breaks a tie between two points
 the same way on every CPU (keymps.motion.strokes._nearest_first): before it, which of them ended
-a stroke followed the last bit of NumPy's rounding. A faster implementation must give
+a stroke followed the last bit of NumPy's rounding. icing_spiral, icing_star and icing_digits
+were recorded again when icing lines that meet became one continuous stroke (issue 39 item 3:
+the motion changed on purpose; the other five reproduce). A faster implementation must give
 the same motion and the same verdicts; if an output changes on purpose, record again with
 `python tests/pipeline/test_golden_runs.py --record` and say why in the commit.
 """

@@ -108,3 +108,41 @@ def test_any_set_of_independent_mistakes_is_reported_at_once(folder: Path, seed:
         assert any(MISTAKES[place][1] in line for line in problems), (place, problems)
     assert len(problems) == len(chosen), (chosen, problems)
     assert all(line.startswith(f"{path.name}:") or str(path) in line for line in problems)
+
+
+def _height_task(folder: Path, name: str, robot: str, height: float, objects: str = "") -> Path:
+    lines = dict(GOOD, robot=f"robot: {{model: {robot}, tool: piping_bag}}")
+    lines["height"] = f"  object_height: {height}" + (f"\n  objects: {objects}" if objects else "")
+    path = folder / f"{name}.yaml"
+    path.write_text(task_text(lines))
+    return path
+
+
+def test_an_object_taller_than_the_arm_reaches_is_a_height_error(folder: Path) -> None:
+    """Was: object_height: 0.6 passed validate and failed at solve as 'out of the UR3's reach'."""
+    problems = validate_task_file(_height_task(folder, "tall", "ur3", 0.6))
+    assert len(problems) == 1, problems
+    assert (
+        ":7:18: scene.object_height: 0.6 m: the UR3 cannot reach 0.630 m above the board"
+        in (problems[0])
+    )
+    assert problems[0].endswith("the unit is metres, or move robot.base")
+    per_object = validate_task_file(
+        _height_task(folder, "tall-object", "ur3", 0.06, "[{name: cake, height: 0.7}]")
+    )
+    assert len(per_object) == 1 and "scene.objects[0].height: 0.7 m: the UR3" in per_object[0]
+
+
+@pytest.mark.parametrize("robot", ["ur3", "ur5e", "panda"])
+def test_the_height_limit_is_one_threshold_per_arm(robot: str, folder: Path) -> None:
+    """Heights from 5 cm to 1 m: every one the arm can work at passes, and once a height is
+    refused every taller one is too (the check is the arm's reach, not a fixed number)."""
+    verdicts = []
+    for index, height in enumerate([0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0]):
+        problems = validate_task_file(_height_task(folder, f"{robot}-{index}", robot, height))
+        assert all("scene.object_height" in p for p in problems), problems
+        verdicts.append(not problems)
+    assert verdicts[0] and verdicts[1], verdicts  # the shipped tasks' heights work on every arm
+    assert not verdicts[-1], verdicts
+    first_refused = verdicts.index(False)
+    assert not any(verdicts[first_refused:]), verdicts

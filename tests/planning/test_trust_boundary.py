@@ -28,7 +28,14 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 from helpers.budget import Budget
-from helpers.fuzz_support import REPO, RecordingExecutor, assert_clean_error, install, task_copy
+from helpers.fuzz_support import (
+    REPO,
+    RecordingExecutor,
+    assert_clean_error,
+    install,
+    plan_request,
+    task_copy,
+)
 from helpers.vlm_server import Reply, VlmServer
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -375,25 +382,6 @@ def test_a_trickling_server_is_stopped_at_the_deadline(
     fuzz_counter.add("VLM attacks/deadlines", ("trickle, run", interval_s), "stopped in time")
 
 
-def _request(timeout_s: float) -> Any:
-    import numpy as np
-
-    from keymps.planning.planner import PlanRequest
-
-    return PlanRequest(
-        instruction="Put 1 icing dot",
-        crop=np.zeros((8, 8, 3), np.uint8),
-        crop_mask=None,
-        metres_per_px=(0.001, 0.001),
-        primitives={"line": "a line"},
-        object_height=0.05,
-        max_pairs=4,
-        messages=[{"role": "user", "content": "plan"}],
-        schema={},
-        timeout_s=timeout_s,
-    )
-
-
 def test_the_async_call_of_keymps_eval_has_the_same_deadline(
     server: Any, fuzz_counter: Any
 ) -> None:
@@ -402,7 +390,7 @@ def test_the_async_call_of_keymps_eval_has_the_same_deadline(
     backend = LitellmBackend(
         LitellmOptions(model="openai/test-vlm", api_base=server.openai_base, timeout_s=DEADLINE_S)
     )
-    request = _request(DEADLINE_S)
+    request = plan_request(DEADLINE_S)
     server.script(Reply.trickle(0.2))
     started = time.perf_counter()
     with pytest.raises(KeympsError, match="no answer within 1 s"):
@@ -565,7 +553,7 @@ def test_random_trickles_never_outlive_the_deadline(
     server.script(Reply.trickle(interval))
     started = time.perf_counter()
     with pytest.raises(KeympsError, match=r"planner\.timeout_s"):
-        backend.complete(_request(deadline))
+        backend.complete(plan_request(deadline))
     assert time.perf_counter() - started < deadline + 0.5
     fuzz_counter.add("VLM attacks/deadlines", ("trickle", deadline, interval), "stopped in time")
 
@@ -726,7 +714,7 @@ def test_the_async_call_of_keymps_eval_has_the_same_cap(server: Any, gzip_bomb: 
     )
     server.script(Reply.raw(gzip_bomb, {"Content-Encoding": "gzip"}))
     with pytest.raises(KeympsError, match="sent an answer larger than 8 MB: refused unread"):
-        asyncio.run(backend.acomplete(_request(30)))
+        asyncio.run(backend.acomplete(plan_request(30)))
     assert len(server.chat_requests) == 1
 
 

@@ -37,8 +37,19 @@ started on another thread), and while a local model is registered."""
 _REGISTERED: set[str] = set()
 """Local models registered with litellm at zero price in this process."""
 _LOCAL_PROVIDERS = {"ollama", "ollama_chat", "hosted_vllm", "lm_studio", "llamafile"}
-_ENVIRONMENT_SIGNED = {"bedrock", "sagemaker", "vertex_ai", "vertex_ai_beta"}
-"""Providers whose requests litellm signs with cloud credentials it finds itself."""
+_ENVIRONMENT_SIGNED = (
+    "bedrock",
+    "sagemaker",
+    "vertex_ai",
+    "oci",
+    "snowflake",
+    "watsonx",
+    "github_copilot",
+)
+"""Providers (and every provider whose name starts with one: sagemaker_chat, sagemaker_nova,
+vertex_ai_beta, watsonx_text ...) whose requests litellm signs or authorizes with credentials
+it finds itself (cloud SDK credentials, key files, tokens from the environment), whatever key
+keymps gives it."""
 
 
 class LitellmOptions(BaseModel):
@@ -53,7 +64,8 @@ class LitellmOptions(BaseModel):
     retries: int = Field(default=MAX_RETRIES, ge=0, le=10)
     backoff_s: float = Field(default=BACKOFF_S, ge=0, le=60)
     api_base_trusted: bool = False
-    """False when only the task file names api_base: no key from the environment is sent."""
+    """False when only the task file chose the server (its api_base, or the provider's default
+    port on this machine): no key from the environment is sent."""
 
 
 def import_litellm() -> Any:
@@ -63,9 +75,10 @@ def import_litellm() -> Any:
         os.environ.setdefault("LITELLM_LOCAL_MODEL_COST_MAP", "True")
         import litellm
 
-        from keymps.default_plugins.litellm import response_cap
+        from keymps.default_plugins.litellm import request_guard, response_cap
 
         response_cap.install()
+        request_guard.install()
         litellm.suppress_debug_info = True
         litellm.telemetry = False
         return litellm
@@ -115,18 +128,19 @@ class LitellmBackend:
 
     def _key_for(self, provider: str) -> str | None:
         """The key this call sends: none from the environment to an api_base that only a task
-        file names (docs/security.md); else planner.api_key_env or the provider's variable."""
+        file names, or to a default local port (docs/security.md); else planner.api_key_env
+        or the provider's variable."""
         from keymps.planning.backend_choice import PROVIDER_KEYS
 
         api_base = self.options.api_base
-        if api_base and not self.options.api_base_trusted:
-            if provider in _ENVIRONMENT_SIGNED:
+        if not self._server_trusted(provider):
+            if provider.startswith(_ENVIRONMENT_SIGNED):
                 raise KeympsError(
                     f"planner.api_base {api_base} is named only by the task file, and {provider} "
                     "signs every request with your cloud credentials: pass --api-base, or list it "
                     "under trusted_api_bases in your user config (docs/security.md)"
                 )
-            return "no-key-needed"  # given, so that litellm does not read $OPENAI_API_KEY itself
+            return "no-key-needed"  # given, so that litellm reads no key variable itself
         key = self._api_key()
         if key is None:  # read here, not by litellm, so that the key sent is known
             names = [n for n in PROVIDER_KEYS.get(provider, ()) if n.endswith("_API_KEY")]
@@ -134,6 +148,14 @@ class LitellmBackend:
         if key is None and api_base and provider in ("openai", "hosted_vllm"):
             key = "no-key-needed"  # OpenAI-compatible local servers want some key
         return key
+
+    def _server_trusted(self, provider: str) -> bool:
+        """Whether the call's server is the user's: not an api_base only the task file names,
+        nor a provider's default address on this machine only the task chose."""
+        from keymps.planning.backend_choice import LOCAL_DEFAULTS
+
+        chosen = bool(self.options.api_base) or provider in LOCAL_DEFAULTS
+        return self.options.api_base_trusted or not chosen
 
     def _register_local_model(self, litellm: Any, model: str) -> None:
         # litellm does not price local models; registering them at zero gives a cost of 0.0
@@ -204,10 +226,11 @@ class LitellmBackend:
 
     def _within_deadline(self, call: _Call) -> Any:
         """One try, ended by planner.timeout_s whatever the server does (deadline.py)."""
+        from keymps.default_plugins.litellm.request_guard import guarded
         from keymps.default_plugins.litellm.response_cap import answers_capped
 
         def capped() -> Any:
-            with answers_capped():  # in the worker thread, which reads the answer
+            with answers_capped(), guarded(call.server_trusted):  # in the thread that sends
                 return call.litellm.completion(**call.arguments)
 
         try:
@@ -216,10 +239,11 @@ class LitellmBackend:
             raise _timeout(call) from None
 
     async def _awaited_within_deadline(self, call: _Call) -> Any:
+        from keymps.default_plugins.litellm.request_guard import guarded
         from keymps.default_plugins.litellm.response_cap import answers_capped
 
         async def capped() -> Any:
-            with answers_capped():
+            with answers_capped(), guarded(call.server_trusted):
                 return await call.litellm.acompletion(**call.arguments)
 
         try:
@@ -228,6 +252,7 @@ class LitellmBackend:
             raise _timeout(call) from None
 
     def _prepare(self, request: PlanRequest) -> _Call:
+        from keymps.default_plugins.litellm.request_guard import guarded
         from keymps.planning.backend_choice import model_provider
 
         model = request.model or self.options.model
@@ -240,8 +265,10 @@ class LitellmBackend:
         litellm = import_litellm()
         provider = model_provider(model)
         local = is_local(self.options.api_base, provider)
+        trusted = self._server_trusted(provider)
         if local:
-            self._register_local_model(litellm, model)
+            with guarded(trusted):  # litellm looks the model up on the server
+                self._register_local_model(litellm, model)
         arguments: dict[str, Any] = {
             "model": model,
             "messages": request.messages,
@@ -262,9 +289,11 @@ class LitellmBackend:
         remember(key, *url_secrets(self.options.api_base))
         if key is not None:
             arguments["api_key"] = key
-        if _supports_schema(litellm, model, provider):
-            arguments["response_format"] = {"type": "json_schema", "json_schema": request.schema}
-        return _Call(litellm, model, local, arguments)
+        with guarded(trusted):
+            if _supports_schema(litellm, model, provider):
+                schema = {"type": "json_schema", "json_schema": request.schema}
+                arguments["response_format"] = schema
+        return _Call(litellm, model, local, arguments, trusted)
 
     def _retrying(self, call: _Call) -> Retrying:
         return Retrying(
@@ -284,8 +313,13 @@ class LitellmBackend:
         # litellm prices every response it returns; ask again only when it could not
         cost: Any = (getattr(response, "_hidden_params", None) or {}).get("response_cost")
         if cost is None:
+            from keymps.default_plugins.litellm.request_guard import guarded
+
             try:
-                cost = call.litellm.completion_cost(completion_response=response, model=call.model)
+                with guarded(call.server_trusted):  # pricing may look the model up
+                    cost = call.litellm.completion_cost(
+                        completion_response=response, model=call.model
+                    )
             except Exception:
                 cost = None
         if cost is None and call.local:
@@ -312,12 +346,14 @@ def _timeout(call: _Call) -> Exception:
 
 @dataclass(frozen=True)
 class _Call:
-    """One prepared call: litellm, the model, whether it runs locally, the arguments."""
+    """One prepared call: litellm, the model, whether it runs locally, the arguments, and
+    whether its server is the user's (keymps.default_plugins.litellm.request_guard)."""
 
     litellm: Any
     model: str
     local: bool
     arguments: dict[str, Any]
+    server_trusted: bool
 
 
 @functools.lru_cache(maxsize=64)

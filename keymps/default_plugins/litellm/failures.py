@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from typing import Literal
 from urllib.parse import urlparse
 
+from keymps.default_plugins.litellm.request_guard import RedirectRefused, SecretRefused
 from keymps.default_plugins.litellm.response_cap import AnswerRefused
 
 Kind = Literal[
@@ -30,6 +31,7 @@ Kind = Literal[
     "stream",
     "bad_chunks",
     "redirected",
+    "secret",
 ]
 
 
@@ -85,7 +87,27 @@ def _host_port(url: str) -> str:
 
 def redirected(error: BaseException) -> Failure | None:
     """The redirect behind a failed call, if the server redirected it: whatever the target then
-    said, the redirect is the cause (a 301 or 302 turns the POST into a GET, which it refuses)."""
+    said, the redirect is the cause (a 301 or 302 turns the POST into a GET, which it refuses).
+    A redirect to another server was not followed at all, and a request carrying a secret to a
+    server the user did not name not sent (keymps' request_guard)."""
+    for e in chain(error):
+        if isinstance(e, SecretRefused):
+            return Failure(
+                "secret",
+                f"the request to {_host_port(e.url)} would have carried the value of {e.what} "
+                "(litellm reads it itself), and only the task file chose that server: not sent; "
+                f"unset {e.what[1:]}, or pass the server with --api-base if it is yours",
+                "no",
+            )
+        if isinstance(e, RedirectRefused):
+            return Failure(
+                "redirected",
+                f"{_host_port(e.source)} redirected the request (HTTP {e.status}) to "
+                f"{_host_port(e.target)}, another server: not followed, as the request carries "
+                f"your key, the image and the prompt; {_fix(e.target)} if that server is meant",
+                "no",
+                http=True,
+            )
     for e in chain(error):
         response = getattr(e, "response", None)
         history = getattr(response, "history", None)
@@ -95,16 +117,19 @@ def redirected(error: BaseException) -> Failure | None:
         to = str(first.headers.get("location", "another address"))
         method = getattr(getattr(response, "request", None), "method", "POST")
         turned = ", which turned the POST into a GET" if method == "GET" else ""
-        base = to.removesuffix("/chat/completions")
-        fix = f"set planner.api_base to {base}" if base != to else "check planner.api_base"
         return Failure(
             "redirected",
             f"{_host_port(str(first.request.url))} redirected the request (HTTP "
-            f"{first.status_code}) to {to}{turned}: {fix}",
+            f"{first.status_code}) to {to}{turned}: {_fix(to)}",
             "no",
             http=True,
         )
     return None
+
+
+def _fix(target: str) -> str:
+    base = target.removesuffix("/chat/completions")
+    return f"set planner.api_base to {base}" if base != target else "check planner.api_base"
 
 
 def classify(error: BaseException, api_base: str | None) -> Failure | None:

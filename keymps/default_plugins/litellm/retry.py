@@ -18,7 +18,7 @@ from typing import Any
 
 from keymps.default_plugins.litellm.failures import classify, redirected
 from keymps.errors import KeympsError
-from keymps.planning.redaction import known_secrets, redact_text, remember
+from keymps.planning.redaction import Form, known_secrets, redact_text, remember
 
 MAX_WAIT_S = 30.0
 """No single wait is longer, whatever the server asks."""
@@ -58,14 +58,14 @@ def retry_after_s(error: Exception, now: float | None = None) -> float | None:
     return max(0.0, when.timestamp() - (time.time() if now is None else now))
 
 
-def secret_values(arguments: dict[str, Any]) -> list[str]:
+def secret_values(arguments: dict[str, Any]) -> list[Form]:
     """Every secret to blank in messages (servers may quote keys in errors): the key sent, which
     the shared redactor then remembers, and every credential-like variable."""
     remember(arguments.get("api_key"))
     return known_secrets()
 
 
-def short(error: Exception, secrets: list[str] | None = None) -> str:
+def short(error: Exception, secrets: list[Form] | None = None) -> str:
     """The error as one line of at most 300 characters, secrets blanked out."""
     text = redact_text(" ".join(str(error).split()), secrets)
     return text[:300] + ("..." if len(text) > 300 else "")

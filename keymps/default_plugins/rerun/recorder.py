@@ -68,7 +68,8 @@ def eye_position(run: Run) -> tuple[list[float], list[float]]:
 
     low, high = board_rectangle(run)
     center = (low + high) / 2.0
-    away = center - np.array(run.task.robot.base[:2], dtype=float)
+    base = run.robot.base[:2] if run.robot is not None else None
+    away = center - np.array(base or run.task.robot.base_xy(run.task.scene.workspace), dtype=float)
     norm = float(np.linalg.norm(away))
     away = away / norm if norm > 1e-6 else np.array([0.0, 1.0])
     side = np.array([-away[1], away[0]])
@@ -268,7 +269,12 @@ def _log_motion(stream: Any, trajectory: Any, run: Run) -> None:
 
     index = stage_index("time")
     rerun_motion.log_trajectory(stream, trajectory, index, ROBOT_RATE_HZ)
-    urdf = rerun_robot.log_robot_model(stream, run.task)
+    robot = run.robot
+    if robot is None:  # a Run built without its arm: the task's
+        from keymps.robot.model import RobotModel
+
+        robot = RobotModel.from_task(run.task)
+    urdf = rerun_robot.log_robot_model(stream, robot, run.task)
     picked = rerun_motion.subsample_indices(trajectory.t, ROBOT_RATE_HZ)
     rerun_robot.log_robot_motion(stream, urdf, trajectory, picked, index)
 

@@ -1,8 +1,10 @@
-"""The UR3 in a Rerun recording: its URDF meshes, placed on the board and moved along a trajectory.
+"""The run's arm in a Rerun recording: its URDF meshes, placed on the board and moved along a
+trajectory.
 
-The URDF comes from the example-robot-data wheel. Its mesh references use ROS `package://`
-URIs that Rerun cannot resolve outside a ROS workspace, so a copy with absolute paths is
-logged: its COLLADA visual meshes (75,000 triangles, 3.7 MB) replaced by decimated GLB files
+The URDF is the one keymps planned with (keymps.robot.urdf_model: a UR arm's lengths set to its
+DH table, every mesh path resolved inside the arm's package). Rerun cannot resolve ROS
+`package://` URIs outside a ROS workspace, so that copy, with absolute file URIs, is logged: its
+COLLADA visual meshes (the UR3's: 75,000 triangles, 3.7 MB) replaced by decimated GLB files
 (keymps.default_plugins.rerun.meshes), without the collision meshes.
 """
 
@@ -14,7 +16,6 @@ import os
 import re
 import tempfile
 from functools import cache
-from importlib import metadata
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 from urllib.parse import unquote, urlparse
@@ -26,33 +27,20 @@ from keymps.errors import KeympsError
 
 if TYPE_CHECKING:
     from keymps.config.task import Task
+    from keymps.robot.model import RobotModel
     from keymps.types import Trajectory
 
-URDF_SUFFIX = "robots/ur_description/urdf/ur3_robot.urdf"
-PACKAGE_PREFIX = "package://example-robot-data/"
 ROBOT_ENTITY = "world/robot"
 MOUNT_ENTITY = "world/robot/mount"
 TOOL_ENTITY = "world/robot/tool"
-FLANGE_FRAME = "tool0"
-"""The URDF's flange frame; the tool's TCP is given in it (keymps.robot.model's convention)."""
 JOINT_ENTITY = "world/robot/joint_transforms"
-URDF_ROOT_FRAME = "world"
-"""The URDF's root link; `world/robot/mount` connects it to the board frame (tf#/world)."""
 
 
-@cache
 def ur3_urdf_path() -> Path:
-    """The UR3 URDF shipped by example-robot-data (the same file the robot model loads)."""
-    try:
-        files = metadata.distribution("example-robot-data").files or []
-    except metadata.PackageNotFoundError:
-        raise KeympsError(
-            "the UR3 model needs the 'example-robot-data' package: pip install example-robot-data"
-        ) from None
-    for file in files:
-        if str(file).endswith(URDF_SUFFIX):
-            return Path(str(file.locate())).resolve()
-    raise KeympsError(f"example-robot-data is installed but has no {URDF_SUFFIX}")
+    """The UR3 URDF shipped by example-robot-data (its meshes are the UR3's)."""
+    from keymps.robot.description import ur_urdf_path
+
+    return ur_urdf_path("ur3")
 
 
 def _cache_folders() -> tuple[Path, Path]:
@@ -111,102 +99,64 @@ def _loggable_mesh(uri: str) -> str:
         return uri  # a COLLADA file the reader does not understand is drawn as it is
 
 
-JointOrigins = tuple[tuple[str, tuple[float, float, float]], ...]
-"""(URDF joint name, origin xyz) pairs that replace the URDF's own joint offsets."""
-TOOL0_JOINT = "wrist_3_link-tool0_fixed_joint"
-
-
-def arm_joint_origins(task: Task) -> JointOrigins:
-    """The joint offsets keymps.robot.model's kinematic model uses for this task's arm (the UR3's
-    are the URDF's own; a UR3e's differ by up to 2 cm), so the drawn tool tip is the IK's."""
-    try:
-        from keymps.robot.model import RobotModel
-
-        robot = RobotModel.from_task(task)
-        model = robot.model
-        origins = []
-        for name in robot.joint_names:
-            placement = model.jointPlacements[model.getJointId(name)]
-            if name == robot.joint_names[0]:  # the base placement is folded into joint 1
-                placement = robot.base_in_board.inverse() * placement
-            origins.append((name, _xyz(placement.translation)))
-        flange = model.frames[model.getFrameId("flange")].placement.translation
-        origins.append((TOOL0_JOINT, _xyz(flange)))
-        return tuple(origins)
-    except (ImportError, AttributeError, KeympsError, IndexError):
-        return ()  # draw the URDF as it is
-
-
-def _xyz(values: Any) -> tuple[float, float, float]:
-    x, y, z = (round(float(v), 9) for v in values)
-    return (x, y, z)
-
-
-def _set_joint_origin(urdf: str, joint: str, xyz: tuple[float, float, float]) -> str:
-    pattern = re.compile(
-        rf'(<joint name="{re.escape(joint)}"[^>]*>(?:(?!</joint>).)*?<origin [^>]*?xyz=")'
-        r'([^"]*)(")',
-        re.DOTALL,
-    )
-    return pattern.sub(lambda m: m.group(1) + " ".join(map(repr, xyz)) + m.group(3), urdf, 1)
+def _mesh_uri(path: str) -> str:
+    """A mesh's file URI, a COLLADA visual replaced by its decimated GLB."""
+    if "://" in path:
+        return _loggable_mesh(path)
+    return _loggable_mesh(Path(path).as_uri())
 
 
 @cache
-def loggable_urdf(origins: JointOrigins = ()) -> Path:
-    """A copy of the UR3 URDF with absolute mesh paths, its visual meshes decimated to small
-    GLB files, no collision geometry, and the given joint offsets."""
-    source = ur3_urdf_path()
-    share = source.parents[3]  # .../share/example-robot-data/robots/ur_description/urdf
-    text = source.read_text(encoding="utf-8")
-    text = text.replace(PACKAGE_PREFIX, share.as_uri() + "/")
-    text = re.sub(r"<collision>.*?</collision>", "", text, flags=re.DOTALL)
+def loggable_urdf(urdf_text: str, name: str) -> Path:
+    """The arm's URDF as keymps uses it, with file URIs for its meshes, its visual COLLADA
+    meshes decimated to small GLB files and no collision geometry, in the cache folder."""
+    text = re.sub(r"<collision>.*?</collision>", "", urdf_text, flags=re.DOTALL)
     text = re.sub(
         r'(<mesh filename=")([^"]+)(")',
-        lambda match: match.group(1) + _loggable_mesh(match.group(2)) + match.group(3),
+        lambda match: match.group(1) + _mesh_uri(match.group(2)) + match.group(3),
         text,
     )
-    for joint, xyz in origins:
-        text = _set_joint_origin(text, joint, xyz)
-    return _cache_file(f"ur3-{_digest(text)}.urdf", text)
+    return _cache_file(f"{name}-{_digest(text)}.urdf", text)
 
 
-def mount_transform(task: Task) -> tuple[list[float], list[float]]:
-    """(translation, xyzw quaternion) of the robot base in the board frame, from robot.base."""
-    x, y, z, yaw_deg = task.robot.base
+def root_link(urdf_text: str) -> str:
+    """The URDF's root link (no joint's child): `world/robot/mount` places it on the board."""
+    import xml.etree.ElementTree as ElementTree
+
+    root = ElementTree.fromstring(urdf_text)
+    children = {child.get("link") for child in root.iter("child")}
+    links = [link.get("name", "") for link in root.iter("link")]
+    return next((link for link in links if link not in children), links[0] if links else "")
+
+
+def mount_transform(robot: RobotModel) -> tuple[list[float], list[float]]:
+    """(translation, xyzw quaternion) of the arm's root link in the board frame (robot.base)."""
+    x, y, z, yaw_deg = robot.base
     half = math.radians(yaw_deg) / 2.0
     return [x, y, z], [0.0, 0.0, math.sin(half), math.cos(half)]
 
 
-def log_robot_model(rec: Any, task: Task) -> Path:
-    """The meshes (static) and the fixed placement of the robot base on the board; returns
-    the URDF logged (log_robot_motion moves its joints)."""
+def log_robot_model(rec: Any, robot: RobotModel, task: Task) -> Path:
+    """The meshes (static) and the fixed placement of the arm's root on the board; returns the
+    URDF logged (log_robot_motion moves its joints)."""
     import rerun as rr
 
-    urdf = loggable_urdf(arm_joint_origins(task))
+    text = robot.arm_model.urdf_text
+    urdf = loggable_urdf(text, re.sub(r"[^A-Za-z0-9_.-]", "_", robot.model_name))
     rec.log_file_from_path(urdf, entity_path_prefix=ROBOT_ENTITY, static=True)
-    translation, quaternion = mount_transform(task)
+    translation, quaternion = mount_transform(robot)
     rec.log(
         MOUNT_ENTITY,
         rr.Transform3D(
             translation=translation,
             quaternion=rr.Quaternion(xyzw=quaternion),
             parent_frame="tf#/world",
-            child_frame=URDF_ROOT_FRAME,
+            child_frame=root_link(text),
         ),
         static=True,
     )
-    log_tool(rec, task)
+    log_tool(rec, robot, task)
     return urdf
-
-
-def tool_tcp(task: Task) -> tuple[float, float, float] | None:
-    """The task's tool tip in the flange frame (keymps.robot.model), or None without a known tool."""
-    try:
-        from keymps.robot.model import tool_from_task
-
-        return tool_from_task(task).tcp
-    except (ImportError, KeympsError):
-        return None
 
 
 def _z_to(direction: np.ndarray) -> list[float]:
@@ -221,22 +171,19 @@ def _z_to(direction: np.ndarray) -> list[float]:
     return [float(axis[0]), float(axis[1]), float(axis[2]), math.cos(half)]
 
 
-def log_tool(rec: Any, task: Task) -> None:
-    """The tool as a capsule from the flange to its tip, riding on the flange frame."""
+def log_tool(rec: Any, robot: RobotModel, task: Task) -> None:
+    """The tool as a capsule from its mount (the arm's tip link) to its tip, riding on it."""
     import rerun as rr
 
     from keymps.planning.redaction import redact_text as redact
 
-    tcp = tool_tcp(task)
-    if tcp is None:
-        return
-    offset = np.array(tcp, dtype=float)
+    offset = np.array(robot.tool.tcp, dtype=float)
     length = float(np.linalg.norm(offset))
     if length < 1e-6:
         return
     rec.log(
         TOOL_ENTITY,
-        rr.CoordinateFrame(FLANGE_FRAME),
+        rr.CoordinateFrame(robot.spec.tip_link),
         rr.Capsules3D(
             lengths=[length],
             radii=[0.006],
@@ -257,7 +204,7 @@ def urdf_joint_order(trajectory_joint_names: tuple[str, ...], urdf_joints: list[
         return [by_name[name] for name in trajectory_joint_names]
     if len(moving) != len(trajectory_joint_names):
         raise KeympsError(
-            f"the trajectory has {len(trajectory_joint_names)} joints but the UR3 URDF has "
+            f"the trajectory has {len(trajectory_joint_names)} joints but the arm's URDF has "
             f"{len(moving)} moving joints"
         )
     return moving

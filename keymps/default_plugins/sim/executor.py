@@ -4,7 +4,10 @@ The joints follow the commanded samples exactly, interpolated linearly between s
 controller's servoJ does; forward kinematics gives where the tool went. It reports how far the
 tool strayed from the planned tool path (tracking error), any contact below the board, and
 draws what the tool did on the scene image: cuts where the tool went below the object's top
-surface, icing strokes and dots where it worked on or above it. Dynamics are not simulated.
+surface, icing strokes and dots where it worked on or above it. Icing is counted as it was
+piped: each work piece is one stroke from the nozzle going down to its lifting (icing lines
+that meet are one work piece: keymps.motion.chains), a dot where it stayed within
+DOT_EXTENT_M. Dynamics are not simulated.
 
 A knife cuts with its whole edge, not only its tip: the edge is a horizontal segment at the tip's
 height, `blade_length` long, from the tip back along the tool x axis against the direction the
@@ -41,7 +44,7 @@ if TYPE_CHECKING:
 BOARD_CONTACT_M = 0.0005
 TRACKING_LIMIT_M = 0.0005
 DOT_EXTENT_M = 0.004
-"""An icing stroke whose extent is below this is drawn as a dot."""
+"""An icing stroke whose extent is below this is drawn and counted as a dot (a rosette)."""
 
 CUT_COLOUR = (20, 20, 20)  # BGR: a dark cut with a light edge shows on any food
 CUT_EDGE = (235, 235, 235)

@@ -19,7 +19,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from keymps.plugin import parse_options, require_validated
 from keymps.types import ExecutionReport, Trajectory, ValidatedTrajectory
 from keymps_mujoco import NAME
-from keymps_mujoco.model import PERSPECTIVE_CAMERA, TOP_CAMERA, TORQUE_LIMITS_NM, Settings
+from keymps_mujoco.model import PERSPECTIVE_CAMERA, TOP_CAMERA, Settings
 from keymps_mujoco.scene_inputs import SceneInputs, scene_from_run
 
 if TYPE_CHECKING:
@@ -176,7 +176,10 @@ class Execution:
                 trajectory.tool_xyz,
                 trajectory.rate_hz,
                 divergence_m=options.divergence_mm / 1000,
-                torque_limits=tuple(v * options.torque_limit_fraction for v in TORQUE_LIMITS_NM),
+                torque_limits=tuple(
+                    float(v) * options.torque_limit_fraction for v in inputs.robot.effort_limits
+                ),
+                joint_names=tuple(inputs.robot.joint_names),
                 on_step=on_step,
             )
             files: list[str] = []
@@ -247,13 +250,11 @@ class Execution:
         painter: Any,
         video: Any,
     ) -> dict[str, float]:
-        from keymps.robot.description import JOINT_NAMES
-
         trajectory = self.trajectory
         n = len(result.t)
         errors = np.linalg.norm(result.tip - np.asarray(trajectory.tool_xyz)[:n], axis=1)
         work = kind[:n] == "work"
-        limits = np.asarray(TORQUE_LIMITS_NM)
+        limits = np.asarray(self.inputs.robot.effort_limits, dtype=float)
         ratios = result.torque_max_nm / limits
         worst = int(np.argmax(ratios))
         contact_index = int(np.argmax(result.contact_force_n)) if n else 0
@@ -275,7 +276,7 @@ class Execution:
             "arm_board_contact_n": float(result.arm_contact_n),
             "min_tool_z_mm": float(result.tip[:, 2].min() * 1000),
         }
-        for index, name in enumerate(JOINT_NAMES):
+        for index, name in enumerate(self.inputs.robot.joint_names):
             figures[f"max_torque_{name}_nm"] = float(result.torque_max_nm[index])
         if self.inputs.robot.tool.blade_length > 0:
             self._cut_figures(figures, lowest[:n], kind[:n], pieces[:n], result, painter)

@@ -1,10 +1,11 @@
-"""The MuJoCo model of a task: the UR3 with its tool, the board, the objects, two cameras.
+"""The MuJoCo model of a task: the run's arm with its tool, the board, the objects, two cameras.
 
 Everything is placed in keymps' board frame (metres, z up out of the board, the board's top at
-z = 0). The arm's kinematic tree, joint limits and inertias come from the same Pinocchio model
-keymps plans with (the URDF with its lengths set to the DH table), so simulated and planned
-kinematics agree exactly. Contacts: the tool and the arm's links touch the board; nothing
-touches the food (no fracture is simulated: cuts are measured from where the blade went).
+z = 0). The arm's kinematic tree, joint limits, inertias and link geometry (the convex hulls of
+its collision shapes) come from the same Pinocchio model keymps plans and checks with
+(keymps.robot.urdf_model, for any arm), so simulated and planned kinematics agree exactly.
+Contacts: the tool and the arm's links touch the board; nothing touches the food (no fracture
+is simulated: cuts are measured from where the blade went).
 """
 
 from __future__ import annotations
@@ -15,18 +16,16 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from keymps_mujoco.meshes import arm_meshes
-
 if TYPE_CHECKING:
     from keymps.robot.description import Tool
     from keymps.robot.model import RobotModel
 
 TORQUE_LIMITS_NM = (56.0, 56.0, 28.0, 12.0, 12.0, 12.0)
 """UR3/UR3e peak joint torques (Universal Robots' "Max. joint torques" article): base,
-shoulder, elbow, wrists. The URDF's effort values are the UR10's."""
-ARMATURE = (0.2, 0.2, 0.1, 0.02, 0.02, 0.02)
-"""Reflected rotor inertia of the harmonic drives, kg m^2 (not published: an estimate of the
-right order; it mostly steadies the light wrists)."""
+shoulder, elbow, wrists; every arm's own come from its ArmSpec (RobotModel.effort_limits)."""
+ARMATURE_PER_NM = 0.2 / 56.0
+"""Reflected rotor inertia of a joint's drive per N m of its peak torque, kg m^2 (not published:
+the UR3's estimate, 0.2 kg m^2 at 56 N m, 0.043 at 12 N m; it mostly steadies light wrists)."""
 BOARD_THICKNESS_M = 0.02
 TOP_CAMERA = "top"
 PERSPECTIVE_CAMERA = "perspective"
@@ -183,11 +182,9 @@ def build_scene(
         model.tex_data[start : start + image.size] = image.ravel()
     data = mujoco.MjData(model)
     tcp = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, "tcp") if with_arm else -1
-    from keymps.robot.description import JOINT_NAMES
-
     joints = (
-        [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name) for name in JOINT_NAMES]
-        if with_arm
+        [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name) for name in robot.joint_names]
+        if robot is not None
         else []
     )
     scene = SimScene(
@@ -220,7 +217,12 @@ def _tune_servos(scene: SimScene, robot: RobotModel, settings: Settings) -> None
     import mujoco
 
     model, data = scene.model, scene.data
-    q = robot.tool_down_seed(np.array([*_board_centre(robot), 0.1]), 0.0)
+    from keymps.errors import KeympsError
+
+    try:
+        q = robot.tool_down_seed(np.array([*_board_centre(robot), 0.1]), 0.0)
+    except KeympsError:  # an arm that cannot point there: its home configuration
+        q = robot.arm_model.home
     scene.set_joints(q)
     full = np.zeros((model.nv, model.nv))
     mujoco.mj_fullM(model, data, full)
@@ -228,7 +230,7 @@ def _tune_servos(scene: SimScene, robot: RobotModel, settings: Settings) -> None
     omega = 2 * math.pi * settings.bandwidth_hz
     scene.kp[:] = inertia * omega**2
     scene.kv[:] = 2 * settings.damping_ratio * inertia * omega
-    for index in range(6):
+    for index in range(len(scene.dof_adr)):
         model.actuator_gainprm[index, 0] = scene.kp[index]
         model.actuator_biasprm[index, 1] = -scene.kp[index]
         model.actuator_biasprm[index, 2] = -scene.kv[index]
@@ -372,76 +374,93 @@ def _add_prop(
 
 
 def _add_arm(spec: Any, robot: RobotModel) -> list[str]:
-    """The UR3 chain from the Pinocchio model, servos on every joint; returns the tool geoms."""
-    import mujoco
+    """The arm's kinematic tree from its Pinocchio model (one body per joint), the convex hulls
+    of its collision shapes on their bodies, a servo on every joint; returns the tool geoms."""
+    pin_model = robot.model
+    base_pose = robot.base_in_board
+    base = spec.worldbody.add_body(
+        name="arm_base", pos=list(base_pose.translation), quat=_quat(base_pose.rotation)
+    )
+    bodies = {0: base}
+    for joint in range(1, pin_model.njoints):
+        placement = pin_model.jointPlacements[joint]
+        if pin_model.parents[joint] == 0:  # the base placement is folded into these
+            placement = base_pose.inverse() * placement
+        parent = bodies[pin_model.parents[joint]]
+        bodies[joint] = _add_joint_body(spec, parent, robot, joint, placement)
+    _add_link_geoms(spec, robot, bodies)
+    return _add_tool(bodies[robot.arm_model.flange_joint], robot)
 
-    from keymps.robot.description import JOINT_NAMES
+
+def _add_joint_body(spec: Any, parent: Any, robot: RobotModel, joint: int, placement: Any) -> Any:
+    """The body moved by Pinocchio joint `joint`, its hinge and its position servo."""
+    import mujoco
 
     pin_model = robot.model
-    meshes = arm_meshes()
-    for link, mesh in meshes.items():
-        spec.add_mesh(
-            name=link, uservert=mesh.vertices.ravel().tolist(), userface=mesh.faces.ravel().tolist()
-        )
-    base_pose = robot.base_in_board
-    parent = spec.worldbody.add_body(
-        name="base_link", pos=list(base_pose.translation), quat=_quat(base_pose.rotation)
+    inertia = pin_model.inertias[joint]
+    name = pin_model.names[joint]
+    index = pin_model.joints[joint].idx_q
+    body = parent.add_body(
+        name=f"{name}_body",
+        pos=list(placement.translation),
+        quat=_quat(placement.rotation),
+        mass=max(float(inertia.mass), 1e-3),
+        ipos=list(inertia.lever),
+        fullinertia=_full_inertia(np.array(inertia.inertia) + 1e-6 * np.eye(3)),
+        gravcomp=1.0,
     )
-    _add_link_geom(parent, "base_link")
-    links = list(meshes)[1:]
-    previous = base_pose
-    for index, name in enumerate(JOINT_NAMES):
-        joint_id = pin_model.getJointId(name)
-        placement = pin_model.jointPlacements[joint_id]
-        if index == 0:  # the first placement is in the board frame: make it relative to the base
-            placement = previous.inverse() * placement
-        inertia = pin_model.inertias[joint_id]
-        body = parent.add_body(
-            name=links[index],
-            pos=list(placement.translation),
-            quat=_quat(placement.rotation),
-            mass=max(float(inertia.mass), 1e-3),
-            ipos=list(inertia.lever),
-            fullinertia=_full_inertia(np.array(inertia.inertia)),
-            gravcomp=1.0,
-        )
-        shortname = pin_model.joints[joint_id].shortname()
-        axis = {"JointModelRX": [1, 0, 0], "JointModelRY": [0, 1, 0]}.get(shortname, [0, 0, 1])
-        body.add_joint(
-            name=name,
-            type=mujoco.mjtJoint.mjJNT_HINGE,
-            axis=axis,
-            range=[float(robot.lower[index]), float(robot.upper[index])],
-            armature=ARMATURE[index],
-            damping=0.0,
-            actgravcomp=True,
-        )
-        _add_link_geom(body, links[index])
-        actuator = spec.add_actuator(
-            name=name, target=name, trntype=mujoco.mjtTrn.mjTRN_JOINT, inheritrange=0.0
-        )
-        actuator.set_to_position(kp=1.0, kv=0.0)
-        actuator.ctrllimited = False
-        parent = body
-    return _add_tool(parent, robot)
+    shortname = pin_model.joints[joint].shortname()
+    axes: dict[str, list[float]] = {"JointModelRX": [1.0, 0, 0], "JointModelRY": [0, 1.0, 0]}
+    axis = axes.get(shortname, [0, 0, 1.0])
+    if shortname == "JointModelRevoluteUnaligned":
+        axis = [float(v) for v in pin_model.joints[joint].axis]
+    effort = float(robot.effort_limits[index]) or 50.0
+    body.add_joint(
+        name=name,
+        type=mujoco.mjtJoint.mjJNT_HINGE,
+        axis=axis,
+        range=[float(robot.lower[index]), float(robot.upper[index])],
+        armature=ARMATURE_PER_NM * effort,
+        damping=0.0,
+        actgravcomp=True,
+    )
+    actuator = spec.add_actuator(
+        name=name, target=name, trntype=mujoco.mjtTrn.mjTRN_JOINT, inheritrange=0.0
+    )
+    actuator.set_to_position(kp=1.0, kv=0.0)
+    actuator.ctrllimited = False
+    return body
 
 
-def _add_link_geom(body: Any, link: str) -> None:
+def _add_link_geoms(spec: Any, robot: RobotModel, bodies: dict[int, Any]) -> None:
+    """Each collision shape's convex hull (MuJoCo takes the hull of the points it is given)
+    on the body of its joint, drawn in the arm's group; the links beyond the first joint
+    touch the board."""
     import mujoco
 
-    body.add_geom(
-        name=link,
-        type=mujoco.mjtGeom.mjGEOM_MESH,
-        meshname=link,
-        group=ARM_GROUP,
-        contype=CONTACT_TOOL,
-        conaffinity=0,
-        rgba=list(JOINT_CAP_RGBA if link in ("shoulder_link", "wrist_2_link") else ARM_RGBA),
-    )
+    first = {j for j in bodies if j > 0 and robot.model.parents[j] == 0}
+    for index, item in enumerate(robot.arm_model.collision.geometryObjects):
+        if not hasattr(item.geometry, "points"):
+            continue  # a box, cylinder or sphere of the URDF: not drawn
+        mesh_name = f"arm_mesh_{index}"
+        points = np.asarray(item.geometry.points(), dtype=float)
+        spec.add_mesh(name=mesh_name, uservert=points.ravel().tolist())
+        joint = int(item.parentJoint)
+        bodies[joint].add_geom(
+            name=f"arm_{item.name}",
+            type=mujoco.mjtGeom.mjGEOM_MESH,
+            meshname=mesh_name,
+            pos=list(item.placement.translation),
+            quat=_quat(item.placement.rotation),
+            group=ARM_GROUP,
+            contype=0 if joint == 0 or joint in first else CONTACT_TOOL,
+            conaffinity=0,
+            rgba=list(JOINT_CAP_RGBA if joint in first else ARM_RGBA),
+        )
 
 
 def _add_tool(wrist: Any, robot: RobotModel) -> list[str]:
-    """The tool body at the flange (tool z out of the flange) with the `tcp` site at its tip."""
+    """The tool body at the tool mount (tool z out of it) with the `tcp` site at its tip."""
     pin_model = robot.model
     flange = pin_model.frames[robot.flange_frame].placement
     body = wrist.add_body(

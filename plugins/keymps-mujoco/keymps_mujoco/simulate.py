@@ -61,6 +61,7 @@ def simulate(
     *,
     divergence_m: float = 0.05,
     torque_limits: tuple[float, ...] = TORQUE_LIMITS_NM,
+    joint_names: tuple[str, ...] = (),
     on_step: Callable[[Step], None] | None = None,
 ) -> SimResult:
     """Run the trajectory (n samples); `on_step` sees every controller period's end."""
@@ -82,8 +83,8 @@ def simulate(
     limits = np.asarray(torque_limits, dtype=float)
     tips = np.zeros((n, 3))
     tips[0] = data.site_xpos[scene.tcp_site]
-    torque_max = np.zeros(6)
-    torque_peak_t = np.zeros(6)
+    torque_max = np.zeros(len(limits))
+    torque_peak_t = np.zeros(len(limits))
     force = np.zeros(n)
     arm_contact = 0.0
     tool_geoms = scene.tool_geoms
@@ -133,11 +134,10 @@ def simulate(
             break
         over = torque_max > limits
         if over.any():
-            from keymps.robot.description import JOINT_NAMES
-
             joint = int(np.argmax(torque_max / limits))
+            name = joint_names[joint] if joint < len(joint_names) else f"joint {joint + 1}"
             stopped = (
-                f"{JOINT_NAMES[joint]} needs {torque_max[joint]:.1f} N m at "
+                f"{name} needs {torque_max[joint]:.1f} N m at "
                 f"t={torque_peak_t[joint]:.3f} s, above the limit of {limits[joint]:.3g} N m"
             )
             stopped_at = k + 1

@@ -90,26 +90,23 @@ def test_the_model_compiles_with_each_tool_and_matches_keymps_kinematics(tool: T
         )
 
 
-def test_meshes_are_converted_once_then_read_from_the_cache(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    from keymps_mujoco import meshes
+@pytest.mark.parametrize("arm", ["panda", "so101"])
+def test_any_arm_becomes_the_same_chain_in_mujoco(arm: str) -> None:
+    """The MuJoCo model of a non-UR arm, built from the Pinocchio model keymps plans with: the
+    tool tip's site lands where Pinocchio's forward kinematics puts it, at spread-out joints."""
+    from keymps_mujoco.model import build_scene
 
-    monkeypatch.setenv("KEYMPS_CACHE_DIR", str(tmp_path))
-    first = meshes.arm_meshes()
-    stored = sorted((tmp_path / "mujoco-meshes").glob("*.npz"))
-    assert len(stored) == len(meshes.LINK_MESHES)
-    again = meshes.arm_meshes()
-    for link, mesh in first.items():
-        triangles = meshes.read_stl(
-            (meshes.mesh_folder() / f"{meshes.LINK_MESHES[link]}.stl").read_bytes()
+    robot = RobotModel(arm, tool=BUILTIN_TOOLS["knife"])
+    scene = build_scene(robot, (0.30, 0.18), (0.0, 0.0))
+    rng = np.random.default_rng(7)
+    assert len(scene.qpos_adr) == robot.dof
+    for q in robot.lower + rng.random((6, robot.dof)) * (robot.upper - robot.lower):
+        scene.set_joints(q)
+        position, rotation = robot.fk(q)
+        np.testing.assert_allclose(scene.data.site_xpos[scene.tcp_site], position, atol=1e-9)
+        np.testing.assert_allclose(
+            scene.data.site_xmat[scene.tcp_site].reshape(3, 3), rotation, atol=1e-9
         )
-        # welding drops only slivers: the surface keeps its area
-        kept = mesh.vertices[mesh.faces]
-        assert len(kept) <= len(triangles)
-        assert area(kept) == pytest.approx(area(triangles), rel=1e-4)
-        np.testing.assert_array_equal(again[link].faces, mesh.faces)
-        assert np.abs(mesh.vertices).max() < 0.3  # metres (not mm), in the link frame
 
 
 def area(triangles: np.ndarray) -> float:

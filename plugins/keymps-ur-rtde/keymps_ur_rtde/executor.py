@@ -17,8 +17,10 @@ C++ code prints itself goes to ur_rtde.log in the run folder, not to the console
 from __future__ import annotations
 
 import contextlib
+import ipaddress
 import math
 import os
+import re
 import socket
 import sys
 import time
@@ -28,7 +30,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from keymps.errors import KeympsError
 from keymps.plugin import interrupt_name, interrupts_deferred, parse_options, require_validated
@@ -95,6 +97,31 @@ class UrRtdeOptions(BaseModel):
     watchdog_hz: float = Field(10.0, ge=1.0, le=125.0)
     """The controller stops the arm when keymps sends it nothing for 1/watchdog_hz s (keymps
     killed, frozen or cut off), Hz."""
+
+    @field_validator("host")
+    @classmethod
+    def _an_address(cls, host: str) -> str:
+        if not is_host(host):
+            raise ValueError(
+                f"{host!r} is not an IP address or a host name (letters, digits, '-' and '.')"
+            )
+        return host
+
+
+HOST_LABEL = re.compile(r"[A-Za-z0-9]([A-Za-z0-9-]{0,61}[A-Za-z0-9])?")
+"""One dot-separated label of a host name (RFC 1123), matched whole."""
+
+
+def is_host(text: str) -> bool:
+    """Whether `text` is an IPv4 or IPv6 address or a host name, and nothing else (a newline,
+    a space or a port would otherwise reach ur_rtde's connect call)."""
+    try:
+        ipaddress.ip_address(text)
+        return True
+    except ValueError:
+        pass
+    labels = text.removesuffix(".").split(".")
+    return len(text) <= 253 and all(HOST_LABEL.fullmatch(label) for label in labels)
 
 
 def _connect_receive(host: str, frequency: float) -> Any:

@@ -375,3 +375,29 @@ def test_refuses_an_unvalidated_trajectory(validated: ValidatedTrajectory, tmp_p
     with pytest.raises(SafetyError, match="executor 'ur-rtde' refuses"):
         executor().execute(validated.trajectory, make_run(tmp_path, confirm=True))
     assert math.isfinite(validated.trajectory.duration_s)
+
+
+@pytest.mark.parametrize(
+    "host",
+    [
+        "10.0.0.1\n",
+        "10.0.0.1 ",
+        " ur3.lab",
+        "10.0.0.1:30004",
+        "ur3.lab\nrm -rf",
+        "a\x00b",
+        "-ur3.lab",
+        "ur3..lab",
+        "x" * 64 + ".lab",
+        "",
+    ],
+)
+def test_the_host_is_an_address_or_a_host_name_and_nothing_else(host: str) -> None:
+    """A `$` in a pattern matches before a final newline: '10.0.0.1\\n' passed validation."""
+    with pytest.raises(KeympsError, match="executor ur-rtde: option 'host': "):
+        create_component("executor", "ur-rtde", {"host": host})
+
+
+@pytest.mark.parametrize("host", ["192.168.1.10", "::1", "fe80::1", "ur3", "ur3-lab.example.org."])
+def test_addresses_and_host_names_are_accepted(host: str) -> None:
+    assert create_component("executor", "ur-rtde", {"host": host}).options.host == host
