@@ -382,6 +382,26 @@ def test_a_server_only_the_task_names_gets_no_key_through_the_planner(
     assert heard == ["Bearer no-key-needed"] * 2
 
 
+def test_a_redirect_to_another_server_is_not_followed_through_the_planner(
+    planner: Planner, tmp_path: Path
+) -> None:
+    canary = f"sk-canary-{os.urandom(8).hex()}"
+    env = {**planner.env, "OPENAI_API_KEY": canary, "KEYMPS_WARM_PLANNER": "use"}
+    task = task_copy(tmp_path / "task")
+    with VlmServer(responder=_answer) as own, VlmServer(responder=_answer) as other:
+        own.script(Reply.redirect(307, f"{other.url}/v1/chat/completions"))
+        done = _run(env, task, tmp_path / "run", own)
+        heard = [r.headers.get("authorization") for r in own.chat_requests]
+        elsewhere = len(other.requests)
+    assert done.returncode != 0
+    assert "litellm imported: False" in done.stderr, "asked through the planner"
+    assert "redirected the request (HTTP 307)" in done.stderr, done.stderr
+    assert "another server: not followed" in done.stderr and canary not in done.stderr
+    assert heard == [f"Bearer {canary}"], "the user's own server got the key, once"
+    assert elsewhere == 0
+    assert not (tmp_path / "run" / "trajectory.csv").exists()
+
+
 def test_a_client_killed_mid_request_leaves_the_planner_serving(
     planner: Planner, tmp_path: Path
 ) -> None:
