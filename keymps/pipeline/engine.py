@@ -23,7 +23,7 @@ from keymps.errors import (
     os_error_message,
 )
 from keymps.interrupts import first_signal, interrupts_deferred, signals_received
-from keymps.planning.backend_choice import NO_SERVER
+from keymps.planning.backend_choice import AUTO_VLM, NO_SERVER
 from keymps.plugin.manager import call_each, create_component, get_manager
 from keymps.run import IMAGE_FORMATS, STAGES, Run, RunOptions, clear_earlier_run
 from keymps.types import (
@@ -42,7 +42,7 @@ RERUN_SCHEMES = ("rerun+http://", "rerun+https://", "rerun://")
 
 RUN_OPTIONS = (
     "rerun", "rerun_url", "no_cache", "record", "confirm", "accept_outcome", "quiet",
-    "image_format", "dispatch",
+    "image_format", "dispatch", "warm_planner",
 )  # fmt: skip
 """run_task's keywords that set RunOptions (the others override the task file)."""
 
@@ -595,6 +595,23 @@ def _write_record(run: Run, error: BaseException | None, pipeline: _Pipeline) ->
     return None
 
 
+def _backend_under_way(task: Task, backend: str, options: RunOptions) -> RunOptions:
+    """The run's options with the plan stage's backend got going before the first stage: its
+    calls handed to the warm planner (one is up, or asked to start), or else its own set-up
+    (litellm's import, seconds) started on a thread, to overlap the stages before planning."""
+    if backend in NO_SERVER or options.dispatch is not None:  # (eval's broker warms up itself)
+        return options
+    from keymps.planning.planner import backend_options, prepare_backend
+    from keymps.planning.warm.dispatch import warm_dispatch
+
+    if backend == AUTO_VLM:
+        dispatch = warm_dispatch(options.warm_planner)
+        if dispatch is not None:
+            return replace(options, dispatch=dispatch)
+    prepare_backend(backend, backend_options(task))
+    return options
+
+
 def _prepare_folder(run: Run) -> None:
     """Remove an earlier run's files, then write the placeholder run.json that holds the disk
     space of the record (a run.json that is a folder, a full disk: refused before any stage)."""
@@ -623,7 +640,8 @@ def run_task(
     `through="ground"` stops after grounding the plan (eval's plan-only runs): nothing is timed,
     checked or executed; `through="outcome"` stops after the outcome stage (its repair rounds
     included): nothing is executed. Keyword overrides: instruction, image, backend, model, api_base, executor, out, rerun,
-    rerun_url, no_cache, record, confirm, quiet, image_format. Raises KeympsError on the first
+    rerun_url, no_cache, record, confirm, accept_outcome, quiet, image_format, warm_planner (off, use, start:
+    keymps.planning.warm). Raises KeympsError on the first
     problem; nothing after the failing stage runs, above all no executor.
     """
     from keymps.pipeline.folder_lock import FolderLock
@@ -656,6 +674,7 @@ def run_task(
     backend, reason = choose_backend(
         task, overrides.get("backend"), overrides.get("model"), overrides.get("api_base")
     )
+    options = _backend_under_way(task, backend, options)
     prepare_text_drawing()  # OpenCV's font set-up, on the other core until plan.png is drawn
     parts = Components(task, backend, through)
     if backend not in NO_SERVER:  # what the run may not send its server, before any stage
