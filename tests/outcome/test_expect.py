@@ -39,7 +39,8 @@ def test_a_wrong_expect_block_is_refused_at_its_place(tmp_path, expect, complain
     with pytest.raises(TaskFileError) as caught:
         load_task(_task(tmp_path, expect))
     line = str(caught.value)
-    assert "task.yaml:17:" in line and "expect" in line and complaint in line
+    expect_line = _task(tmp_path, expect).read_text().splitlines().index(f"expect: {expect}") + 1
+    assert f"task.yaml:{expect_line}:" in line and "expect" in line and complaint in line
 
 
 def test_expect_is_checked_and_the_expert_may_run_anyway(tmp_path):
