@@ -101,7 +101,7 @@ def _run(
     from keymps.cli.output import RunPrinter
     from keymps.errors import KeympsError
     from keymps.pipeline.engine import refuse_a_folder_of_other_files, run_task
-    from keymps.run import Run
+    from keymps.run import Run, RunOptions, RunOverrides
 
     if given.get("out") is not None:
         refuse_a_folder_of_other_files(Path(given["out"]))
@@ -115,10 +115,15 @@ def _run(
         finished = run_task(
             task_file,
             on_stage=stage_done,
-            rerun=rerun_mode,
-            rerun_url=rerun_url,
-            quiet=quiet,
-            **given,
+            options=RunOptions(
+                rerun=rerun_mode,
+                rerun_url=rerun_url,
+                quiet=quiet,
+                no_cache=given.pop("no_cache"),
+                record=given.pop("record"),
+                confirm=given.pop("confirm"),
+            ),
+            overrides=RunOverrides(**given),
         )
     except KeympsError as error:
         if isinstance(error.run, Run):

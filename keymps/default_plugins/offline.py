@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from keymps.errors import KeympsError
-from keymps.plugin import RegisterVlmBackend, hookimpl
+from keymps.plugin import BackendBase, RegisterVlmBackend, hookimpl
 
 if TYPE_CHECKING:
     from keymps.designs.addressing import Clause
@@ -120,11 +120,10 @@ def choose_primitive(
     return cutting[0], "the first cutting primitive"
 
 
-class OfflineBackend:
+class OfflineBackend(BackendBase):
     """Deterministic planner: the same sentence and crop always give the same design."""
 
     name = "offline"
-    cacheable = False
     asks_model = False
     """Not a VLM call: run.json and the eval tables count none for it."""
 
@@ -155,9 +154,8 @@ class OfflineBackend:
         if request.step in ("combined", "keyword"):
             answer["keyword"] = keyword
         rationale = f"primitive {keyword}: {why}"
-        properties = request.schema.get("schema", {}).get("properties", {})
         jobs = [(intent, objects[i]) for intent, clause in intents for i in clause.objects]
-        if request.step in ("combined", "pairs") and "pairs" not in properties:
+        if request.step in ("combined", "pairs") and request.answer_mode == "design":
             # planner.answer: design: the intent itself, laid out by keymps like any design
             if len(jobs) > 1:
                 raise KeympsError(
