@@ -31,18 +31,7 @@ class PluginHarness:
         self.manager.register(plugin, name=name)
 
     def create(self, kind: str, name: str, options: dict[str, Any] | None = None) -> Any:
-        """Build a component as a run does: its factory's result checked against the kind's
-        Protocol (create_detector, create_executor ... of keymps.plugin.manager)."""
-        create = {
-            "detector": self._plugins.create_detector,
-            "executor": self._plugins.create_executor,
-            "image_source": self._plugins.create_image_source,
-            "robot": self._plugins.create_robot,
-            "vlm_backend": self._plugins.create_vlm_backend,
-        }.get(kind)
-        if create is None:
-            return self._plugins.create_component(kind, name, options, manager=self.manager)
-        return create(name, options, manager=self.manager)
+        return self._plugins.create_component(kind, name, options, manager=self.manager)
 
     def names(self, kind: str) -> list[str]:
         return sorted(self._plugins.components(kind, self.manager))
