@@ -50,6 +50,19 @@ def _words(text: str) -> set[str]:
     return {_singular(w) for w in re.findall(r"[a-z]{3,}", text.lower())}
 
 
+def _stem(word: str) -> str:
+    """The word without a plural or verb ending: 'sawing', 'sawed', 'saws' are all 'saw'."""
+    word = _singular(word)
+    for ending in ("ing", "ed"):
+        if word.endswith(ending) and len(word) - len(ending) >= 3:
+            return word[: -len(ending)]
+    return word
+
+
+def _stems(text: str) -> set[str]:
+    return {_stem(w) for w in re.findall(r"[a-z]{3,}", text.lower())}
+
+
 def _named_objects(description: str) -> set[str]:
     """The example objects a description lists in parentheses: "(crusty bread, baguette)"."""
     return set().union(*(_words(group) for group in re.findall(r"\(([^)]*)\)", description)))
@@ -82,10 +95,10 @@ def choose_primitive(
     context = " ".join([sentence, task_name.replace("-", " ").replace("_", " "), *object_names])
     mentioned = _words(context)
     family_names = icing if family == "icing" else cutting
-    asked = [n for n in family_names if (words := _words(n)) and words <= mentioned]
+    asked = [n for n in family_names if (stems := _stems(n)) and stems <= _stems(context)]
     if len(asked) == 1:
-        in_sentence = _words(asked[0]) <= _words(sentence)
-        if in_sentence or not _words(asked[0]) <= named_by:
+        in_sentence = _stems(asked[0]) <= _stems(sentence)
+        if in_sentence or not _stems(asked[0]) <= _stems(" ".join(named_by)):
             return asked[0], "the sentence names it"
         return asked[0], f"the task's name ({task_name}) names it"
     if family == "icing":
@@ -164,6 +177,7 @@ class OfflineBackend(BackendBase):
                     + "), but planner.answer: design names one: use planner.answer: either"
                 )
             intent, obj = jobs[0]
+            _refuse_what_a_named_design_loses(intent)
             answer["design"] = design_answer(intent) | (
                 {"object": obj.id} if len(objects) > 1 else {}
             )
@@ -196,6 +210,21 @@ class OfflineBackend(BackendBase):
             latency_s=time.perf_counter() - started,
             cost_usd=0.0,
             model=None,
+        )
+
+
+def _refuse_what_a_named_design_loses(intent: Intent) -> None:
+    """A named design has no distance from the edge, no inset for the tips and no piece shape:
+    a sentence that gives one is not answered without it."""
+    lost = [
+        f"{intent.edge_distance_mm / 10:g} cm from the edge" if intent.edge_distance_mm else "",
+        "the tips' inset" if intent.design == "tips" and intent.slice_width_mm else "",
+        f"{intent.piece_shape} pieces" if intent.piece_shape in ("strip", "round") else "",
+    ]
+    if any(lost):
+        raise KeympsError(
+            f"the offline planner reads {intent.describe()}, and a named design cannot carry "
+            f"{', '.join(w for w in lost if w)}: use planner.answer: either (or pairs)"
         )
 
 

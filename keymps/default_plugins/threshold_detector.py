@@ -154,7 +154,7 @@ class ThresholdDetector:
         if pick is not None and pick >= len(regions):
             raise DetectionError(
                 f"detector.pick is {pick} but only {len(regions)} region(s) were found "
-                f"(largest first: {_describe(regions)})"
+                f"(by decreasing area: {_describe(regions)})"
             )
         chosen = regions[pick or 0]
         kept = [chosen] if pick is not None else regions
@@ -220,7 +220,8 @@ def _numbered(regions: list[Region], shape: tuple[int, ...]) -> tuple[DetectedOb
 
 def _describe(regions: list[Region]) -> str:
     return "; ".join(
-        f"#{i} box {list(region.bbox)} ({region.area:.0f} px)" for i, region in enumerate(regions)
+        f"pick {i}: box {list(region.bbox)} ({region.area:.0f} px)"
+        for i, region in enumerate(regions)
     )
 
 

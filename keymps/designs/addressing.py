@@ -91,9 +91,10 @@ def split_by_object(sentence: str, targets: list[Target]) -> list[Clause]:
     """The sentence's clauses, each with the objects it applies to; AddressingError if unclear."""
     if not targets:
         raise AddressingError("there is no object to plan on")
+    text = words_to_digits(sentence.lower().replace("’", "'"))
+    _refuse_absent_foods(text, targets)
     if len(targets) == 1:  # one object: the sentence is about it, word for word as always
         return [Clause(sentence, (targets[0].id,))]
-    text = words_to_digits(sentence.lower().replace("’", "'"))
     mentions = _mentions(text, targets)
     if not mentions:
         return [Clause(sentence, _default(targets))]
@@ -120,21 +121,83 @@ def _default(targets: list[Target]) -> tuple[int, ...]:
     rivals = [t for t in targets if t is not largest and t.area >= COMPARABLE * largest.area]
     if not rivals:
         return (largest.id,)
-    listed = ", ".join(f"{t.label} ({_where(t, targets)})" for t in targets)
+    first = _place_words(targets)[0]
     raise AddressingError(
-        f"the scene has {len(targets)} objects ({listed}) and the sentence does not say which "
-        "to work on: say 'each of them', 'both', 'the left one', 'the largest one'"
-        + (", or an object's name" if any(t.name for t in targets) else "")
+        f"the scene has {len(targets)} objects ({_listed(targets)}) and the sentence does not "
+        f"say which to work on: say 'each of them', 'both', 'the {first} one', 'the largest one'"
+        + (
+            ", or an object's name"
+            if any(t.name for t in targets)
+            else ", or name them in scene.objects to say 'the banana'"
+        )
         + " (or keep one object with detector.pick)"
     )
 
 
+FOODS = frozenset({
+    "apple", "aubergine", "avocado", "bagel", "baguette", "banana", "baumkuchen", "bread",
+    "brioche", "brownie", "burrito", "cabbage", "cake", "carrot", "cheese", "cheesecake",
+    "chicken", "cookie", "courgette", "croissant", "cucumber", "eggplant", "fish", "ham", "lemon",
+    "lime", "mango", "meat", "meatloaf", "melon", "omelette", "onion", "orange", "pancake",
+    "pastry", "pepper", "pie", "pineapple", "pizza", "potato", "pumpkin", "quiche", "roast",
+    "salmon", "sandwich", "sausage", "squash", "steak", "tart", "terrine", "tofu", "tomato",
+    "turkey", "waffle", "watermelon", "zucchini",
+})  # fmt: skip
+"""Foods a sentence may name an object by: one the scene has no object of is refused."""
+SAME_FOOD = {"aubergine": "eggplant", "courgette": "zucchini", "meatloaf": "meat"}
+"""Synonyms: the word on the left names the food on the right."""
+
+
+def _refuse_absent_foods(text: str, targets: list[Target]) -> None:
+    """'cut the cucumber' with no cucumber among the objects: say so, rather than that the
+    sentence does not say which object (or plan on the banana that is there)."""
+    named = {_food(word) for t in targets if t.name for word in t.name.lower().split()}
+    if not named:  # nothing says what the objects are: any food may be one of them
+        return
+    for match in re.finditer(r"[a-z]+", text):
+        food = _food(match.group(0))
+        if food in FOODS and food not in named:
+            raise AddressingError(
+                f"the sentence names {match.group(0)!r}, but there is no {food} in the scene "
+                f"(the objects: {_listed(targets)}, named by scene.objects): name one of them"
+                + ("" if len(targets) == 1 else f", or say 'the {_place_words(targets)[0]} one'")
+            )
+
+
+def _food(word: str) -> str:
+    """The food a word names, synonyms as one ('aubergines' -> 'eggplant')."""
+    singular = _singular(word)
+    return SAME_FOOD.get(singular, singular)
+
+
+def _listed(targets: list[Target]) -> str:
+    """'#1 banana (top), #2 (bottom)'."""
+    return ", ".join(f"{t.label} ({_where(t, targets)})" for t in targets)
+
+
+def _axis(targets: list[Target]) -> int:
+    """0 when the objects spread more from left to right than from top to bottom, else 1."""
+    spread = [max(t.centre[a] for t in targets) - min(t.centre[a] for t in targets) for a in (0, 1)]
+    return 0 if spread[0] >= spread[1] else 1
+
+
+def _place_words(targets: list[Target]) -> tuple[str, str]:
+    return ("left", "right") if _axis(targets) == 0 else ("top", "bottom")
+
+
 def _where(target: Target, targets: list[Target]) -> str:
-    xs = sorted(t.centre[0] for t in targets)
-    rank = xs.index(target.centre[0])
+    """Its place along the direction the objects spread: left/right, or top/bottom (two
+    objects one above the other are the top and the bottom one, not two left ones)."""
+    axis = _axis(targets)
+    ranked = sorted(targets, key=lambda t: (t.centre[axis], t.centre[1 - axis], t.id))
+    rank = ranked.index(target)
+    first, last = _place_words(targets)
     if len(targets) == 2:
-        return "left" if rank == 0 else "right"
-    return {0: "leftmost", len(targets) - 1: "rightmost"}.get(rank, f"{rank + 1}. from the left")
+        return first if rank == 0 else last
+    side = "left" if axis == 0 else "top"
+    return {0: f"{first}most", len(targets) - 1: f"{last}most"}.get(
+        rank, f"{rank + 1}. from the {side}"
+    )
 
 
 def _split(text: str, mentions: list[_Mention]) -> list[str]:
@@ -350,13 +413,15 @@ def _others(text: str, targets: list[Target]) -> list[_Mention]:
 
 
 def _by_name(text: str, targets: list[Target]) -> list[_Mention]:
-    names = sorted({t.name.lower() for t in targets if t.name}, key=len, reverse=True)
-    found = []
-    for name in names:
+    """Objects by their scene.objects name, its last word ('the bread' for a banana bread) or
+    a synonym of it ('the aubergine' for an eggplant); longer names first."""
+    found: list[_Mention] = []
+    for name, named in _aliases(targets):
         stem = re.escape(_singular(name))
         pattern = rf"\b(?:(both|all|each|every|the|2|3|4)\s+(?:of\s+the\s+)?)?({stem}(?:s|es)?|{re.escape(name)})\b"
         for match in re.finditer(pattern, text):
-            named = [t for t in targets if t.name and t.name.lower() == name]
+            if any(m.start < match.end() and match.start() < m.end for m in found):
+                continue
             plural = (
                 match.group(2) != _singular(name)
                 and match.group(2) != name
@@ -371,6 +436,22 @@ def _by_name(text: str, targets: list[Target]) -> list[_Mention]:
                 _Mention(match.start(), match.end(), match.group(0), tuple(t.id for t in named))
             )
     return found
+
+
+def _aliases(targets: list[Target]) -> list[tuple[str, list[Target]]]:
+    """(word or words, the objects it names), longest first: each full name, then each name's
+    last word and its synonyms."""
+    names: dict[str, list[Target]] = {}
+    for target in targets:
+        if target.name:
+            names.setdefault(target.name.lower(), []).append(target)
+    heads: dict[str, list[Target]] = {}
+    for name, named in names.items():
+        head = name.split()[-1]
+        for alias in {head, *(a for a, food in SAME_FOOD.items() if food == _food(head))}:
+            if alias not in names:
+                heads.setdefault(alias, []).extend(named)
+    return sorted([*names.items(), *heads.items()], key=lambda item: -len(item[0]))
 
 
 def _groups(text: str, targets: list[Target]) -> list[_Mention]:

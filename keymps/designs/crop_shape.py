@@ -8,7 +8,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from keymps.designs.outline import Outline, ShapeKind, polygon_area, polygon_centroid
+from keymps.designs.body import body_ends
+from keymps.designs.outline import (
+    Outline,
+    ShapeKind,
+    clip_to_slab,
+    polygon_area,
+    polygon_centroid,
+)
 from keymps.sorted_values import median
 
 ELONGATED_ASPECT = 1.35
@@ -24,9 +31,13 @@ class CropShape:
     """The object's footprint in a millimetre frame aligned with the crop (x right, y down)."""
 
     outline: Outline
+    """The body's footprint: the whole object, or a long one without an end of another colour
+    (keymps.designs.body)."""
     mm_per_px: tuple[float, float]
     source: str
     """'mask' (the detector's), 'segmented' (found in the crop) or 'crop' (the whole crop)."""
+    trimmed_mm: tuple[float, float] = (0.0, 0.0)
+    """Length left out at the low and the high end of the long axis (a cap, a stem), mm."""
 
     def to_pixels(self, points_mm: np.ndarray) -> np.ndarray:
         return np.asarray(points_mm, float) / np.array(self.mm_per_px)
@@ -38,7 +49,11 @@ class CropShape:
         o = self.outline
         if o.kind == "round":
             return f"round object, about {2 * o.radius / 10:.1f} cm across"
-        return f"{o.kind} object, about {o.length / 10:.1f} x {o.width / 10:.1f} cm"
+        left_out = sum(self.trimmed_mm)
+        body = f" without {left_out / 10:.1f} cm of another colour at its end (a cap or a stem)"
+        return f"{o.kind} object, about {o.length / 10:.1f} x {o.width / 10:.1f} cm" + (
+            body if left_out else ""
+        )
 
 
 def segment_crop(crop: np.ndarray) -> np.ndarray | None:
@@ -72,6 +87,9 @@ def _largest_contour(mask: np.ndarray) -> np.ndarray | None:
 
 SQUARE_SNAP_DEG = 0.5
 """A square footprint measured within this of the image axes is taken as aligned with them."""
+ELONGATED_SNAP_DEG = 0.1
+"""An elongated one's axis within this of the image axes is taken as aligned: its second
+moments place it to a few hundredths of a degree, so this is pixel noise only."""
 
 
 def classify(polygon_mm: np.ndarray) -> tuple[ShapeKind, float]:
@@ -91,19 +109,33 @@ def classify(polygon_mm: np.ndarray) -> tuple[ShapeKind, float]:
     fill = polygon_area(polygon_mm) / max(w * h, 1e-9)
     if aspect >= ELONGATED_ASPECT:
         kind: ShapeKind = "elongated"
+        angle = _principal_axis(polygon_mm)
     elif fill >= SQUARE_FILL:
         kind = "square"
     else:
         kind = "round"
     # Keep the image axes when the sides nearly align with them: for a round object within 10
-    # degrees (its rectangle's angle means little), for a square one within measurement noise
-    # only (a cake turned 3 degrees must get a turned grid, or its pieces are 5 % unequal).
-    snap = math.radians(10.0 if kind == "round" else SQUARE_SNAP_DEG)
-    if kind != "elongated" and abs(abs(angle) - math.pi / 2) < snap:
+    # degrees (its rectangle's angle means little), for others within measurement noise only
+    # (a cake turned 3 degrees must get a turned grid, or its pieces are 5 % unequal).
+    snap = math.radians(
+        {"round": 10.0, "square": SQUARE_SNAP_DEG, "elongated": ELONGATED_SNAP_DEG}[kind]
+    )
+    near_vertical = abs(abs(angle) - math.pi / 2) < snap
+    if abs(angle) < snap or (near_vertical and kind != "elongated"):
         angle = 0.0
-    if kind != "elongated" and abs(angle) < snap:
-        angle = 0.0
+    elif near_vertical:  # a long object standing upright: its long axis is the image's y
+        angle = math.pi / 2
     return kind, angle
+
+
+def _principal_axis(polygon_mm: np.ndarray) -> float:
+    """The footprint's long axis from its second moments of area, in (-pi/2, pi/2]: the
+    minimum-area rectangle of an oval or a curved body is a degree or more off."""
+    import cv2
+
+    moments = cv2.moments(polygon_mm.astype(np.float32))
+    angle = 0.5 * math.atan2(2 * moments["mu11"], moments["mu20"] - moments["mu02"])
+    return angle + math.pi if angle <= -math.pi / 2 else angle
 
 
 def measure(crop: np.ndarray, mask: np.ndarray | None, mm_per_px: tuple[float, float]) -> CropShape:
@@ -125,7 +157,21 @@ def measure(crop: np.ndarray, mask: np.ndarray | None, mm_per_px: tuple[float, f
     outline = Outline(
         kind=kind, polygon=polygon_mm, centre=polygon_centroid(polygon_mm), axis_angle=angle
     )
-    return CropShape(outline=outline, mm_per_px=mm_per_px, source=source)
+    shape = CropShape(outline=outline, mm_per_px=mm_per_px, source=source)
+    return _body_only(shape, crop, mask) if kind == "elongated" and mask is not None else shape
+
+
+def _body_only(shape: CropShape, crop: np.ndarray, mask: np.ndarray) -> CropShape:
+    """A long object's shape without an end of another colour (its cap and stem)."""
+    from dataclasses import replace
+
+    o = shape.outline
+    ends = body_ends(crop, mask, shape.mm_per_px, o.centre, o.axis_angle, o.extent(o.axis_angle))
+    if ends is None:
+        return shape
+    polygon = clip_to_slab(o.polygon, o.centre, o.axis_angle, ends.low, ends.high)
+    body = replace(o, polygon=polygon, centre=polygon_centroid(polygon))
+    return replace(shape, outline=body, trimmed_mm=(ends.trimmed_low, ends.trimmed_high))
 
 
 def _grow_half_pixel(contour: np.ndarray) -> np.ndarray:

@@ -1,13 +1,14 @@
 """The offline planner's instruction grammar: a sentence to a design intent, deterministically.
 
-It reads counts (digits or words, wherever they stand: "eighteen little dots"), lengths (mm, cm,
-m, inches), directions (vertically, horizontally, lengthwise, crosswise), and the kitchen
-phrases of the KeyMPs paper's cases ("N people", "each day of this week", "both tips", "around",
-"layers", "spiral", "N-pointed star", "27th birthday", "each of the N slices" ...).
+It reads counts (digits or words, wherever they stand: "eighteen little dots"), lengths in
+every written form (mm, cm, m, inches, '"'; "half an inch", "1/2", "one and a half": see
+keymps.designs.quantities), directions (vertically, horizontally, lengthwise, crosswise: the
+object's own axes), distances from the edge for rings, and the kitchen phrases of the KeyMPs
+paper's cases ("N people", "each day of this week", "both tips", "around", "layers", "spiral",
+"N-pointed star", "27th birthday", "each of the N slices" ...).
 
-It never guesses. A sentence it cannot read, a design it does not know (a heart, a flower ...)
-and a number it cannot attach to the design all raise UnreadableInstruction, which says what it
-did understand and what it can do.
+It never guesses: every number and unit of the sentence belongs to a phrase it read, or the
+sentence is refused naming the words left over (keymps.designs.refusals).
 """
 
 from __future__ import annotations
@@ -16,7 +17,22 @@ import re
 from dataclasses import dataclass, field, replace
 from typing import Literal
 
+from keymps.designs.quantities import LENGTH_UNITS
+from keymps.designs.refusals import (
+    CAPABILITIES,
+    VLM_HINT,
+    UnreadableInstruction,
+    as_written,
+    refuse_ambiguous_fractions,
+    refuse_fractional_counts,
+    refuse_misspelled_counts,
+    refuse_second_design,
+    refuse_unknown_design,
+    refuse_unmodelled,
+    unreadable_message,
+)
 from keymps.designs.words import (
+    COUNT,
     DOTS,
     FILLER,
     ICING_WORDS,
@@ -26,8 +42,9 @@ from keymps.designs.words import (
     PIECES,
     UNIT_RE,
     UNITS,
+    WHOLE,
+    Origins,
     counted,
-    misspelled_number,
     normalise,
 )
 from keymps.errors import KeympsError
@@ -52,86 +69,19 @@ Design = Literal[
 DESIGNS: tuple[str, ...] = Design.__args__  # type: ignore[attr-defined]
 CUT_DESIGNS = ("equal", "parallel", "width", "middle", "tips")
 Orientation = Literal["vertical", "horizontal", "lengthwise", "crosswise"]
-PieceShape = Literal["square", "wedge"]
+"""vertical/horizontal: along the object's own axis nearest the image's vertical/horizontal (a
+round object's axes are the image's); lengthwise/crosswise: along or across its long axis."""
+PieceShape = Literal["square", "wedge", "strip", "round"]
+"""strip: a long piece (cuts run along the object's length); round: a disc cut across a long
+object ("cucumber rounds")."""
 
-CAPABILITIES = (
-    "for cutting: N equal parts ('into 8 equal slices', 'for 10 people', 'each day of this "
-    "week'), N parts vertically/horizontally, slices N cm wide, one cut through the middle, both "
-    "tips; for icing: N dots around, N rings of dots, N rings of icing, a spiral, dots around and "
-    "a spiral, an N-pointed star, digits ('27th birthday'), a dot on each of N slices, one dot "
-    "in the middle, a free design"
-)
-VLM_HINT = "plan with a VLM: --model openai/gpt-4o (or any litellm model; see docs/vlm.md)"
-
-UNKNOWN_DESIGNS = (
-    r"\b(hearts?|flowers?|petals?|roses?|daisy|daisies|tulips?|logos?|faces?|smiley\w*|emojis?|"
-    r"trees?|snowflakes?|butterfl(?:y|ies)|animals?|cats?|dogs?|bears?|bunn(?:y|ies)|rabbits?|"
-    r"fish|birds?|leaf|leaves|moons?|crescents?|suns?|arrows?|zig-?zags?|waves?|wavy|"
-    r"checker\w*|chessboard|lattice|cross(?:es)?|crown|balloons?|rainbows?|pictures?|portraits?|"
-    r"drawings?|cartoons?|initials|monograms?|signatures?|skulls?|ghosts?|spider\w*|paws?|"
-    r"diamonds?|hexagons?|pentagons?|octagons?|ovals?|ellipses?|polka|stripes?|plaid|"
-    r"swirly|scallop\w*|ruffles?|shells?|borders? of lines|cubes?|dice|diced|julienne\w*|"
-    r"sticks?|batons?|chips|fries|wedges? of lemon)\b"
-)
-"""Designs people ask for that the offline planner does not lay out (it refuses, never guesses)."""
-UNKNOWN_ICING_SHAPES = r"\b(?:a|an|1)\s+(triangles?|squares?|rectangles?|letters?|x)\b"
-"""Shapes that are pieces when cutting but unknown drawings when icing."""
-WRITING = r"\b(?:spell|letters?|words?|names?|message|text|happy birthday|initials)\b"
 CUT_VERBS = (
     r"\b(?:cut\w*|slic\w+|chop\w*|split\w*|divid\w+|halve\w*|quarter\w*|carv\w+|trim\w*|"
     r"portion\w*|wedges?|pieces?|parts?|tips?|ends?)\b"
 )
-UNMODELLED = (
-    (
-        r"\b(?:not|don't|dont|do not|never|without|except|instead of)\b",
-        "a negation or an exception",
-    ),
-    (
-        r"\b(?:unequal\w*|uneven\w*|irregular\w*|different[- ]sized|of different sizes|"
-        r"varying|various sizes)\b",
-        "parts of different sizes",
-    ),
-    (
-        r"\b(?:left|right|top|bottom|upper|lower|front|back|other)\s+"
-        r"(?:half|halves|side|part|third|quarter|corner|end|portion)\b|"
-        r"\b(?:one|1)\s+(?:half|side|third|quarter|corner)\b|\bhalf of\b|\bcorners?\b",
-        "a design on part of the object",
-    ),
-    (r"(?<![\w.])-\s?\d", "a negative number"),
-    (
-        r"\b(?:twice|thrice|again|then|after that|afterwards|followed by)\b|"
-        r"\beach (?:of them|one|half|quarter|third|piece|slice|part|wedge)\b",
-        "a second step or a repeat: each design here is one step",
-    ),
-    (
-        r"\bdiagonal\w*|\bfrom the (?:left|right|top|bottom|outside|inside|far end|other end)\b|"
-        r"\b(?:outside in|inside out|outside to the inside|inside to the outside)\b",
-        "a direction or a starting side the designs do not take",
-    ),
-)
-"""Words that change what a sentence asks for in ways no design here models: anywhere in the
-sentence, they stop the plan instead of being skipped ("8 unequal slices" is not 8 equal ones,
-"the left half" is not the whole cake; "cut it in half" is a design and matches none)."""
-UNMODELLED_ICING = (
-    (
-        r"\bin an? (?:straight |neat )?(?:row|line|column|grid|cross|square|triangle|zigzag|wave)s?\b|"
-        r"\b(?:along|across|through|down) the (?:middle|centre|center|diameter|length|width)\b",
-        "a layout the icing designs do not have: they are rings, a centre dot, spirals and digits",
-    ),
-    (
-        r"\b(?:outside|beyond|off) (?:of )?the (?:cake|object|edge|rim|top)\b|\bon the board\b",
-        "a place off the object",
-    ),
-)
-"""UNMODELLED's words for icing only ("along the border" is the ring; cuts go "along its
-length" and "across")."""
 STRONG_ICING = (
     r"\b(?:icing|icings|pip(?:e|es|ed|ing)|frost\w*|decorat\w*|dots?|rosettes?|draw|write)\b"
 )
-
-
-class UnreadableInstruction(KeympsError):
-    """The offline planner cannot turn the sentence into a design."""
 
 
 @dataclass(frozen=True)
@@ -153,6 +103,9 @@ class Intent:
     """Rings of dots (design dots_ring): how many concentric rings; None is one."""
     piece_shape: PieceShape | None = None
     """The shape the pieces must have ("9 squares", "8 wedges"), when the sentence says."""
+    edge_distance_mm: float | None = None
+    """Icing rings and rings of dots: how far in from the object's edge the (outer) ring runs
+    ("dots half an inch from the edge"); None is the design's own spacing."""
 
     def describe(self) -> str:
         parts = [f"{self.family}: {self.design.replace('_', ' ')}"]
@@ -166,6 +119,8 @@ class Intent:
             parts.append(f"slices {self.slice_width_mm / 10:g} cm wide")
         if self.object_length_mm is not None:
             parts.append(f"object {self.object_length_mm / 10:g} cm long")
+        if self.edge_distance_mm is not None:
+            parts.append(f"{self.edge_distance_mm / 10:g} cm from the edge")
         if self.orientation:
             parts.append(self.orientation)
         if self.text:
@@ -200,14 +155,19 @@ class _Reader:
     def has(self, pattern: str) -> bool:
         return re.search(pattern, self.text) is not None
 
-    def unattached_numbers(self) -> list[str]:
-        """Numbers of the sentence that no understood phrase holds."""
+    def leftovers(self) -> list[str]:
+        """Quantities of the sentence no understood phrase holds: numbers (with their unit)
+        and units without a number."""
         loose = []
-        for number in re.finditer(r"\d+(?:\.\d+)?", self.text):
-            start, end = number.span()
+        for quantity in re.finditer(LEFTOVER, self.text):
+            start, end = quantity.span()
             if not any(a <= start and end <= b for a, b in self.spans):
-                loose.append(number.group(0))
+                loose.append(quantity.group(0).strip())
         return loose
+
+
+LEFTOVER = rf"{LENGTH}|\d+(?:\.\d+)?|\b{LENGTH_UNITS}\b"
+"""A quantity that must belong to an understood phrase: a length, a number, a unit."""
 
 
 def _mm(value: str, unit: str) -> float:
@@ -240,10 +200,14 @@ def _object_dimensions(reader: _Reader) -> None:
             break
 
 
+NOT_A_WIDTH = r"(?!\s+(?:(?:in|away)\s+)?(?:from|off)\b)"
+"""After a length: it is a distance ("half an inch from the edge"), not a slice's width."""
+
+
 def _slice_width(reader: _Reader) -> float | None:
     patterns = [
         rf"{LENGTH}\s+(?:thick\s+|wide\s+)?{PIECES}",
-        rf"{PIECES}\s+(?:of\s+|about\s+|each\s+)*{LENGTH}",
+        rf"{PIECES}\s+(?:of\s+|about\s+|each\s+)*{LENGTH}{NOT_A_WIDTH}",
         rf"{LENGTH}\s+(?:thick|wide|apart|intervals?|each)\b",
         rf"\bevery\s+{LENGTH}",
     ]
@@ -271,6 +235,10 @@ def _piece_shape(noun: str) -> PieceShape | None:
         return "square"
     if re.search(r"wedges?\b|triangles?\b", noun):
         return "wedge"
+    if re.search(r"strips?\b", noun):
+        return "strip"
+    if re.search(r"(?:rounds?|coins?|discs?|disks?)\b", noun):
+        return "round"
     return None
 
 
@@ -282,7 +250,7 @@ def _part_count(reader: _Reader) -> tuple[int | None, PieceShape | None]:
         return 7, None
     if reader.find(r"\bfor (?:a|the|this) week\b|\b7 days\b"):
         return 7, None
-    people = reader.find(counted(PEOPLE, 2)) or reader.find(r"\b(\d+) of us\b")
+    people = reader.find(counted(PEOPLE, 2)) or reader.find(rf"{COUNT} of us\b")
     reader.find(
         r"\b1\s+(?:\w+\s+)?(?:slice|piece|portion|wedge|serving)\s+(?:for\s+|to\s+)?"
         r"(?:each(?:\s+of\s+(?:them|us))?|apiece|per\s+(?:person|head|guest))\b"
@@ -290,14 +258,14 @@ def _part_count(reader: _Reader) -> tuple[int | None, PieceShape | None]:
     if people:
         return int(people.group(1)), None
     match = re.search(
-        rf"\b(\d+)\s+(?:{NUMBER}\s*{UNIT_RE}\s+)?{FILLER}{{0,3}}({PIECES})", reader.text
+        rf"{COUNT}\s+(?:{NUMBER}\s*{UNIT_RE}\s+)?{FILLER}{{0,3}}({PIECES})", reader.text
     )
     followed = reader.text[match.end() :] if match else ""
     if match and not re.match(r"\s*(?:for|per)\s+(?:each|every)", followed):
         reader.take(match)
         return int(match.group(1)), _piece_shape(match.group(3))
     match = reader.find(
-        rf"\b(?:into|in)\s+(\d+)\b(?!\s*(?:\.\d)?\s*{UNIT_RE}\b)(?:\s+{FILLER}{{0,3}}({PIECES}))?"
+        rf"\b(?:into|in)\s+{COUNT}(?!\s*{UNIT_RE}\b)(?:\s+{FILLER}{{0,3}}({PIECES}))?"
     )
     if match:
         return int(match.group(1)), _piece_shape(match.group(2) or "")
@@ -312,10 +280,10 @@ def _part_count(reader: _Reader) -> tuple[int | None, PieceShape | None]:
 
 def _icing_intent(reader: _Reader) -> Intent | None:
     match = reader.find(
-        rf"\b(?:1|a|an) (?:\w+ )?(?:dot|drop|rosette|blob|dollop)s?\b.*\beach of (?:the )?(\d+) "
+        rf"\b(?:1|a|an) (?:\w+ )?(?:dot|drop|rosette|blob|dollop)s?\b.*\beach of (?:the )?{COUNT} "
         rf"{PIECES}"
     ) or reader.find(
-        rf"\b(?:dot|rosette)s? (?:on|in) (?:the middle of )?each of (?:the )?(\d+) {PIECES}"
+        rf"\b(?:dot|rosette)s? (?:on|in) (?:the middle of )?each of (?:the )?{COUNT} {PIECES}"
     )
     if match:
         return Intent("icing", "dot_per_slice", count=int(match.group(1)))
@@ -327,8 +295,8 @@ def _icing_intent(reader: _Reader) -> Intent | None:
         reader.find(r"\bseven_segment\b")
         return Intent("icing", "digits", text=match.group(1))
     if reader.has(r"\bstars?\b"):
-        match = reader.find(r"\b(\d+)[- ]?(?:pointed|point|pointy)\s+star\b") or reader.find(
-            r"\bstar\s+with\s+(\d+)\s+(?:points|tips|arms)\b"
+        match = reader.find(rf"{COUNT}[- ]?(?:pointed|point|pointy)\s+star\b") or reader.find(
+            rf"\bstar\s+with\s+{COUNT}\s+(?:points|tips|arms)\b"
         )
         count = int(match.group(1)) if match else 5
         if not match:
@@ -384,8 +352,8 @@ def _rings_of_dots(reader: _Reader) -> Intent | None:
     """ "3 rings of dots", "two circles of 12 rosettes", "dots in 3 rings", "a ring of dots"."""
     ring = r"(?:rings?|circles?|rows?|layers?)"
     match = reader.find(
-        rf"\b(\d+|a|an|1)\s+{FILLER}{{0,3}}{ring}\s+of\s+(?:(\d+)\s+)?{FILLER}{{0,2}}{DOTS}\b"
-    ) or reader.find(rf"\b{DOTS}\s+(?:\w+\s+){{0,3}}?in\s+(\d+|a|1)\s+{FILLER}{{0,2}}{ring}\b")
+        rf"\b({WHOLE}|a|an)\s+{FILLER}{{0,3}}{ring}\s+of\s+(?:({WHOLE})\s+)?{FILLER}{{0,2}}{DOTS}\b"
+    ) or reader.find(rf"\b{DOTS}\s+(?:\w+\s+){{0,3}}?in\s+({WHOLE}|a)\s+{FILLER}{{0,2}}{ring}\b")
     if match is None:
         return None
     layers = int(match.group(1)) if match.group(1).isdigit() else 1
@@ -393,7 +361,7 @@ def _rings_of_dots(reader: _Reader) -> Intent | None:
     if per_ring is None:
         each = reader.find(
             rf"{counted(DOTS)}\s+(?:each|per\s+(?:ring|circle|row)|in\s+each(?:\s+{ring})?)\b"
-        ) or reader.find(rf"\b(?:each|every)\s+{ring}\s+(?:has|with|of)\s+(\d+)\b")
+        ) or reader.find(rf"\b(?:each|every)\s+{ring}\s+(?:has|with|of)\s+{COUNT}")
         per_ring = each.group(1) if each else None
     if per_ring is None and layers == 1 and (total := reader.find(counted(DOTS))):
         per_ring = total.group(1)  # "15 dots in a circle"
@@ -402,20 +370,27 @@ def _rings_of_dots(reader: _Reader) -> Intent | None:
 
 
 def _dot_count(reader: _Reader) -> int | None:
-    match = reader.find(counted(DOTS)) or reader.find(rf"\b(\d+)\s+{DOTS}?\s*of icing\b")
+    match = reader.find(counted(DOTS)) or reader.find(rf"{COUNT}\s+{DOTS}?\s*of icing\b")
     return int(match.group(1)) if match else None
 
 
 def _cut_intent(reader: _Reader) -> Intent | None:
-    if reader.find(r"\b(?:both|2|the 2)\s+(?:tips|ends)\b|\b(?:tips|ends) off\b|\btop and tail\b"):
-        return Intent("cut", "tips")
+    trimmed = reader.find(
+        rf"{LENGTH}\s+(?:off\s+(?:of\s+)?|from\s+|in\s+from\s+)(?:both|each|either|the 2|2)\s+"
+        r"(?:tips?|ends?)\b"
+    )
+    if trimmed or reader.find(
+        r"\b(?:both|2|the 2)\s+(?:tips|ends)\b|\b(?:tips|ends) off\b|\btop and tail\b"
+    ):
+        inset = _mm(trimmed.group(1), trimmed.group(2)) if trimmed else None
+        return Intent("cut", "tips", slice_width_mm=inset, object_length_mm=_object_length(reader))
     width = _slice_width(reader)
     object_length = _object_length(reader)
     _object_dimensions(reader)
     orientation = _orientation(reader)
     if width is not None:
         counted_slices = reader.find(
-            rf"\b(\d+)\s+{FILLER}{{0,2}}(?:{NUMBER}\s*-?\s*{UNIT_RE}\s+)?{FILLER}{{0,2}}{PIECES}"
+            rf"{COUNT}\s+{FILLER}{{0,2}}(?:{NUMBER}\s*-?\s*{UNIT_RE}\s+)?{FILLER}{{0,2}}{PIECES}"
         )
         slice_count = int(counted_slices.group(1)) if counted_slices else None
         if slice_count is None and reader.find(
@@ -429,6 +404,7 @@ def _cut_intent(reader: _Reader) -> Intent | None:
             slice_width_mm=width,
             object_length_mm=object_length,
             orientation=orientation,
+            piece_shape=_piece_shape(" ".join(re.findall(PIECES, reader.text))),
         )
     count, shape = _part_count(reader)
     middle = reader.has(r"\b(?:middle|centre|center|half)\b")
@@ -438,14 +414,15 @@ def _cut_intent(reader: _Reader) -> Intent | None:
         reader.find(r"\bmiddle\b|\bcent(?:re|er)\b|\bhalf\b")
         return Intent("cut", "middle", count=1, orientation=orientation)
     if count is not None and count >= 2:
-        design: Design = "parallel" if orientation else "equal"
+        design: Design = "parallel" if orientation or shape == "strip" else "equal"
         return Intent("cut", design, count=count, orientation=orientation, piece_shape=shape)
     return None
 
 
 def read_instruction(sentence: str) -> Intent:
     """The design the sentence asks for, or UnreadableInstruction saying what was understood."""
-    text = normalise(sentence)
+    origins: Origins = {}
+    text = normalise(sentence, origins)
     vague = re.search(
         rf"\b(?:a few|several|some|many|a lot of|lots of|a number of)\s+(?:\w+\s+)?"
         rf"(?:{PIECES}|{DOTS}|rings?|layers?)",
@@ -455,25 +432,30 @@ def read_instruction(sentence: str) -> Intent:
         raise UnreadableInstruction(
             unreadable_message(sentence, [f"{vague.group(0)!r} does not say how many"])
         )
-    _refuse_misspelled_counts(sentence, text)
+    refuse_misspelled_counts(sentence, text)
+    refuse_fractional_counts(sentence, text, origins)
+    refuse_ambiguous_fractions(sentence, text)
     reader = _Reader(text)
     intent = _icing_intent(reader) if reader.has(ICING_WORDS) else None
     if intent is None:
         if reader.has(STRONG_ICING) and not reader.has(CUT_VERBS):
-            _refuse_unknown_design(sentence, text, "icing", reader.understood)
+            refuse_unknown_design(sentence, text, "icing", reader.understood)
             raise UnreadableInstruction(unreadable_message(sentence, reader.understood))
         reader = _Reader(text)
         intent = _cut_intent(reader)
     family = intent.family if intent is not None else None
-    _refuse_unknown_design(sentence, text, family, reader.understood)
+    refuse_unknown_design(sentence, text, family, reader.understood)
     if intent is None:
         raise UnreadableInstruction(unreadable_message(sentence, reader.understood))
-    _refuse_unmodelled(sentence, text, intent)
-    loose = reader.unattached_numbers()
+    refuse_unmodelled(sentence, text, intent)
+    if intent.family == "icing":
+        refuse_second_design(sentence, text, intent)
+        intent = _with_edge_distance(reader, intent, sentence, origins)
+    loose = reader.leftovers()
     if loose:
         raise UnreadableInstruction(
             f"the offline planner read {sentence.strip()!r} as {intent.describe()}, but cannot "
-            f"tell what {', '.join(repr(n) for n in loose)} refers to; it never guesses. "
+            f"tell what {as_written(loose, origins)} refers to; it never guesses. "
             f"Rephrase (it reads {CAPABILITIES}), or {VLM_HINT}"
         )
     intent = replace(intent, understood=tuple(reader.understood))
@@ -481,53 +463,30 @@ def read_instruction(sentence: str) -> Intent:
     return intent
 
 
-COUNTED_NOUN = (
-    rf"((?:\b[a-z][a-z'-]*\s+){{1,4}})(?:{PIECES}|{DOTS}|rings?|layers?|circles?|rows?)\b"
+EDGE_DISTANCE = (
+    rf"(?:\b(?:a|an)\s+)?{LENGTH}\s+(?:of\s+)?(?:(?:space|gap|room|margin)\s+)?(?:(?:in|away)\s+)?"
+    r"(?:from|off|inside|in from)\s+(?:the\s+)?(?:[\w]+'s\s+|its\s+|cake\s+)?"
+    r"(?:edges?|rims?|borders?|sides?|outside)\b"
+    rf"|(?:\b(?:a|an|with)\s+)?{LENGTH}\s+(?:margin|border)\b"
 )
-"""Up to four words before a noun that takes a count: where a misspelled count would be."""
+"""'half an inch from the edge', '1 cm in from the rim', 'a 2 cm margin'."""
+EDGE_DESIGNS = ("dots_ring", "rings", "dots_spiral", "free")
 
 
-def _refuse_misspelled_counts(sentence: str, text: str) -> None:
-    """A typo of a number word ('eigth dots') is no count: without this the design's default
-    count was used, a confident wrong motion. Number words are digits in `text` by now."""
-    for match in re.finditer(COUNTED_NOUN, text):
-        for word in match.group(1).split():
-            number = misspelled_number(word)
-            if number:
-                raise UnreadableInstruction(
-                    f"the offline planner found {word!r} where {sentence.strip()!r} gives a "
-                    f"count, and it is no number it knows (did you mean {number!r}?); it never "
-                    f"guesses a count. Write the number in digits (8) or in words (eight)"
-                )
-
-
-def _refuse_unmodelled(sentence: str, text: str, intent: Intent) -> None:
-    for pattern, what in UNMODELLED + (UNMODELLED_ICING if intent.family == "icing" else ()):
-        match = re.search(pattern, text)
-        if match:
-            raise UnreadableInstruction(
-                f"the offline planner read {sentence.strip()!r} as {intent.describe()}, but "
-                f"cannot follow {match.group(0).strip()!r} ({what}); it never guesses. Rephrase "
-                f"(it reads {CAPABILITIES}), or {VLM_HINT}"
-            )
-
-
-def _refuse_unknown_design(
-    sentence: str, text: str, family: str | None, understood: list[str]
-) -> None:
-    unknown = re.search(UNKNOWN_DESIGNS, text)
-    if unknown is None and family == "icing":
-        unknown = re.search(UNKNOWN_ICING_SHAPES, text)
-        if unknown is None and re.search(WRITING, text) and not re.search(r"\d", text):
-            unknown = re.search(WRITING, text)
-    if unknown is None:
-        return
-    word = unknown.group(unknown.lastindex or 0)
-    seen = f"understood: {', '.join(repr(u) for u in understood)}; " if understood else ""
-    raise UnreadableInstruction(
-        f"the offline planner has no design for {word!r} in {sentence.strip()!r} ({seen}it never "
-        f"guesses). It lays out {CAPABILITIES}. For anything else, {VLM_HINT}"
-    )
+def _with_edge_distance(reader: _Reader, intent: Intent, sentence: str, origins: Origins) -> Intent:
+    """The intent with the distance of its ring from the edge, when the sentence gives one."""
+    match = reader.find(EDGE_DISTANCE)
+    if match is None:
+        return intent
+    length, unit = (match.group(1), match.group(2)) if match.group(1) else match.group(3, 4)
+    if intent.design not in EDGE_DESIGNS:
+        raise UnreadableInstruction(
+            f"the offline planner read {sentence.strip()!r} as {intent.describe()}, which is "
+            f"laid out in the middle: it cannot follow {as_written([f'{length} {unit}'], origins)}"
+            " from the edge (rings and rings of dots take a distance from the edge); it never "
+            f"guesses. Rephrase, or {VLM_HINT}"
+        )
+    return replace(intent, edge_distance_mm=_mm(length, unit))
 
 
 def sentence_family(sentence: str) -> Family | None:
@@ -567,15 +526,3 @@ def _check_numbers(intent: Intent) -> None:
             )
     if intent.design == "star" and intent.count is not None and intent.count < 3:
         raise KeympsError(f"a star needs at least 3 points, not {intent.count}")
-
-
-def unreadable_message(sentence: str, understood: list[str]) -> str:
-    seen = (
-        f"understood only: {', '.join(repr(u) for u in understood)}"
-        if understood
-        else ("understood nothing it can build")
-    )
-    return (
-        f"the offline planner cannot turn {sentence.strip()!r} into a design ({seen}). It reads "
-        f"{CAPABILITIES}. Rephrase, or {VLM_HINT}"
-    )

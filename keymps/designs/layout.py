@@ -18,6 +18,9 @@ RING_FRACTION = 0.78
 """Radius of a ring of dots as a fraction of a round object's radius (space from the edge)."""
 TIP_FRACTION = 0.1
 """Both tips: each cut is this fraction of the length in from its end (5-30 mm)."""
+CAP_MARGIN_MM = 2.0
+"""Both tips of a capped body (an eggplant): the cut on the cap's side is this far into the body,
+so that the cap comes off whole."""
 
 
 OVERSHOOT_MM = 1.0
@@ -28,15 +31,56 @@ def _overshoot(outline: Outline) -> float:
     return OVERSHOOT_MM
 
 
-def _slicing_angle(intent: Intent, outline: Outline) -> float:
-    """The direction along which slices follow each other (cuts are perpendicular to it)."""
-    if intent.orientation == "vertical":
-        return 0.0
-    if intent.orientation == "horizontal":
-        return math.pi / 2
-    if intent.orientation == "lengthwise":
-        return outline.axis_angle + math.pi / 2
-    return outline.axis_angle
+AMBIGUOUS_TURN_DEG = 5.0
+"""An object whose sides are within this of 45 degrees from the image's has no side nearer the
+image's vertical than the other: "vertically" is refused on it."""
+
+
+def _slicing_angle(intent: Intent, shape: CropShape) -> float:
+    """The direction along which slices follow each other (cuts are perpendicular to it).
+
+    Directions are the object's own: "vertical" cuts run along the object's axis nearest the
+    image's vertical, "lengthwise" along its long axis. A round object's axes are the image's;
+    it has no length. Strips of a long object are cut along its length."""
+    o = shape.outline
+    orientation = intent.orientation
+    if orientation is None and intent.piece_shape == "strip" and o.kind == "elongated":
+        orientation = "lengthwise"
+    if orientation in ("vertical", "horizontal"):
+        return _nearest_axis(shape, 0.0 if orientation == "vertical" else math.pi / 2)
+    if o.kind == "round" and orientation is not None:
+        raise KeympsError(
+            f"a round object has no length to cut {orientation} ({shape.describe()}): "
+            "ask for vertical or horizontal cuts, or N equal wedges"
+        )
+    if orientation == "lengthwise":
+        return o.axis_angle + math.pi / 2
+    return o.axis_angle
+
+
+def _nearest_axis(shape: CropShape, image_angle: float) -> float:
+    """The object's axis nearest `image_angle` (radians from the image's +x towards +y)."""
+    o = shape.outline
+    axis = 0.0 if o.kind == "round" else o.axis_angle
+    turn = math.remainder(axis - image_angle, math.pi / 2)
+    if abs(abs(math.degrees(turn)) - 45.0) < AMBIGUOUS_TURN_DEG:
+        raise KeympsError(
+            f"the {shape.describe()} is turned {abs(math.degrees(turn)):.0f} degrees from the "
+            "image's axes: none of its sides is nearer the image's vertical than the other, so "
+            "'vertical' and 'horizontal' say no direction; ask for lengthwise or crosswise cuts"
+        )
+    return image_angle + turn
+
+
+def turn_note(shape: CropShape, slicing_angle: float) -> str:
+    """', along the object's own axes (turned N degrees from the image's)' when they are."""
+    o = shape.outline
+    if o.kind == "round":
+        return ""
+    turn = math.degrees(math.remainder(slicing_angle, math.pi / 2))
+    if abs(turn) < 0.05:
+        return ""
+    return f", along the object's own axes (turned {abs(turn):.0f} degrees from the image's)"
 
 
 def _segments(budget: int, wanted: int, minimum: int = 8) -> int:
@@ -45,12 +89,18 @@ def _segments(budget: int, wanted: int, minimum: int = 8) -> int:
 
 def design(intent: Intent, shape: CropShape, max_pairs: int) -> tuple[np.ndarray, str]:
     """(pairs in millimetres of the crop frame, a one-sentence rationale)."""
+    if intent.family == "cut":
+        _check_piece_shape(intent, shape)
+        return _cuts(intent, shape)
+    return _icing(intent, shape, max_pairs)
+
+
+def _cuts(intent: Intent, shape: CropShape) -> tuple[np.ndarray, str]:
     o = shape.outline
     over = _overshoot(o)
     what = shape.describe()
     if intent.design == "equal":
         assert intent.count is not None
-        _check_piece_shape(intent, shape)
         if o.kind == "round":
             return patterns.radial_slices(o, intent.count, overshoot=over), (
                 f"{what}: {intent.count} equal wedges, "
@@ -65,51 +115,98 @@ def design(intent: Intent, shape: CropShape, max_pairs: int) -> tuple[np.ndarray
         return patterns.parallel_slices(o, o.axis_angle, parts=intent.count, overshoot=over), (
             f"{what}: {intent.count} equal slices across its length"
         )
-    if intent.design == "parallel":
-        assert intent.count is not None
-        angle = _slicing_angle(intent, o)
-        return patterns.parallel_slices(o, angle, parts=intent.count, overshoot=over), (
-            f"{what}: {intent.count} equal parts with {intent.count - 1} {intent.orientation} cuts"
-        )
     if intent.design == "width":
         return _width_slices(intent, shape, over)
+    angle = _slicing_angle(intent, shape)
+    along = turn_note(shape, angle) if intent.orientation in ("vertical", "horizontal") else ""
+    if intent.design == "parallel":
+        assert intent.count is not None
+        cuts = f"{intent.orientation} cuts" if intent.orientation else "parallel cuts"
+        return patterns.parallel_slices(o, angle, parts=intent.count, overshoot=over), (
+            f"{what}: {intent.count} equal parts with {intent.count - 1} {cuts}{along}"
+        )
+    low, high = o.extent(angle)
     if intent.design == "middle":
-        angle = _slicing_angle(intent, o) if intent.orientation else o.axis_angle
-        low, high = o.extent(angle)
         return patterns.parallel_cuts(o, angle, [(high - low) / 2], over), (
-            f"{what}: one cut through the middle"
+            f"{what}: one {intent.orientation + ' ' if intent.orientation else ''}cut through "
+            f"the middle{along}"
         )
     if intent.design == "tips":
-        angle = _slicing_angle(intent, o)
-        low, high = o.extent(angle)
-        inset = min(max(TIP_FRACTION * (high - low), 5.0), 30.0)
-        return patterns.both_tips(o, angle, inset, over), (
-            f"{what}: both tips cut off, {inset / 10:.1f} cm from each end"
+        return _tips(intent, shape, angle, over)
+    raise KeympsError(f"the offline planner has no design for {intent.describe()}")
+
+
+def _tips(intent: Intent, shape: CropShape, angle: float, over: float) -> tuple[np.ndarray, str]:
+    """Both tips off: `inset` in from each end of the body, or at the base of a cap (an end of
+    another colour the body was measured without)."""
+    o = shape.outline
+    low, high = o.extent(angle)
+    inset = min(max(TIP_FRACTION * (high - low), 5.0), 30.0)
+    if intent.slice_width_mm is not None:
+        inset = _scaled_width(intent, intent.slice_width_mm, high - low)
+    insets = [inset, inset]
+    along = math.cos(angle - o.axis_angle)
+    capped = shape.trimmed_mm if along > 0.99 else shape.trimmed_mm[::-1] if along < -0.99 else ()
+    notes = []
+    for end, trimmed in enumerate(capped):
+        if trimmed > 0:
+            insets[end] = CAP_MARGIN_MM
+            notes.append(f"the {trimmed / 10:.1f} cm cap cut off at its base")
+    if sum(insets) >= high - low:
+        raise KeympsError(
+            f"{inset:g} mm off each end leaves nothing of the {shape.describe()} "
+            f"({(high - low) / 10:.1f} cm long)"
         )
-    return _icing(intent, shape, max_pairs)
+    plain = f"{inset / 10:.1f} cm from " + ("each end" if not notes else "the other end")
+    return patterns.parallel_cuts(o, angle, [insets[0], high - low - insets[1]], over), (
+        f"{shape.describe()}: both tips cut off, " + ", ".join([*notes, plain])
+    )
+
+
+def _scaled_width(intent: Intent, width: float, measured: float) -> float:
+    """A width of the sentence in the picture's millimetres: the sentence's stated length of the
+    object is the scale ("10 cm long, 5 cm slices" means two halves)."""
+    if intent.object_length_mm:
+        return width * measured / intent.object_length_mm
+    return width
 
 
 def _check_piece_shape(intent: Intent, shape: CropShape) -> None:
     """Refuse pieces of a shape this object cannot give ("9 squares" of a round cake)."""
     o, asked = shape.outline, intent.piece_shape
-    if asked is None:
-        return
+    count = intent.count or ""
+    if asked in ("wedge", "square") and intent.design != "equal":
+        raise KeympsError(
+            f"{asked}s come from equal parts, not from {intent.describe()}: ask for "
+            f"{count or 'N'} equal {asked}s"
+        )
     if asked == "wedge" and o.kind != "round":
         raise KeympsError(
-            f"{intent.count} equal wedges need a round object; this is a {shape.describe()}: "
-            f"ask for {intent.count} equal pieces (a grid or parallel slices)"
+            f"{count} equal wedges need a round object; this is a {shape.describe()}: "
+            f"ask for {count} equal pieces (a grid or parallel slices)"
+        )
+    if asked == "strip" and o.kind == "round":
+        raise KeympsError(
+            f"a round object has no strips ({shape.describe()}): its equal parts are wedges; "
+            f"ask for {count or 'N'} equal wedges, or plan with a VLM"
+        )
+    if asked == "round" and (o.kind != "elongated" or intent.orientation == "lengthwise"):
+        raise KeympsError(
+            f"rounds are slices across a long object, and this is a {shape.describe()}"
+            + (" cut lengthwise" if o.kind == "elongated" else "")
+            + ": ask for slices"
         )
     if asked == "square":
         if o.kind == "round":
             raise KeympsError(
-                f"a round object cannot be cut into {intent.count} equal squares ("
-                f"{shape.describe()}): ask for {intent.count} equal wedges, or plan with a VLM"
+                f"a round object cannot be cut into {count} equal squares ("
+                f"{shape.describe()}): ask for {count} equal wedges, or plan with a VLM"
             )
         rows, cols = patterns.grid_shape(intent.count or 1, o.length / o.width)
         cell = (o.length / cols) / (o.width / rows)
         if not 0.8 <= cell <= 1.25:
             raise KeympsError(
-                f"{intent.count} equal pieces of the {shape.describe()} are a {rows} x {cols} "
+                f"{count} equal pieces of the {shape.describe()} are a {rows} x {cols} "
                 f"grid of {o.length / cols / 10:.1f} x {o.width / rows / 10:.1f} cm rectangles, "
                 "not squares: ask for equal pieces, or another count"
             )
@@ -118,20 +215,16 @@ def _check_piece_shape(intent: Intent, shape: CropShape) -> None:
 def _width_slices(intent: Intent, shape: CropShape, over: float) -> tuple[np.ndarray, str]:
     o = shape.outline
     assert intent.slice_width_mm is not None
-    angle = _slicing_angle(intent, o)
+    angle = _slicing_angle(intent, shape)
     low, high = o.extent(angle)
     measured = high - low
-    width = intent.slice_width_mm
+    width = _scaled_width(intent, intent.slice_width_mm, measured)
     note = ""
-    if intent.object_length_mm:
-        # the user's stated length is the scale: "10 cm long, 5 cm slices" means two halves
-        width = intent.slice_width_mm * measured / intent.object_length_mm
-        ratio = measured / intent.object_length_mm
-        if abs(ratio - 1) > 0.15:
-            note = (
-                f"; the picture measures {measured / 10:.1f} cm, the sentence says "
-                f"{intent.object_length_mm / 10:g} cm: slices follow the sentence's proportions"
-            )
+    if intent.object_length_mm and abs(measured / intent.object_length_mm - 1) > 0.15:
+        note = (
+            f"; the picture measures {measured / 10:.1f} cm, the sentence says "
+            f"{intent.object_length_mm / 10:g} cm: slices follow the sentence's proportions"
+        )
     if intent.count is None and measured / width > 1000:
         raise KeympsError(
             f"slices {intent.slice_width_mm / 10:g} cm wide would need more than 1000 cuts"
@@ -152,9 +245,10 @@ def _width_slices(intent: Intent, shape: CropShape, over: float) -> tuple[np.nda
             "or thinner slices"
         )
     pairs = patterns.parallel_cuts(o, angle, offsets, over)
+    along = turn_note(shape, angle) if intent.orientation in ("vertical", "horizontal") else ""
     return pairs, (
         f"{shape.describe()}: {len(offsets)} cuts {intent.slice_width_mm / 10:g} cm apart from "
-        f"one end{note}"
+        f"one end{along}{note}"
     )
 
 
@@ -174,7 +268,7 @@ def _icing(intent: Intent, shape: CropShape, max_pairs: int) -> tuple[np.ndarray
     if intent.design == "dots_ring" and (intent.layers or 1) > 1:
         return _rings_of_dots(intent, shape, max_pairs)
     if intent.design == "dots_ring":
-        path, ring_note = _dot_path(o, RING_FRACTION)
+        path, ring_note = _dot_path(o, _ring_fraction(intent, shape, RING_FRACTION))
         count = _ring_count(_perimeter(path), intent.count)
         return patterns.dots_along_path(path, count), (
             f"{what}: {count} dots evenly spaced {ring_note}"
@@ -187,8 +281,8 @@ def _icing(intent: Intent, shape: CropShape, max_pairs: int) -> tuple[np.ndarray
                 f"planner.max_pairs = {max_pairs}"
             )
         if o.kind == "round":
-            step = 0.7 * RING_FRACTION * o.radius / layers
-            radii = [RING_FRACTION * o.radius - k * step for k in range(layers)]
+            outer = _ring_fraction(intent, shape, RING_FRACTION) * o.radius
+            radii = [outer - k * 0.7 * outer / layers for k in range(layers)]
             segments = _segments(max_pairs // layers, 36)
             return patterns.concentric_rings(c, radii, segments), (
                 f"{what}: {layers} concentric icing rings, radii "
@@ -196,13 +290,14 @@ def _icing(intent: Intent, shape: CropShape, max_pairs: int) -> tuple[np.ndarray
                 + " cm"
             )
         small = min(o.length, o.width)
-        insets = [0.12 * small + k * 0.7 * 0.38 * small / layers for k in range(layers)]
+        first = (1 - _ring_fraction(intent, shape, 0.76)) * small / 2
+        insets = [first + k * 0.7 * (small / 2 - first) / layers for k in range(layers)]
         loops = [patterns.polyline(patterns.inset_path(o, inset), closed=True) for inset in insets]
         return np.concatenate(loops, axis=0), (
             f"{what}: {layers} nested icing outlines following the edge"
         )
     if intent.design == "dots_spiral":
-        path, ring_note = _dot_path(o, 0.85)
+        path, ring_note = _dot_path(o, _ring_fraction(intent, shape, 0.85))
         count = _ring_count(_perimeter(path), intent.count)
         dots = patterns.dots_along_path(path, count)
         segments = _segments(max_pairs - count, 48)
@@ -241,7 +336,7 @@ def _icing(intent: Intent, shape: CropShape, max_pairs: int) -> tuple[np.ndarray
             f"{what}: one dot at the middle of each piece of a {rows} x {cols} grid"
         )
     if intent.design == "free":
-        path, ring_note = _dot_path(o, 0.85)
+        path, ring_note = _dot_path(o, _ring_fraction(intent, shape, 0.85))
         count = _ring_count(_perimeter(path), None)
         return np.concatenate(
             [patterns.dots_along_path(path, count), patterns.star(c, 0.5 * inner, 5)], axis=0
@@ -253,7 +348,8 @@ def _rings_of_dots(intent: Intent, shape: CropShape, max_pairs: int) -> tuple[np
     """Concentric rings of dots, the outer one where a single ring would be, spaced inwards."""
     o = shape.outline
     layers = intent.layers or 1
-    fractions = [RING_FRACTION - k * 0.7 * RING_FRACTION / layers for k in range(layers)]
+    outer = _ring_fraction(intent, shape, RING_FRACTION)
+    fractions = [outer - k * 0.7 * outer / layers for k in range(layers)]
     rings, counts = [], []
     for fraction in fractions:
         path, _ = _dot_path(o, fraction)
@@ -273,6 +369,22 @@ def _rings_of_dots(intent: Intent, shape: CropShape, max_pairs: int) -> tuple[np
         + ", ".join(str(n) for n in counts)
         + " dots, outer to inner)"
     )
+
+
+def _ring_fraction(intent: Intent, shape: CropShape, default: float) -> float:
+    """Where the (outer) ring runs, as a fraction of the way from the centre to the edge: the
+    sentence's distance from the edge, else the design's own spacing."""
+    edge = intent.edge_distance_mm
+    if edge is None:
+        return default
+    o = shape.outline
+    half = o.radius if o.kind == "round" else min(o.length, o.width) / 2
+    if edge > 0.8 * half:
+        raise KeympsError(
+            f"{edge / 10:g} cm from the edge leaves no room for a ring on the {shape.describe()}"
+            f": at most {0.8 * half / 10:.1f} cm"
+        )
+    return 1 - edge / half
 
 
 def _dot_path(o: Outline, fraction: float) -> tuple[np.ndarray, str]:

@@ -145,6 +145,28 @@ def ray(outline: Outline, origin: np.ndarray, angle: float, overshoot: float = 0
     return np.array([origin, origin + (reach + overshoot) * dirn])
 
 
+def clip_to_slab(polygon: np.ndarray, point: np.ndarray, angle: float, low: float, high: float):
+    """The polygon's part where (p - point) . direction(angle) lies in [low, high]."""
+    axis = direction(angle)
+    for limit, sign in ((low, 1.0), (high, -1.0)):
+        polygon = _clip_half_plane(polygon, sign * ((polygon - point) @ axis - limit))
+    return polygon
+
+
+def _clip_half_plane(polygon: np.ndarray, side: np.ndarray) -> np.ndarray:
+    """Sutherland-Hodgman: keep the part where the signed `side` of each vertex is >= 0."""
+    kept = []
+    count = len(polygon)
+    for i in range(count):
+        a, b = polygon[i], polygon[(i + 1) % count]
+        sa, sb = side[i], side[(i + 1) % count]
+        if sa >= 0:
+            kept.append(a)
+        if (sa >= 0) != (sb >= 0):
+            kept.append(a + (b - a) * (sa / (sa - sb)))
+    return np.asarray(kept, dtype=float).reshape(-1, 2)
+
+
 def as_pairs(pairs: Sequence[np.ndarray]) -> np.ndarray:
     if not pairs:
         return np.zeros((0, 2, 2))

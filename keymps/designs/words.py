@@ -4,6 +4,13 @@ from __future__ import annotations
 
 import re
 
+from keymps.designs.quantities import (
+    Origins,
+    fraction_words,
+    marks_and_symbols,
+    spoken_numbers,
+)
+
 UNITS = {
     "mm": 1.0,
     "millimeter": 1.0,
@@ -23,6 +30,9 @@ UNITS = {
     "inch": 25.4,
     "inches": 25.4,
     "in": 25.4,
+    "foot": 304.8,
+    "feet": 304.8,
+    "ft": 304.8,
 }
 ONES = [
     "zero",
@@ -92,18 +102,27 @@ def misspelled_number(word: str) -> str | None:
 
 PIECES = (
     r"(?:slices?|pieces?|parts?|portions?|wedges?|sections?|segments?|servings?|chunks?|"
-    r"strips?|equal\s+parts?|triangles?|squares?|rounds?)"
+    r"strips?|equal\s+parts?|triangles?|squares?|rounds?|coins?|discs?|disks?)"
 )
 PEOPLE = r"(?:people|persons?|guests?|friends?|kids?|children|adults?|visitors?|servings?)"
-UNIT_RE = r"(?:mm|cm|m|millimet(?:er|re)s?|centimet(?:er|re)s?|met(?:er|re)s?|inch(?:es)?|in)"
-NUMBER = r"(\d+(?:\.\d+)?)"
+UNIT_RE = (
+    r"(?:mm|cm|m|millimet(?:er|re)s?|centimet(?:er|re)s?|met(?:er|re)s?|inch(?:es)?|foot|feet|"
+    r"ft|in(?=\s*-?\s*(?:thick|wide|long|apart|each|from|in from|away|margin|slices?|pieces?|"
+    r"rounds?|coins?|strips?|chunks?|sections?)\b|\s*$))"
+)
+"""Length units; "in" only where no preposition can stand ("1 in slices", not "2 in half")."""
+NUMBER = r"(?<![\d./])(\d+(?:\.\d+)?)"
 LENGTH = rf"{NUMBER}\s*-?\s*({UNIT_RE})\b"
+WHOLE = r"(?<![./])\d+(?![./]?\d)"
+"""A whole number standing alone (not a part of '2.5')."""
+COUNT = rf"\b({WHOLE})"
+"""WHOLE as group 1, from a word boundary."""
 DOTS = r"(?:dots?|icings|rosettes?|drops?|blobs?|dollops?|kisses)"
 """Nouns for one piped dot (start = end)."""
 FILLER = (
     r"(?:(?!(?:of|and|or|with|for|per|each|every|in|on|into|around|at|to|the|a|an|it|this|"
     r"that|them|long|mm|cm|m|millimet(?:er|re)s?|centimet(?:er|re)s?|met(?:er|re)s?|inch(?:es)?|"
-    r"slices?|pieces?|parts?|rings?|layers?|circles?|rows?|is|are|was|be)\b)"
+    r"foot|feet|ft|slices?|pieces?|parts?|rings?|layers?|circles?|rows?|is|are|was|be)\b)"
     r"[a-z][a-z'-]*\s+)"
 )
 """One word that may stand between a count and its noun ("18 little dots", "3 neat rings")."""
@@ -111,7 +130,7 @@ FILLER = (
 
 def counted(noun: str, fillers: int = 3) -> str:
     """A count, up to `fillers` adjectives, then `noun`; the count is group 1."""
-    return rf"\b(\d+)\s+{FILLER}{{0,{fillers}}}{noun}"
+    return rf"{COUNT}\s+{FILLER}{{0,{fillers}}}{noun}"
 
 
 ICING_WORDS = (
@@ -146,11 +165,16 @@ def words_to_digits(text: str) -> str:
     return text
 
 
-def normalise(sentence: str) -> str:
+def normalise(sentence: str, origins: Origins | None = None) -> str:
+    """Lower case, numbers as digits, quantities as decimals with units ("half an inch" is
+    "0.5 inch"), no punctuation. `origins` collects the words each rewritten number was."""
+    origins = {} if origins is None else origins
     text = sentence.lower().replace("’", "'").replace("×", "x")
+    text = marks_and_symbols(text, origins)
     text = re.sub(r"[,;:!?()\[\]\"]", " ", text)
     text = re.sub(r"\.(?!\d)", " ", text)
     # "seven-segment" names the digit style, not a count (kept out of the number words)
     text = re.sub(r"\b(?:seven|7)[- ]?segments?\b", "seven_segment", text)
-    text = words_to_digits(text)
+    text = fraction_words(text, origins)
+    text = spoken_numbers(words_to_digits(text), origins)
     return re.sub(r"\s+", " ", text).strip()

@@ -75,11 +75,14 @@ class ParallelCuts(_Strict):
 
 
 class TipCuts(_Strict):
-    """Two cuts, `inset` metres in from each end of the object along `along`."""
+    """Two cuts, `inset` metres in from each end of the object's body along `along`; on an end
+    with a cap or stem beyond the body (the scene's `body_m`), `cap_inset` in from the body's
+    end (the cap comes off at its base)."""
 
     pattern: Literal["tips"]
     along: Literal["x", "y", "long"] = "long"
     inset: PositiveFloat
+    cap_inset: PositiveFloat | None = None
 
 
 class RadialCuts(_Strict):

@@ -13,7 +13,7 @@ if TYPE_CHECKING:
     from keymps.scenes.render import SceneSpec
 
 DEFAULT_TASK: dict[str, Any] = {
-    "detector": {"name": "threshold"},
+    "detector": {"name": "board"},
     "height": {"mode": "start", "margin": 0.005},
     "motion": {"clearance": 0.03, "work_speed": 0.03, "travel_speed": 0.15},
     "robot": {"model": "ur3", "tool": "knife"},

@@ -59,9 +59,13 @@ def _chord(
     )
 
 
-def _parallel_positions(cuts: ParallelCuts | TipCuts, extent: float) -> np.ndarray:
+def _parallel_positions(
+    cuts: ParallelCuts | TipCuts, extent: float, capped: tuple[bool, bool] = (False, False)
+) -> np.ndarray:
     if cuts.pattern == "tips":
-        return np.array([cuts.inset, extent - cuts.inset])
+        cap = cuts.inset if cuts.cap_inset is None else cuts.cap_inset
+        low, high = (cap if c else cuts.inset for c in capped)
+        return np.array([low, extent - high])
     if cuts.parts is not None:
         return np.arange(1, cuts.parts) * extent / cuts.parts
     if cuts.fractions is not None:
@@ -74,18 +78,28 @@ def _parallel_positions(cuts: ParallelCuts | TipCuts, extent: float) -> np.ndarr
 
 
 def parallel_cut_lines(
-    cuts: ParallelCuts | TipCuts, outline: np.ndarray, rotation_deg: float, overshoot: float
+    cuts: ParallelCuts | TipCuts,
+    outline: np.ndarray,
+    rotation_deg: float,
+    overshoot: float,
+    body: np.ndarray | None = None,
 ) -> np.ndarray:
     """(K, 2, 2) cuts perpendicular to the slicing direction, each running from its start to
     its end: the slicing direction turned 90 degrees clockwise (vertical cuts top to bottom,
-    horizontal cuts left to right)."""
+    horizontal cuts left to right). Positions are measured on the body (`body`: where it begins
+    and ends on the centre line, board metres) when the object has a cap or stem beyond it."""
     u = _slicing_direction(cuts.along, rotation_deg)
     v = np.array([u[1], -u[0]])
     projected = outline @ u
     low, high = float(projected.min()), float(projected.max())
+    capped = (False, False)
+    if body is not None:  # the body's ends replace the outline's where a cap or stem lies
+        first, last = sorted(float(e) for e in np.asarray(body, dtype=float) @ u)
+        capped = (first > low + 0.001, last < high - 0.001)
+        low, high = (first if capped[0] else low), (last if capped[1] else high)
     across = float((outline @ v).mean())
     lines = []
-    for position in _parallel_positions(cuts, high - low):
+    for position in _parallel_positions(cuts, high - low, capped):
         point = (low + position) * u + across * v
         chord = _chord(outline, point, v, overshoot)
         if chord is not None:
@@ -126,7 +140,13 @@ def cut_lines(truth: GroundTruth, scene_object: dict[str, Any]) -> np.ndarray:
     if cuts.pattern == "radial":
         centre = np.asarray(scene_object["centre_m"], dtype=float)
         return radial_cut_lines(cuts, outline, centre, truth.overshoot)
-    return parallel_cut_lines(cuts, outline, float(scene_object["rotation_deg"]), truth.overshoot)
+    return parallel_cut_lines(
+        cuts,
+        outline,
+        float(scene_object["rotation_deg"]),
+        truth.overshoot,
+        scene_object.get("body_m"),
+    )
 
 
 @dataclass(frozen=True)

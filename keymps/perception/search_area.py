@@ -39,18 +39,28 @@ def roi_polygon(value: Any) -> Any:
 
 def comparable_object_warnings(regions: Sequence[Any], pick: int, comparable: float) -> list[str]:
     """A warning per region (with .bbox and .area) at least `comparable` times the area of the
-    one at index `pick`: the detector may have kept the wrong object."""
-    # no '#' numbers here: the planner numbers objects 1, 2 ... from the left (#1 (left)),
-    # while detector.pick counts from 0 by decreasing area
+    one at index `pick` (regions by decreasing area): detector.pick may keep the wrong one."""
+    # no '#' numbers: the planner numbers the objects it sees (only the picked one here) from
+    # the left, while detector.pick counts every region by decreasing area
     chosen = regions[pick]
     return [
-        f"detect: two objects of comparable size: the one in box {list(chosen.bbox)} "
-        f"({chosen.area:.0f} px) is used, not the one in box {list(region.bbox)} "
-        f"({region.area:.0f} px); detector.pick: {index} (by decreasing area, from 0) uses "
-        "that one"
+        f"detect: detector.pick keeps the object in box {list(chosen.bbox)} "
+        f"({chosen.area:.0f} px); another of comparable size, in box {list(region.bbox)} "
+        f"({region.area:.0f} px, {_relative_place(region.bbox, chosen.bbox)}), is left out; "
+        f"detector.pick: {index} keeps that one (by decreasing area, from 0), and without "
+        "detector.pick both are kept for the sentence to choose"
         for index, region in enumerate(regions)
         if index != pick and region.area >= comparable * chosen.area
     ]
+
+
+def _relative_place(box: Sequence[int], other: Sequence[int]) -> str:
+    """'to its right', 'above it' ...: where `box` lies from `other` (image axes, y down)."""
+    dx = (box[0] + box[2] - other[0] - other[2]) / 2
+    dy = (box[1] + box[3] - other[1] - other[3]) / 2
+    if abs(dx) >= abs(dy):
+        return "to its right" if dx > 0 else "to its left"
+    return "below it" if dy > 0 else "above it"
 
 
 def odd_kernel(value: int) -> int:

@@ -8,6 +8,7 @@ import re
 import time
 import warnings
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
 
@@ -23,7 +24,7 @@ from keymps.errors import (
     os_error_message,
 )
 from keymps.interrupts import first_signal, interrupts_deferred, signals_received
-from keymps.planning.backend_choice import NO_SERVER
+from keymps.planning.backend_choice import AUTO_VLM, NO_SERVER
 from keymps.plugin.manager import (
     call_each,
     create_detector,
@@ -442,6 +443,23 @@ def _write_record(run: Run, error: BaseException | None, pipeline: _Pipeline) ->
     return None
 
 
+def _backend_under_way(task: Task, backend: str, options: RunOptions) -> RunOptions:
+    """The run's options with the plan stage's backend got going before the first stage: its
+    calls handed to the warm planner (one is up, or asked to start), or else its own set-up
+    (litellm's import, seconds) started on a thread, to overlap the stages before planning."""
+    if backend in NO_SERVER or options.dispatch is not None:  # (eval's broker warms up itself)
+        return options
+    from keymps.planning.planner import backend_options, prepare_backend
+    from keymps.planning.warm.dispatch import warm_dispatch
+
+    if backend == AUTO_VLM:
+        dispatch = warm_dispatch(options.warm_planner)
+        if dispatch is not None:
+            return replace(options, dispatch=dispatch)
+    prepare_backend(backend, backend_options(task))
+    return options
+
+
 def _prepare_folder(run: Run) -> None:
     """Remove an earlier run's files, then write the placeholder run.json that holds the disk
     space of the record (a run.json that is a folder, a full disk: refused before any stage)."""
@@ -486,6 +504,7 @@ def run_task(
     _check_options(options, through)
     task = apply_overrides(task, overrides.task_changes())
     backend, reason = choose_backend(task, overrides.backend, overrides.model, overrides.api_base)
+    options = _backend_under_way(task, backend, options)
     prepare_text_drawing()  # OpenCV's font set-up, on the other core until plan.png is drawn
     parts = Components(task, backend, through)
     _refuse_files_not_to_send(task, parts, overrides)

@@ -65,6 +65,9 @@ class VlmBackend(Protocol):
 
     What a backend can do beyond `complete` is declared by inheriting BackendBase and setting
     its ability flags; a backend that does not inherit it gets the flags' defaults.
+
+    Optional: `def prepare()` does a slow set-up (an import) on a thread as soon as a run knows
+    it will use the backend.
     """
 
     name: str

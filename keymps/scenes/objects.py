@@ -39,6 +39,9 @@ class ObjectKind:
     shape: Shape
     round: bool = False
     """Length and width are one diameter; any rotation looks alike."""
+    body: tuple[float, float] = (0.0, 1.0)
+    """Where the body a cook slices lies along the length (0 one end, 1 the other): an
+    eggplant's green cap and stem begin at 0.73 (keymps.scenes.textures.paint_eggplant)."""
 
 
 def _superellipse(power: float) -> Callable[[np.ndarray], np.ndarray]:
@@ -71,7 +74,7 @@ KINDS: dict[str, ObjectKind] = {
         ObjectKind("cabbage", "head of cabbage", 0.14, 0.13, 0.11, Shape("disk", wobble=0.03), True),
         ObjectKind(
             "eggplant", "purple eggplant, green cap", 0.20, 0.065, 0.06,
-            Shape("profile", bend=0.04, profile=_eggplant_profile),
+            Shape("profile", bend=0.04, profile=_eggplant_profile), body=(0.0, 0.73),
         ),
         ObjectKind(
             "baguette", "baguette", 0.26, 0.06, 0.05, Shape("profile", profile=_superellipse(4.0))
@@ -171,6 +174,16 @@ def _wobble(theta: np.ndarray, amplitude: float, rng: np.random.Generator) -> np
     for harmonic in range(2, 9):
         total += rng.normal(0, 1) / harmonic * np.cos(harmonic * theta + rng.uniform(0, 2 * np.pi))
     return amplitude * total / max(np.abs(total).max(), 1e-9)
+
+
+def body_ends_local(obj: ObjectSpec) -> np.ndarray | None:
+    """(2, 2) the centre line's points where the body begins and ends, in the object's frame
+    (u, v metres); None when the body is the whole object."""
+    kind = KINDS[obj.kind]
+    if kind.body == (0.0, 1.0):
+        return None
+    u = (np.asarray(kind.body) - 0.5) * obj.length
+    return np.stack([u, centre_line(u, obj.length, kind.shape.bend)], axis=1)
 
 
 def to_board_frame(points: np.ndarray, obj: ObjectSpec, centre: tuple[float, float]) -> np.ndarray:

@@ -27,6 +27,7 @@ from keymps.scenes.objects import (
     ObjectKind,
     ObjectSpec,
     Shape,
+    body_ends_local,
     canonical_kind,
     check_kinds,
     outline_local,
@@ -347,4 +348,13 @@ def _object_truth(
         "outline_m": np.round(outline_m, 6).tolist(),
         "hole_m": np.round(hole_m, 6).tolist() if hole_m is not None else None,
         "outline_px": np.round(outline_px, 3).tolist(),
-    }
+    } | _body_truth(obj, centre)
+
+
+def _body_truth(obj: ObjectSpec, centre: tuple[float, float]) -> dict[str, Any]:
+    """{'body_m': [[x, y], [x, y]]}: where the body a cook slices begins and ends on the centre
+    line (board metres), for kinds with a cap or stem beyond it; else nothing."""
+    ends = body_ends_local(obj)
+    if ends is None:
+        return {}
+    return {"body_m": np.round(to_board_frame(ends, obj, centre), 6).tolist()}

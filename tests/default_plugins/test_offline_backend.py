@@ -569,3 +569,17 @@ def test_a_primitive_the_sentence_names_is_taken_first():
     icing = {"line": "Icing line with a piping bag.", "rosette": "Icing rosette: pipe a swirl."}
     assert choose_primitive("icing", icing, "Pipe 6 rosettes around the cake")[0] == "rosette"
     assert choose_primitive("icing", icing, "Put 6 icing dots around the cake")[0] == "line"
+
+
+def test_a_named_design_answer_refuses_what_it_cannot_carry():
+    """planner.answer: design: a distance from the edge, the tips' inset or strips are no
+    named design's parameters; the offline planner says so rather than answer without them."""
+    scene = make_scene("disk", (150, 150))
+    sentence = "Put 12 dots around the cake half an inch from the edge"
+    with pytest.raises(KeympsError, match="a named design cannot carry 1.27 cm from the edge"):
+        plan_for(sentence, scene, ICING, answer="design")
+    plan, _ = plan_for("Put 12 dots around the cake", scene, ICING, answer="design")
+    assert plan.num_pairs == 12
+    loaf = make_scene("rect", (200, 60))
+    with pytest.raises(KeympsError, match="cannot carry strip pieces"):
+        plan_for("Cut it into 3 strips", loaf, answer="design")

@@ -121,9 +121,9 @@ def test_every_object_is_listed_and_pick_keeps_one_naming_the_other() -> None:
 
     picked = ThresholdDetector(ThresholdOptions(pick=0)).detect(image)
     (warning,) = picked.warnings
-    assert "two objects of comparable size" in warning
+    assert "another of comparable size" in warning
     assert str(list(picked.bbox_px)) in warning and str(list(picked.others_px[0])) in warning
-    assert "detector.pick: 1 (by decreasing area, from 0) uses that one" in warning
+    assert "detector.pick: 1 keeps that one (by decreasing area, from 0)" in warning
     assert len(picked.objects) == 1
 
     second = ThresholdDetector(ThresholdOptions(pick=1)).detect(image)

@@ -8,9 +8,11 @@ recorded again from 91cb8e4 with one change, the corner rule that breaks a tie b
 the same way on every CPU (keymps.motion.strokes._nearest_first): before it, which of them ended
 a stroke followed the last bit of NumPy's rounding. icing_spiral, icing_star and icing_digits
 were recorded again when icing lines that meet became one continuous stroke (issue 39 item 3:
-the motion changed on purpose; the other five reproduce). A faster implementation must give
-the same motion and the same verdicts; if an output changes on purpose, record again with
-`python tests/pipeline/test_golden_runs.py --record` and say why in the commit.
+the motion changed on purpose; the other five reproduce). The four cutting cases were
+recorded again when the shipped pizza was centred on its board and the cutting tasks' UR3 base
+moved 2 cm back (issue 39 item 4, and the arm's self-contact check). A faster implementation
+must give the same motion and the same verdicts; if an output changes on purpose, record again
+with `python tests/pipeline/test_golden_runs.py --record` and say why in the commit.
 """
 
 from __future__ import annotations

@@ -225,6 +225,63 @@ def test_the_left_one_is_ambiguous_when_the_objects_stand_one_above_the_other() 
     assert clause.objects == (1,)
 
 
+def test_two_objects_one_above_the_other_are_the_top_and_the_bottom_one() -> None:
+    """Issue 39: two bananas lying one above the other were listed as '#1 (left), #2 (left)'
+    and the refusal suggested 'the left one'."""
+    upper = Target(1, "banana", (380, 100), (340, 80), 20000.0)
+    lower = Target(2, "banana", (380, 300), (340, 80), 19500.0)
+    with pytest.raises(AddressingError) as error:
+        split_by_object("Cut it in half", [upper, lower])
+    message = str(error.value)
+    assert "(#1 banana (top), #2 banana (bottom))" in message and "'the top one'" in message
+    column = [Target(i, None, (200, 100 * i), (300, 60), 9000.0) for i in (1, 2, 3)]
+    with pytest.raises(AddressingError, match=r"#1 \(topmost\), #2 \(2\. from the top\)"):
+        split_by_object("Cut it in half", column)
+
+
+@pytest.mark.parametrize(
+    ("names", "sentence", "words"),
+    [
+        (("banana", "banana bread"), "cut the cucumber in half", "there is no cucumber in the"),
+        (("banana", "banana bread"), "cut the banana and the cucumbers", "no cucumber"),
+        (("banana",), "Cut the cucumber into 4 pieces", "there is no cucumber in the scene"),
+        (("eggplant", "banana"), "cut the aubergine in half", None),
+        (("banana bread", "banana"), "cut the bread in half", None),
+        ((None, None), "cut the cucumber in half", "or name them in scene.objects"),
+    ],
+)
+def test_a_food_the_scene_has_not_is_named_as_missing(
+    names: tuple[str | None, ...], sentence: str, words: str | None
+) -> None:
+    """Issue 39: 'cut the cucumber' with no cucumber said the sentence 'does not say which'."""
+    targets = [
+        Target(i, name, (150.0 + 300 * i, 200.0), (200, 80), 12000.0 - i)
+        for i, name in enumerate(names, start=1)
+    ]
+    if words is None:
+        assert split_by_object(sentence, targets)[0].objects == (1,)
+        return
+    with pytest.raises(AddressingError, match=words):
+        split_by_object(sentence, targets)
+
+
+def test_a_run_cutting_both_objects_warns_about_neither(tmp_path: Path) -> None:
+    """Issue 39: every run with two objects warned 'the one in box [...] is used, not the one
+    in box [...]', even when both were cut. The board detector keeps both (detector.pick keeps
+    one); the plan cuts both, and nothing is warned about them."""
+    png, _ = scene_file(tmp_path, [
+        ObjectSpec("banana", 0.18, 0.036, 0.035, 0.0, centre=(0.19, 0.17)),
+        ObjectSpec("banana", 0.17, 0.036, 0.035, 0.0, centre=(0.19, 0.07)),
+    ])  # fmt: skip
+    text = task_text(png, "Cut each of them in half", KNIFE).replace(
+        "planner:", "detector: {name: board}\nplanner:"
+    )
+    run = run_offline(tmp_path, text)
+    record = json.loads((run.folder / "run.json").read_text())
+    assert record["ok"] and sorted(set(record["pair_objects"])) == [1, 2]
+    assert not [w for w in run.warnings if "comparable" in w or "is used, not" in w], run.warnings
+
+
 # --- end to end, offline ---------------------------------------------------------------------
 
 

@@ -21,7 +21,7 @@ TASKS = Path(__file__).resolve().parents[2] / "tasks"
 SHIPPED = {
     # file name -> the documented `keymps scene render` arguments (docs/perception.md)
     "round_cake": ["round_cake", "--length", "0.12", "--height", "0.06", "--seed", "0"],
-    "pizza": ["round_pizza", "--length", "0.15", "--height", "0.02", "--seed", "0"],
+    "pizza": ["round_pizza", "--length", "0.15", "--height", "0.02", "--seed", "1"],
     "banana_bread": [
         "banana_bread", "--length", "0.18", "--width", "0.09", "--height", "0.08", "--seed", "0",
     ],
