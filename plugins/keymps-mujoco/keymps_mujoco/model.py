@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
@@ -518,76 +518,103 @@ def _add_tool(wrist: Any, robot: RobotModel) -> list[str]:
     return names
 
 
+@dataclass(frozen=True)
+class _ToolPart:
+    """One geom of a tool in the flange frame (metres, kilograms)."""
+
+    name: str
+    shape: Literal["box", "cylinder"]
+    size: list[float]
+    """MuJoCo's size: half extents of a box; radius and half length of a cylinder."""
+    pos: list[float]
+    rgba: tuple[float, ...]
+    mass: float
+    along: np.ndarray | None = None
+    """(3,) the direction of a cylinder not along the flange's z axis."""
+
+
 def tool_geoms(body: Any, tool: Tool) -> list[str]:
     """Geometry of the tool in the flange frame; returns the names of its geoms."""
     import mujoco
 
-    box, cylinder = mujoco.mjtGeom.mjGEOM_BOX, mujoco.mjtGeom.mjGEOM_CYLINDER
-    tip = np.asarray(tool.tcp, dtype=float)
-    reach = float(tip[2])
-    parts: list[tuple[str, Any, list[float], list[float], tuple[float, ...], float]] = []
-    if tool.blade_length > 0:  # a knife: a shank down from the flange, the blade at the tip
-        blade_height = min(0.04, 0.5 * reach)
-        length = float(tool.blade_length)
-        shank = reach - blade_height
-        parts.append(
-            ("tool_shank", cylinder, [0.012, shank / 2, 0], [0, 0, shank / 2], HANDLE_RGBA, 0.3)
-        )
-        parts.append(
-            (
-                "tool_blade",
-                box,
-                [length / 2, 0.001, blade_height / 2],
-                [tip[0] - length / 2, tip[1], reach - blade_height / 2],
-                STEEL_RGBA,
-                0.15,
-            )
-        )
-    elif tool.name == "piping_bag":  # a bag tapering to a nozzle
-        bag, taper = 0.6 * reach, 0.25 * reach
-        nozzle = reach - bag - taper
-        parts += [
-            ("tool_bag", cylinder, [0.035, bag / 2, 0], [0, 0, bag / 2], BAG_RGBA, 0.3),
-            (
-                "tool_taper",
-                cylinder,
-                [0.015, taper / 2, 0],
-                [0, 0, bag + taper / 2],
-                BAG_RGBA,
-                0.05,
-            ),
-            (
-                "tool_nozzle",
-                cylinder,
-                [0.004, nozzle / 2, 0],
-                [tip[0], tip[1], reach - nozzle / 2],
-                STEEL_RGBA,
-                0.01,
-            ),
-        ]
-    else:  # any other tool: a rod from the flange to its tip
-        length = float(np.linalg.norm(tip))
-        parts.append(("tool_rod", cylinder, [0.006, length / 2, 0], list(tip / 2), STEEL_RGBA, 0.2))
+    shapes = {"box": mujoco.mjtGeom.mjGEOM_BOX, "cylinder": mujoco.mjtGeom.mjGEOM_CYLINDER}
     names = []
-    for name, kind, size, pos, rgba, mass in parts:
+    for part in _tool_parts(tool):
         geom = body.add_geom(
-            name=name,
-            type=kind,
-            size=size,
-            pos=pos,
-            rgba=list(rgba),
-            mass=mass,
+            name=part.name,
+            type=shapes[part.shape],
+            size=part.size,
+            pos=part.pos,
+            rgba=list(part.rgba),
+            mass=part.mass,
             group=ARM_GROUP,
             contype=CONTACT_TOOL,
             conaffinity=CONTACT_BOARD,
             solref=[0.01, 1.0],
         )
-        if name == "tool_rod":  # along the flange-to-tip vector
+        if part.along is not None:
             quat = np.zeros(4)
-            mujoco.mju_quatZ2Vec(quat, tip / max(float(np.linalg.norm(tip)), 1e-9))
+            mujoco.mju_quatZ2Vec(quat, part.along)
             geom.quat = quat.tolist()
-        names.append(name)
+        names.append(part.name)
     return names
+
+
+def _tool_parts(tool: Tool) -> list[_ToolPart]:
+    """A knife, a piping bag, or for any other tool a rod from the flange to its tip."""
+    tip = np.asarray(tool.tcp, dtype=float)
+    if tool.blade_length > 0:
+        return _knife_parts(tip, float(tool.blade_length))
+    if tool.name == "piping_bag":
+        return _piping_bag_parts(tip)
+    length = float(np.linalg.norm(tip))
+    along = tip / max(length, 1e-9)
+    return [
+        _ToolPart(
+            "tool_rod", "cylinder", [0.006, length / 2, 0], list(tip / 2), STEEL_RGBA, 0.2, along
+        )
+    ]
+
+
+def _knife_parts(tip: np.ndarray, blade_length: float) -> list[_ToolPart]:
+    """A shank down from the flange, the blade at the tip (`tip` (3,) in the flange frame)."""
+    reach = float(tip[2])
+    blade_height = min(0.04, 0.5 * reach)
+    shank = reach - blade_height
+    return [
+        _ToolPart(
+            "tool_shank", "cylinder", [0.012, shank / 2, 0], [0, 0, shank / 2], HANDLE_RGBA, 0.3
+        ),
+        _ToolPart(
+            "tool_blade",
+            "box",
+            [blade_length / 2, 0.001, blade_height / 2],
+            [tip[0] - blade_length / 2, tip[1], reach - blade_height / 2],
+            STEEL_RGBA,
+            0.15,
+        ),
+    ]
+
+
+def _piping_bag_parts(tip: np.ndarray) -> list[_ToolPart]:
+    """A bag tapering to a nozzle whose end is the tip (`tip` (3,) in the flange frame)."""
+    reach = float(tip[2])
+    bag, taper = 0.6 * reach, 0.25 * reach
+    nozzle = reach - bag - taper
+    return [
+        _ToolPart("tool_bag", "cylinder", [0.035, bag / 2, 0], [0, 0, bag / 2], BAG_RGBA, 0.3),
+        _ToolPart(
+            "tool_taper", "cylinder", [0.015, taper / 2, 0], [0, 0, bag + taper / 2], BAG_RGBA, 0.05
+        ),
+        _ToolPart(
+            "tool_nozzle",
+            "cylinder",
+            [0.004, nozzle / 2, 0],
+            [tip[0], tip[1], reach - nozzle / 2],
+            STEEL_RGBA,
+            0.01,
+        ),
+    ]
 
 
 def _add_cameras(
