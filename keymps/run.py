@@ -55,7 +55,11 @@ class RunOptions:
     write: `keymps eval`'s default, for hundreds of runs)."""
     dispatch: Callable[[Any, Any], Any] | None = None
     """dispatch(backend, request) -> BackendAnswer: hands each call of a backend that offers
-    `acomplete` to an event loop (`keymps eval`'s broker) instead of calling `complete`."""
+    `acomplete` elsewhere instead of calling `complete`: to an event loop (`keymps eval`'s
+    broker), or to the warm planner (keymps.planning.warm)."""
+    warm_planner: str = "off"
+    """Whether litellm's calls go to the warm planner: off (never; run_task's default), use
+    (when one is up: the keymps command's default) or start (starting one when none is up)."""
 
 
 STAGES = ("image", *PIPELINE_STAGES)

@@ -65,3 +65,16 @@ def _private_vlm_cache(tmp_path_factory: pytest.TempPathFactory) -> Any:
     mp.setenv("KEYMPS_CONFIG", str(tmp_path_factory.mktemp("user-config") / "config.yaml"))
     yield
     mp.undo()
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _private_warm_planner_folder(tmp_path_factory: pytest.TempPathFactory) -> Any:
+    """No test reaches the user's own warm planner: `keymps run` uses one that is up
+    (keymps.planning.warm), so the tests' runs look for it in a folder of their own."""
+    mp = pytest.MonkeyPatch()
+    folder = tmp_path_factory.mktemp("runtime")
+    folder.chmod(0o700)
+    mp.setenv("XDG_RUNTIME_DIR", str(folder))
+    mp.delenv("KEYMPS_WARM_PLANNER", raising=False)
+    yield
+    mp.undo()

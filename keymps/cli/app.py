@@ -23,6 +23,7 @@ _LAZY_GROUPS: dict[str, tuple[str, str]] = {
     "scene": ("keymps.cli.scene", "scene"),
     "eval": ("keymps.cli.eval", "eval_command"),
     "calibrate": ("keymps.cli.calibrate", "calibrate"),
+    "planner": ("keymps.cli.planner", "planner"),
 }
 """Sub-commands that live in their own modules, imported only when listed or used."""
 
@@ -70,6 +71,11 @@ def cli() -> None:
     help="Rerun recording: save run.rrd, spawn a viewer, connect to one, or off.",
 )
 @click.option("--rerun-url", help="Viewer URL for --rerun connect.")
+@click.option(
+    "--warm-planner/--no-warm-planner", default=None,
+    help="Start the warm planner when it is not up (keymps planner), or never use it. "
+    "Default: use it when it is up ($KEYMPS_WARM_PLANNER: 1 or 0 as these).",
+)  # fmt: skip
 @click.option("-q", "--quiet", is_flag=True, help="Print only the run folder.")
 @user_errors
 def run(task_file: Path, rerun_mode: str, rerun_url: str | None, quiet: bool, **given: Any) -> None:
@@ -101,8 +107,10 @@ def _run(
     from keymps.cli.output import RunPrinter
     from keymps.errors import KeympsError
     from keymps.pipeline.engine import refuse_a_folder_of_other_files, run_task
+    from keymps.planning.warm.dispatch import mode_from
     from keymps.run import Run
 
+    given["warm_planner"] = mode_from(given.pop("warm_planner"))
     if given.get("out") is not None:
         refuse_a_folder_of_other_files(Path(given["out"]))
     printer = RunPrinter(quiet=quiet)

@@ -61,6 +61,11 @@ METHOD_NAMES = (
     "--out", type=click.Path(file_okay=False, path_type=Path),
     help="Results folder (default eval/SUITE[-METHODS]); rerunning into it resumes.",
 )  # fmt: skip
+@click.option(
+    "--warm-planner/--no-warm-planner", default=None,
+    help="Start the warm planner when it is not up (keymps planner), or never use it. "
+    "Default: use it when it is up ($KEYMPS_WARM_PLANNER: 1 or 0 as these).",
+)  # fmt: skip
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @user_errors
 def eval_command(
@@ -76,6 +81,7 @@ def eval_command(
     out: Path | None,
     no_cache: bool,
     image_format: str,
+    warm_planner: bool | None,
     quiet: bool,
 ) -> None:
     """Run every case x method x repeat of SUITE (a file or a shipped suite's name), write
@@ -99,10 +105,17 @@ def eval_command(
         from keymps.plugin.manager import skip_pydantic_plugin_scan
 
         skip_pydantic_plugin_scan()  # before the suite's models: the plugin scan is read once
+        from keymps.eval.pool import get_going
         from keymps.eval.report import markdown_table, write_summary
-        from keymps.eval.runner import EvalOptions
+        from keymps.eval.runner import EvalOptions, backend_named
         from keymps.eval.suites import load_suite
+        from keymps.planning.warm.dispatch import mode_from
 
+        warm = mode_from(warm_planner)
+        # litellm's import (or the warm planner) and the workers' fork server, while the
+        # suite is read
+        chosen_backend = backend_named(backend, model, api_base)
+        get_going(chosen_backend, model, api_base, concurrency, processes, warm)
         suite = load_suite(suite_file)
         chosen = methods or ("keymps",)
         folder = out or Path("eval") / "-".join(
@@ -120,6 +133,7 @@ def eval_command(
             cases=cases,
             no_cache=no_cache,
             image_format=image_format,
+            warm_planner=warm,
         )
         # start-up's objects frozen: never scanned again, here or in the forked workers
         start_up_done()

@@ -31,6 +31,7 @@ from keymps.planning.backend_choice import AUTO_VLM
 
 if TYPE_CHECKING:
     from keymps.eval.turn import CpuTurn
+    from keymps.planning.warm.dispatch import WarmDispatch
     from keymps.types import BackendAnswer, PlanRequest
 
 BROKERED_BACKEND = AUTO_VLM
@@ -64,9 +65,18 @@ def _portable(request: PlanRequest) -> PlanRequest:
 class VlmBroker:
     """Makes VLM calls on the event loop, at most `concurrency` at once."""
 
-    def __init__(self, concurrency: int, warm_up: bool = False, turn: CpuTurn | None = None):
+    def __init__(
+        self,
+        concurrency: int,
+        warm_up: bool = False,
+        turn: CpuTurn | None = None,
+        via: WarmDispatch | None = None,
+    ):
         self.turn = turn
         """Given up while a caller of `complete` waits for its answer (keymps.eval.turn)."""
+        self.via = via
+        """The warm planner, when the calls go there (keymps.planning.warm): this process then
+        never imports litellm."""
         self.concurrency = max(1, concurrency)
         self._semaphore = asyncio.Semaphore(self.concurrency)
         self._pending: set[Future[Any]] = set()
@@ -100,6 +110,8 @@ class VlmBroker:
 
     async def _ask(self, backend: Any, request: PlanRequest) -> BackendAnswer:
         async with self._semaphore:
+            if self.via is not None:
+                return await self.via.acall(backend, request)
             answer: BackendAnswer = await backend.acomplete(request)
             return answer
 

@@ -42,13 +42,14 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from keymps.errors import KeympsError
-from keymps.planning.backend_choice import NO_SERVER
+from keymps.planning.backend_choice import AUTO_VLM, NO_SERVER
 
 if TYPE_CHECKING:
     from keymps.eval.broker import VlmBroker
     from keymps.eval.runner import EvalOptions, Job
     from keymps.eval.suites import Suite
     from keymps.eval.turn import CpuTurn
+    from keymps.planning.warm.dispatch import WarmDispatch
 
 RUNS_AHEAD = 2
 """Runs each process prepares beyond its share of the VLM calls in flight."""
@@ -198,18 +199,12 @@ def run_in_processes(
     With an offline backend this process is one of them: it takes jobs from the same queue as
     its workers from the start, so no core waits for the workers to start. With a VLM this
     process makes the calls (keymps.eval.broker) and every run is a worker's."""
-    from keymps.eval.broker import BROKERED_BACKEND
     from keymps.eval.turn import CpuTurn
     from keymps.perception.board_model import lab_tables_ready
 
     lab_tables_ready()  # a forked worker inherits the tables, and no thread of their build
     forking = fork_here(backend)
-    context: Any = multiprocessing.get_context("fork" if forking else "forkserver")
-    if not forking:
-        preload = ["keymps.eval.preload"]
-        if backend == BROKERED_BACKEND:  # its runs build the litellm backend (0.15 s of imports)
-            preload.append("keymps.default_plugins.litellm.backend")
-        context.set_forkserver_preload(preload)
+    context: Any = multiprocessing.get_context("fork") if forking else fork_server(backend)
     job_queue = context.Queue()
     result_queue = context.Queue()
     runs = runs_in_flight(options.concurrency, processes, backend)
@@ -294,6 +289,66 @@ def run_in_processes(
             # (a full pipe nobody reads, or a lock held by a worker ended mid-write).
             channel.cancel_join_thread()
             channel.close()
+
+
+def fork_server(backend: str) -> Any:
+    """The multiprocessing context whose fork server starts the workers of runs that wait for
+    a VLM: it imports keymps.eval.preload once (and the litellm backend's module, which its
+    runs build: 0.15 s), and each worker starts from there."""
+    from keymps.eval.broker import BROKERED_BACKEND
+
+    context = multiprocessing.get_context("forkserver")
+    preload = ["keymps.eval.preload"]
+    if backend == BROKERED_BACKEND:
+        preload.append("keymps.default_plugins.litellm.backend")
+    context.set_forkserver_preload(preload)
+    return context
+
+
+def start_fork_server(backend: str) -> None:
+    """Start the fork server now (its imports, a second or more, then run on the other core
+    while this process reads the suite and imports litellm); a later start of a worker finds
+    it running. Offline runs fork their workers from this process instead (fork_here)."""
+    from multiprocessing import forkserver
+
+    if backend in OFFLINE_BACKENDS:
+        return
+    fork_server(backend)
+    forkserver.ensure_running()
+
+
+_UNDER_WAY: dict[str, WarmDispatch | None] = {}
+"""Backends whose start-up this process has begun, and the warm planner their calls go to."""
+
+
+def get_going(
+    backend: str,
+    model: str | None,
+    api_base: str | None,
+    concurrency: int,
+    processes: int | None,
+    warm_planner: str = "off",
+) -> WarmDispatch | None:
+    """A VLM evaluation's slow starts, begun before the suite is read (once per process):
+    the warm planner's use when one is up (or `warm_planner` is start), else litellm's import
+    and first-call set-up (on a thread of this process, whose broker makes every call); and
+    the fork server of the worker processes unless every run stays in this process
+    (--processes 1, or one VLM call at a time). Returns at once: the warm planner's dispatch
+    for the broker, or None. Offline runs need none of it."""
+    from keymps.planning.planner import prepare_backend
+    from keymps.planning.warm.dispatch import warm_dispatch
+
+    if backend in OFFLINE_BACKENDS:
+        return None
+    if backend in _UNDER_WAY:
+        return _UNDER_WAY[backend]
+    warm = warm_dispatch(warm_planner) if backend == AUTO_VLM else None
+    if warm is None:
+        prepare_backend(backend, {"model": model, "api_base": api_base})
+    if processes != 1 and concurrency > 1:
+        start_fork_server(backend)
+    _UNDER_WAY[backend] = warm
+    return warm
 
 
 def fork_here(backend: str) -> bool:

@@ -64,6 +64,9 @@ class EvalOptions:
     processes: int | None = 1
     """Worker processes sharing the runs in flight (1: every run in this process; None: one per
     core when there are enough runs, as `keymps eval` does). See keymps.eval.pool."""
+    warm_planner: str = "off"
+    """Whether litellm's calls go to the warm planner (keymps.planning.warm): off, use (when
+    one is up: `keymps eval`'s default) or start."""
 
 
 @dataclass(frozen=True)
@@ -79,9 +82,14 @@ class Job:
 
 
 def resolve_backend(options: EvalOptions) -> str:
-    if options.backend:
-        return options.backend
-    return AUTO_VLM if (options.model or options.api_base) else AUTO_OFFLINE
+    return backend_named(options.backend, options.model, options.api_base)
+
+
+def backend_named(backend: str | None, model: str | None, api_base: str | None) -> str:
+    """The planner backend of `keymps eval --backend --model --api-base`."""
+    if backend:
+        return backend
+    return AUTO_VLM if (model or api_base) else AUTO_OFFLINE
 
 
 def plan_jobs(suite: Suite, options: EvalOptions) -> list[Job]:
@@ -445,12 +453,20 @@ def run_suite(
     waits long for the other."""
     from keymps.eval.broker import BROKERED_BACKEND, VlmBroker
     from keymps.eval.methods import check_runnable, get_method
-    from keymps.eval.pool import OFFLINE_BACKENDS, JobRunner, default_processes, run_in_processes
+    from keymps.eval.pool import (
+        OFFLINE_BACKENDS,
+        JobRunner,
+        default_processes,
+        get_going,
+        run_in_processes,
+    )
     from keymps.eval.turn import CpuTurn
 
     backend = resolve_backend(options)
     for name in options.methods:
         check_runnable(get_method(name), backend)
+    given = (options.model, options.api_base, options.concurrency, options.processes)
+    warm = get_going(backend, *given, options.warm_planner)  # (keymps eval began it earlier)
     jobs = plan_jobs(suite, options)
     if jobs:
         check_planner_options(suite, jobs[0], options)
@@ -481,8 +497,8 @@ def run_suite(
         processes = min(processes, options.concurrency)
     # given up by the broker while a run of this process waits for the VLM
     turn = CpuTurn(active=backend == BROKERED_BACKEND)
-    warm_up = backend == BROKERED_BACKEND and bool(todo)
-    broker = VlmBroker(options.concurrency, warm_up=warm_up, turn=turn)
+    warm_up = backend == BROKERED_BACKEND and bool(todo) and warm is None
+    broker = VlmBroker(options.concurrency, warm_up=warm_up, turn=turn, via=warm)
     try:
         if processes > 1:
             runner = JobRunner(run=run_job, record=job_record)

@@ -7,6 +7,7 @@ import re
 import time
 import warnings
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -22,7 +23,7 @@ from keymps.errors import (
     os_error_message,
 )
 from keymps.interrupts import first_signal, interrupts_deferred, signals_received
-from keymps.planning.backend_choice import NO_SERVER
+from keymps.planning.backend_choice import AUTO_VLM, NO_SERVER
 from keymps.plugin.manager import call_each, create_component, get_manager
 from keymps.run import IMAGE_FORMATS, STAGES, Run, RunOptions, clear_earlier_run
 from keymps.types import Detection, ExecutionReport, SceneImage
@@ -423,6 +424,23 @@ def _write_record(run: Run, error: BaseException | None, pipeline: _Pipeline) ->
     return None
 
 
+def _backend_under_way(task: Task, backend: str, options: RunOptions) -> RunOptions:
+    """The run's options with the plan stage's backend got going before the first stage: its
+    calls handed to the warm planner (one is up, or asked to start), or else its own set-up
+    (litellm's import, seconds) started on a thread, to overlap the stages before planning."""
+    if backend in NO_SERVER or options.dispatch is not None:  # (eval's broker warms up itself)
+        return options
+    from keymps.planning.planner import backend_options, prepare_backend
+    from keymps.planning.warm.dispatch import warm_dispatch
+
+    if backend == AUTO_VLM:
+        dispatch = warm_dispatch(options.warm_planner)
+        if dispatch is not None:
+            return replace(options, dispatch=dispatch)
+    prepare_backend(backend, backend_options(task))
+    return options
+
+
 def _prepare_folder(run: Run) -> None:
     """Remove an earlier run's files, then write the placeholder run.json that holds the disk
     space of the record (a run.json that is a folder, a full disk: refused before any stage)."""
@@ -450,7 +468,8 @@ def run_task(
 
     `through="ground"` stops after grounding the plan (eval's plan-only runs): nothing is timed,
     checked or executed. Keyword overrides: instruction, image, backend, model, api_base, executor, out, rerun,
-    rerun_url, no_cache, record, confirm, quiet, image_format. Raises KeympsError on the first
+    rerun_url, no_cache, record, confirm, quiet, image_format, warm_planner (off, use, start:
+    keymps.planning.warm). Raises KeympsError on the first
     problem; nothing after the failing stage runs, above all no executor.
     """
     from keymps.pipeline.folder_lock import FolderLock
@@ -471,6 +490,7 @@ def run_task(
         "quiet",
         "image_format",
         "dispatch",
+        "warm_planner",
     ):
         if key in overrides:
             setattr(options, key, overrides.pop(key))
@@ -492,6 +512,7 @@ def run_task(
     backend, reason = choose_backend(
         task, overrides.get("backend"), overrides.get("model"), overrides.get("api_base")
     )
+    options = _backend_under_way(task, backend, options)
     prepare_text_drawing()  # OpenCV's font set-up, on the other core until plan.png is drawn
     parts = Components(task, backend, through)
     if backend not in NO_SERVER:  # what the run may not send its server, before any stage

@@ -63,8 +63,10 @@ class VlmBackend(Protocol):
     """Answers a planning request with the planner's JSON answer: `register_vlm_backends`.
 
     Optional: `cacheable = True` lets keymps cache answers on disk (paid or slow backends),
-    `asks_model = False` keeps its answers out of the VLM call counts (the offline planner), and
-    `async def acomplete(request)` lets `keymps eval` make many calls at once on one event loop.
+    `asks_model = False` keeps its answers out of the VLM call counts (the offline planner),
+    `async def acomplete(request)` lets `keymps eval` make many calls at once on one event loop,
+    and `def prepare()` does a slow set-up (an import) on a thread as soon as a run knows it
+    will use the backend.
     """
 
     name: str

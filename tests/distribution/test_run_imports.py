@@ -26,6 +26,9 @@ NOT_ON_THE_RUN_PATH = (
     "mujoco",
     "asyncio",  # the litellm backend's deadline; an offline run has no event loop
     "keymps.default_plugins.litellm.backend",
+    "keymps.planning.warm.client",  # the warm planner is for VLM runs
+    "keymps.planning.warm.wire",
+    "keymps.planning.warm.server",
     "keymps_mujoco.executor",
     "keymps_mujoco.image_source",
     "keymps_ur_rtde.executor",

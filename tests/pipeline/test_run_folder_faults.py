@@ -516,18 +516,30 @@ def test_the_lock_is_released_after_a_run(tmp_path: Path) -> None:
     FolderLock(tmp_path).acquire().release()
 
 
+@pytest.fixture
+def python_ctrl_c() -> typing.Iterator[None]:
+    """Python's own Ctrl-C handler for the test, whatever an earlier test left installed."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
+
 class _CtrlCWhenFinishing:
-    """An observer that presses Ctrl-C (SIGINT to this process) when the run ends."""
+    """An observer that presses Ctrl-C (SIGINT) when the run ends.
+
+    raise_signal delivers SIGINT to this thread and Python runs the handler before the call
+    returns: os.kill to the process let the kernel pick another thread (a busy machine then ran
+    the handler after the observer had returned, and the test failed once under load)."""
 
     @keymps.hookimpl
     def keymps_stage_done(self, stage: str, result: Any, run: Any) -> None:
         if stage == "finished":
-            os.kill(os.getpid(), signal.SIGINT)
-            time.sleep(0.5)  # the handler runs here, inside the observer
+            signal.raise_signal(signal.SIGINT)
+            raise AssertionError("SIGINT did not interrupt the observer")
 
 
 def test_ctrl_c_while_the_run_closes_still_writes_run_json(
-    keymps_plugins: Any, tmp_path: Path
+    keymps_plugins: Any, tmp_path: Path, python_ctrl_c: None
 ) -> None:
     """A Ctrl-C after the last stage (while the recording closes) skipped run.json."""
     install(keymps_plugins)

@@ -9,6 +9,7 @@ from __future__ import annotations
 import functools
 import ipaddress
 import os
+import threading
 import time
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -30,6 +31,9 @@ MAX_RETRIES = 3
 BACKOFF_S = 1.0
 """First wait between tries; doubled each time (plus jitter) unless the server sends Retry-After."""
 
+_SETTING_UP = threading.RLock()
+"""Held while litellm is imported (a run's plan stage waits here for the import that `prepare`
+started on another thread), and while a local model is registered."""
 _REGISTERED: set[str] = set()
 """Local models registered with litellm at zero price in this process."""
 _LOCAL_PROVIDERS = {"ollama", "ollama_chat", "hosted_vllm", "lm_studio", "llamafile"}
@@ -65,17 +69,19 @@ class LitellmOptions(BaseModel):
 
 
 def import_litellm() -> Any:
-    """litellm, imported quietly and without network access at import time."""
-    os.environ.setdefault("LITELLM_LOCAL_MODEL_COST_MAP", "True")
-    import litellm
+    """litellm, imported quietly and without network access at import time (from any thread:
+    a second caller waits for the first one's import)."""
+    with _SETTING_UP:
+        os.environ.setdefault("LITELLM_LOCAL_MODEL_COST_MAP", "True")
+        import litellm
 
-    from keymps.default_plugins.litellm import request_guard, response_cap
+        from keymps.default_plugins.litellm import request_guard, response_cap
 
-    response_cap.install()
-    request_guard.install()
-    litellm.suppress_debug_info = True
-    litellm.telemetry = False
-    return litellm
+        response_cap.install()
+        request_guard.install()
+        litellm.suppress_debug_info = True
+        litellm.telemetry = False
+        return litellm
 
 
 def is_local(api_base: str | None, provider: str) -> bool:
@@ -99,6 +105,17 @@ class LitellmBackend:
 
     def __init__(self, options: LitellmOptions):
         self.options = options
+
+    def prepare(self) -> None:
+        """Import litellm and set up its first call now: keymps calls this on a thread as soon
+        as a run knows it plans with litellm (it then overlaps the stages before planning),
+        and once in the warm planner (keymps.default_plugins.litellm.warm_up)."""
+        from keymps.default_plugins.litellm import warm_up as first_call
+
+        warm = LitellmBackend(
+            LitellmOptions(model=first_call.WARM_UP_MODEL, api_base=first_call.WARM_UP_API_BASE)
+        )
+        first_call.warm_up(import_litellm(), warm)
 
     def _api_key(self) -> str | None:
         env = self.options.api_key_env
@@ -144,6 +161,11 @@ class LitellmBackend:
         # litellm does not price local models; registering them at zero gives a cost of 0.0
         if model in _REGISTERED:  # once per process: every call of an eval builds a backend
             return
+        with _SETTING_UP:  # one at a time: each quiets litellm's logger and restores it
+            self._register_now(litellm, model)
+
+    @staticmethod
+    def _register_now(litellm: Any, model: str) -> None:
         import logging
 
         provider = model.split("/", 1)[0] if "/" in model else "openai"
