@@ -156,16 +156,17 @@ def make_plan(
     from keymps.planning.family import check_plan, check_sentence, families_from_descriptions
     from keymps.planning.intent import plan_intents
     from keymps.planning.prompt import prompt_family
-    from keymps.plugin.manager import create_component
+    from keymps.plugin.components import BackendAbilities
+    from keymps.plugin.manager import create_vlm_backend
 
     if not primitives:
         raise KeympsError("primitives: the task lists no primitives to choose from")
     families = dict(families) if families is not None else families_from_descriptions(primitives)
     check_sentence(task, task.instruction, families)
     remember(*keys_the_task_may_send(task))
-    backend_object = create_component("vlm_backend", backend, backend_options(task))
+    backend_object = create_vlm_backend(backend, backend_options(task))
     prompt_path = _prompt_path(task, primitives)
-    asks_model = bool(getattr(backend_object, "asks_model", True))
+    asks_model = BackendAbilities.of(backend_object).asks_model
     view = _view(task, detection, scene, objects, task.planner.model if asks_model else None)
     session = _session(task, run, (backend, backend_object), primitives, view, prompt_path)
     session.calls.extend(earlier_calls)  # recorded before this round's calls
@@ -291,6 +292,7 @@ def _session(
         task_name=task.name,
         line_width_mm=_line_width_mm(task),
         objects=view.objects,
+        answer_mode=planner.answer,
     )
     session = PlanSession(
         task=task,

@@ -67,10 +67,10 @@ if TYPE_CHECKING:
 def arm_by_name(name: str, options: dict[str, Any] | None = None) -> Arm:
     """The arm a robot plugin registered as `name` (`robot.model`), built with `options`; a
     factory that fails is one line naming it."""
-    from keymps.plugin.manager import create_component
+    from keymps.plugin.manager import create_robot
 
     try:
-        return create_component("robot", name, options)  # type: ignore[no-any-return]
+        return create_robot(name, options)
     except KeympsError:
         raise
     except Exception as error:  # a broken plugin: one line, never a traceback
