@@ -155,7 +155,6 @@ def make_plan(
     """
     from keymps.planning.family import check_plan, check_sentence, families_from_descriptions
     from keymps.planning.intent import plan_intents
-    from keymps.planning.prompt import prompt_family
     from keymps.plugin.components import BackendAbilities
     from keymps.plugin.manager import create_vlm_backend
 
@@ -188,7 +187,7 @@ def make_plan(
         design=placed.design.model_dump() if placed.design is not None else None,
         image_sent_px=view.size if view.size != view.crop_size else None,
         pair_objects=owners,
-        intents=plan_intents(placed, prompt_family(primitives), asks_model),
+        intents=plan_intents(placed, session.family, asks_model),
     )
 
 
