@@ -684,6 +684,14 @@ class DepositEffect:
     """The stroke it is piped in: deposits joined end to end share one (0-based)."""
     on_top: bool
     """Whether it lies on the object's top surface (inside its footprint)."""
+    pairs: tuple[int, ...] = ()
+    """Every keypoint pair (0-based, in order) its work piece pipes: several where lines that
+    meet are one continuous stroke (`pair_index` is the first); empty: `pair_index` only."""
+
+    @property
+    def piped_pairs(self) -> tuple[int, ...]:
+        """The keypoint pairs it was piped from (`pairs`, or `pair_index` alone)."""
+        return self.pairs or (self.pair_index,)
 
 
 @dataclass(frozen=True)

@@ -66,7 +66,7 @@ def judge(
     if tool.cuts:
         problems = cut_problems(predicted, foods, tool.blade_length)
     else:
-        pairs = sorted({p.pair_index for p in tool_path.pieces if p.kind == "work"})
+        pairs = sorted({k for p in tool_path.pieces if p.kind == "work" for k in p.piped_pairs})
         problems = icing_problems(predicted, pairs, tool.line_width)
     for intent in intents:
         for food in foods:
