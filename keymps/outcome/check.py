@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from keymps.outcome.predict import Food, Tool, predict
+from keymps.outcome.shapes import SHAPE_TOLERANCES, edge_distance_problems, piece_shape_problems
 from keymps.outcome.verdict import (
     TOLERANCES,
     cut_problems,
@@ -47,7 +48,7 @@ def check_outcome(
     predicted = predict(model, trajectory, tool_path, foods, tool)
     problems = judge(predicted, foods, tool, intents, tool_path)
     verdict: OutcomeVerdict = "pass" if not problems else ("accepted" if accept else "fail")
-    tolerances = dict(TOLERANCES)
+    tolerances = TOLERANCES | SHAPE_TOLERANCES
     for intent in intents:
         if intent.equal is not None:
             tolerances["equal"] = intent.equal
@@ -73,9 +74,11 @@ def judge(
             if food.id not in worked or intent.object_id not in (None, food.id):
                 continue
             if tool.cuts:
-                problems += intent_problems(predicted, intent, food)
+                found = intent_problems(predicted, intent, food)
+                problems += found or piece_shape_problems(predicted, intent, food)
             else:
                 problems += icing_intent_problems(predicted, intent, food)
+                problems += edge_distance_problems(predicted, intent, food)
     return problems
 
 
