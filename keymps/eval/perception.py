@@ -13,13 +13,16 @@ Three measurements, each for the board detector and the paper's threshold detect
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from keymps.errors import KeympsError
 from keymps.scenes.perception_cases import BOARD_M, PhotoCase, flat_case, photo_case
 from keymps.types import Detection, Plan, SceneImage
+
+if TYPE_CHECKING:
+    from keymps.plugin.components import Detector
 
 BOX_TOLERANCE_PX = 3
 DESIGN_TOLERANCE_MM = 1.5
@@ -46,18 +49,19 @@ class Tally:
         return self.passed / self.cases if self.cases else float("nan")
 
 
-def _detector(name: str, options: dict[str, Any] | None = None) -> Any:
-    from keymps.plugin.manager import create_component
+def _detector(name: str, options: dict[str, Any] | None = None) -> Detector:
+    from keymps.plugin.manager import create_detector
 
-    return create_component("detector", name, options or {})
+    return create_detector(name, options or {})
 
 
-def _detect(detector: Any, scene: SceneImage | np.ndarray) -> Detection | None:
+def _detect(detector: Detector, scene: SceneImage | np.ndarray) -> Detection | None:
     from keymps.perception.search_area import refuse_the_board
 
-    image = scene.image if isinstance(scene, SceneImage) else scene
+    if not isinstance(scene, SceneImage):
+        scene = SceneImage(image=scene, source="perception-case")
     try:
-        return refuse_the_board(detector.detect(scene), (image.shape[1], image.shape[0]))
+        return refuse_the_board(detector.detect(scene), scene.size_px)
     except KeympsError:
         return None
 

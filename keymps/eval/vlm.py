@@ -53,15 +53,15 @@ def look(context: MethodContext) -> Seen:
     from keymps.config.task import load_task
     from keymps.perception.frames import ImageFrame
     from keymps.planning.planner import crop_metres_per_px
-    from keymps.plugin.manager import create_component
+    from keymps.plugin.manager import create_detector, create_image_source
     from keymps.primitives.dictionary import default_search_dirs, load_primitives
     from keymps.run import Run
 
     task = load_task(context.task_path)
     run = Run(task=task, folder=context.folder)
-    source = create_component("image_source", task.scene.source, task.scene.source_options)
+    source = create_image_source(task.scene.source, task.scene.source_options)
     scene = source.load(run)
-    detector = create_component("detector", task.detector.name, task.detector.options)
+    detector = create_detector(task.detector.name, task.detector.options)
     detection = detector.detect(scene)
     frame = ImageFrame.from_task(task, scene.size_px)
     x0, y0 = detection.crop_origin_px
@@ -146,13 +146,13 @@ def ask(
     from keymps.planning.prompt import png_data_url
     from keymps.planning.redaction import remember
     from keymps.planning.session import PlanSession
-    from keymps.plugin.manager import create_component
+    from keymps.plugin.manager import create_vlm_backend
     from keymps.run import Run, RunOptions
     from keymps.types import PlanRequest
 
     task = apply_overrides(seen.task, {"model": context.model, "api_base": context.api_base})
     remember(*keys_the_task_may_send(task))
-    backend = create_component("vlm_backend", context.backend, backend_options(task))
+    backend = create_vlm_backend(context.backend, backend_options(task))
     system = render_prompt(PROMPTS_DIR / f"{method}.md", _values(seen, context))
     image_url = png_data_url(seen.detection.crop)
     user_text = f"Instruction: {task.instruction}"
