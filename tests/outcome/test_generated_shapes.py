@@ -27,9 +27,11 @@ from helpers.vlm_server import VlmServer
 from keymps import load_task, run_task
 from keymps.errors import KeympsError
 from keymps.outcome.pieces import check_equal_parts
+from keymps.run import RunOptions, RunOverrides
 from keymps.scenes.render import ObjectSpec, SceneSpec, render_scene
 
-CASES = int(__import__("os").environ.get("SHAPES_CASES", 240))
+QUIET = RunOptions(rerun="off", quiet=True)
+CASES = 240
 BOARD = (0.30, 0.22)
 KEY_VARIABLE = "OUTCOME_SHAPES_API_KEY"
 KNIFE = "primitives: [straight, sawing]\nrobot: {tool: knife}\nheight: {mode: start}\n"
@@ -130,8 +132,8 @@ def _run(case: Case, folder: Path, server: VlmServer) -> tuple[Case, str, str]:
     png, _ = rendered.save(folder / "scene.png")
     offline = _task(folder, case, png, "backend: offline")
     try:
-        planned = run_task(load_task(offline), out=folder / "plan", rerun="off", quiet=True,
-                           through="ground")  # fmt: skip
+        planned = run_task(load_task(offline), options=QUIET,
+                           overrides=RunOverrides(out=folder / "plan"), through="ground")  # fmt: skip
     except KeympsError:
         return case, "near", "plan"  # the offline planner refuses: nothing to judge
     task, api_base = offline, None
@@ -143,8 +145,8 @@ def _run(case: Case, folder: Path, server: VlmServer) -> tuple[Case, str, str]:
         task = _task(folder, case, png, "backend: litellm, model: openai/test-vlm, "
                      f"api_key_env: {KEY_VARIABLE}, cache: false, attempts: 1")  # fmt: skip
     try:
-        run = run_task(load_task(task), out=folder / "run", rerun="off", quiet=True,
-                       through="outcome", api_base=api_base)  # fmt: skip
+        overrides = RunOverrides(out=folder / "run", api_base=api_base)
+        run = run_task(load_task(task), options=QUIET, overrides=overrides, through="outcome")
         did = "ok"
     except KeympsError as error:
         run, did = error.run, getattr(error, "stage", "error")
