@@ -488,6 +488,7 @@ class _Pipeline:
                     travel_speed=task.motion.travel_speed,
                     yaw_mode=robot.tool.yaw,
                     home=robot.home_tool_position(),
+                    home_yaw=robot.home_yaw(),
                     footprint=run.outline_m,
                     objects=grounding.objects,
                     join_distance=JOIN_LINE_WIDTHS * robot.tool.line_width,
