@@ -77,16 +77,16 @@ class Baseline:
     @contextlib.contextmanager
     def installed(self, run: Any) -> Iterator[None]:
         """The baseline's distances, PNG writer and forward kinematics for the block."""
-        import keymps.run
+        import keymps.run_files as files
 
-        saved = sys.modules["keymps.robot.safety_geometry"], keymps.run.write_image, run.robot
+        saved = sys.modules["keymps.robot.safety_geometry"], files.write_image, run.robot
         sys.modules["keymps.robot.safety_geometry"] = self.geometry  # imported inside functions
-        keymps.run.write_image = self.run_module.write_image
+        files.write_image = self.run_module.write_image
         run.robot = BaselineKinematics(run.robot, self.batch_fk)
         try:
             yield
         finally:
-            sys.modules["keymps.robot.safety_geometry"], keymps.run.write_image, run.robot = saved
+            sys.modules["keymps.robot.safety_geometry"], files.write_image, run.robot = saved
 
 
 class BaselineKinematics:

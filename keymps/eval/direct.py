@@ -25,7 +25,7 @@ def _finish(
     """Attach the calls, draw the generated motion over the scene (the plan image), keep the
     sidecar."""
     from keymps.perception.frames import ImageFrame
-    from keymps.run import image_file, write_image
+    from keymps.run_files import image_file, write_image
 
     frame = ImageFrame.from_task(seen.task, seen.scene.size_px)
     pieces_px = [frame.to_pixels(np.asarray(piece)[:, :2]) for piece in output.work_pieces]

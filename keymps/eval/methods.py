@@ -123,7 +123,7 @@ class PartialRunError(KeympsError):
 
 
 def _pipeline_output(results: StageResults, context: MethodContext) -> MethodOutput:
-    from keymps.run import image_file
+    from keymps.run_files import image_file
 
     plan, grounding, tool_path = results.plan, results.ground, results.compose
     pieces = tuple(p.points for p in tool_path.pieces if p.kind == "work") if tool_path else ()

@@ -25,8 +25,10 @@ from keymps.errors import (
 from keymps.interrupts import first_signal, interrupts_deferred, signals_received
 from keymps.planning.backend_choice import AUTO_VLM, NO_SERVER
 from keymps.plugin.manager import call_each, create_component, get_manager
-from keymps.run import IMAGE_FORMATS, STAGES, Run, RunOptions, clear_earlier_run
+from keymps.run import Run, RunOptions
+from keymps.run_files import IMAGE_FORMATS
 from keymps.types import (
+    STAGES,
     Detection,
     ExecutionReport,
     Outcome,
@@ -615,7 +617,7 @@ def _backend_under_way(task: Task, backend: str, options: RunOptions) -> RunOpti
 def _prepare_folder(run: Run) -> None:
     """Remove an earlier run's files, then write the placeholder run.json that holds the disk
     space of the record (a run.json that is a folder, a full disk: refused before any stage)."""
-    from keymps.pipeline.run_folder import reserve_run_json
+    from keymps.pipeline.run_folder import clear_earlier_run, reserve_run_json
 
     clear_earlier_run(run.folder)
     with interrupts_deferred():

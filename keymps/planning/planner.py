@@ -29,6 +29,7 @@ from keymps.planning.backend_choice import (
     model_provider,
 )
 from keymps.planning.redaction import redact_text, remember
+from keymps.run_files import write_atomically
 from keymps.types import (
     BackendAnswer,
     Detection,
@@ -228,7 +229,7 @@ def make_plan(
         calls=list(earlier_calls),
     )
     session.vlm_folder.mkdir(parents=True, exist_ok=True)
-    (session.vlm_folder / "crop.png").write_bytes(crop_png)
+    write_atomically(session.vlm_folder / "crop.png", crop_png)
     if planner.combined:
         combined = session.ask("combined", earlier=repair)
         keyword, placed, rationale = combined.keyword, combined, combined.rationale

@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any
 from keymps.errors import KeympsError
 from keymps.planning.answer import Step, answer_schema
 from keymps.planning.redaction import redact
+from keymps.run_files import write_atomically
 from keymps.types import BackendAnswer, PlanRequest, VlmCall
 
 if TYPE_CHECKING:
@@ -285,7 +286,7 @@ class PlanSession:
             "retries": redact(list(answer.retries)),
         }
         path = self.vlm_folder / f"{index:02d}-{request.step}-attempt{request.attempt}.json"
-        path.write_text(json.dumps(record, indent=2), encoding="utf-8")
+        write_atomically(path, json.dumps(record, indent=2))
         if self.run.options.record is not None and answer.text:
             append_to_cassette(
                 Path(self.run.options.record),
