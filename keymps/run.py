@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -15,8 +15,11 @@ from keymps.types import STAGES
 if TYPE_CHECKING:
     import numpy as np
 
+    from keymps.plugin.components import VlmBackend
     from keymps.robot.model import RobotModel
     from keymps.types import (
+        AnswerMode,
+        BackendAnswer,
         Detection,
         ExecutionReport,
         GroundedObject,
@@ -24,6 +27,7 @@ if TYPE_CHECKING:
         JointPath,
         Outcome,
         Plan,
+        PlanRequest,
         SceneImage,
         ToolPath,
         Trajectory,
@@ -33,12 +37,14 @@ if TYPE_CHECKING:
 
 @dataclass
 class RunOptions:
-    """Choices made on the command line (or by run_task keywords), not in the task file."""
+    """How a run is carried out (`keymps run`'s options that are no task field)."""
 
     rerun: str = "save"
     """save | spawn | connect | off"""
     rerun_url: str | None = None
+    """The viewer to stream to with `rerun="connect"` (rerun+http://127.0.0.1:9876/proxy)."""
     no_cache: bool = False
+    """Always ask the backend: never answer from the on-disk answer cache."""
     record: Path | None = None
     """Write every VLM request digest and answer to this cassette (JSONL)."""
     confirm: bool = False
@@ -47,16 +53,55 @@ class RunOptions:
     """Execute a plan whose predicted outcome contradicts its intent (an expert's override of
     the outcome stage; run.json records it)."""
     quiet: bool = False
+    """Print nothing but the run folder (the CLI's -q; plugins may read it too)."""
     image_format: str = "png"
     """plan and outcome images: png (lossless) or jpg (a tenth of the size and of the time to
     write: `keymps eval`'s default, for hundreds of runs)."""
-    dispatch: Callable[[Any, Any], Any] | None = None
-    """dispatch(backend, request) -> BackendAnswer: hands each call of a backend that offers
-    `acomplete` elsewhere instead of calling `complete`: to an event loop (`keymps eval`'s
+    dispatch: Callable[[VlmBackend, PlanRequest], BackendAnswer] | None = None
+    """dispatch(backend, request) -> BackendAnswer: hands each call of a backend declaring
+    `supports_async` elsewhere instead of calling `complete`: to an event loop (`keymps eval`'s
     broker), or to the warm planner (keymps.planning.warm)."""
     warm_planner: str = "off"
     """Whether litellm's calls go to the warm planner: off (never; run_task's default), use
     (when one is up: the keymps command's default) or start (starting one when none is up)."""
+
+
+@dataclass(frozen=True)
+class RunOverrides:
+    """What a run changes of its task file (`keymps run`'s options): None keeps the file's."""
+
+    instruction: str | None = None
+    """The sentence to plan for instead of the task's `instruction` (`-i`)."""
+    image: Path | None = None
+    """A scene image file used instead of the task's scene (`--image`; `scene.source` becomes
+    `file`)."""
+    backend: str | None = None
+    """The planner backend (`planner.backend`): auto, offline, litellm, replay or a plugin's."""
+    model: str | None = None
+    """The VLM model (`planner.model`), litellm's name, e.g. `openai/gpt-4o`."""
+    api_base: str | None = None
+    """The OpenAI-compatible server to ask (`planner.api_base`); given here it counts as the
+    user's own, so a key may go to it."""
+    cassette: Path | None = None
+    """The cassette the replay backend answers from (`planner.cassette`)."""
+    answer: AnswerMode | None = None
+    """The form of answer asked for (`planner.answer`): pairs, design or either."""
+    executor: str | None = None
+    """The executor (`executor.name`): sim, file, urscript or a plugin's (ur-rtde ...)."""
+    out: Path | None = None
+    """The run folder (default `runs/<task>-<time>/`); an earlier run's files in it are
+    replaced."""
+
+    def __post_init__(self) -> None:
+        for name in ("image", "cassette", "out"):  # a str given for a path is taken as one
+            value = getattr(self, name)
+            if value is not None and not isinstance(value, Path):
+                object.__setattr__(self, name, Path(value))
+
+    def task_changes(self) -> dict[str, Any]:
+        """The task fields this changes, by override name (what apply_overrides takes)."""
+        changes = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "out"}
+        return {name: value for name, value in changes.items() if value is not None}
 
 
 @dataclass
@@ -90,7 +135,7 @@ class Run:
     folder: Path
     """The run folder (`runs/<task>-<time>/` or `--out`): run.json and every file of the run."""
     options: RunOptions = field(default_factory=RunOptions)
-    """Choices made on the command line or by run_task's keywords, not in the task file."""
+    """How the run is carried out (the command line's or run_task's `options`)."""
     stages: StageResults = field(default_factory=StageResults)
     """Each stage's typed result (`run.stages.plan` ...), None until that stage has run."""
     robot: RobotModel | None = None

@@ -59,6 +59,9 @@ straight move between pieces, clear of the object)."""
 Step = Literal["combined", "keyword", "pairs", "direct"]
 """A planning call: the combined answer, the keyword or pairs alone, or an eval method's own
 prompt (keymps.eval.vlm)."""
+AnswerMode = Literal["pairs", "design", "either"]
+"""What form of answer a planning call asks for (`planner.answer`): keypoint pairs, a named
+design from the offline planner's catalogue, or either of them."""
 
 
 @dataclass(frozen=True)
@@ -263,6 +266,9 @@ class PlanRequest:
     same time then share one answer (keymps.eval.broker)."""
     objects: tuple[PlanObject, ...] = ()
     """Every object in the crop, in id order (empty: the crop holds one object, crop_mask)."""
+    answer_mode: AnswerMode = "pairs"
+    """The form of answer asked for: `pairs`, a named `design` or `either` (the schema allows
+    exactly the same: a backend that reads no schema answers from this)."""
 
     @property
     def crop_size_px(self) -> tuple[int, int]:

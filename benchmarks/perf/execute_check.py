@@ -32,6 +32,8 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any
 
+from keymps.run import RunOptions, RunOverrides
+
 ROOT = Path(__file__).resolve().parents[2]
 TASKS = {"icing": "tasks/cake_icing.yaml", "cutting": "tasks/object_cutting.yaml"}
 STAGES = ("check", "csv", "execute")
@@ -167,9 +169,15 @@ def main() -> None:
         runs = {}
         for name, task in TASKS.items():
             cold = folder / f"cold-{name}"
-            run_task(ROOT / task, out=cold, rerun="off", backend="offline", executor="sim")
+            run_task(
+                ROOT / task,
+                options=RunOptions(rerun="off"),
+                overrides=RunOverrides(out=cold, backend="offline", executor="sim"),
+            )
             runs[name] = run_task(
-                ROOT / task, out=folder / name, rerun="off", backend="offline", executor="sim"
+                ROOT / task,
+                options=RunOptions(rerun="off"),
+                overrides=RunOverrides(out=folder / name, backend="offline", executor="sim"),
             )
         print(f"load {os.getloadavg()[0]:.2f} at start; baseline {arguments.baseline}")
         times: dict[tuple[str, str, str], list[float]] = {}

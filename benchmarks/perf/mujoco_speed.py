@@ -18,6 +18,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from keymps.run import RunOptions, RunOverrides
+
 
 def execute(validated: Any, run: Any, **options: Any) -> tuple[float, float]:
     from keymps.plugin.manager import create_component
@@ -43,7 +45,9 @@ def main() -> None:
 
     with tempfile.TemporaryDirectory() as folder:
         run = keymps.run_task(
-            args.task, executor="file", out=Path(folder) / "plan", rerun="off", quiet=True
+            args.task,
+            options=RunOptions(rerun="off", quiet=True),
+            overrides=RunOverrides(executor="file", out=Path(folder) / "plan"),
         )
         validated = run.stages.check
         duration = validated.trajectory.duration_s

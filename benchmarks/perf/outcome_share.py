@@ -39,7 +39,7 @@ def cases() -> dict[str, tuple[Path, dict[str, object]]]:
 
 def one_run(task_file: Path, extra: dict[str, object], out: Path) -> dict[str, float]:
     """The stage timings (seconds) of one offline run with the sim executor."""
-    from keymps import load_task, run_task
+    from keymps import RunOptions, RunOverrides, load_task, run_task
 
     task = load_task(task_file)
     if "image" in extra:
@@ -47,9 +47,13 @@ def one_run(task_file: Path, extra: dict[str, object], out: Path) -> dict[str, f
             update={"image": extra["image"], "object_height": extra["height"]}
         )
         task = task.model_copy(update={"scene": scene})
-    overrides = {"instruction": extra["instruction"]} if "instruction" in extra else {}
-    run = run_task(task, out=out, rerun="off", quiet=True, backend="offline", executor="sim",
-                   **overrides)  # fmt: skip
+    run = run_task(
+        task,
+        options=RunOptions(rerun="off", quiet=True),
+        overrides=RunOverrides(
+            out=out, backend="offline", executor="sim", instruction=extra.get("instruction")
+        ),
+    )
     return dict(run.timings_s)
 
 

@@ -50,6 +50,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from keymps.run import RunOptions, RunOverrides
+
 ROOT = Path(__file__).resolve().parents[2]
 CLI = ["-c", "from keymps.cli import main; main()"]
 KEYMPS = [sys.executable, *CLI]
@@ -169,8 +171,16 @@ def warm_runs(folder: Path) -> dict[str, dict[str, Any]]:
     out: dict[str, dict[str, Any]] = {}
     for name, path in TASKS.items():
         task = load_task(path)
-        run_task(task, out=folder / f"cold-{name}", rerun="off", backend="offline", executor="sim")
-        run = run_task(task, out=folder / name, rerun="off", backend="offline", executor="sim")
+        run_task(
+            task,
+            options=RunOptions(rerun="off"),
+            overrides=RunOverrides(out=folder / f"cold-{name}", backend="offline", executor="sim"),
+        )
+        run = run_task(
+            task,
+            options=RunOptions(rerun="off"),
+            overrides=RunOverrides(out=folder / name, backend="offline", executor="sim"),
+        )
         out[name] = {"run": run, "task": task}
     return out
 

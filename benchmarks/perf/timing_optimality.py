@@ -24,6 +24,8 @@ from typing import Any
 
 import numpy as np
 
+from keymps.run import RunOptions, RunOverrides
+
 REPO = Path(__file__).resolve().parents[2]
 PLANNING_STAGES = ("image", "detect", "ground", "compose", "solve", "time", "check")
 """Every stage but the VLM ('plan') and the executor."""
@@ -72,7 +74,11 @@ def measure(
     if changes:
         task = task.model_copy(update={"robot": task.robot.model_copy(update=changes)})
     with tempfile.TemporaryDirectory() as folder:
-        run = run_task(task, out=folder, rerun="off", backend="offline")
+        run = run_task(
+            task,
+            options=RunOptions(rerun="off"),
+            overrides=RunOverrides(out=folder, backend="offline"),
+        )
     tool_path, joint_path = run.stages.compose, run.stages.solve
     trajectory, validated = run.stages.time, run.stages.check
     from keymps.robot.model import RobotModel

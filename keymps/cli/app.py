@@ -114,9 +114,9 @@ def _run(
     from keymps.errors import KeympsError
     from keymps.pipeline.engine import refuse_a_folder_of_other_files, run_task
     from keymps.planning.warm.dispatch import mode_from
-    from keymps.run import Run
+    from keymps.run import Run, RunOptions, RunOverrides
 
-    given["warm_planner"] = mode_from(given.pop("warm_planner"))
+    warm_planner = mode_from(given.pop("warm_planner"))
     if given.get("out") is not None:
         refuse_a_folder_of_other_files(Path(given["out"]))
     printer = RunPrinter(quiet=quiet)
@@ -129,10 +129,17 @@ def _run(
         finished = run_task(
             task_file,
             on_stage=stage_done,
-            rerun=rerun_mode,
-            rerun_url=rerun_url,
-            quiet=quiet,
-            **given,
+            options=RunOptions(
+                rerun=rerun_mode,
+                rerun_url=rerun_url,
+                quiet=quiet,
+                no_cache=given.pop("no_cache"),
+                record=given.pop("record"),
+                confirm=given.pop("confirm"),
+                accept_outcome=given.pop("accept_outcome"),
+                warm_planner=warm_planner,
+            ),
+            overrides=RunOverrides(**given),
         )
     except KeympsError as error:
         if isinstance(error.run, Run):

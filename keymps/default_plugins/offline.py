@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from keymps.errors import KeympsError
-from keymps.plugin import RegisterVlmBackend, hookimpl
+from keymps.plugin import BackendBase, RegisterVlmBackend, hookimpl
 
 if TYPE_CHECKING:
     from keymps.designs.addressing import Clause
@@ -133,11 +133,10 @@ def choose_primitive(
     return cutting[0], "the first cutting primitive"
 
 
-class OfflineBackend:
+class OfflineBackend(BackendBase):
     """Deterministic planner: the same sentence and crop always give the same design."""
 
     name = "offline"
-    cacheable = False
     asks_model = False
     """Not a VLM call: run.json and the eval tables count none for it."""
 
@@ -168,9 +167,8 @@ class OfflineBackend:
         if request.step in ("combined", "keyword"):
             answer["keyword"] = keyword
         rationale = f"primitive {keyword}: {why}"
-        properties = request.schema.get("schema", {}).get("properties", {})
         jobs = [(intent, objects[i]) for intent, clause in intents for i in clause.objects]
-        if request.step in ("combined", "pairs") and "pairs" not in properties:
+        if request.step in ("combined", "pairs") and request.answer_mode == "design":
             # planner.answer: design: the intent itself, laid out by keymps like any design
             if len(jobs) > 1:
                 raise KeympsError(
@@ -194,7 +192,7 @@ class OfflineBackend:
                     f"planner.max_pairs = {request.max_pairs}"
                 )
             answer["pairs"] = np.round(pairs_px, 3).tolist()
-            if "intent" in properties:
+            if "intent" in request.schema.get("schema", {}).get("properties", {}):
                 answer["intent"] = _stated(jobs, several=len(objects) > 1)
             if len(jobs) == 1:
                 layout = laid[0][1]

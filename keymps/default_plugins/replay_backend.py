@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any
 from pydantic import BaseModel, ConfigDict
 
 from keymps.errors import KeympsError
-from keymps.plugin import RegisterVlmBackend, hookimpl, parse_options
+from keymps.plugin import BackendBase, RegisterVlmBackend, hookimpl, parse_options
 
 if TYPE_CHECKING:
     from keymps.types import BackendAnswer, PlanRequest
@@ -25,9 +25,8 @@ class ReplayOptions(BaseModel):
     cassette: str | None = None
 
 
-class ReplayBackend:
+class ReplayBackend(BackendBase):
     name = "replay"
-    cacheable = False
 
     def __init__(self, cassette: Path):
         from keymps.planning.cache import read_cassette

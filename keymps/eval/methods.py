@@ -27,7 +27,8 @@ import numpy as np
 from keymps.errors import KeympsError
 from keymps.eval.context import MethodContext, MethodOutput
 from keymps.planning.backend_choice import NO_SERVER
-from keymps.run import StageResults
+from keymps.run import RunOptions, RunOverrides, StageResults
+from keymps.types import AnswerMode
 
 MethodRunner = Callable[[MethodContext], MethodOutput]
 
@@ -39,7 +40,7 @@ class MethodNeedsVlm(KeympsError):
 # --------------------------------------------------------------------------- pipeline methods
 
 
-def _pipeline(answer: str) -> MethodRunner:
+def _pipeline(answer: AnswerMode) -> MethodRunner:
     """The pipeline with planner.answer set: pairs (the paper's KeyMPs) or a named design."""
 
     def run(context: MethodContext) -> MethodOutput:
@@ -48,7 +49,7 @@ def _pipeline(answer: str) -> MethodRunner:
     return run
 
 
-def _run_pipeline(context: MethodContext, answer: str | None = None) -> MethodOutput:
+def _run_pipeline(context: MethodContext, answer: AnswerMode | None = None) -> MethodOutput:
     """A whole keymps run (or, plan-only, its stages through grounding) in the case's folder."""
     from keymps.pipeline.engine import run_task
 
@@ -57,27 +58,28 @@ def _run_pipeline(context: MethodContext, answer: str | None = None) -> MethodOu
     def keep(stage: str, seconds: float, result: Any) -> None:
         results.record(stage, result)
 
-    overrides: dict[str, Any] = {"backend": context.backend}
-    if context.model:
-        overrides["model"] = context.model
-    if context.api_base:
-        overrides["api_base"] = context.api_base
-    if answer:
-        overrides["answer"] = answer
     try:
         run_task(
             context.task_path,
             on_stage=keep,
-            out=context.folder,
-            rerun="off",
-            quiet=True,
-            no_cache=context.no_cache,
-            image_format=context.image_format,
-            dispatch=context.dispatch,
+            options=RunOptions(
+                rerun="off",
+                quiet=True,
+                no_cache=context.no_cache,
+                image_format=context.image_format,
+                dispatch=context.dispatch,
+                # the paper scores every method on the motion it makes: only --verify-outcome
+                # refuses
+                accept_outcome=context.outcome != "repair",
+            ),
+            overrides=RunOverrides(
+                backend=context.backend,
+                model=context.model or None,
+                api_base=context.api_base or None,
+                answer=answer,
+                out=context.folder,
+            ),
             through=_through(context),
-            # the paper scores every method on the motion it makes: only --verify-outcome refuses
-            accept_outcome=context.outcome != "repair",
-            **overrides,
         )
     except KeympsError as error:
         raise PartialRunError(str(error), results) from None

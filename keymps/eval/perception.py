@@ -15,7 +15,7 @@ Three measurements, each for the board detector and the paper's threshold detect
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -23,6 +23,9 @@ from keymps.errors import KeympsError
 from keymps.pipeline import stages
 from keymps.scenes.perception_cases import BOARD_M, PhotoCase, flat_case, photo_case
 from keymps.types import Detection, SceneImage
+
+if TYPE_CHECKING:
+    from keymps.plugin.components import Detector
 
 BOX_TOLERANCE_PX = 3
 DESIGN_TOLERANCE_MM = 1.5
@@ -49,13 +52,13 @@ class Tally:
         return self.passed / self.cases if self.cases else float("nan")
 
 
-def _detector(name: str, options: dict[str, Any] | None = None) -> Any:
-    from keymps.plugin.manager import create_component
+def _detector(name: str, options: dict[str, Any] | None = None) -> Detector:
+    from keymps.plugin.manager import create_detector
 
-    return create_component("detector", name, options or {})
+    return create_detector(name, options or {})
 
 
-def _detect(task: Any, detector: Any, scene: SceneImage) -> stages.Perception | None:
+def _detect(task: Any, detector: Detector, scene: SceneImage) -> stages.Perception | None:
     """The detect stage on `scene`, as a run does it; None when it refuses."""
     try:
         return stages.detected(task, scene, detector.detect(scene))

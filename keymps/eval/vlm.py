@@ -147,13 +147,13 @@ def ask(
     from keymps.planning.prompt import png_data_url
     from keymps.planning.redaction import remember
     from keymps.planning.session import PlanSession
-    from keymps.plugin.manager import create_component
+    from keymps.plugin.manager import create_vlm_backend
     from keymps.run import Run, RunOptions
     from keymps.types import PlanRequest
 
     task = apply_overrides(seen.task, {"model": context.model, "api_base": context.api_base})
     remember(*keys_the_task_may_send(task))
-    backend = create_component("vlm_backend", context.backend, backend_options(task))
+    backend = create_vlm_backend(context.backend, backend_options(task))
     system = render_prompt(PROMPTS_DIR / f"{method}.md", _values(seen, context))
     base = PlanRequest(
         instruction=task.instruction,

@@ -329,7 +329,18 @@ def time_strokes_at_once(
 ) -> list[TimedStroke | KeympsError]:
     """Each stroke's fastest profile (tool limits first) whose joints keep every joint limit at
     CHECK_RATE_HZ (or 1 / period if faster), each round's checks of all strokes still too fast
-    in one pass; a stroke that cannot be timed gets its error in its place."""
+    in one pass; a stroke that cannot be timed gets its error in its place.
+
+    Args:
+        model: The arm whose joint limits the strokes keep.
+        strokes: The strokes to time.
+        tool_limits: The tool's velocity (m/s), acceleration (m/s^2) and jerk (m/s^3) limits
+            along the path; a stroke's own speed caps the velocity.
+        period: The controller's period, seconds: every duration is a multiple of it.
+
+    Returns:
+        One TimedStroke or KeympsError per stroke, in order.
+    """
     rates = _StrokeRates(strokes)
     check_period = min(period, 1.0 / CHECK_RATE_HZ)
     limits = [
@@ -339,40 +350,68 @@ def time_strokes_at_once(
     out: list[TimedStroke | KeympsError | None] = [None] * len(strokes)
     pending = list(range(len(strokes)))
     for attempt in range(MAX_RETIMES):
-        which, profiles, durations = [], [], []
-        for k in pending:
-            try:
-                profile, duration = _profile(strokes[k].length, limits[k], period)
-            except KeympsError as error:
-                out[k] = error
-                continue
-            which.append(k)
-            profiles.append(profile)
-            durations.append(duration)
+        which, profiles, durations, failed = _profile_strokes(strokes, pending, limits, period)
+        for k, error in failed:
+            out[k] = error
         if not which:
             break
-        rv, ra, rj = _check_profiles(model, rates, which, profiles, durations, check_period)
+        ratios = _check_profiles(model, rates, which, profiles, durations, check_period)
         pending = []
         for i, k in enumerate(which):
             if attempt == 0:
                 first[k] = profiles[i], durations[i]
-            v, a, j = float(rv[i]), float(ra[i]), float(rj[i])
+            v, a, j = (float(ratio[i]) for ratio in ratios)
             if max(v, a, j) <= 1.0:
                 slowdown = durations[i] / first[k][1]
                 out[k] = TimedStroke(strokes[k], profiles[i], durations[i], limits[k], slowdown)
-                continue
-            if attempt < MAX_RETIMES // 2:
-                limits[k] = Limits(
-                    limits[k].velocity / max(v / LIMIT_MARGIN, 1.0),
-                    limits[k].acceleration / max(a / LIMIT_MARGIN, 1.0),
-                    limits[k].jerk / max(j / LIMIT_MARGIN, 1.0),
-                )
             else:
-                limits[k] = limits[k].scaled(max(v, math.sqrt(a), j ** (1 / 3)) / LIMIT_MARGIN)
-            pending.append(k)
+                limits[k] = _lowered(limits[k], v, a, j, attempt)
+                pending.append(k)
     for k in pending:
         out[k] = _untimeable(strokes[k])
-    # Only a stroke slowed down enough to be stopped somewhere needs where (_with_stops).
+    _place_stops(model, rates, out, first, check_period)
+    return [item for item in out if item is not None]
+
+
+def _profile_strokes(
+    strokes: list[Stroke], pending: list[int], limits: list[Limits], period: float
+) -> tuple[list[int], list[Any], list[float], list[tuple[int, KeympsError]]]:
+    """The profiles of the pending strokes at their limits: the strokes profiled, their
+    profiles and durations (s), and the strokes Ruckig could not profile with why."""
+    which, profiles, durations, failed = [], [], [], []
+    for k in pending:
+        try:
+            profile, duration = _profile(strokes[k].length, limits[k], period)
+        except KeympsError as error:
+            failed.append((k, error))
+            continue
+        which.append(k)
+        profiles.append(profile)
+        durations.append(duration)
+    return which, profiles, durations, failed
+
+
+def _lowered(limits: Limits, v: float, a: float, j: float, attempt: int) -> Limits:
+    """The limits of the next try for a profile whose joints went v, a and j times over their
+    velocity, acceleration and jerk limits (the largest ratio over the joints)."""
+    if attempt < MAX_RETIMES // 2:  # lower only what is violated: keeps the profile fast
+        return Limits(
+            limits.velocity / max(v / LIMIT_MARGIN, 1.0),
+            limits.acceleration / max(a / LIMIT_MARGIN, 1.0),
+            limits.jerk / max(j / LIMIT_MARGIN, 1.0),
+        )
+    return limits.scaled(max(v, math.sqrt(a), j ** (1 / 3)) / LIMIT_MARGIN)
+
+
+def _place_stops(
+    model: RobotModel,
+    rates: _StrokeRates,
+    out: list[TimedStroke | KeympsError | None],
+    first: list[tuple[Any, float]],
+    check_period: float,
+) -> None:
+    """Set `worst_s` of each stroke slowed down enough to be stopped somewhere (_with_stops),
+    from its `first` profile (at the tool limits) and that profile's duration."""
     slow = [
         k
         for k, item in enumerate(out)
@@ -388,7 +427,6 @@ def time_strokes_at_once(
     )
     for k, place in zip(slow, places, strict=True):
         out[k].worst_s = place  # type: ignore[union-attr]
-    return [item for item in out if item is not None]
 
 
 def _untimeable(stroke: Stroke) -> KeympsError:

@@ -75,50 +75,39 @@ def board_pose(
 
 
 def rectify_scene(scene: SceneImage, task: Task) -> SceneImage:
-    """The scene as the stages see it: rectified when the task gives board corners."""
+    """The scene as the stages see it: rectified when the task gives board corners.
+
+    Args:
+        scene: The photo as loaded.
+        task: The task; its scene.camera says where the board's corners are in the photo,
+            the rectified image's mm per pixel and, optionally, the camera's intrinsics.
+
+    Returns:
+        `scene` itself without board corners; else the board seen from straight above at
+        scene.camera.mm_per_px, spanning the workspace, with how it was made.
+
+    Raises:
+        KeympsError: For a rectified image over scene.max_image_pixels, corners that are not
+            a board, or a camera the corners put below the object's top.
+    """
     import cv2
 
     camera = task.scene.camera
     if camera.board_corners_px is None:
         return scene
     workspace = task.scene.workspace
-    scale = camera.mm_per_px / 1000.0
-    size = (round(workspace.size[0] / scale), round(workspace.size[1] / scale))
-    if size[0] * size[1] > task.scene.max_image_pixels:
-        raise KeympsError(
-            f"scene.camera.mm_per_px: {camera.mm_per_px:g} mm per pixel makes the rectified "
-            f"board {size[0]} x {size[1]} px, over scene.max_image_pixels; choose a larger value"
-        )
+    size = _rectified_size(task)
     corners = np.asarray(camera.board_corners_px, float)
     ImageFrame.from_corners(scene.size_px, workspace.size, corners, workspace.shift)  # checks
     frame = ImageFrame.linear(size, workspace.size, workspace.shift)
-    board_m = frame.to_board(np.array([[0, size[1]], [size[0], size[1]], [size[0], 0], [0, 0]]))
-    intrinsics = camera_matrix(task)
-    position: tuple[float, float, float] | None = None
-    plane_z = 0.0
-    ideal = corners
-    if intrinsics is not None:
-        matrix, distortion = intrinsics
-        ideal = undistort_points(corners, matrix, distortion)
-        rotation, translation = board_pose(ideal, board_m, matrix)
-        centre = -rotation.T @ translation
-        height = float(task.scene.object_height)
-        if centre[2] > 0.05 and centre[2] <= height + 0.01:
-            raise KeympsError(
-                f"scene.object_height: {height:g} m is not below the camera, which the board "
-                f"corners and intrinsics put {centre[2]:.3f} m above the board: the unit is metres"
-            )
-        if centre[2] <= height + 0.01:
-            raise KeympsError(
-                f"scene.camera: the camera found from the board corners is {centre[2]:.3f} m "
-                "above the board, not above the object: check the corners' order "
-                "(bottom-left, bottom-right, top-right, top-left) and the intrinsics"
-            )
-        position = (float(centre[0]), float(centre[1]), float(centre[2]))
-        plane_z = height
-    plane_to_photo = _homography(board_m, ideal)
     board_polygon = np.array([[0, size[1]], [size[0], size[1]], [size[0], 0], [0, 0]], float)
-    to_photo = plane_to_photo @ frame.matrix
+    board_m = frame.to_board(board_polygon)
+    intrinsics = camera_matrix(task)
+    ideal, position = corners, None
+    if intrinsics is not None:
+        ideal = undistort_points(corners, *intrinsics)
+        position = _camera_position(ideal, board_m, intrinsics[0], task.scene.object_height)
+    to_photo = _homography(board_m, ideal) @ frame.matrix
     map_x, map_y = _remap_grid(to_photo, size, intrinsics)
     rectified = cv2.remap(
         scene.image, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT
@@ -126,7 +115,7 @@ def rectify_scene(scene: SceneImage, task: Task) -> SceneImage:
     info = Rectification(
         photo=scene.image,
         mm_per_px=float(camera.mm_per_px),
-        plane_z=plane_z,
+        plane_z=0.0 if position is None else float(task.scene.object_height),
         to_photo=to_photo,
         board_polygon_px=board_polygon,
         camera_matrix=None if intrinsics is None else intrinsics[0],
@@ -137,6 +126,44 @@ def rectify_scene(scene: SceneImage, task: Task) -> SceneImage:
         else _point(frame.to_pixels(np.array(position[:2]))),
     )
     return SceneImage(rectified, f"{scene.source} (rectified)", truth=None, rectification=info)
+
+
+def _rectified_size(task: Task) -> tuple[int, int]:
+    """(width, height) pixels of the workspace at scene.camera.mm_per_px, refused over
+    scene.max_image_pixels."""
+    mm_per_px = task.scene.camera.mm_per_px
+    scale = mm_per_px / 1000.0
+    width, height = task.scene.workspace.size
+    size = (round(width / scale), round(height / scale))
+    if size[0] * size[1] > task.scene.max_image_pixels:
+        raise KeympsError(
+            f"scene.camera.mm_per_px: {mm_per_px:g} mm per pixel makes the rectified "
+            f"board {size[0]} x {size[1]} px, over scene.max_image_pixels; choose a larger value"
+        )
+    return size
+
+
+def _camera_position(
+    ideal: np.ndarray, board_m: np.ndarray, matrix: np.ndarray, object_height: float
+) -> tuple[float, float, float]:
+    """The camera's centre in the board frame, metres, from the ideal (undistorted) pixels
+    (4, 2) of the board's corners board_m (4, 2) metres; refused unless it is above the
+    object's top at `object_height` metres."""
+    rotation, translation = board_pose(ideal, board_m, matrix)
+    centre = -rotation.T @ translation
+    height = float(object_height)
+    if centre[2] > 0.05 and centre[2] <= height + 0.01:
+        raise KeympsError(
+            f"scene.object_height: {height:g} m is not below the camera, which the board "
+            f"corners and intrinsics put {centre[2]:.3f} m above the board: the unit is metres"
+        )
+    if centre[2] <= height + 0.01:
+        raise KeympsError(
+            f"scene.camera: the camera found from the board corners is {centre[2]:.3f} m "
+            "above the board, not above the object: check the corners' order "
+            "(bottom-left, bottom-right, top-right, top-left) and the intrinsics"
+        )
+    return float(centre[0]), float(centre[1]), float(centre[2])
 
 
 def _point(points: np.ndarray) -> tuple[float, float]:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import re
 import time
@@ -9,7 +10,7 @@ import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from keymps.config.overrides import apply_overrides
 from keymps.config.task import Task, load_task
@@ -25,8 +26,14 @@ from keymps.errors import (
 from keymps.interrupts import first_signal, interrupts_deferred, signals_received
 from keymps.pipeline import stages
 from keymps.planning.backend_choice import AUTO_VLM, NO_SERVER
-from keymps.plugin.manager import call_each, create_component, get_manager
-from keymps.run import Run, RunOptions
+from keymps.plugin.manager import (
+    call_each,
+    create_detector,
+    create_executor,
+    create_image_source,
+    get_manager,
+)
+from keymps.run import Run, RunOptions, RunOverrides
 from keymps.run_files import IMAGE_FORMATS
 from keymps.types import (
     STAGES,
@@ -38,16 +45,17 @@ from keymps.types import (
     ValidatedTrajectory,
 )
 
+if TYPE_CHECKING:
+    from keymps.pipeline.folder_lock import FolderLock
+    from keymps.plugin.components import Detector, Executor, ImageSource
+    from keymps.primitives.dictionary import Primitive
+    from keymps.robot.model import RobotModel
+
 Result = TypeVar("Result")
+Part = TypeVar("Part")
 
 RERUN_SCHEMES = ("rerun+http://", "rerun+https://", "rerun://")
 """How a Rerun viewer's address begins (--rerun connect)."""
-
-RUN_OPTIONS = (
-    "rerun", "rerun_url", "no_cache", "record", "confirm", "accept_outcome", "quiet",
-    "image_format", "dispatch", "warm_planner",
-)  # fmt: skip
-"""run_task's keywords that set RunOptions (the others override the task file)."""
 
 StageCallback = Callable[[str, float, Any], None]
 """on_stage(stage, seconds, result): called after each stage (the CLI shows progress with it)."""
@@ -62,6 +70,14 @@ class Components:
     Parts named in `skip` (task fields already known to be wrong) are left as None.
     """
 
+    image_source: ImageSource | None
+    detector: Detector | None
+    executor: Executor | None
+    primitives: dict[str, Primitive] | None
+    robot: RobotModel | None
+    backend: str
+    """The planner backend's registered name (built by the plan stage, which knows its task)."""
+
     def __init__(
         self,
         task: Task,
@@ -70,12 +86,11 @@ class Components:
         skip: frozenset[str] = frozenset(),
     ):
         from keymps.primitives.dictionary import default_search_dirs, load_primitives
-        from keymps.robot.model import RobotModel
 
         executes = STAGES.index(through) > STAGES.index("ground")
         problems: list[str] = []
 
-        def build(field: str, make: Callable[[], Any]) -> Any:
+        def build(field: str, make: Callable[[], Part]) -> Part | None:
             if field in skip:
                 return None
             try:
@@ -86,55 +101,54 @@ class Components:
                 problems.append(str(error))
             return None
 
+        scene, detector, executor = task.scene, task.detector, task.executor
         self.image_source = build(
             "scene",
-            lambda: _create(
+            lambda: _located_field(
                 task,
-                "image_source",
-                task.scene.source,
-                task.scene.source_options,
                 ("scene", "source"),
+                lambda: create_image_source(scene.source, scene.source_options),
             ),
         )
         self.detector = build(
             "detector",
-            lambda: _create(
-                task, "detector", task.detector.name, task.detector.options, ("detector",)
+            lambda: _located_field(
+                task, ("detector",), lambda: create_detector(detector.name, detector.options)
             ),
         )
-        self.executor = (
-            build(
+        self.executor = None
+        if through == "execute":
+            self.executor = build(
                 "executor",
-                lambda: _create(
-                    task, "executor", task.executor.name, task.executor.options, ("executor",)
+                lambda: _located_field(
+                    task, ("executor",), lambda: create_executor(executor.name, executor.options)
                 ),
             )
-            if through == "execute"
-            else None
-        )
         self.primitives = build(
             "primitives",
             lambda: _primitives(task, load_primitives, default_search_dirs(task.folder)),
         )
-        self.robot: RobotModel | None = (
-            build("robot", lambda: _robot(task, RobotModel)) if executes else None
-        )
+        self.robot = build("robot", lambda: _robot(task)) if executes else None
         self.backend = backend
         if problems:
             raise TaskFileError(problems)
 
 
-def _primitives(task: Task, load: Callable[..., Any], search: Any) -> Any:
+def _primitives(
+    task: Task,
+    load: Callable[[list[str], list[Path]], dict[str, Primitive]],
+    search: list[Path],
+) -> dict[str, Primitive]:
     try:
         return load(task.primitives, search)
     except KeympsError as error:
         raise KeympsError(f"{task.where('primitives')}: primitives: {error}") from None
 
 
-def _robot(task: Task, model: Any) -> Any:
+def _robot(task: Task) -> RobotModel:
     """The task's arm, built by the robot plugin that registered it (`robot.model`, or `urdf`
     for the task's own URDF), placed and tooled; every error located in the task file."""
-    from keymps.robot.model import arm_by_name
+    from keymps.robot.model import RobotModel, arm_by_name
 
     field = ("robot", "urdf") if task.robot.urdf is not None else ("robot", "model")
     where = f"{task.where(*field)}: {'.'.join(field)}"
@@ -143,7 +157,7 @@ def _robot(task: Task, model: Any) -> Any:
     except KeympsError as error:
         raise KeympsError(f"{where}: {error}") from None
     try:
-        robot = model.from_task(task, arm)
+        robot = RobotModel.from_task(task, arm)
     except KeympsError as error:
         located = _located(task, error)
         if located is error and str(error).startswith("robot: arm "):
@@ -177,11 +191,10 @@ def _located(task: Task, error: KeympsError) -> KeympsError:
     return KeympsError(f"{task.where(*named.group(1).split('.'))}: {error}")
 
 
-def _create(
-    task: Task, kind: str, name: str, options: dict[str, Any], field_path: tuple[str, ...]
-) -> Any:
+def _located_field(task: Task, field_path: tuple[str, ...], create: Callable[[], Part]) -> Part:
+    """`create()`, its error located at the task field that named the component."""
     try:
-        return create_component(kind, name, options)
+        return create()
     except KeympsError as error:
         raise KeympsError(f"{task.where(*field_path)}: {'.'.join(field_path)}: {error}") from None
 
@@ -243,6 +256,12 @@ class _Pipeline:
         self.done: str | None = None
         self.perception: stages.Perception | None = None
         """What the image and detect stages found, once they have run."""
+
+    @property
+    def primitives(self) -> dict[str, Primitive]:
+        """The run's primitives, by name (Components built them before the first stage)."""
+        assert self.parts.primitives is not None
+        return self.parts.primitives
 
     def stage(self, name: str, work: Callable[[], Any]) -> Any:
         started = time.perf_counter()
@@ -350,19 +369,19 @@ class _Pipeline:
         from keymps.perception import frames as geometry
 
         run, parts, task = self.run, self.parts, self.run.task
+        source, detector, primitives = parts.image_source, parts.detector, parts.primitives
+        assert source is not None and detector is not None and primitives is not None  # built
         # with board corners, every later stage works in the rectified top-down image
         scene: SceneImage = self.stage(
             "image",
-            lambda: stages.rectified(
-                task, self.returned("image", parts.image_source.load(run), SceneImage)
-            ),
+            lambda: stages.rectified(task, self.returned("image", source.load(run), SceneImage)),
         )
         pixel_shape = geometry.pixel_shape_warning(task, scene.size_px)
         if pixel_shape:
             run.warnings.append(pixel_shape)
 
         def detect() -> Detection:
-            detected = self.returned("detect", parts.detector.detect(scene), Detection)
+            detected = self.returned("detect", detector.detect(scene), Detection)
             self.perception = stages.detected(task, scene, detected)
             run.objects, run.outline_m = self.perception.grounded, self.perception.outline_m
             return self.perception.detection
@@ -406,7 +425,7 @@ class _Pipeline:
         assert perception is not None  # the detect stage ran
         plan: Plan = self.stage(
             "plan",
-            lambda: stages.plan(task, perception, parts.primitives, run, parts.backend, repair),
+            lambda: stages.plan(task, perception, self.primitives, run, parts.backend, repair),
         )
         _write_file(lambda: run.write_image("plan", draw_plan(scene.image, detection, plan)))
         on_photo = draw_plan_on_photo(scene, detection, plan)
@@ -438,7 +457,7 @@ class _Pipeline:
             lambda: check_tool_path(
                 compose_tool_path(
                     grounding.segments,
-                    parts.primitives[plan.keyword],
+                    self.primitives[plan.keyword],
                     object_top=grounding.object_height,
                     clearance=task.motion.clearance,
                     work_speed=task.motion.work_speed,
@@ -475,7 +494,7 @@ class _Pipeline:
         run, parts, task = self.run, self.parts, self.run.task
         robot = parts.robot
         assert robot is not None
-        family = parts.primitives[plan.keyword].family
+        family = self.primitives[plan.keyword].family
         tool = Tool(family != "icing", robot.tool.blade_length, robot.tool.line_width)
         foods = foods_of(grounding.objects, run.outline_m, grounding.object_height)
         intents = stated_intents(plan.intents, task)
@@ -608,30 +627,70 @@ def run_task(
     *,
     on_stage: StageCallback | None = None,
     options: RunOptions | None = None,
+    overrides: RunOverrides | None = None,
     through: str = "execute",
-    **overrides: Any,
+    **keywords: Any,
 ) -> Run:
     """Run a task end to end; return the finished Run (its folder holds run.json and the rest).
 
+    `options` say how the run is carried out, `overrides` what it changes of the task file.
     `through="ground"` stops after grounding the plan (eval's plan-only runs): nothing is timed,
-    checked or executed; `through="outcome"` stops after the outcome stage (its repair rounds
-    included): nothing is executed. Keyword overrides: instruction, image, backend, model, api_base, executor, out, rerun,
-    rerun_url, no_cache, record, confirm, accept_outcome, quiet, image_format, warm_planner (off, use, start:
-    keymps.planning.warm). Raises KeympsError on the first
-    problem; nothing after the failing stage runs, above all no executor.
+    checked or executed; `through="outcome"` stops after the outcome stage (its repair
+    rounds included): nothing is executed. Raises KeympsError on the first problem;
+    nothing after the failing stage runs, above all no executor. `**keywords` (the fields
+    of both, by name) are deprecated.
     """
-    from keymps.pipeline.folder_lock import FolderLock
     from keymps.planning.backend_choice import untrusted_api_base_warning
     from keymps.planning.planner import choose_backend
-    from keymps.planning.sent_files import files_refused
     from keymps.text_drawing import prepare_text_drawing
 
     if not isinstance(task, Task):
         task = load_task(task)
-    options = options or RunOptions()
-    for key in RUN_OPTIONS:
-        if key in overrides:
-            setattr(options, key, overrides.pop(key))
+    options, overrides = _from_keywords(
+        options or RunOptions(), overrides or RunOverrides(), keywords
+    )
+    _check_options(options, through)
+    task = apply_overrides(task, overrides.task_changes())
+    backend, reason = choose_backend(task, overrides.backend, overrides.model, overrides.api_base)
+    options = _backend_under_way(task, backend, options)
+    prepare_text_drawing()  # OpenCV's font set-up, on the other core until plan.png is drawn
+    parts = Components(task, backend, through)
+    _refuse_files_not_to_send(task, parts, overrides)
+    run, lock = _start_run(task, options, overrides.out)
+    run.backend, run.backend_reason, run.robot = backend, reason, parts.robot
+    keyless = untrusted_api_base_warning(task) if backend not in NO_SERVER else None
+    if keyless:
+        run.warnings.append(keyless)
+        warnings.warn(keyless, UserWarning, stacklevel=2)
+    return _run_stages(_Pipeline(run, parts, on_stage, through), lock)
+
+
+def _from_keywords(
+    options: RunOptions, overrides: RunOverrides, keywords: dict[str, Any]
+) -> tuple[RunOptions, RunOverrides]:
+    """`options` and `overrides` with run_task's deprecated keyword arguments applied."""
+    if not keywords:
+        return options, overrides
+    warnings.warn(
+        "run_task(**keywords) is deprecated: pass options=RunOptions(...) and "
+        "overrides=RunOverrides(...) (keymps.run)",
+        DeprecationWarning,
+        stacklevel=3,
+    )
+    option_names = {f.name for f in dataclasses.fields(RunOptions)}
+    override_names = {f.name for f in dataclasses.fields(RunOverrides)}
+    unknown = sorted(set(keywords) - option_names - override_names)
+    if unknown:
+        raise KeympsError(f"unknown run option(s): {', '.join(unknown)}")
+    given = {k: v for k, v in keywords.items() if k in override_names and v is not None}
+    return (
+        dataclasses.replace(options, **{k: v for k, v in keywords.items() if k in option_names}),
+        dataclasses.replace(overrides, **given),
+    )
+
+
+def _check_options(options: RunOptions, through: str) -> None:
+    """Refuse options no run can carry out, before anything is built."""
     if options.image_format not in IMAGE_FORMATS:
         raise KeympsError(
             f"image_format {options.image_format!r} is not one of: {', '.join(IMAGE_FORMATS)}"
@@ -645,20 +704,26 @@ def run_task(
         )
     if through not in ("ground", "outcome", "execute"):
         raise KeympsError(f"through={through!r}: a run goes through ground, outcome or execute")
-    out = overrides.pop("out", None)
-    task = apply_overrides(task, overrides)
-    backend, reason = choose_backend(
-        task, overrides.get("backend"), overrides.get("model"), overrides.get("api_base")
-    )
-    options = _backend_under_way(task, backend, options)
-    prepare_text_drawing()  # OpenCV's font set-up, on the other core until plan.png is drawn
-    parts = Components(task, backend, through)
-    if backend not in NO_SERVER:  # what the run may not send its server, before any stage
-        described = {name: p.description for name, p in (parts.primitives or {}).items()}
-        refused = files_refused(task, described, image_given=overrides.get("image") is not None)
-        if refused:
-            raise KeympsError(refused[0])
-    folder = _new_run_folder(task, Path(out) if out else None)
+
+
+def _refuse_files_not_to_send(task: Task, parts: Components, overrides: RunOverrides) -> None:
+    """What the run may not send its server, refused before any stage."""
+    from keymps.planning.sent_files import files_refused
+
+    if parts.backend in NO_SERVER:
+        return
+    described = {name: p.description for name, p in (parts.primitives or {}).items()}
+    refused = files_refused(task, described, image_given=overrides.image is not None)
+    if refused:
+        raise KeympsError(refused[0])
+
+
+def _start_run(task: Task, options: RunOptions, out: Path | None) -> tuple[Run, FolderLock]:
+    """The run and its folder's lock, the folder created and cleared of an earlier run's
+    files (the lock released here when it cannot be)."""
+    from keymps.pipeline.folder_lock import FolderLock
+
+    folder = _new_run_folder(task, out)
     lock = FolderLock(folder).acquire()  # a second run into this folder refuses here
     run = Run(task=task, folder=folder, options=options)
     try:
@@ -666,12 +731,13 @@ def run_task(
     except BaseException:
         lock.release()
         raise
-    run.backend, run.backend_reason, run.robot = backend, reason, parts.robot
-    keyless = untrusted_api_base_warning(task) if backend not in NO_SERVER else None
-    if keyless:
-        run.warnings.append(keyless)
-        warnings.warn(keyless, UserWarning, stacklevel=2)
-    pipeline = _Pipeline(run, parts, on_stage, through)
+    return run, lock
+
+
+def _run_stages(pipeline: _Pipeline, lock: FolderLock) -> Run:
+    """Run the stages, tell the observers the run finished, write run.json, release the lock;
+    the run's own error is raised."""
+    run = pipeline.run
     error: BaseException | None = None
     problem: str | None = None
     try:
@@ -695,7 +761,7 @@ def run_task(
         if late is not None:
             raise late
         if problem and error is not None:  # the run's own error is the one reported
-            warnings.warn(f"run.json not written: {problem}", RuntimeWarning, stacklevel=2)
+            warnings.warn(f"run.json not written: {problem}", RuntimeWarning, stacklevel=3)
     if problem:
         raise KeympsError(problem)
     return run

@@ -116,11 +116,10 @@ def perceive(task: Task, run: Run) -> Perception:
     Raises:
         keymps.errors.KeympsError: On the first problem (a component, the image, the detection).
     """
-    from keymps.plugin.manager import create_component
+    from keymps.plugin.manager import create_detector, create_image_source
 
-    scene_source = task.scene
-    source = create_component("image_source", scene_source.source, scene_source.source_options)
-    detector = create_component("detector", task.detector.name, task.detector.options)
+    source = create_image_source(task.scene.source, task.scene.source_options)
+    detector = create_detector(task.detector.name, task.detector.options)
     scene = rectified(task, _of_type(source.load(run), SceneImage, "image source"))
     return detected(task, scene, _of_type(detector.detect(scene), Detection, "detector"))
 

@@ -16,6 +16,7 @@ from keymps.planning.backend_choice import NO_SERVER
 
 if TYPE_CHECKING:
     from keymps.config.task import Task
+    from keymps.pipeline.engine import Components
 
 
 def validate_task_file(path: Path, notes: list[str] | None = None) -> list[str]:
@@ -51,7 +52,7 @@ def component_problems(
     from keymps.planning.sent_files import files_refused
 
     problems: list[str] = []
-    parts = None
+    parts: Components | None = None
     backend = None
     try:
         backend, _reason = choose_backend(task, None, None, None)
@@ -76,12 +77,12 @@ def component_problems(
     return problems
 
 
-def _descriptions(task: Task, parts: object) -> dict[str, str] | None:
+def _descriptions(task: Task, parts: Components | None) -> dict[str, str] | None:
     """Primitive name -> description, from the built parts or, when those failed, loaded
     again; None when the primitives themselves are the problem."""
     from keymps.primitives.dictionary import default_search_dirs, load_primitives
 
-    primitives = getattr(parts, "primitives", None)
+    primitives = parts.primitives if parts is not None else None
     if primitives is None:
         try:
             primitives = load_primitives(task.primitives, default_search_dirs(task.folder))

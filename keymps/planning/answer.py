@@ -12,16 +12,15 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Iterator, Sequence
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from keymps.config.limits import max_answer_chars
 from keymps.planning.intent import IntentAnswer, intent_of_answer, intent_schema
 from keymps.planning.named_design import DesignAnswer, design_schema
-from keymps.types import Step
+from keymps.types import AnswerMode, Step
 
-AnswerMode = Literal["pairs", "design", "either"]
 ANSWER_MODES: tuple[str, ...] = ("pairs", "design", "either")
 
 Coordinate = Annotated[float, Field(strict=True)]

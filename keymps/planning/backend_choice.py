@@ -82,7 +82,7 @@ def credential_source(task: Task, model: str) -> str | None:
 def api_base_trusted(task: Task) -> bool:
     """May a backend send the user's key to the task's server? Yes when that is the provider's
     own endpoint (no api_base, or its https host), an api_base the user gave (--api-base,
-    run_task(api_base=...), a task built in code) or one listed in the user config; no when
+    RunOverrides(api_base=...), a task built in code) or one listed in the user config; no when
     only the task file names it, and no for a provider's default address on this machine
     (`default_local_endpoint`) unless the user config lists it (docs/security.md)."""
     if not task.api_base_from_file:

@@ -159,7 +159,8 @@ def make_plan(
     from keymps.planning.objects import mark_objects, plan_objects, scaled_objects
     from keymps.planning.prompt import find_prompt, png_bytes, png_data_url, prompt_family
     from keymps.planning.session import PlanSession
-    from keymps.plugin.manager import create_component
+    from keymps.plugin.components import BackendAbilities
+    from keymps.plugin.manager import create_vlm_backend
 
     if not primitives:
         raise KeympsError("primitives: the task lists no primitives to choose from")
@@ -167,14 +168,14 @@ def make_plan(
     check_sentence(task, task.instruction, families)
     planner = task.planner
     remember(*keys_the_task_may_send(task))
-    backend_object = create_component("vlm_backend", backend, backend_options(task))
+    backend_object = create_vlm_backend(backend, backend_options(task))
     prompt_path = find_prompt(
         task.resolve(planner.prompt) if planner.prompt else None,
         task.folder,
         prompt_family(primitives),
         where=f"{task.where('planner', 'prompt')}: planner.prompt",
     )
-    asks_model = bool(getattr(backend_object, "asks_model", True))
+    asks_model = BackendAbilities.of(backend_object).asks_model
     model = planner.model if asks_model else None
     # a backend that asks no model answers in pixels of the full crop
     convention = resolve_convention(planner.coordinates, model) if asks_model else "pixels"
@@ -212,6 +213,7 @@ def make_plan(
         task_name=task.name,
         line_width_mm=_line_width_mm(task),
         objects=in_sent,
+        answer_mode=answer_mode,
     )
     family = prompt_family(primitives)
     session = PlanSession(

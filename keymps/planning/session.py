@@ -14,10 +14,11 @@ from keymps.errors import KeympsError
 from keymps.planning.answer import Step, answer_schema
 from keymps.planning.redaction import redact
 from keymps.run_files import write_atomically
-from keymps.types import BackendAnswer, PlanRequest, VlmCall
+from keymps.types import AnswerMode, BackendAnswer, PlanRequest, VlmCall
 
 if TYPE_CHECKING:
     from keymps.config.task import Task
+    from keymps.plugin.components import VlmBackend
     from keymps.run import Run
 
 
@@ -42,7 +43,7 @@ class PlanSession:
     task: Task
     run: Run
     backend_name: str
-    backend: Any
+    backend: VlmBackend
     base: PlanRequest
     system_template: str
     template_source: str
@@ -50,17 +51,18 @@ class PlanSession:
     calls: list[VlmCall] = field(default_factory=list)
     convention: str = "pixels"
     """How the model writes points (keymps.planning.coordinates)."""
-    answer_mode: str = "pairs"
+    answer_mode: AnswerMode = "pairs"
     """pairs, design or either (planner.answer)."""
     family: str = "cutting"
     """The prompt's family: which examples and named designs it shows."""
 
     def __post_init__(self) -> None:
+        from keymps.plugin.components import BackendAbilities
+
         planner = self.task.planner
-        self.use_cache = bool(
-            getattr(self.backend, "cacheable", False)
-            and planner.cache
-            and not self.run.options.no_cache
+        self.abilities = BackendAbilities.of(self.backend)
+        self.use_cache = (
+            self.abilities.cacheable and planner.cache and not self.run.options.no_cache
         )
         self.vlm_folder = self.run.folder / "vlm"
         self.image_reference = image_reference(self.image_url, "crop.png")
@@ -97,7 +99,7 @@ class PlanSession:
             step,
             list(self.base.primitives),
             self.base.max_pairs,
-            self.answer_mode,  # type: ignore[arg-type]
+            self.answer_mode,
             self.convention,
             self.family,
         )
@@ -107,6 +109,7 @@ class PlanSession:
             schema=schema,
             step=step,
             keyword=keyword,
+            answer_mode=self.answer_mode,
             previous_errors=tuple(history[-1][1]) if history else (),
             attempt=len(history) + 1,
             share_key=self._cache_key(messages, schema) if self.use_cache else None,
@@ -162,7 +165,7 @@ class PlanSession:
                 list(self.base.primitives),
                 self.base.crop_size_px,
                 self.base.max_pairs,
-                self.answer_mode,  # type: ignore[arg-type]
+                self.answer_mode,
                 self.convention,
                 self.family,
             )
@@ -250,7 +253,7 @@ class PlanSession:
         started = time.perf_counter()
         dispatch = self.run.options.dispatch
         try:
-            if dispatch is not None and hasattr(self.backend, "acomplete"):
+            if dispatch is not None and self.abilities.supports_async:
                 answer = dispatch(self.backend, request)
             else:
                 answer = self.backend.complete(request)
@@ -293,7 +296,7 @@ class PlanSession:
             completion_tokens=answer.completion_tokens,
             cost_usd=answer.cost_usd,
             cached=cached,
-            model_call=bool(getattr(self.backend, "asks_model", True)),
+            model_call=self.abilities.asks_model,
         )
         self.calls.append(call)
         self.vlm_folder.mkdir(parents=True, exist_ok=True)

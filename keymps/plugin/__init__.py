@@ -23,6 +23,8 @@ from keymps.interrupts import interrupts_deferred
 from keymps.plugin.arms import DEFAULT_ACCELERATION, DEFAULT_JERK, ArmSpec, degrees
 from keymps.plugin.components import (
     Arm,
+    BackendAbilities,
+    BackendBase,
     Detector,
     Executor,
     ImageSource,
@@ -46,6 +48,8 @@ __all__ = [
     "DEFAULT_JERK",
     "Arm",
     "ArmSpec",
+    "BackendAbilities",
+    "BackendBase",
     "DetectionError",
     "Detector",
     "Executor",

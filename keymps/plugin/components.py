@@ -3,7 +3,8 @@ calls (mypy checks the built-in plugins and the first-party plugin packages agai
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Protocol
+from dataclasses import dataclass, fields
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -62,11 +63,11 @@ class Detector(Protocol):
 class VlmBackend(Protocol):
     """Answers a planning request with the planner's JSON answer: `register_vlm_backends`.
 
-    Optional: `cacheable = True` lets keymps cache answers on disk (paid or slow backends),
-    `asks_model = False` keeps its answers out of the VLM call counts (the offline planner),
-    `async def acomplete(request)` lets `keymps eval` make many calls at once on one event loop,
-    and `def prepare()` does a slow set-up (an import) on a thread as soon as a run knows it
-    will use the backend.
+    What a backend can do beyond `complete` is declared by inheriting BackendBase and setting
+    its ability flags; a backend that does not inherit it gets the flags' defaults.
+
+    Optional: `def prepare()` does a slow set-up (an import) on a thread as soon as a run knows
+    it will use the backend.
     """
 
     name: str
@@ -86,6 +87,58 @@ class VlmBackend(Protocol):
             keymps.errors.KeympsError: When no answer can be had (one line, keys redacted).
         """
         ...
+
+
+class BackendBase:
+    """A base class for planner backends whose class attributes declare what they can do.
+
+    Inheriting it is optional: keymps reads the same flags from a backend that does not inherit
+    it (one written against the plain VlmBackend Protocol) and uses each default it lacks.
+    """
+
+    name: str = ""
+    """The backend's registered name (run.json's `backend`)."""
+    asks_model: ClassVar[bool] = True
+    """False for a planner that is no model (the offline one): run.json and the eval tables count
+    no VLM call for it, and it is sent the crop at full size in pixel coordinates."""
+    cacheable: ClassVar[bool] = False
+    """True lets keymps keep its answers in the on-disk answer cache (paid or slow backends);
+    `planner.cache: false` and `--no-cache` still turn the cache off."""
+    supports_async: ClassVar[bool] = False
+    """True when `acomplete` is implemented: `keymps eval` then makes many of its calls at once
+    on one event loop instead of calling `complete` from each run's thread."""
+
+    def complete(self, request: PlanRequest) -> BackendAnswer:
+        """Answer one planning call (see VlmBackend.complete)."""
+        raise NotImplementedError(f"{type(self).__name__} does not implement complete()")
+
+    async def acomplete(self, request: PlanRequest) -> BackendAnswer:
+        """Answer one planning call on an event loop; only called when `supports_async`."""
+        raise NotImplementedError(f"{type(self).__name__} does not implement acomplete()")
+
+
+@dataclass(frozen=True)
+class BackendAbilities:
+    """What one backend object can do: its BackendBase flags, or their defaults."""
+
+    asks_model: bool = BackendBase.asks_model
+    cacheable: bool = BackendBase.cacheable
+    supports_async: bool = BackendBase.supports_async
+
+    @classmethod
+    def of(cls, backend: object) -> BackendAbilities:
+        """The flags a backend declares (on BackendBase or as plain class attributes).
+
+        Args:
+            backend: A planner backend object.
+
+        Returns:
+            Its abilities; each flag it does not declare has BackendBase's default.
+        """
+        flags = {flag.name: flag.default for flag in fields(cls)}
+        return cls(
+            **{flag: bool(getattr(backend, flag, default)) for flag, default in flags.items()}
+        )
 
 
 class Executor(Protocol):

@@ -4,19 +4,29 @@ from __future__ import annotations
 
 import functools
 import importlib
+import inspect
 import os
 import sys
 import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from importlib import metadata
-from typing import Any
+from typing import Any, cast
 
 import pluggy
 
 from keymps.errors import KeympsError
 from keymps.interrupts import handling_signals, signals_received
 from keymps.plugin import hookspecs
+from keymps.plugin.components import (
+    Arm,
+    BackendAbilities,
+    BackendBase,
+    Detector,
+    Executor,
+    ImageSource,
+    VlmBackend,
+)
 
 ENTRY_POINT_GROUP = "keymps"
 
@@ -367,27 +377,142 @@ def create_component(
     options: dict[str, Any] | None = None,
     manager: pluggy.PluginManager | None = None,
 ) -> Any:
-    """Build the named component from its factory, or raise a KeympsError listing the choices.
-    A factory that raises anything but a KeympsError is one line naming its plugin."""
+    """The untyped primitive under the typed `create_*` functions: build the named component of
+    any kind, unchecked. Prefer `create_detector`, `create_vlm_backend` ... which say what they
+    return and refuse a factory's wrong result."""
+    return _build(kind, name, options, manager)[0]
+
+
+def _build(
+    kind: str,
+    name: str,
+    options: dict[str, Any] | None,
+    manager: pluggy.PluginManager | None,
+) -> tuple[object, str]:
+    """(the component, the plugin that registered it); a KeympsError listing the choices for an
+    unknown name. A factory that raises anything but a KeympsError is one line naming its
+    plugin."""
     found = registrations(kind, manager)
     factories = _merged(kind, found)
     if name not in factories:
         choices = ", ".join(sorted(factories)) or "none installed"
         raise KeympsError(f"unknown {kind.replace('_', ' ')} {name!r} (available: {choices})")
     factory = factories[name]
+    plugin = next((p for p, pairs in found.items() if (name, factory) in pairs), "?")
     signals_before = signals_received()
     try:
-        return factory(dict(options or {}))
+        return factory(dict(options or {})), plugin
     except KeympsError:
         raise
     except BaseException as error:
         if _a_real_interrupt(error, signals_before) or os.environ.get("KEYMPS_DEBUG"):
             raise
-        plugin = next((p for p, pairs in found.items() if (name, factory) in pairs), "?")
         detail = " ".join(f"{type(error).__name__}: {error}".split())
         raise KeympsError(
             f"{kind.replace('_', ' ')} {name!r} of plugin {plugin!r} could not be built: {detail}"
         ) from None
+
+
+def _create_checked(
+    kind: str,
+    name: str,
+    options: dict[str, Any] | None,
+    manager: pluggy.PluginManager | None,
+    protocol: type,
+) -> object:
+    """Build a component; a result lacking what keymps uses of `protocol` (None, a wrong
+    object) is refused in one line naming the plugin."""
+    built, plugin = _build(kind, name, options, manager)
+    missing = _missing(built, protocol)
+    if missing is None:
+        return built
+    wanted = protocol.__name__
+    got = "None" if built is None else f"a {type(built).__name__} without {missing}"
+    article = "an" if wanted[0] in "AEIOU" else "a"
+    raise KeympsError(
+        f"{kind.replace('_', ' ')} {name!r} of plugin {plugin!r}: its factory returned {got}, "
+        f"not {article} {wanted} (keymps.plugin.{wanted})"
+    )
+
+
+def _missing(built: object, protocol: type) -> str | None:
+    """The first thing keymps uses of `protocol` that `built` lacks; None when it has all.
+    An Arm is checked whole (every field is read); other kinds only for their methods: a
+    `name` attribute, which keymps never reads from the object, is not demanded."""
+    if built is None:
+        return "anything"
+    if protocol is Arm:
+        return next((m for m in _members(Arm) if not hasattr(built, m)), None)
+    methods = [m for m in _members(protocol) if callable(getattr(protocol, m, None))]
+    return next((f"{m}()" for m in methods if not callable(getattr(built, m, None))), None)
+
+
+def _members(protocol: type) -> list[str]:
+    """The names a Protocol declares (methods, properties, attributes)."""
+    annotated = getattr(protocol, "__annotations__", {})
+    declared = [m for m in vars(protocol) if not m.startswith("_")]
+    return sorted(set(declared) | set(annotated))
+
+
+def create_detector(
+    name: str, options: dict[str, Any] | None = None, manager: pluggy.PluginManager | None = None
+) -> Detector:
+    """Build the detector registered as `name`.
+
+    Args:
+        name: The registered name (`detector.name`).
+        options: The factory's options (`detector.options`).
+        manager: The plugin manager (the process-wide one when None).
+
+    Returns:
+        The detector.
+
+    Raises:
+        keymps.errors.KeympsError: An unknown name (the choices listed), a factory that failed
+            or returned no Detector (one line naming its plugin).
+    """
+    return cast(Detector, _create_checked("detector", name, options, manager, Detector))
+
+
+def create_image_source(
+    name: str, options: dict[str, Any] | None = None, manager: pluggy.PluginManager | None = None
+) -> ImageSource:
+    """Build the image source registered as `name` (`scene.source`); as create_detector."""
+    return cast(ImageSource, _create_checked("image_source", name, options, manager, ImageSource))
+
+
+def create_executor(
+    name: str, options: dict[str, Any] | None = None, manager: pluggy.PluginManager | None = None
+) -> Executor:
+    """Build the executor registered as `name` (`executor.name`); as create_detector."""
+    return cast(Executor, _create_checked("executor", name, options, manager, Executor))
+
+
+def create_robot(
+    name: str, options: dict[str, Any] | None = None, manager: pluggy.PluginManager | None = None
+) -> Arm:
+    """Build the arm registered as `name` (`robot.model`); as create_detector."""
+    return cast(Arm, _create_checked("robot", name, options, manager, Arm))
+
+
+def create_vlm_backend(
+    name: str, options: dict[str, Any] | None = None, manager: pluggy.PluginManager | None = None
+) -> VlmBackend:
+    """Build the planner backend registered as `name` (`planner.backend`); as create_detector.
+    A backend declaring `supports_async` must implement `acomplete` as a coroutine function."""
+    built = _create_checked("vlm_backend", name, options, manager, VlmBackend)
+    if BackendAbilities.of(built).supports_async and not _own_acomplete(built):
+        raise KeympsError(
+            f"vlm backend {name!r} declares supports_async but implements no async "
+            "acomplete(request)"
+        )
+    return cast(VlmBackend, built)
+
+
+def _own_acomplete(backend: object) -> bool:
+    """Whether a backend implements `async def acomplete` (BackendBase's own does not count)."""
+    method = getattr(type(backend), "acomplete", None)
+    return method is not BackendBase.acomplete and inspect.iscoroutinefunction(method)
 
 
 def _provides(kinds: dict[str, dict[str, list[tuple[str, Any]]]], plugin_name: str) -> list[str]:

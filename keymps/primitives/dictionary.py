@@ -174,8 +174,7 @@ def learn_primitive(
     _check_name(name, "name")
     demo = Path(demo)
     settings = preprocessing or Preprocessing()
-    t_raw, y_raw = load_demo_csv(demo)
-    t, y = prepare_demo(t_raw, y_raw, settings, str(demo))
+    t, y = prepare_demo(*load_demo_csv(demo), settings, str(demo))
     dmp = DMP.fit(t, y, n_basis=n_basis)
     primitive = Primitive(
         name=name,
@@ -191,11 +190,17 @@ def learn_primitive(
         preprocessing=settings,
         source=None,
     )
-    if out_dir is None:
-        return primitive
-    out_dir = Path(out_dir)
+    return primitive if out_dir is None else _save_learned(primitive, demo, t, y, Path(out_dir))
+
+
+def _save_learned(
+    primitive: Primitive, demo: Path, t: np.ndarray, y: np.ndarray, out_dir: Path
+) -> Primitive:
+    """Write a primitive learned from `demo` as out_dir/NAME.yaml, with the prepared
+    demonstration (times t (n,) seconds, positions y (n, 3) metres) as NAME.csv beside it
+    unless `demo` is that file; returns the primitive as saved."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    demo_out = out_dir / f"{name}.csv"
+    demo_out = out_dir / f"{primitive.name}.csv"
     if demo_out.resolve() != demo.resolve():
         write_demo_csv(demo_out, t, y)
         # The saved demo is already prepared: refitting it needs no further preprocessing.
@@ -203,11 +208,11 @@ def learn_primitive(
             primitive,
             preprocessing=Preprocessing(trim_mm=0.0),
             source=str(demo),
-            source_preprocessing=settings,
+            source_preprocessing=primitive.preprocessing,
         )
     primitive = replace(primitive, demo=demo_out)
-    save_primitive(primitive, out_dir / f"{name}.yaml")
-    return replace(primitive, path=out_dir / f"{name}.yaml")
+    save_primitive(primitive, out_dir / f"{primitive.name}.yaml")
+    return replace(primitive, path=out_dir / f"{primitive.name}.yaml")
 
 
 # --------------------------------------------------------------------------- primitive files

@@ -67,10 +67,10 @@ if TYPE_CHECKING:
 def arm_by_name(name: str, options: dict[str, Any] | None = None) -> Arm:
     """The arm a robot plugin registered as `name` (`robot.model`), built with `options`; a
     factory that fails is one line naming it."""
-    from keymps.plugin.manager import create_component
+    from keymps.plugin.manager import create_robot
 
     try:
-        return create_component("robot", name, options)  # type: ignore[no-any-return]
+        return create_robot(name, options)
     except KeympsError:
         raise
     except Exception as error:  # a broken plugin: one line, never a traceback
@@ -437,18 +437,24 @@ class RobotModel:
     def height_problem(self) -> str | None:
         """Why the object's top is beyond the arm (None when the arm can work there): the tool,
         pointing down, must reach the top plus the travel clearance somewhere over the board.
-        Tried at the board's middle first (one IK for most tasks), then at eight more points."""
-        width, height = self.board_size
+        Tried at the board's middle first (one IK for most tasks), then at eight more points.
+        An arm that cannot work over the board even at a flat object's height is no height
+        problem: the solve stage names the board point it cannot reach."""
         z = self.object_height + self.clearance
-        for fx, fy in [(0.5, 0.5), *[(a, b) for a in (0.2, 0.5, 0.8) for b in (0.2, 0.5, 0.8)]]:
-            if self.reachable(np.array([fx * width, fy * height, z])):
-                return None
+        if self._reaches_over_board(z) or not self._reaches_over_board(self.clearance):
+            return None
         bx, by, bz, byaw = self.base
         return (
             f"{self.object_height:g} m: {self.label} cannot reach {z:.3f} m above the board (the "
             f"object's top plus motion.clearance) anywhere over it with its base at [{bx:g}, "
             f"{by:g}, {bz:g}, {byaw:g}]: the unit is metres, or move robot.base"
         )
+
+    def _reaches_over_board(self, z: float) -> bool:
+        """Whether the tool, pointing down, reaches height `z` (m) anywhere over the board."""
+        width, height = self.board_size
+        points = [(0.5, 0.5), *[(a, b) for a in (0.2, 0.5, 0.8) for b in (0.2, 0.5, 0.8)]]
+        return any(self.reachable(np.array([fx * width, fy * height, z])) for fx, fy in points)
 
     def home_tool_position(self) -> np.ndarray:
         """Above the middle of the board, clear of the object (or as high as reachable)."""

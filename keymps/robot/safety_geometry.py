@@ -158,46 +158,19 @@ def _near(
     grid = _grid(a, b, segment_group, smallest_cell)
     if grid.total > GRID_ENTRIES_PER_POINT * len(points) + 100_000:
         return out, near
-    groups, cell, margin, origin = grid.groups, grid.cell, grid.margin, grid.origin
-    shape, offset = grid.shape, grid.offset
-    segment, cell_starts, cell_keys, cell_counts = grid.entries()
-    g = point_group
-    per_point = _per_point(g, groups)
-    point_shape = per_point(shape)
-    at = points - per_point(origin)
-    at /= per_point(cell)[:, None]
-    at = np.floor(at, out=at).astype(np.int64)
-    ok = (at >= 0) & (at < point_shape)
-    inside = ok[:, 0] & ok[:, 1] & ok[:, 2]  # faster than .all(axis=1) over three
-    at_key = _keys(at, point_shape, per_point(offset))
-    # Consecutive samples of a path mostly share a cell: one search per run of equal keys.
-    run_start = np.flatnonzero(np.diff(at_key, prepend=at_key[0] - 1))
-    found_at = np.searchsorted(cell_keys, at_key[run_start])
-    where = np.minimum(
-        np.repeat(found_at, np.diff(run_start, append=len(at_key))), len(cell_keys) - 1
-    )
-    hit = inside & (cell_keys[where] == at_key)
-    first = cell_starts[where]
-    found = np.where(hit, cell_counts[where], 0)
+    first, found = grid.cell_segments(points, point_group)
     has = np.flatnonzero(found)
     if len(has) == 0:
         return out, near
-    counts_has = found[has]
-    starts = np.cumsum(counts_has) - counts_has
-    pair_point = np.repeat(has, counts_has)
-    offsets = np.arange(len(pair_point)) - np.repeat(starts, counts_has)
-    pair_segment = segment[np.repeat(first[has], counts_has) + offsets]
-    columns = np.ascontiguousarray(points.T)
-    a_columns, ab, length2 = grid.a_columns, grid.ab, grid.length2
-    distances = np.empty(len(pair_point))
-    for start in range(0, len(pair_point), PAIR_CHUNK):  # temporaries that stay in cache
-        p, s = pair_point[start : start + PAIR_CHUNK], pair_segment[start : start + PAIR_CHUNK]
-        distances[start : start + PAIR_CHUNK] = _pair_distances(
-            columns, a_columns, ab, length2, p, s
-        )
-    best = np.minimum.reduceat(distances, starts)
+    counts = found[has]
+    starts = np.cumsum(counts) - counts
+    # every (point, segment of its cell) pair, grouped by point
+    pair_point = np.repeat(has, counts)
+    offsets = np.arange(len(pair_point)) - np.repeat(starts, counts)
+    pair_segment = grid.entries()[0][np.repeat(first[has], counts) + offsets]
+    best = np.minimum.reduceat(grid.pair_distances(points, pair_point, pair_segment), starts)
     out[has] = best
-    near[has] = best <= margin[g[has]] / 2
+    near[has] = best <= grid.margin[point_group[has]] / 2
     return out, near
 
 
@@ -259,6 +232,49 @@ class _Grid:
                 np.diff(cell_starts, append=len(keys)),
             )
         return self._entries
+
+    def cell_segments(
+        self, points: np.ndarray, point_group: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """For each point (n, 3) of group point_group (n,), where the segments registered in
+        its cell start in `entries()`'s segments and how many there are (0 outside its
+        group's grid or in an empty cell): (n,) each."""
+        _, cell_starts, cell_keys, cell_counts = self.entries()
+        per_point = _per_point(point_group, self.groups)
+        point_shape = per_point(self.shape)
+        at = points - per_point(self.origin)
+        at /= per_point(self.cell)[:, None]
+        at = np.floor(at, out=at).astype(np.int64)
+        ok = (at >= 0) & (at < point_shape)
+        inside = ok[:, 0] & ok[:, 1] & ok[:, 2]  # faster than .all(axis=1) over three
+        at_key = _keys(at, point_shape, per_point(self.offset))
+        # Consecutive samples of a path mostly share a cell: one search per run of equal keys.
+        run_start = np.flatnonzero(np.diff(at_key, prepend=at_key[0] - 1))
+        found_at = np.searchsorted(cell_keys, at_key[run_start])
+        where = np.minimum(
+            np.repeat(found_at, np.diff(run_start, append=len(at_key))), len(cell_keys) - 1
+        )
+        hit = inside & (cell_keys[where] == at_key)
+        return cell_starts[where], np.where(hit, cell_counts[where], 0)
+
+    def pair_distances(
+        self, points: np.ndarray, pair_point: np.ndarray, pair_segment: np.ndarray
+    ) -> np.ndarray:
+        """(pairs,) distance of points[pair_point[i]] (points (n, 3)) to the segment
+        pair_segment[i]."""
+        columns = np.ascontiguousarray(points.T)
+        distances = np.empty(len(pair_point))
+        for start in range(0, len(pair_point), PAIR_CHUNK):  # temporaries that stay in cache
+            chunk = slice(start, start + PAIR_CHUNK)
+            distances[chunk] = _pair_distances(
+                columns,
+                self.a_columns,
+                self.ab,
+                self.length2,
+                pair_point[chunk],
+                pair_segment[chunk],
+            )
+        return distances
 
 
 _GRIDS: dict[bytes, _Grid] = {}

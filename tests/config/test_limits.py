@@ -26,6 +26,7 @@ from helpers.fuzz_support import (
 import keymps
 from keymps.config.limits import check_duration, check_tool_path, max_answer_chars
 from keymps.errors import KeympsError, TaskFileError
+from keymps.run import RunOptions, RunOverrides
 from keymps.types import Piece, ToolPath
 
 
@@ -42,7 +43,11 @@ def _grid_of_dots(request: Any, count: int) -> str:
 
 def _run(path: Path, out: Path, count: int) -> Any:
     ScriptedBackend.answers = [lambda request: _grid_of_dots(request, count)] * 2
-    return keymps.run_task(path, backend="scripted", executor="recording", out=out, rerun="off")
+    return keymps.run_task(
+        path,
+        options=RunOptions(rerun="off"),
+        overrides=RunOverrides(backend="scripted", executor="recording", out=out),
+    )
 
 
 def test_ten_thousand_pairs_are_refused_before_inverse_kinematics(

@@ -13,6 +13,7 @@ from keymps.default_plugins.board_detector import BoardDetector, BoardOptions
 from keymps.default_plugins.threshold_detector import ThresholdDetector
 from keymps.errors import KeympsError
 from keymps.plugin.manager import create_component
+from keymps.run import RunOptions, RunOverrides
 from keymps.scenes.perception_cases import BOARDS, flat_case, lab_to_bgr
 from keymps.scenes.render import KINDS, SceneSpec, render_scene
 
@@ -220,7 +221,11 @@ def test_a_board_detection_stops_the_run_before_planning(tmp_path: Path) -> None
         task.write_text(text.replace("detector: {name: board}", f"detector: {{name: {detector}}}"))
         out = tmp_path / detector
         with pytest.raises(KeympsError, match=r"^detect: the (region|object) found \(box"):
-            run_task(task, out=out, rerun="off", backend="offline")
+            run_task(
+                task,
+                options=RunOptions(rerun="off"),
+                overrides=RunOverrides(out=out, backend="offline"),
+            )
         record = json.loads((out / "run.json").read_text())
         assert record["ok"] is False and record["detection"] is None and record["pairs_px"] is None
         assert not (out / "trajectory.csv").exists() and not list(out.glob("plan.*"))

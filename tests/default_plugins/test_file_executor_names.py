@@ -21,6 +21,7 @@ from click.testing import CliRunner
 from helpers.fuzz_support import task_copy
 
 from keymps.cli.app import cli
+from keymps.run import RunOptions, RunOverrides
 
 RUN_FILES = ["run.json", ".keymps.lock", "run.rrd", "plan.png", "plan.jpg", "plan_photo.png"]
 """What every run writes itself, whichever executor runs (docs/run-folder.md)."""
@@ -103,7 +104,9 @@ def test_an_accepted_name_leaves_the_runs_files_intact(tmp_path: Path) -> None:
     import keymps
 
     task = file_task(tmp_path / "task", "csv: exports/plan.png, json: exports/run.json")
-    run = keymps.run_task(task, out=tmp_path / "run", rerun="off")
+    run = keymps.run_task(
+        task, options=RunOptions(rerun="off"), overrides=RunOverrides(out=tmp_path / "run")
+    )
     record = json.loads((run.folder / "run.json").read_text())
     assert record["ok"] and (run.folder / "plan.png").read_bytes()[:4] == b"\x89PNG"
     assert (run.folder / "exports" / "plan.png").read_text().startswith("t,q1,")

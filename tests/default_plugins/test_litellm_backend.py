@@ -13,7 +13,7 @@ from helpers.synthetic_crops import CUTTING, make_scene, plan_for
 from helpers.vlm_server import Reply, VlmServer
 
 from keymps.errors import KeympsError
-from keymps.run import RunOptions
+from keymps.run import RunOptions, RunOverrides
 
 CANARY = "sk-canary-7f3e9b2d1c4a"
 GOOD = {
@@ -236,11 +236,12 @@ def test_a_vlm_answer_drives_a_full_run_and_the_key_stays_out_of_every_file(
     server.script(Reply.text_answer("```json\n{oops"), Reply.json_answer(crop_answer))
     run = run_task(
         CUTTING_TASK,
-        model=model,
-        api_base=server.openai_base if model.startswith("openai") else server.url,
-        out=tmp_path / "run",
-        rerun="save",
-        record=tmp_path / "cassette.jsonl",
+        options=RunOptions(rerun="save", record=tmp_path / "cassette.jsonl"),
+        overrides=RunOverrides(
+            model=model,
+            api_base=server.openai_base if model.startswith("openai") else server.url,
+            out=tmp_path / "run",
+        ),
     )
     assert run.backend == "litellm"
     if model.startswith("openai"):
@@ -267,11 +268,10 @@ def test_an_invalid_plan_stops_the_run_before_anything_moves(server, tmp_path):
     with pytest.raises(StageError, match="^plan: .*outside the image"):
         run_task(
             CUTTING_TASK,
-            model="openai/test-vlm",
-            api_base=server.openai_base,
-            out=tmp_path / "run",
-            rerun="off",
-            no_cache=True,
+            options=RunOptions(rerun="off", no_cache=True),
+            overrides=RunOverrides(
+                model="openai/test-vlm", api_base=server.openai_base, out=tmp_path / "run"
+            ),
         )
     record = json.loads((tmp_path / "run" / "run.json").read_text())
     assert record["ok"] is False and record["keyword"] is None

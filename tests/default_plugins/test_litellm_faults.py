@@ -28,6 +28,7 @@ from hypothesis import strategies as st
 import keymps
 from keymps.errors import KeympsError
 from keymps.plugin.hookspecs import hookimpl
+from keymps.run import RunOptions, RunOverrides
 
 DOT = {"keyword": "line", "pairs": [[[130, 130], [130, 130]]], "rationale": "one dot"}
 TIMEOUT_S = 0.6
@@ -83,7 +84,9 @@ def _plugins(keymps_plugins: Any, monkeypatch: Any, tmp_path: Path, server: Any)
 
 def run_with(task: Any, api_base: str, out: Path, backend: str = "litellm-quick") -> Any:
     return keymps.run_task(
-        task, backend=backend, api_base=api_base, executor="recording", out=out, rerun="off"
+        task,
+        options=RunOptions(rerun="off"),
+        overrides=RunOverrides(backend=backend, api_base=api_base, executor="recording", out=out),
     )
 
 
@@ -217,11 +220,10 @@ def test_missing_credentials_are_not_retried(
     with pytest.raises(KeympsError) as caught:
         keymps.run_task(
             task,
-            backend="litellm",
-            model="openai/gpt-4o",
-            executor="recording",
-            out=tmp_path / "run",
-            rerun="off",
+            options=RunOptions(rerun="off"),
+            overrides=RunOverrides(
+                backend="litellm", model="openai/gpt-4o", executor="recording", out=tmp_path / "run"
+            ),
         )
     assert time.perf_counter() - started < 2.0  # one try, no backoff (was 4 tries, 18.7 s)
     assert_clean_error(caught.value)

@@ -29,6 +29,7 @@ from helpers.vlm_server import Reply, VlmServer
 
 import keymps
 from keymps.errors import KeympsError
+from keymps.run import RunOptions, RunOverrides
 
 DOT = {"keyword": "line", "pairs": [[[130, 130], [130, 130]]], "rationale": "one dot"}
 KEY = "sk-canary-" + secrets.token_hex(12)
@@ -89,10 +90,10 @@ def test_a_redirect_to_another_server_is_not_followed(
     with pytest.raises(KeympsError) as caught:
         keymps.run_task(
             icing_task(tmp_path / "task", model),
-            api_base=own.url + path,
-            executor="recording",
-            out=tmp_path / "run",
-            rerun="off",
+            options=RunOptions(rerun="off"),
+            overrides=RunOverrides(
+                api_base=own.url + path, executor="recording", out=tmp_path / "run"
+            ),
         )
     assert_clean_error(caught.value)
     message = str(caught.value)
@@ -111,10 +112,10 @@ def test_a_redirect_on_the_same_server_is_still_followed(servers: Any, tmp_path:
     own.script(Reply.redirect(307, f"{own.url}/v2/chat/completions"))
     keymps.run_task(
         icing_task(tmp_path / "task", "openai/test-vlm"),
-        api_base=own.openai_base,
-        executor="recording",
-        out=tmp_path / "run",
-        rerun="off",
+        options=RunOptions(rerun="off"),
+        overrides=RunOverrides(
+            api_base=own.openai_base, executor="recording", out=tmp_path / "run"
+        ),
     )
     assert [r.path for r in own.chat_requests] == ["/v1/chat/completions", "/v2/chat/completions"]
     assert len(RecordingExecutor.calls) == 1

@@ -20,6 +20,7 @@ from helpers.vlm_server import VlmServer
 
 import keymps
 from keymps.errors import KeympsError
+from keymps.run import RunOptions, RunOverrides
 
 SIGNED = [
     "bedrock/anthropic.claude-v2",
@@ -69,7 +70,11 @@ def test_a_task_only_server_is_refused_for_a_provider_that_signs_itself(
         },
     )
     with pytest.raises(KeympsError) as caught, pytest.warns(UserWarning):
-        keymps.run_task(task, executor="recording", out=tmp_path / "run", rerun="off")
+        keymps.run_task(
+            task,
+            options=RunOptions(rerun="off"),
+            overrides=RunOverrides(executor="recording", out=tmp_path / "run"),
+        )
     assert_clean_error(caught.value)
     assert "signs every request with your cloud credentials" in str(caught.value)
     assert server.requests == [] and RecordingExecutor.calls == []

@@ -14,7 +14,7 @@ from keymps.config.task import parse_task
 from keymps.default_plugins.rerun import recorder as rerun_recorder
 from keymps.default_plugins.rerun.motion import subsample_indices
 from keymps.errors import StageError
-from keymps.run import Run, RunOptions
+from keymps.run import Run, RunOptions, RunOverrides
 from keymps.types import (
     Detection,
     ExecutionReport,
@@ -745,7 +745,11 @@ def test_a_shipped_task_run_by_the_engine_is_recorded_whole(task_file, tmp_path)
     the drawn tool tip on the timed trajectory's tool path."""
     from keymps.pipeline.engine import run_task
 
-    run = run_task(TASKS / task_file, out=tmp_path / "run", backend="offline", rerun="save")
+    run = run_task(
+        TASKS / task_file,
+        options=RunOptions(rerun="save"),
+        overrides=RunOverrides(out=tmp_path / "run", backend="offline"),
+    )
     entities = read_recording(run.folder / "run.rrd")
     trajectory, plan = run.stages.time, run.stages.plan
     assert entities["/joints/q"].rows["Scalars"] == trajectory.samples
@@ -769,7 +773,11 @@ def test_a_shipped_task_records_what_main_recorded_in_a_small_file(task_file, tm
     the robot meshes small, the whole file under its limit."""
     from keymps.pipeline.engine import run_task
 
-    run = run_task(TASKS / task_file, out=tmp_path / "run", backend="offline", rerun="save")
+    run = run_task(
+        TASKS / task_file,
+        options=RunOptions(rerun="save"),
+        overrides=RunOverrides(out=tmp_path / "run", backend="offline"),
+    )
     path = run.folder / "run.rrd"
     csv = np.genfromtxt(run.folder / "trajectory.csv", delimiter=",", names=True, dtype=None)
     t = np.asarray(csv["t"], dtype=float)
@@ -807,7 +815,10 @@ def test_leaving_the_plugin_out_records_nothing(tmp_path, monkeypatch):
     monkeypatch.setenv("KEYMPS_LOAD_PLUGINS", ",".join(others))
     plugins.reset_manager()
     try:
-        run = run_task(TASKS / "cake_icing.yaml", out=tmp_path / "run", backend="offline")
+        run = run_task(
+            TASKS / "cake_icing.yaml",
+            overrides=RunOverrides(out=tmp_path / "run", backend="offline"),
+        )
     finally:
         plugins.reset_manager()
     assert (run.folder / "run.json").is_file()

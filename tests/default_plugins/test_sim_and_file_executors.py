@@ -22,7 +22,7 @@ from keymps.perception.frames import ImageFrame
 from keymps.plugin.manager import create_component
 from keymps.robot.model import RobotModel, solve_path
 from keymps.robot.safety import SafetyError, validate
-from keymps.run import Run
+from keymps.run import Run, RunOptions, RunOverrides
 from keymps.types import SceneImage, ToolPath, ValidatedTrajectory, ValidationReport
 
 CENTER = (0.15, 0.09)
@@ -245,7 +245,11 @@ def shipped_cutting(tmp_path_factory: pytest.TempPathFactory) -> Run:
     from keymps.pipeline.engine import run_task
 
     folder = tmp_path_factory.mktemp("object_cutting")
-    return run_task(REPO / "tasks/object_cutting.yaml", out=folder, backend="offline", rerun="off")
+    return run_task(
+        REPO / "tasks/object_cutting.yaml",
+        options=RunOptions(rerun="off"),
+        overrides=RunOverrides(out=folder, backend="offline"),
+    )
 
 
 def cut_coverage(outcome: np.ndarray, run: Run) -> list[float]:

@@ -28,7 +28,7 @@ from keymps.robot import identity
 from keymps.robot.identity import ArmIdentity
 from keymps.robot.model import RobotModel, solve_path
 from keymps.robot.safety import SafetyError, validate
-from keymps.run import Run
+from keymps.run import Run, RunOptions, RunOverrides
 from keymps.types import Trajectory, ValidatedTrajectory
 
 JOINTS = 1e-6
@@ -281,10 +281,7 @@ def test_a_whole_run_writes_the_program_of_its_own_trajectory(tmp_path: Path) ->
     from keymps.motion.trajectory_io import read_trajectory_csv
 
     repo = Path(__file__).resolve().parents[2]
-    run = run_task(
-        repo / "tasks" / "cake_icing.yaml", executor="urscript", backend="offline",
-        out=tmp_path / "run", rerun="off",
-    )  # fmt: skip
+    run = run_task(repo / "tasks" / "cake_icing.yaml", options=RunOptions(rerun="off"), overrides=RunOverrides(executor="urscript", backend="offline", out=tmp_path / "run"))  # fmt: skip
     record = json.loads((run.folder / "run.json").read_text())["execution"]
     assert record["ok"] and record["files"] == [str(run.folder / "trajectory.script")]
     assert run.stages.check is not None

@@ -17,6 +17,7 @@ import pytest
 
 import keymps
 from keymps.designs.crop_shape import measure
+from keymps.run import RunOverrides
 from keymps.scenes.render import SceneSpec, render_scene
 
 
@@ -28,7 +29,7 @@ def _ground(sentence: str, source: dict, out: Path):
         primitives=["straight"],
         height={"mode": "start"},
     )
-    run = keymps.run_task(task, out=out, through="ground")
+    run = keymps.run_task(task, overrides=RunOverrides(out=out), through="ground")
     truth = run.stages.image.truth["objects"][0]
     cuts = np.asarray(run.stages.ground.segments_m)[:, :, :2]
     return cuts, truth

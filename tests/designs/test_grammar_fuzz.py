@@ -29,6 +29,7 @@ from hypothesis import strategies as st
 import keymps
 from keymps.designs.grammar import read_instruction
 from keymps.errors import KeympsError
+from keymps.run import RunOptions, RunOverrides
 
 SENTENCES = [
     "Cut it into 8 equal slices",
@@ -52,7 +53,11 @@ def _run(task: Any, sentence: str, out: Path, backend: str) -> str:
     budget = Budget()
     try:
         keymps.run_task(
-            task, instruction=sentence, backend=backend, executor="recording", out=out, rerun="off"
+            task,
+            options=RunOptions(rerun="off"),
+            overrides=RunOverrides(
+                instruction=sentence, backend=backend, executor="recording", out=out
+            ),
         )
     except KeympsError as error:
         assert_clean_error(error)
@@ -112,7 +117,12 @@ def test_named_sentences(
     else:
         assert outcome == "refused"
         with pytest.raises(KeympsError, match=expected):
-            keymps.run_task(task, instruction=sentence, executor="recording", out=tmp_path / "r")
+            keymps.run_task(
+                task,
+                overrides=RunOverrides(
+                    instruction=sentence, executor="recording", out=tmp_path / "r"
+                ),
+            )
     budget.check(20.0)
 
 
@@ -201,5 +211,8 @@ def test_a_prompt_template_that_is_not_text(task: Any, keymps_plugins: Any, tmp_
         update={"planner": task.planner.model_copy(update={"prompt": template})}
     )
     with pytest.raises(KeympsError, match=r"plan: prompt template .*prompt.md is not a UTF-8 text"):
-        keymps.run_task(with_template, backend="offline", executor="recording", out=tmp_path / "r")
+        keymps.run_task(
+            with_template,
+            overrides=RunOverrides(backend="offline", executor="recording", out=tmp_path / "r"),
+        )
     assert RecordingExecutor.calls == []

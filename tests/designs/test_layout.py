@@ -11,6 +11,7 @@ from helpers.synthetic_crops import CUTTING, ICING, MM_PER_PX, make_scene, make_
 
 import keymps
 from keymps.errors import KeympsError
+from keymps.run import RunOptions, RunOverrides
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -132,7 +133,10 @@ def test_a_sentence_of_the_other_family_stops_at_the_plan_stage(
     task = keymps.load_task(REPO / "tasks" / task_file)
     with pytest.raises(KeympsError, match=f"^plan: .*{message}"):
         keymps.run_task(
-            task, instruction=sentence, backend=backend, executor="recording", out=tmp_path / "r"
+            task,
+            overrides=RunOverrides(
+                instruction=sentence, backend=backend, executor="recording", out=tmp_path / "r"
+            ),
         )
     assert RecordingExecutor.calls == [] and ScriptedBackend.requests == []
 
@@ -150,10 +154,12 @@ def test_a_vlm_plan_with_a_primitive_of_the_other_family_is_refused(tmp_path, ke
     ):
         keymps.run_task(
             task,
-            instruction="Make it nice",
-            backend="scripted",
-            executor="recording",
-            out=tmp_path / "r",
+            overrides=RunOverrides(
+                instruction="Make it nice",
+                backend="scripted",
+                executor="recording",
+                out=tmp_path / "r",
+            ),
         )
     assert RecordingExecutor.calls == []
 
@@ -222,10 +228,7 @@ def test_a_cut_ending_5_mm_outside_the_object_runs_with_every_shipped_primitive(
     scene = task.scene.model_copy(update={"image": REPO / "tasks" / "scenes" / "banana_bread.png"})
     task = task.model_copy(update={"primitives": [primitive], "scene": scene})
     ScriptedBackend.answers = [_across_the_middle_beyond_the_edges(primitive, 5.0)]
-    run = keymps.run_task(
-        task, instruction="Cut it in half", backend="scripted", executor="recording",
-        out=tmp_path / "r", rerun="off",
-    )  # fmt: skip
+    run = keymps.run_task(task, options=RunOptions(rerun="off"), overrides=RunOverrides(instruction="Cut it in half", backend="scripted", executor="recording", out=tmp_path / "r"))  # fmt: skip
     assert len(RecordingExecutor.calls) == 1
     outside = run.stages.check.report.figures["max_work_outside_footprint_mm"]
     assert outside <= 20.0

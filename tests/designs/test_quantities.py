@@ -19,6 +19,7 @@ import keymps
 from keymps.designs.grammar import read_instruction
 from keymps.designs.words import normalise
 from keymps.errors import KeympsError
+from keymps.run import RunOverrides
 
 
 @pytest.mark.parametrize(
@@ -158,7 +159,9 @@ def test_half_inch_slices_of_a_rendered_cucumber_are_half_an_inch_apart(
             primitives=["straight"],
             height={"mode": "start"},
         )
-        run = keymps.run_task(task, out=tmp_path / f"{seed}-{len(sentence)}", through="ground")
+        run = keymps.run_task(
+            task, overrides=RunOverrides(out=tmp_path / f"{seed}-{len(sentence)}"), through="ground"
+        )
         segments = np.asarray(run.stages.ground.segments_m)[:, :, :2]
         middles = segments.mean(axis=1)
         axis = np.linalg.svd(middles - middles.mean(axis=0))[2][0]

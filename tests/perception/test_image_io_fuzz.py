@@ -35,7 +35,7 @@ import keymps
 from keymps.config.limits import image_size_from_header
 from keymps.errors import KeympsError
 from keymps.plugin.manager import create_component
-from keymps.run import Run
+from keymps.run import Run, RunOptions, RunOverrides
 
 REPO = Path(__file__).resolve().parents[2]
 FORMATS = [".png", ".jpg", ".bmp", ".tiff", ".webp"]
@@ -218,11 +218,13 @@ def test_named_images_in_full_runs(keymps_plugins: Any, tmp_path: Path, fuzz_cou
         try:
             run = keymps.run_task(
                 task,
-                image=image,
-                backend="scripted",
-                executor="recording",
-                out=tmp_path / f"run-{name}",
-                rerun="off",
+                options=RunOptions(rerun="off"),
+                overrides=RunOverrides(
+                    image=image,
+                    backend="scripted",
+                    executor="recording",
+                    out=tmp_path / f"run-{name}",
+                ),
             )
         except KeympsError as error:
             assert_clean_error(error)
@@ -248,7 +250,9 @@ def test_the_image_limit_is_configurable(tmp_path: Path, keymps_plugins: Any) ->
     )
     with pytest.raises(KeympsError, match=r"more than scene.max_image_pixels = 1000 \(0.0 MP\)"):
         keymps.run_task(
-            path, backend="offline", executor="recording", out=tmp_path / "r", rerun="off"
+            path,
+            options=RunOptions(rerun="off"),
+            overrides=RunOverrides(backend="offline", executor="recording", out=tmp_path / "r"),
         )
     assert RecordingExecutor.calls == []
     synthetic = task_copy(
@@ -260,7 +264,11 @@ def test_the_image_limit_is_configurable(tmp_path: Path, keymps_plugins: Any) ->
     )
     budget = Budget()
     with pytest.raises(KeympsError, match=r"the synthetic scene is 60000 x 60000 pixels"):
-        keymps.run_task(synthetic, executor="recording", out=tmp_path / "s", rerun="off")
+        keymps.run_task(
+            synthetic,
+            options=RunOptions(rerun="off"),
+            overrides=RunOverrides(executor="recording", out=tmp_path / "s"),
+        )
     budget.check(5.0)
 
 
@@ -283,7 +291,10 @@ def test_files_that_never_end_are_not_read(kind: str, tmp_path: Path, keymps_plu
     )
     budget = Budget()
     with pytest.raises(KeympsError) as caught:
-        keymps.run_task(path, backend="offline", executor="recording", out=tmp_path / "r")
+        keymps.run_task(
+            path,
+            overrides=RunOverrides(backend="offline", executor="recording", out=tmp_path / "r"),
+        )
     budget.check(5.0)
     assert_clean_error(caught.value)
     expected = "more than any image within" if kind.startswith("sparse") else "not a regular file"

@@ -14,6 +14,7 @@ from keymps.config.task import Task, parse_task
 from keymps.errors import KeympsError, TaskFileError
 from keymps.eval.perception import _photo_design_error, _reference_m, design_error_mm
 from keymps.perception.rectify import rectify_scene
+from keymps.run import RunOptions, RunOverrides
 from keymps.scenes.perception_cases import BOARD_M, photo_case
 from keymps.types import SceneImage
 
@@ -95,7 +96,11 @@ def test_a_run_on_a_photo_plans_in_board_millimetres(tall: object, tmp_path: Pat
 
     cv2.imwrite(str(tmp_path / "photo.png"), tall.photo)  # type: ignore[attr-defined]
     (tmp_path / "task.yaml").write_text(camera_yaml(tall))
-    run = run_task(tmp_path / "task.yaml", out=tmp_path / "run", rerun="off")
+    run = run_task(
+        tmp_path / "task.yaml",
+        options=RunOptions(rerun="off"),
+        overrides=RunOverrides(out=tmp_path / "run"),
+    )
     record = json.loads((tmp_path / "run" / "run.json").read_text())
     assert record["ok"], record["error"]
     rectified = record["image"]["rectified"]

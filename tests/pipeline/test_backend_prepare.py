@@ -17,6 +17,7 @@ from helpers.fuzz_support import answer_text, task_copy
 from keymps import run_task
 from keymps.errors import KeympsError
 from keymps.plugin import hookimpl
+from keymps.run import RunOptions, RunOverrides
 from keymps.types import BackendAnswer, PlanRequest, SceneImage
 
 BEGUN = threading.Event()
@@ -76,7 +77,11 @@ def test_the_backend_is_prepared_on_a_thread_before_the_first_stage(
         tmp_path / "task",
         **{"backend: auto": "backend: preparing", "detector: {name: board}": "detector: {name: waiting}"},
     )  # fmt: skip
-    run = run_task(task, out=tmp_path / "run", rerun="off", executor="file")
+    run = run_task(
+        task,
+        options=RunOptions(rerun="off"),
+        overrides=RunOverrides(out=tmp_path / "run", executor="file"),
+    )
     assert run.stages.plan is not None and run.stages.plan.keyword == "line"
     assert CALLS == [
         ("prepare", "keymps-backend-prepare"),
@@ -87,6 +92,10 @@ def test_the_backend_is_prepared_on_a_thread_before_the_first_stage(
 def test_an_offline_run_prepares_nothing(keymps_plugins: Any, tmp_path: Path) -> None:
     CALLS.clear()
     task = task_copy(tmp_path / "task")
-    run_task(task, out=tmp_path / "run", rerun="off", executor="file", backend="offline")
+    run_task(
+        task,
+        options=RunOptions(rerun="off"),
+        overrides=RunOverrides(out=tmp_path / "run", executor="file", backend="offline"),
+    )
     assert not [t for t in threading.enumerate() if t.name == "keymps-backend-prepare"]
     assert CALLS == []

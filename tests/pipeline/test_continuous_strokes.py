@@ -15,6 +15,8 @@ from typing import Any
 import numpy as np
 import pytest
 
+from keymps.run import RunOptions, RunOverrides
+
 REPO = Path(__file__).resolve().parents[2]
 DOTS_AND_SPIRAL = (
     "Combine 2 types of designs, icing dots around the cake and a spiral icing line design"
@@ -26,10 +28,7 @@ def run(instruction: str, out: Path) -> tuple[Any, dict[str, Any]]:
     from keymps import load_task, run_task
 
     task = load_task(REPO / "tasks" / "cake_icing.yaml")
-    done = run_task(
-        task, out=out, rerun="off", backend="offline", executor="sim", no_cache=True,
-        quiet=True, instruction=instruction,
-    )  # fmt: skip
+    done = run_task(task, options=RunOptions(rerun="off", no_cache=True, quiet=True), overrides=RunOverrides(out=out, backend="offline", executor="sim", instruction=instruction))  # fmt: skip
     return done, json.loads((out / "run.json").read_text())
 
 

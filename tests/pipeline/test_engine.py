@@ -10,6 +10,7 @@ import pytest
 import keymps
 from keymps.errors import KeympsError, StageError
 from keymps.plugin.hookspecs import hookimpl
+from keymps.run import RunOptions, RunOverrides
 from keymps.types import STAGES, ExecutionReport
 
 REPO = Path(__file__).resolve().parents[2]
@@ -74,7 +75,9 @@ def _task_copy(tmp_path: Path, replace: tuple[str, str] | None = None) -> Path:
 
 def test_every_stage_runs_in_order_and_is_announced(tmp_path: Path, observer: EnginePlugin) -> None:
     run = keymps.run_task(
-        _task_copy(tmp_path), executor="recording", out=tmp_path / "run", rerun="off"
+        _task_copy(tmp_path),
+        options=RunOptions(rerun="off"),
+        overrides=RunOverrides(executor="recording", out=tmp_path / "run"),
     )
     stages = [stage for stage, _ in observer.events]
     assert stages == [*STAGES, "finished"]
@@ -91,7 +94,11 @@ def test_first_error_stops_the_run_and_no_executor_is_called(
 ) -> None:
     path = _task_copy(tmp_path, ("detector: {name: board}", "detector: {name: broken}"))
     with pytest.raises(StageError, match=r"^detect: no object found"):
-        keymps.run_task(path, executor="recording", out=tmp_path / "run", rerun="off")
+        keymps.run_task(
+            path,
+            options=RunOptions(rerun="off"),
+            overrides=RunOverrides(executor="recording", out=tmp_path / "run"),
+        )
     assert [stage for stage, _ in observer.events] == ["image", "finished"]
     assert isinstance(observer.events[-1][1], StageError)
     assert RecordingExecutor.calls == []
@@ -104,12 +111,12 @@ def test_first_error_stops_the_run_and_no_executor_is_called(
 def test_configuration_errors_stop_before_any_stage(tmp_path: Path, observer: EnginePlugin) -> None:
     path = _task_copy(tmp_path)
     with pytest.raises(KeympsError, match=r"task.yaml:\d+:\d+: executor: unknown executor 'nope'"):
-        keymps.run_task(path, executor="nope", out=tmp_path / "run")
+        keymps.run_task(path, overrides=RunOverrides(executor="nope", out=tmp_path / "run"))
     assert observer.events == []
     assert not (tmp_path / "run").exists()
     spoon = _task_copy(tmp_path, ("tool: piping_bag", "tool: spoon"))
     with pytest.raises(KeympsError, match=r"task.yaml:\d+:\d+: robot.tool: unknown tool 'spoon'"):
-        keymps.run_task(spoon, out=tmp_path / "run")
+        keymps.run_task(spoon, overrides=RunOverrides(out=tmp_path / "run"))
     assert observer.events == [] and not (tmp_path / "run").exists()
 
 
@@ -117,10 +124,16 @@ def test_images_can_be_written_as_jpeg_and_other_formats_are_refused_first(
     tmp_path: Path, observer: EnginePlugin
 ) -> None:
     with pytest.raises(KeympsError, match="image_format 'gif' is not one of: png, jpg"):
-        keymps.run_task(_task_copy(tmp_path), image_format="gif", out=tmp_path / "gif")
+        keymps.run_task(
+            _task_copy(tmp_path),
+            options=RunOptions(image_format="gif"),
+            overrides=RunOverrides(out=tmp_path / "gif"),
+        )
     assert observer.events == [] and not (tmp_path / "gif").exists()
     run = keymps.run_task(
-        _task_copy(tmp_path), image_format="jpg", out=tmp_path / "jpg", rerun="off"
+        _task_copy(tmp_path),
+        options=RunOptions(image_format="jpg", rerun="off"),
+        overrides=RunOverrides(out=tmp_path / "jpg"),
     )
     assert (run.folder / "plan.jpg").read_bytes()[:3] == b"\xff\xd8\xff"  # a JPEG
     assert (run.folder / "outcome.jpg").is_file() and not list(run.folder.glob("*.png"))
@@ -128,9 +141,14 @@ def test_images_can_be_written_as_jpeg_and_other_formats_are_refused_first(
 
 def test_overrides_are_validated(tmp_path: Path, observer: EnginePlugin) -> None:
     with pytest.raises(KeympsError, match="override instruction"):
-        keymps.run_task(_task_copy(tmp_path), instruction="   ", out=tmp_path / "run")
+        keymps.run_task(
+            _task_copy(tmp_path), overrides=RunOverrides(instruction="   ", out=tmp_path / "run")
+        )
     with pytest.raises(KeympsError, match="--image: file not found"):
-        keymps.run_task(_task_copy(tmp_path), image=tmp_path / "nope.png", out=tmp_path / "r")
+        keymps.run_task(
+            _task_copy(tmp_path),
+            overrides=RunOverrides(image=tmp_path / "nope.png", out=tmp_path / "r"),
+        )
 
 
 def test_a_failing_observer_is_a_warning_not_a_failed_run(tmp_path: Path, keymps_plugins) -> None:
@@ -142,7 +160,11 @@ def test_a_failing_observer_is_a_warning_not_a_failed_run(tmp_path: Path, keymps
 
     keymps_plugins.register(Exploding(), name="exploding")
     with pytest.warns(UserWarning, match=r"failed in keymps_stage_done\(stage='plan'\)"):
-        run = keymps.run_task(_task_copy(tmp_path), out=tmp_path / "run", rerun="off")
+        run = keymps.run_task(
+            _task_copy(tmp_path),
+            options=RunOptions(rerun="off"),
+            overrides=RunOverrides(out=tmp_path / "run"),
+        )
     assert run.stages.execute is not None
     assert any("observer bug" in w for w in run.warnings)
 
@@ -162,7 +184,9 @@ def test_a_failing_observer_hides_no_stage_from_the_others(
     keymps_plugins.register(Exploding(), name="exploding")
     with pytest.warns(UserWarning) as caught:
         run = keymps.run_task(
-            _task_copy(tmp_path), executor="recording", out=tmp_path / "run", rerun="off"
+            _task_copy(tmp_path),
+            options=RunOptions(rerun="off"),
+            overrides=RunOverrides(executor="recording", out=tmp_path / "run"),
         )
     assert [stage for stage, _ in observer.events] == [*STAGES, "finished"]
     expected = (
@@ -195,7 +219,11 @@ def test_a_plugin_bug_is_one_line_and_nothing_runs_after_it(
     keymps_plugins.register(_CrashPlugin(), name="crash-plugin")
     path = _task_copy(tmp_path, ("detector: {name: board}", "detector: {name: crashing}"))
     with pytest.raises(StageError) as caught:
-        keymps.run_task(path, executor="recording", out=tmp_path / "run", rerun="off")
+        keymps.run_task(
+            path,
+            options=RunOptions(rerun="off"),
+            overrides=RunOverrides(executor="recording", out=tmp_path / "run"),
+        )
     assert str(caught.value) == (
         "detect: unexpected ZeroDivisionError: plugin bug "
         "(a bug in keymps or the detector 'crashing'; KEYMPS_DEBUG=1 shows the traceback)"
@@ -203,7 +231,11 @@ def test_a_plugin_bug_is_one_line_and_nothing_runs_after_it(
     assert RecordingExecutor.calls == []
     monkeypatch.setenv("KEYMPS_DEBUG", "1")
     with pytest.raises(ZeroDivisionError):
-        keymps.run_task(path, executor="recording", out=tmp_path / "run2", rerun="off")
+        keymps.run_task(
+            path,
+            options=RunOptions(rerun="off"),
+            overrides=RunOverrides(executor="recording", out=tmp_path / "run2"),
+        )
 
 
 class _Misbehaving:
@@ -288,7 +320,11 @@ def test_a_plugin_returning_something_else_is_one_line_recorded_in_run_json(
     _Misbehaving.what = returned
     path = _task_copy(tmp_path, replace)
     with pytest.raises(StageError) as caught:
-        keymps.run_task(path, executor="odd-executor", out=tmp_path / "run", rerun="off")
+        keymps.run_task(
+            path,
+            options=RunOptions(rerun="off"),
+            overrides=RunOverrides(executor="odd-executor", out=tmp_path / "run"),
+        )
     assert str(caught.value) == f"{stage}: {message}"
     record = json.loads((tmp_path / "run/run.json").read_text())
     assert record["status"] == "failed"
@@ -306,13 +342,19 @@ def test_an_image_that_does_not_span_the_workspace_is_a_warning(
     image = cv2.imread(str(REPO / "tasks/scenes/round_cake.png"))
     cv2.imwrite(str(tmp_path / "square.png"), cv2.resize(image, (600, 600)))
     run = keymps.run_task(
-        _task_copy(tmp_path), image=tmp_path / "square.png", out=tmp_path / "run", rerun="off"
+        _task_copy(tmp_path),
+        options=RunOptions(rerun="off"),
+        overrides=RunOverrides(image=tmp_path / "square.png", out=tmp_path / "run"),
     )
     expected = "a pixel is 0.50 mm wide and 0.30 mm tall: crop the image to the board"
     assert any(expected in warning for warning in run.warnings), run.warnings
     record = json.loads((tmp_path / "run/run.json").read_text())
     assert any(expected in warning for warning in record["warnings"])
-    same_shape = keymps.run_task(_task_copy(tmp_path), out=tmp_path / "plain", rerun="off")
+    same_shape = keymps.run_task(
+        _task_copy(tmp_path),
+        options=RunOptions(rerun="off"),
+        overrides=RunOverrides(out=tmp_path / "plain"),
+    )
     assert not any("a pixel is" in warning for warning in same_shape.warnings)
 
 
@@ -343,7 +385,9 @@ def test_out_is_a_new_or_empty_folder_or_an_earlier_runs(tmp_path: Path) -> None
 def test_an_api_base_override_that_is_no_url_stops_before_the_run(tmp_path: Path) -> None:
     """`--api-base not-a-url` was retried for 18 s and reported as 'HTTP 500'."""
     with pytest.raises(KeympsError) as caught:
-        keymps.run_task(_task_copy(tmp_path), api_base="not-a-url", out=tmp_path / "run")
+        keymps.run_task(
+            _task_copy(tmp_path), overrides=RunOverrides(api_base="not-a-url", out=tmp_path / "run")
+        )
     assert str(caught.value) == (
         "override planner.api_base: 'not-a-url' is not an http(s) URL with a host "
         "(e.g. http://127.0.0.1:8000/v1)"
@@ -358,9 +402,8 @@ def test_rerun_connect_to_an_address_that_is_no_viewer_stops_before_the_run(
     with pytest.raises(KeympsError, match=r"--rerun-url 'http://127.0.0.1:9' is no Rerun viewer"):
         keymps.run_task(
             _task_copy(tmp_path),
-            rerun="connect",
-            rerun_url="http://127.0.0.1:9",
-            out=tmp_path / "run",
+            options=RunOptions(rerun="connect", rerun_url="http://127.0.0.1:9"),
+            overrides=RunOverrides(out=tmp_path / "run"),
         )
     assert not (tmp_path / "run").exists()
 
@@ -369,7 +412,9 @@ def test_a_run_into_an_earlier_runs_folder_leaves_none_of_its_files(tmp_path: Pa
     """A failed run into the folder of a finished one kept the old trajectory.csv, plan.png and
     run.rrd beside its own failed run.json: a script reading the folder took the old motion."""
     task, folder = _task_copy(tmp_path), tmp_path / "run"
-    keymps.run_task(task, out=folder, executor="file", rerun="save")
+    keymps.run_task(
+        task, options=RunOptions(rerun="save"), overrides=RunOverrides(out=folder, executor="file")
+    )
     written = {p.name for p in folder.iterdir()}
     assert {"trajectory.csv", "trajectory.json", "plan.png", "run.rrd", "vlm"} <= written
     (folder / "notes.txt").write_text("mine")  # not a file a run writes: kept
@@ -377,7 +422,11 @@ def test_a_run_into_an_earlier_runs_folder_leaves_none_of_its_files(tmp_path: Pa
     outside.write_text("{}")
     (folder / "vlm" / "linked.json").symlink_to(outside)  # a link: removed, never its target
     with pytest.raises(KeympsError, match="cannot turn 'asdf' into a design"):
-        keymps.run_task(task, out=folder, instruction="asdf", rerun="off")
+        keymps.run_task(
+            task,
+            options=RunOptions(rerun="off"),
+            overrides=RunOverrides(out=folder, instruction="asdf"),
+        )
     assert sorted(p.name for p in folder.iterdir()) == [
         ".keymps.lock",
         "notes.txt",
@@ -390,11 +439,11 @@ def test_a_run_into_an_earlier_runs_folder_leaves_none_of_its_files(tmp_path: Pa
 
 def test_an_earlier_runs_file_that_cannot_be_removed_stops_the_run(tmp_path: Path) -> None:
     task, folder = _task_copy(tmp_path), tmp_path / "run"
-    keymps.run_task(task, out=folder, rerun="off")
+    keymps.run_task(task, options=RunOptions(rerun="off"), overrides=RunOverrides(out=folder))
     (folder / "trajectory.csv").unlink()
     (folder / "trajectory.csv").mkdir()  # unlink() cannot remove a folder
     with pytest.raises(KeympsError) as caught:
-        keymps.run_task(task, out=folder, rerun="off")
+        keymps.run_task(task, options=RunOptions(rerun="off"), overrides=RunOverrides(out=folder))
     assert str(caught.value) == (
         f"{folder}: cannot remove the earlier run's trajectory.csv: Is a directory"
     )
@@ -406,6 +455,11 @@ def test_a_folder_without_run_json_is_not_cleared(tmp_path: Path) -> None:
     folder = tmp_path / "mine"
     folder.mkdir()
     (folder / "trajectory.csv").write_text("not keymps'")  # a run through ground writes none
-    keymps.run_task(_task_copy(tmp_path), out=folder, rerun="off", through="ground")
+    keymps.run_task(
+        _task_copy(tmp_path),
+        options=RunOptions(rerun="off"),
+        overrides=RunOverrides(out=folder),
+        through="ground",
+    )
     assert (folder / "trajectory.csv").read_text() == "not keymps'"
     assert (folder / "run.json").exists()

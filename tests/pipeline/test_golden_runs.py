@@ -63,7 +63,7 @@ def run_case(
     task_file: str, instruction: str | None, image: str | None, out: Path
 ) -> dict[str, Any]:
     """One offline run with the sim executor: its run.json record and trajectory arrays."""
-    from keymps import load_task, run_task
+    from keymps import RunOptions, RunOverrides, load_task, run_task
 
     task = load_task(REPO / task_file)
     if image is not None:
@@ -72,16 +72,12 @@ def run_case(
         height = truth["objects"][0]["height_m"]
         scene = task.scene.model_copy(update={"image": path, "object_height": height})
         task = task.model_copy(update={"scene": scene})
-    overrides: dict[str, Any] = {"instruction": instruction} if instruction else {}
     run = run_task(
         task,
-        out=out,
-        rerun="off",
-        backend="offline",
-        executor="sim",
-        no_cache=True,
-        quiet=True,
-        **overrides,
+        options=RunOptions(rerun="off", no_cache=True, quiet=True),
+        overrides=RunOverrides(
+            instruction=instruction or None, backend="offline", executor="sim", out=out
+        ),
     )
     record = json.loads((out / "run.json").read_text())
     trajectory = run.stages.time

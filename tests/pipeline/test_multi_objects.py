@@ -16,6 +16,7 @@ from keymps.designs.addressing import AddressingError, Target, split_by_object
 from keymps.designs.grammar import read_instruction
 from keymps.errors import StageError
 from keymps.perception.frames import ImageFrame
+from keymps.run import RunOptions, RunOverrides
 from keymps.scenes.render import ObjectSpec, SceneSpec, render_scene
 
 
@@ -26,7 +27,11 @@ def run_offline(tmp_path: Path, text: str):
     path.write_text(text)
     from keymps.config.task import load_task
 
-    return run_task(load_task(path), out=tmp_path / "run", rerun="off", no_cache=True)
+    return run_task(
+        load_task(path),
+        options=RunOptions(rerun="off", no_cache=True),
+        overrides=RunOverrides(out=tmp_path / "run"),
+    )
 
 
 def owner_of(point_m: np.ndarray, truth: dict) -> int | None:
@@ -463,7 +468,11 @@ def test_the_rerun_recording_has_one_entity_per_object(tmp_path: Path) -> None:
     png, _ = scene_file(tmp_path, loaves(6, 3), seed=6)
     path = tmp_path / "task.yaml"
     path.write_text(task_text(png, "Cut each of them in half", KNIFE))
-    run = run_task(load_task(path), out=tmp_path / "run", rerun="save", no_cache=True)
+    run = run_task(
+        load_task(path),
+        options=RunOptions(rerun="save", no_cache=True),
+        overrides=RunOverrides(out=tmp_path / "run"),
+    )
     paths = {chunk.entity_path for chunk in RrdReader(run.folder / "run.rrd").stream()}
     assert {"/world/objects/1", "/world/objects/2", "/world/objects/3"} <= paths
     assert "/world/objects/4" not in paths
@@ -485,7 +494,11 @@ def test_a_declared_hard_object_gets_the_hard_objects_cut_however_it_is_addresse
     for sentence in ("Cut only the left one in half", "Cut the potato in half"):
         path = tmp_path / f"{len(keywords)}.yaml"
         path.write_text(task_text(png, sentence, KNIFE, objects))
-        run = keymps.run_task(path, out=tmp_path / f"run{len(keywords)}", rerun="off", quiet=True)
+        run = keymps.run_task(
+            path,
+            options=RunOptions(rerun="off", quiet=True),
+            overrides=RunOverrides(out=tmp_path / f"run{len(keywords)}"),
+        )
         assert run.stages.plan is not None
         keywords[sentence] = run.stages.plan.keyword
     assert set(keywords.values()) == {"sawing"}, keywords

@@ -31,6 +31,7 @@ import keymps
 from keymps.config import task as task_module
 from keymps.errors import KeympsError, TaskFileError
 from keymps.pipeline.folder_lock import FolderLock
+from keymps.run import RunOptions, RunOverrides
 from keymps.run_files import open_atomically, write_atomically
 
 REPO = Path(__file__).resolve().parents[2]
@@ -487,7 +488,8 @@ def test_a_second_run_into_a_locked_folder_refuses_at_once(
         started = time.perf_counter()
         with pytest.raises(KeympsError) as caught:
             keymps.run_task(
-                task_copy(tmp_path / "task"), backend="offline", executor="recording", out=folder
+                task_copy(tmp_path / "task"),
+                overrides=RunOverrides(backend="offline", executor="recording", out=folder),
             )
         assert time.perf_counter() - started < 5
         assert_clean_error(caught.value)
@@ -498,12 +500,10 @@ def test_a_second_run_into_a_locked_folder_refuses_at_once(
     finally:
         holder.kill()
         holder.wait(timeout=10)
-    run = keymps.run_task(  # free again once the holder is gone
+    run = keymps.run_task(
         task_copy(tmp_path / "task"),
-        backend="offline",
-        executor="recording",
-        out=folder,
-        rerun="off",
+        options=RunOptions(rerun="off"),
+        overrides=RunOverrides(backend="offline", executor="recording", out=folder),
     )
     assert run.stages.execute is not None and json.loads((folder / "run.json").read_text())["ok"]
 
@@ -547,7 +547,8 @@ def test_ctrl_c_while_the_run_closes_still_writes_run_json(
     out = tmp_path / "run"
     with pytest.raises(KeyboardInterrupt):
         keymps.run_task(
-            task_copy(tmp_path / "task"), backend="offline", executor="recording", out=out
+            task_copy(tmp_path / "task"),
+            overrides=RunOverrides(backend="offline", executor="recording", out=out),
         )
     record = json.loads((out / "run.json").read_text())
     assert record["status"] == "interrupted" and record["execution"]["ok"]

@@ -15,6 +15,7 @@ import pytest
 
 import keymps
 from keymps.config.task import PluginSection
+from keymps.run import RunOptions, RunOverrides
 
 REPO = Path(__file__).resolve().parents[2]
 TASKS = sorted((REPO / "tasks").glob("*.yaml"))
@@ -33,7 +34,11 @@ def test_each_listed_primitive_passes_the_safety_check_on_the_shipped_scene(
     # the task with this primitive alone, its trajectory written to a file (no robot here)
     to_file = PluginSection(name="file")
     alone = task.model_copy(update={"primitives": [primitive], "executor": to_file})
-    run = keymps.run_task(alone, out=tmp_path / "run", backend="offline", rerun="off", quiet=True)
+    run = keymps.run_task(
+        alone,
+        options=RunOptions(rerun="off", quiet=True),
+        overrides=RunOverrides(out=tmp_path / "run", backend="offline"),
+    )
     record = json.loads((tmp_path / "run" / "run.json").read_text())
     assert record["keyword"] == primitive
     assert record["validation"]["verdict"] == "pass"
@@ -49,12 +54,10 @@ def test_saw_it_in_half_saws_the_pizza(tmp_path: Path) -> None:
     """'saw it in half' picked `straight` (the sentence's verb named no primitive)."""
     run = keymps.run_task(
         REPO / "tasks" / "object_cutting.yaml",
-        instruction="saw it in half",
-        out=tmp_path / "run",
-        backend="offline",
-        executor="file",
-        rerun="off",
-        quiet=True,
+        options=RunOptions(rerun="off", quiet=True),
+        overrides=RunOverrides(
+            instruction="saw it in half", out=tmp_path / "run", backend="offline", executor="file"
+        ),
     )
     assert run.stages.plan.keyword == "sawing"
     assert "the sentence names it" in run.stages.plan.rationale
@@ -69,12 +72,10 @@ def test_leaving_the_crust_is_refused_before_anything_moves(sentence: str, tmp_p
     with pytest.raises(keymps.KeympsError, match="left uncut"):
         keymps.run_task(
             REPO / "tasks" / "object_cutting.yaml",
-            instruction=sentence,
-            out=tmp_path / "run",
-            backend="offline",
-            executor="file",
-            rerun="off",
-            quiet=True,
+            options=RunOptions(rerun="off", quiet=True),
+            overrides=RunOverrides(
+                instruction=sentence, out=tmp_path / "run", backend="offline", executor="file"
+            ),
         )
     record = json.loads((tmp_path / "run" / "run.json").read_text())
     assert record.get("trajectory") in (None, {})

@@ -13,6 +13,7 @@ from helpers.synthetic_crops import CUTTING, ICING, make_scene, plan_for
 from helpers.vlm_server import Reply, VlmServer
 
 from keymps.planning.coordinates import from_pixels, resolve, sent_size, to_pixels
+from keymps.run import RunOptions, RunOverrides
 
 KEY = "sk-forms-test-0a1b2c3d"
 NULLS = {"count": None, "layers": None, "slice_width_cm": None, "object_length_cm": None,
@@ -264,10 +265,7 @@ def test_the_offline_planner_is_not_counted_as_a_vlm_call(tmp_path):
     import keymps
 
     repo = Path(__file__).resolve().parents[2]
-    run = keymps.run_task(
-        repo / "tasks" / "object_cutting.yaml", backend="offline", executor="file",
-        out=tmp_path / "run", rerun="off", quiet=True,
-    )  # fmt: skip
+    run = keymps.run_task(repo / "tasks" / "object_cutting.yaml", options=RunOptions(rerun="off", quiet=True), overrides=RunOverrides(backend="offline", executor="file", out=tmp_path / "run"))  # fmt: skip
     record = json.loads((run.folder / "run.json").read_text())
     assert record["vlm"]["calls"] == 0 and record["backend"] == "offline"
     assert record["answer"] == {"coordinates": "pixels", "design": None, "image_sent_px": None}

@@ -37,6 +37,7 @@ from hypothesis import strategies as st
 import keymps
 from keymps.errors import KeympsError
 from keymps.planning.answer import parse_and_validate
+from keymps.run import RunOptions, RunOverrides
 
 KEYWORDS = ["straight", "sawing"]
 CROP = (240, 180)
@@ -376,7 +377,9 @@ def test_hostile_answers_in_full_runs_never_reach_the_executor(
     out = tmp_path / f"run-{time.monotonic_ns()}"
     try:
         run = keymps.run_task(
-            icing_task, backend="scripted", executor="recording", out=out, rerun="off"
+            icing_task,
+            options=RunOptions(rerun="off"),
+            overrides=RunOverrides(backend="scripted", executor="recording", out=out),
         )
     except KeympsError as error:
         assert_clean_error(error)
@@ -478,7 +481,9 @@ def test_broken_cassettes_in_full_runs(
     cassette.write_bytes(data)
     with pytest.raises(KeympsError) as caught:
         keymps.run_task(
-            icing_task, backend="replay", cassette=cassette, out=tmp_path / "run", rerun="off"
+            icing_task,
+            options=RunOptions(rerun="off"),
+            overrides=RunOverrides(backend="replay", cassette=cassette, out=tmp_path / "run"),
         )
     assert_clean_error(caught.value)
     assert str(caught.value).startswith("plan: ") and "broken.jsonl" in str(caught.value)

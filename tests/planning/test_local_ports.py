@@ -27,6 +27,7 @@ from helpers.vlm_server import VlmServer
 import keymps
 from keymps.bundled import bundled_dir
 from keymps.errors import KeympsError
+from keymps.run import RunOptions, RunOverrides
 
 DOT = {"keyword": "line", "pairs": [[[130, 130], [130, 130]]], "rationale": "one dot"}
 KEY = "sk-canary-" + secrets.token_hex(12)
@@ -118,8 +119,13 @@ def local_task(folder: Path, provider: str, key_env: str | None) -> Path:
     return folder / "task.yaml"
 
 
-def run(task: Path, out: Path, **overrides: Any) -> Any:
-    return keymps.run_task(task, executor="recording", out=out, rerun="off", **overrides)
+def run(task: Path, out: Path, **given: Any) -> Any:
+    options = {k: given.pop(k) for k in ("record", "no_cache") if k in given}
+    return keymps.run_task(
+        task,
+        options=RunOptions(rerun="off", **options),
+        overrides=RunOverrides(executor="recording", out=out, **given),
+    )
 
 
 def heard_key(server: VlmServer) -> bool:

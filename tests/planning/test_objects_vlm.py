@@ -14,6 +14,7 @@ from helpers.vlm_server import Reply, VlmServer
 
 from keymps.default_plugins.threshold_detector import ThresholdDetector
 from keymps.errors import StageError
+from keymps.run import RunOptions, RunOverrides
 
 
 @pytest.fixture(scope="module")
@@ -41,10 +42,8 @@ def _vlm_run(
     server.script(Reply.json_answer(answer), *([Reply.json_answer(then)] if then else []))
     run = run_task(
         load_task(path),
-        api_base=server.openai_base,  # given by the user (as --api-base): the key may go there
-        out=tmp_path / "run",
-        rerun="off",
-        no_cache=True,
+        options=RunOptions(rerun="off", no_cache=True),
+        overrides=RunOverrides(api_base=server.openai_base, out=tmp_path / "run"),
     )
     return run, truth
 

@@ -30,6 +30,7 @@ import keymps
 from keymps.cli.app import cli
 from keymps.errors import KeympsError
 from keymps.pipeline.validation import validate_task_file
+from keymps.run import RunOptions, RunOverrides
 
 DOT = {"keyword": "line", "pairs": [[[130, 130], [130, 130]]], "rationale": "one dot"}
 SECRET = "-----BEGIN OPENSSH PRIVATE KEY----- " + secrets.token_hex(16)
@@ -88,8 +89,13 @@ def shared_task(folder: Path, *planner: str, image: str = "scene.png") -> Path:
     return path
 
 
-def run(task: Path, out: Path, **overrides: Any) -> Any:
-    return keymps.run_task(task, executor="recording", out=out, rerun="off", **overrides)
+def run(task: Path, out: Path, **given: Any) -> Any:
+    options = {k: given.pop(k) for k in ("record", "no_cache") if k in given}
+    return keymps.run_task(
+        task,
+        options=RunOptions(rerun="off", **options),
+        overrides=RunOverrides(executor="recording", out=out, **given),
+    )
 
 
 def validated(task: Path) -> list[str]:

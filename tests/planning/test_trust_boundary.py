@@ -43,6 +43,7 @@ from hypothesis import strategies as st
 import keymps
 from keymps.cli.app import cli
 from keymps.errors import KeympsError, TaskFileError
+from keymps.run import RunOptions, RunOverrides
 
 DOT = {"keyword": "line", "pairs": [[[130, 130], [130, 130]]], "rationale": "one dot"}
 CANARY = "sk-attack-" + secrets.token_hex(10)
@@ -87,8 +88,13 @@ def hostile_task(folder: Path, planner: str = "", prompt: str | None = None) -> 
     return path
 
 
-def run(task: Path | Any, out: Path, **overrides: Any) -> Any:
-    return keymps.run_task(task, executor="recording", out=out, rerun="off", **overrides)
+def run(task: Path | Any, out: Path, **given: Any) -> Any:
+    options = {k: given.pop(k) for k in ("record", "no_cache") if k in given}
+    return keymps.run_task(
+        task,
+        options=RunOptions(rerun="off", **options),
+        overrides=RunOverrides(executor="recording", out=out, **given),
+    )
 
 
 def authorization(server: Any) -> list[str]:

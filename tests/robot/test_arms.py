@@ -19,6 +19,7 @@ from keymps.errors import KeympsError, TaskFileError
 from keymps.robot.catalog import UR_ARMS, example_robot_data
 from keymps.robot.description import BUILTIN_TOOLS, Tool, tool_rotation
 from keymps.robot.model import RobotModel, tool_poses_down
+from keymps.run import RunOptions, RunOverrides
 
 REPO = Path(__file__).resolve().parents[2]
 FLANGE = Tool("flange", (0.0, 0.0, 0.0), "fixed")
@@ -188,7 +189,11 @@ def test_a_tasks_own_urdf_runs_end_to_end(tmp_path: Path) -> None:
         tmp_path, "{urdf: arm/urdf/boxarm.urdf, tip_link: tool0, tool: piping_bag, home: "
         "[0, 0.6, 1.2, 0, -0.25, 0], limits: {acceleration: 4.0, jerk: [80, 80, 80, 80, 80, 80]}}"
     ))  # fmt: skip
-    run = keymps.run_task(task, out=tmp_path / "run", rerun="off", backend="offline")
+    run = keymps.run_task(
+        task,
+        options=RunOptions(rerun="off"),
+        overrides=RunOverrides(out=tmp_path / "run", backend="offline"),
+    )
     assert run.robot is not None and run.robot.model_name == "boxarm"
     assert run.robot.joint_names == tuple(JOINTS) and run.robot.closed_form is None
     assert run.robot.acceleration_limits.tolist() == [4.0] * 6
@@ -222,7 +227,11 @@ def test_a_bad_robot_section_is_one_located_line(robot: str, expected: str, tmp_
     (tmp_path / "elsewhere.urdf").write_text(urdf_text())
     with pytest.raises((KeympsError, TaskFileError)) as caught:
         task = load_task(write_task(folder, robot))
-        keymps.run_task(task, out=tmp_path / "run", rerun="off", backend="offline")
+        keymps.run_task(
+            task,
+            options=RunOptions(rerun="off"),
+            overrides=RunOverrides(out=tmp_path / "run", backend="offline"),
+        )
     message = str(caught.value)
     assert re.search(expected, message), message
     assert "Traceback" not in message
@@ -238,7 +247,11 @@ def test_a_urdf_mesh_outside_its_package_is_never_read(mesh: str, tmp_path: Path
     (tmp_path / "outside.stl").write_bytes(stl_box(0.05))
     task = load_task(write_task(folder, "{urdf: arm/urdf/boxarm.urdf, tip_link: tool0}"))
     with pytest.raises(KeympsError, match=r"robot.urdf: arm 'boxarm' .* is outside the arm's"):
-        keymps.run_task(task, out=tmp_path / "run", rerun="off", backend="offline")
+        keymps.run_task(
+            task,
+            options=RunOptions(rerun="off"),
+            overrides=RunOverrides(out=tmp_path / "run", backend="offline"),
+        )
 
 
 def test_a_robot_factory_that_raises_is_one_line(keymps_plugins: Any, tmp_path: Path) -> None:
@@ -253,7 +266,11 @@ def test_a_robot_factory_that_raises_is_one_line(keymps_plugins: Any, tmp_path: 
     keymps_plugins.register(Broken(), name="broken-robot")
     task = load_task(write_task(tmp_path, "{model: broken}"))
     with pytest.raises(TaskFileError) as caught:
-        keymps.run_task(task, out=tmp_path / "run", rerun="off", backend="offline")
+        keymps.run_task(
+            task,
+            options=RunOptions(rerun="off"),
+            overrides=RunOverrides(out=tmp_path / "run", backend="offline"),
+        )
     message = str(caught.value)
     assert "robot.model: robot 'broken' of plugin 'broken-robot' could not be built" in message
     assert "ZeroDivisionError" in message and "\n" not in message
@@ -267,8 +284,15 @@ def test_the_shipped_tasks_run_on_every_arm_that_reaches_the_board(
     import keymps
 
     task = load_task(REPO / "tasks" / task_file)
-    task = task.model_copy(update={"robot": task.robot.model_copy(update={"model": model})})
-    run = keymps.run_task(task, out=tmp_path, rerun="off", backend="offline", executor="sim")
+    # another arm at its own default place: the cutting tasks set the UR3's base
+    base = task.robot.base if model == task.robot.model else None
+    arm = task.robot.model_copy(update={"model": model, "base": base})
+    task = task.model_copy(update={"robot": arm})
+    run = keymps.run_task(
+        task,
+        options=RunOptions(rerun="off"),
+        overrides=RunOverrides(out=tmp_path, backend="offline", executor="sim"),
+    )
     assert run.robot is not None and run.robot.model_name == model
     assert run.stages.execute is not None and run.stages.execute.ok
     figures = run.stages.check.report.figures  # type: ignore[union-attr]
@@ -284,10 +308,19 @@ def test_the_shipped_tasks_are_refused_in_one_line_where_the_so101_cannot_reach(
     import keymps
 
     task = load_task(REPO / "tasks" / task_file)
-    task = task.model_copy(update={"robot": task.robot.model_copy(update={"model": "so101"})})
+    arm = task.robot.model_copy(update={"model": "so101", "base": None})  # its default place
+    task = task.model_copy(update={"robot": arm})
     with pytest.raises(KeympsError) as caught:
-        keymps.run_task(task, out=tmp_path, rerun="off", backend="offline", executor="sim")
+        keymps.run_task(
+            task,
+            options=RunOptions(rerun="off"),
+            overrides=RunOverrides(out=tmp_path, backend="offline", executor="sim"),
+        )
     message = str(caught.value)
-    assert message.startswith("solve: robot: SO-101 (LeRobot), 5 joints cannot ")
-    assert "board point (" in message and "\n" not in message
+    assert "\n" not in message
+    if task_file == "cake_icing.yaml":  # the 6 cm cake: refused before planning, at its height
+        assert ": scene.object_height: 0.06 m: the so101 cannot reach 0.090 m above" in message
+    else:  # reaches over the board, not everywhere the cuts go
+        assert message.startswith("solve: robot: SO-101 (LeRobot), 5 joints cannot ")
+        assert "board point (" in message
     assert not (tmp_path / "trajectory.csv").exists()

@@ -13,6 +13,7 @@ from helpers.robot_toolpaths import radial_cuts, ring_of_dots
 
 from keymps.errors import KeympsError
 from keymps.robot.model import BUILTIN_TOOLS, RobotModel, Tool, solve_path, tool_poses_down
+from keymps.run import RunOptions, RunOverrides
 from keymps.types import ToolPath
 
 RNG_SEED = 20261201
@@ -182,9 +183,17 @@ def test_shipped_runs_are_unchanged_by_the_closed_form(
     from keymps.robot import closed_form
 
     task = load_task(Path(__file__).parents[2] / "tasks" / task_file)
-    fast = run_task(task, out=tmp_path / "fast", rerun="off", backend="offline", executor="sim")
+    fast = run_task(
+        task,
+        options=RunOptions(rerun="off"),
+        overrides=RunOverrides(out=tmp_path / "fast", backend="offline", executor="sim"),
+    )
     monkeypatch.setattr(closed_form.ClosedFormIk, "for_model", classmethod(lambda *a: None))
-    slow = run_task(task, out=tmp_path / "slow", rerun="off", backend="offline", executor="sim")
+    slow = run_task(
+        task,
+        options=RunOptions(rerun="off"),
+        overrides=RunOverrides(out=tmp_path / "slow", backend="offline", executor="sim"),
+    )
     for a, b in zip(fast.stages.solve.pieces, slow.stages.solve.pieces, strict=True):
         assert np.abs(a - b).max() < 1e-6
     fast_t, slow_t = fast.stages.time, slow.stages.time

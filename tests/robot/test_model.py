@@ -20,6 +20,7 @@ from keymps.robot.model import (
     tool_from_task,
     tool_rotation,
 )
+from keymps.run import RunOptions, RunOverrides
 from keymps.types import Piece, ToolPath
 
 
@@ -191,7 +192,11 @@ def test_shipped_tasks_solve_time_and_validate_within_every_bound(
     from keymps import load_task, run_task
 
     task = load_task(Path(__file__).resolve().parents[2] / "tasks" / task_file)
-    run = run_task(task, out=tmp_path, rerun="off", backend="offline", executor="file")
+    run = run_task(
+        task,
+        options=RunOptions(rerun="off"),
+        overrides=RunOverrides(out=tmp_path, backend="offline", executor="file"),
+    )
     model = RobotModel.from_task(task)
     tool_path, joint_path = run.stages.compose, run.stages.solve
     for piece, qs in zip(tool_path.pieces, joint_path.pieces, strict=True):

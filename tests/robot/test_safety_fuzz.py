@@ -40,7 +40,7 @@ from keymps.errors import KeympsError
 from keymps.perception.frames import object_outline_m
 from keymps.plugin import require_validated
 from keymps.robot.safety import BOARD_TOLERANCE_M, validate
-from keymps.run import Run, RunOptions
+from keymps.run import Run, RunOptions, RunOverrides
 
 
 @st.composite
@@ -91,7 +91,11 @@ def _run_one(task: Any, answer: Any, out: Path, counter: Any, suite: str) -> Non
     RecordingExecutor.calls = []
     ScriptedBackend.answers = [answer, answer]
     try:
-        run = keymps.run_task(task, backend="scripted", executor="recording", out=out, rerun="off")
+        run = keymps.run_task(
+            task,
+            options=RunOptions(rerun="off"),
+            overrides=RunOverrides(backend="scripted", executor="recording", out=out),
+        )
     except KeympsError as error:
         assert_clean_error(error)
         assert RecordingExecutor.calls == [], "nothing may be executed after an error"
@@ -314,10 +318,10 @@ def icing_run(tasks: dict[str, Any], tmp_path_factory: Any) -> Any:
         path.write_text(text.replace("Put 15 icing dots", "Put 2 icing dots"))
         run = keymps.run_task(
             path,
-            backend="offline",
-            executor="recording",
-            out=tmp_path_factory.mktemp("icing"),
-            rerun="off",
+            options=RunOptions(rerun="off"),
+            overrides=RunOverrides(
+                backend="offline", executor="recording", out=tmp_path_factory.mktemp("icing")
+            ),
         )
         return run, RecordingExecutor.calls[0]
     finally:
@@ -352,21 +356,18 @@ def test_ur_rtde_moves_nothing_without_confirm_through_the_engine(
     keymps_plugins.register(GuardedArm(), name="guarded-arm")
     dry = keymps.run_task(
         run.task.path,
-        backend="offline",
-        executor="ur-rtde-mocked",
-        out=tmp_path / "dry",
-        rerun="off",
+        options=RunOptions(rerun="off"),
+        overrides=RunOverrides(backend="offline", executor="ur-rtde-mocked", out=tmp_path / "dry"),
     )
     report = dry.stages.execute
     assert report.ok and report.message.startswith("dry run")
     assert control.mock_calls == [], "without --confirm the control interface is never used"
     moved = keymps.run_task(
         run.task.path,
-        backend="offline",
-        executor="ur-rtde-mocked",
-        out=tmp_path / "moved",
-        rerun="off",
-        confirm=True,
+        options=RunOptions(rerun="off", confirm=True),
+        overrides=RunOverrides(
+            backend="offline", executor="ur-rtde-mocked", out=tmp_path / "moved"
+        ),
     )
     assert moved.stages.execute.ok
     assert control.servoJ.call_count == validated.trajectory.samples
@@ -439,7 +440,9 @@ def test_run_json_after_a_refused_plan_names_the_error(
     ScriptedBackend.answers = [answer_text("line", [[[-5, 0], [0, 0]]])] * 2
     with pytest.raises(KeympsError, match="outside the image"):
         keymps.run_task(
-            tasks["icing"], backend="scripted", executor="recording", out=tmp_path, rerun="off"
+            tasks["icing"],
+            options=RunOptions(rerun="off"),
+            overrides=RunOverrides(backend="scripted", executor="recording", out=tmp_path),
         )
     record = json.loads((tmp_path / "run.json").read_text())
     assert record["ok"] is False and "outside the image" in record["error"]
@@ -466,7 +469,11 @@ def test_a_path_below_the_board_is_refused_before_inverse_kinematics(
     )
     ScriptedBackend.answers = [centre, centre]
     with pytest.raises(KeympsError) as caught:
-        keymps.run_task(task, backend="scripted", executor="recording", out=tmp_path, rerun="off")
+        keymps.run_task(
+            task,
+            options=RunOptions(rerun="off"),
+            overrides=RunOverrides(backend="scripted", executor="recording", out=tmp_path),
+        )
     assert_clean_error(caught.value)
     assert str(caught.value).startswith("compose: the tool path goes ")
     assert "mm below the board at pair 1 (primitive 'line')" in str(caught.value)
@@ -491,7 +498,9 @@ def test_a_validated_trajectory_never_leaves_the_workspace(
     ScriptedBackend.answers = [edge_to_edge, edge_to_edge]
     with pytest.raises(KeympsError) as caught:
         keymps.run_task(
-            tasks["cutting"], backend="scripted", executor="recording", out=tmp_path, rerun="off"
+            tasks["cutting"],
+            options=RunOptions(rerun="off"),
+            overrides=RunOverrides(backend="scripted", executor="recording", out=tmp_path),
         )
     assert_clean_error(caught.value)
     assert str(caught.value).startswith("check: safety: ")

@@ -21,7 +21,7 @@ from keymps.default_plugins.litellm.deadline import DeadlineExceeded, await_with
 from keymps.default_plugins.litellm.retry import Retrying
 from keymps.errors import KeympsError
 from keymps.planning.redaction import remember, url_secrets
-from keymps.plugin import parse_options
+from keymps.plugin import BackendBase, parse_options
 
 if TYPE_CHECKING:
     from keymps.types import BackendAnswer, PlanRequest
@@ -99,9 +99,10 @@ def is_local(api_base: str | None, provider: str) -> bool:
         return False
 
 
-class LitellmBackend:
+class LitellmBackend(BackendBase):
     name = "litellm"
     cacheable = True
+    supports_async = True
 
     def __init__(self, options: LitellmOptions):
         self.options = options

@@ -138,11 +138,29 @@ def classify(error: BaseException, api_base: str | None) -> Failure | None:
     first, by `redirected`."""
     errors = chain(error)
     where = endpoint(errors, api_base)
+    unread = _unread(errors, where)
+    if unread is not None:
+        return unread
+    messages = " | ".join(str(e) for e in errors)
+    return (
+        _unreachable(errors, messages, where)
+        or _broken_connection(errors, where)
+        or _not_one_json_answer(errors, messages, where)
+        or _no_credentials(messages)
+    )
+
+
+def _unread(errors: list[BaseException], where: str) -> Failure | None:
+    """An answer keymps refused to read: too large, or compressed as keymps does not read."""
     for e in errors:
-        if isinstance(e, AnswerRefused):  # too large, or compressed as keymps does not read
+        if isinstance(e, AnswerRefused):
             at = _host_port(e.url) if e.url else where
             return Failure("unread", f"{at} {e.reason}: refused unread", "no", http=True)
-    messages = " | ".join(str(e) for e in errors)
+    return None
+
+
+def _unreachable(errors: list[BaseException], messages: str, where: str) -> Failure | None:
+    """No connection at all: refused, or a host name that does not resolve."""
     if (
         any(isinstance(e, ConnectionRefusedError) for e in errors)
         or "Connection refused" in messages
@@ -150,6 +168,12 @@ def classify(error: BaseException, api_base: str | None) -> Failure | None:
         return Failure("refused", f"cannot connect to {where} (connection refused)", "briefly")
     if "Name or service not known" in messages or "nodename nor servname" in messages:
         return Failure("unresolved", f"cannot resolve the host of {where}", "no")
+    return None
+
+
+def _broken_connection(errors: list[BaseException], where: str) -> Failure | None:
+    """The first error in the chain that tells of a connection broken or an answer that is not
+    HTTP, not text or not a number Python reads."""
     for e in errors:
         text = str(e)
         name = type(e).__name__
@@ -169,6 +193,12 @@ def classify(error: BaseException, api_base: str | None) -> Failure | None:
             return Failure(
                 "bad_json", f"{where} answered with a number of over 4300 digits", "no", http=True
             )
+    return None
+
+
+def _not_one_json_answer(errors: list[BaseException], messages: str, where: str) -> Failure | None:
+    """An HTTP answer that is a stream, an HTML page or broken JSON instead of one JSON
+    document."""
     # litellm quotes the stream when it is labelled text/event-stream; the JSON parser holds it
     # when it is labelled JSON
     streamed = [e.doc for e in errors if isinstance(e, json.JSONDecodeError)]
@@ -191,14 +221,17 @@ def classify(error: BaseException, api_base: str | None) -> Failure | None:
             "no",
             http=True,
         )
-    if any(isinstance(e, json.JSONDecodeError) for e in errors):
+    if streamed:
         return Failure("bad_json", f"{where} answered with broken JSON", "yes", http=True)
-    if _CREDENTIALS.search(messages):
-        variable = _KEY_VARIABLE.search(messages)
-        how = f"set {variable.group(1)}" if variable else "set the provider's API key variable"
-        return Failure(
-            "credentials",
-            f"no API key: {how} (or name another variable in planner.api_key_env)",
-            "no",
-        )
     return None
+
+
+def _no_credentials(messages: str) -> Failure | None:
+    """litellm's complaint of a missing API key, with the variable it names."""
+    if not _CREDENTIALS.search(messages):
+        return None
+    variable = _KEY_VARIABLE.search(messages)
+    how = f"set {variable.group(1)}" if variable else "set the provider's API key variable"
+    return Failure(
+        "credentials", f"no API key: {how} (or name another variable in planner.api_key_env)", "no"
+    )

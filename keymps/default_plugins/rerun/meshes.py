@@ -520,53 +520,25 @@ def crease_normals(
 # ---------------------------------------------------------------- glTF
 
 
+_ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963
+"""glTF bufferView targets: vertex attributes, vertex indices."""
+_FLOAT, _UNSIGNED_SHORT, _UNSIGNED_INT = 5126, 5123, 5125
+"""glTF accessor component types."""
+
+
 def glb_bytes(mesh: LightMesh) -> bytes:
     """A binary glTF 2.0 file: one mesh, one primitive (and material) per colour."""
-    blob = bytearray()
-    views: list[dict[str, int]] = []
-    accessors: list[dict[str, object]] = []
+    buffer = _GlbBuffer()
     primitives: list[dict[str, object]] = []
     materials: list[dict[str, object]] = []
-
-    def add(array: np.ndarray, target: int, kind: str, component: int, bounds: bool) -> int:
-        while len(blob) % 4:
-            blob.append(0)
-        views.append(
-            {"buffer": 0, "byteOffset": len(blob), "byteLength": array.nbytes, "target": target}
-        )
-        blob.extend(array.tobytes())
-        accessor: dict[str, object] = {
-            "bufferView": len(views) - 1,
-            "componentType": component,
-            "count": int(array.size // (3 if kind == "VEC3" else 1)),
-            "type": kind,
-        }
-        if bounds:
-            accessor["min"] = array.min(axis=0).tolist()
-            accessor["max"] = array.max(axis=0).tolist()
-        accessors.append(accessor)
-        return len(accessors) - 1
-
     for positions, normals, triangles, color in zip(
         mesh.positions, mesh.normals, mesh.triangles, mesh.colors, strict=True
     ):
-        small = len(positions) < 65536
-        indices = triangles.astype(np.uint16 if small else np.uint32).reshape(-1)
-        primitives.append(
-            {
-                "attributes": {
-                    "POSITION": add(positions, 34962, "VEC3", 5126, True),
-                    "NORMAL": add(normals, 34962, "VEC3", 5126, False),
-                },
-                "indices": add(indices, 34963, "SCALAR", 5123 if small else 5125, False),
-                "material": len(materials),
-            }
-        )
+        primitives.append(_add_primitive(buffer, positions, normals, triangles, len(materials)))
         materials.append(
             {"pbrMetallicRoughness": {"baseColorFactor": list(color), "metallicFactor": 0.0}}
         )
-    while len(blob) % 4:
-        blob.append(0)
+    blob = buffer.padded()
     document = {
         "asset": {"version": "2.0", "generator": "keymps"},
         "scene": 0,
@@ -574,11 +546,81 @@ def glb_bytes(mesh: LightMesh) -> bytes:
         "nodes": [{"mesh": 0}],
         "meshes": [{"primitives": primitives}],
         "materials": materials,
-        "accessors": accessors,
-        "bufferViews": views,
+        "accessors": buffer.accessors,
+        "bufferViews": buffer.views,
         "buffers": [{"byteLength": len(blob)}],
     }
-    text = json.dumps(document, separators=(",", ":")).encode()
+    return _glb_container(json.dumps(document, separators=(",", ":")).encode(), blob)
+
+
+class _GlbBuffer:
+    """The binary chunk of a glb file, with the bufferViews and accessors describing it."""
+
+    def __init__(self) -> None:
+        self.blob = bytearray()
+        self.views: list[dict[str, int]] = []
+        self.accessors: list[dict[str, object]] = []
+
+    def add(self, array: np.ndarray, target: int, kind: str, component: int, bounds: bool) -> int:
+        """Append `array` (its own bufferView, 4-byte aligned); returns its accessor's index.
+        `kind` is VEC3 ((n, 3) array) or SCALAR ((n,)); `bounds` adds its min and max."""
+        self.padded()
+        self.views.append(
+            {
+                "buffer": 0,
+                "byteOffset": len(self.blob),
+                "byteLength": array.nbytes,
+                "target": target,
+            }
+        )
+        self.blob.extend(array.tobytes())
+        accessor: dict[str, object] = {
+            "bufferView": len(self.views) - 1,
+            "componentType": component,
+            "count": int(array.size // (3 if kind == "VEC3" else 1)),
+            "type": kind,
+        }
+        if bounds:
+            accessor["min"] = array.min(axis=0).tolist()
+            accessor["max"] = array.max(axis=0).tolist()
+        self.accessors.append(accessor)
+        return len(self.accessors) - 1
+
+    def padded(self) -> bytes:
+        """The chunk so far, zero-padded to a multiple of 4 bytes."""
+        self.blob.extend(bytes(-len(self.blob) % 4))
+        return bytes(self.blob)
+
+
+def _add_primitive(
+    buffer: _GlbBuffer,
+    positions: np.ndarray,
+    normals: np.ndarray,
+    triangles: np.ndarray,
+    material: int,
+) -> dict[str, object]:
+    """The glTF primitive of float32 positions and normals (n, 3) and triangles (m, 3),
+    indexed in 16 bits when n allows."""
+    small = len(positions) < 65536
+    indices = triangles.astype(np.uint16 if small else np.uint32).reshape(-1)
+    return {
+        "attributes": {
+            "POSITION": buffer.add(positions, _ARRAY_BUFFER, "VEC3", _FLOAT, True),
+            "NORMAL": buffer.add(normals, _ARRAY_BUFFER, "VEC3", _FLOAT, False),
+        },
+        "indices": buffer.add(
+            indices,
+            _ELEMENT_ARRAY_BUFFER,
+            "SCALAR",
+            _UNSIGNED_SHORT if small else _UNSIGNED_INT,
+            False,
+        ),
+        "material": material,
+    }
+
+
+def _glb_container(text: bytes, blob: bytes) -> bytes:
+    """The glb file of a JSON chunk `text` and a binary chunk `blob` (4-byte aligned)."""
     text += b" " * (-len(text) % 4)
     total = 12 + 8 + len(text) + 8 + len(blob)
     return b"".join(
@@ -587,6 +629,6 @@ def glb_bytes(mesh: LightMesh) -> bytes:
             struct.pack("<I4s", len(text), b"JSON"),
             text,
             struct.pack("<I4s", len(blob), b"BIN\x00"),
-            bytes(blob),
+            blob,
         ]
     )

@@ -94,10 +94,10 @@ class Server:
         .env file beside its installation) is kept apart and given to each request that does
         not set it itself, as a run's own import of litellm would; this process keeps the
         environment it was started with."""
-        from keymps.plugin.manager import create_component
+        from keymps.plugin.manager import create_vlm_backend
 
         before = dict(os.environ)
-        backend = create_component("vlm_backend", BACKEND, {})
+        backend = create_vlm_backend(BACKEND, {})
         prepare = getattr(backend, "prepare", None)
         if callable(prepare):
             prepare()
@@ -253,12 +253,12 @@ def answer(body: dict[str, Any], base: dict[str, str], loaded: dict[str, str]) -
     """The reply to one plan request: {"answer": ...}, {"error": line} for the backend's own
     errors (a KeympsError in a run), {"failure": line} for anything else (a bug)."""
     from keymps.planning.redaction import redact_text
-    from keymps.plugin.manager import create_component
+    from keymps.plugin.manager import create_vlm_backend
     from keymps.types import BackendAnswer
 
     try:
         adopt_caller_environment(body, base, loaded)
-        backend = create_component("vlm_backend", BACKEND, body["options"])
+        backend = create_vlm_backend(BACKEND, body["options"])
         answered = backend.complete(request_from_wire(body["request"]))
         if not isinstance(answered, BackendAnswer):
             raise TypeError(f"the backend returned {type(answered).__name__}")

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
@@ -100,21 +100,52 @@ def build_scene(
     texture_rgb: np.ndarray | None = None,
     settings: Settings = Settings(),
 ) -> SimScene:
-    """Compile the scene (without an arm when `robot` is None); `texture_rgb`, an RGB image
-    spanning the workspace, paints the tops of the board and the objects."""
+    """Compile the scene (without an arm when `robot` is None).
+
+    Args:
+        robot: The arm with its tool, or None for the board and objects alone.
+        board_size: The workspace's (width, height), metres.
+        board_shift: The board frame's position of the workspace's bottom-left corner, metres.
+        props: The objects on the board.
+        texture_rgb: (H, W, 3) uint8 RGB image spanning the workspace, painted on the tops of
+            the board and the objects; None: plain colours.
+        settings: The integration and servo settings and the cameras' image sizes.
+
+    Returns:
+        The compiled model and its data, at rest (the arm, if any, at its working pose).
+    """
     import mujoco
 
-    with_arm = robot is not None
+    spec = _new_spec(settings)
+    image = None if texture_rgb is None else _texture_rows(texture_rgb)
+    top_material = None if image is None else _add_top_material(spec, image)
+    _add_surroundings(spec, board_size, board_shift)
+    _add_board(spec, board_size, board_shift, top_material)
+    for index, prop in enumerate(props):
+        _add_prop(spec, prop, index, board_size, board_shift, top_material)
+    tool_names = [] if robot is None else _add_arm(spec, robot)
+    _add_cameras(spec, board_size, board_shift, settings)
+    model = spec.compile()
+    if image is not None:
+        _paint_texture(model, image)
+    scene = _sim_scene(model, spec, robot, tool_names, props)
+    if robot is not None:
+        _tune_servos(scene, robot, settings)
+    mujoco.mj_forward(model, scene.data)  # place every geom before anything is rendered
+    return scene
+
+
+def _new_spec(settings: Settings) -> Any:
+    """An empty MjSpec with the physics options, the offscreen buffer and the lighting."""
+    import mujoco
 
     spec = mujoco.MjSpec()
     spec.modelname = "keymps"
     spec.option.timestep = settings.timestep_s
     spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
     spec.compiler.degree = False
-    width_px = max(settings.top_size_px[0], settings.perspective_size_px[0])
-    height_px = max(settings.top_size_px[1], settings.perspective_size_px[1])
-    spec.visual.global_.offwidth = width_px
-    spec.visual.global_.offheight = height_px
+    spec.visual.global_.offwidth = max(settings.top_size_px[0], settings.perspective_size_px[0])
+    spec.visual.global_.offheight = max(settings.top_size_px[1], settings.perspective_size_px[1])
     spec.visual.quality.shadowsize = 1024
     # headlight + sun add up to about 1 on the board seen from above: the top-down camera
     # shows the texture's own colours
@@ -122,28 +153,50 @@ def build_scene(
     spec.visual.headlight.diffuse = [0.25, 0.25, 0.25]
     spec.visual.headlight.specular = [0.0, 0.0, 0.0]
     spec.stat.extent = 1.0
+    return spec
 
-    top_material = None
-    if texture_rgb is not None:
-        image = np.ascontiguousarray(texture_rgb[::-1], dtype=np.uint8)  # OpenGL: row 0 at v=0
-        spec.add_texture(
-            name="tops",
-            type=mujoco.mjtTexture.mjTEXTURE_2D,
-            width=int(image.shape[1]),
-            height=int(image.shape[0]),
-            nchannel=3,
-            builtin=mujoco.mjtBuiltin.mjBUILTIN_FLAT,  # a placeholder the image overwrites
-            rgb1=[0.5, 0.5, 0.5],
-            rgb2=[0.5, 0.5, 0.5],
-        )
-        material = spec.add_material(name="tops", rgba=[1, 1, 1, 1], specular=0.0, shininess=0.0)
-        material.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = "tops"
-        top_material = "tops"
+
+def _texture_rows(texture_rgb: np.ndarray) -> np.ndarray:
+    """(H, W, 3) uint8 image in OpenGL's row order (row 0 at v = 0, the image's bottom)."""
+    return np.ascontiguousarray(texture_rgb[::-1], dtype=np.uint8)
+
+
+def _add_top_material(spec: Any, image: np.ndarray) -> str:
+    """The `tops` texture, sized for `image` (H, W, 3), and its material; returns its name."""
+    import mujoco
+
+    spec.add_texture(
+        name="tops",
+        type=mujoco.mjtTexture.mjTEXTURE_2D,
+        width=int(image.shape[1]),
+        height=int(image.shape[0]),
+        nchannel=3,
+        builtin=mujoco.mjtBuiltin.mjBUILTIN_FLAT,  # a placeholder the image overwrites
+        rgb1=[0.5, 0.5, 0.5],
+        rgb2=[0.5, 0.5, 0.5],
+    )
+    material = spec.add_material(name="tops", rgba=[1, 1, 1, 1], specular=0.0, shininess=0.0)
+    material.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = "tops"
+    return "tops"
+
+
+def _paint_texture(model: Any, image: np.ndarray) -> None:
+    """Write the pixels of `image` (H, W, 3) straight into the compiled `tops` texture."""
+    import mujoco
+
+    texture = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_TEXTURE, "tops")
+    start = int(model.tex_adr[texture])
+    model.tex_data[start : start + image.size] = image.ravel()
+
+
+def _add_surroundings(spec: Any, size: tuple[float, float], shift: tuple[float, float]) -> None:
+    """The sun, the sky and the table the board lies on."""
+    import mujoco
 
     world = spec.worldbody
     world.add_light(
         name="sun",
-        pos=[board_shift[0] + 0.3, board_shift[1] - 0.4, 1.2],
+        pos=[shift[0] + 0.3, shift[1] - 0.4, 1.2],
         dir=[-0.25, 0.35, -1],
         diffuse=[0.5, 0.5, 0.5],
         specular=[0.1, 0.1, 0.1],
@@ -158,58 +211,51 @@ def build_scene(
         width=64,
         height=64,
     )
-    world.add_geom(  # the table the board lies on: seen by the perspective camera only
+    world.add_geom(  # seen by the perspective camera only
         name="table",
         type=mujoco.mjtGeom.mjGEOM_PLANE,
         size=[1.5, 1.5, 0.05],
-        pos=[board_shift[0] + board_size[0] / 2, board_shift[1], -BOARD_THICKNESS_M],
+        pos=[shift[0] + size[0] / 2, shift[1], -BOARD_THICKNESS_M],
         rgba=[0.55, 0.57, 0.6, 1.0],
         contype=0,
         conaffinity=0,
     )
-    _add_board(spec, board_size, board_shift, top_material)
-    for index, prop in enumerate(props):
-        _add_prop(spec, prop, index, board_size, board_shift, top_material)
-    tool_names: list[str] = []
-    if robot is not None:
-        tool_names = _add_arm(spec, robot)
-    _add_cameras(spec, board_size, board_shift, settings)
 
-    model = spec.compile()
-    if texture_rgb is not None:  # the pixels go straight into the compiled model
-        texture = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_TEXTURE, "tops")
-        start = int(model.tex_adr[texture])
-        model.tex_data[start : start + image.size] = image.ravel()
-    data = mujoco.MjData(model)
-    tcp = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, "tcp") if with_arm else -1
+
+def _sim_scene(
+    model: Any, spec: Any, robot: RobotModel | None, tool_names: list[str], props: tuple[Prop, ...]
+) -> SimScene:
+    """The SimScene of a compiled model: fresh data and the ids and addresses the executor
+    reads (the servo gains still zero)."""
+    import mujoco
+
+    def named(kind: Any, name: str) -> int:
+        return int(mujoco.mj_name2id(model, kind, name))
+
     joints = (
-        [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name) for name in robot.joint_names]
-        if robot is not None
-        else []
+        [] if robot is None else [named(mujoco.mjtObj.mjOBJ_JOINT, n) for n in robot.joint_names]
     )
-    scene = SimScene(
+    texture_id = named(mujoco.mjtObj.mjOBJ_TEXTURE, "tops")
+    return SimScene(
         model=model,
-        data=data,
+        data=mujoco.MjData(model),
         spec=spec,
-        tcp_site=tcp,
-        tool_geoms=frozenset(
-            mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, name) for name in tool_names
-        ),
-        board_geom=mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "board"),
+        tcp_site=-1 if robot is None else named(mujoco.mjtObj.mjOBJ_SITE, "tcp"),
+        tool_geoms=frozenset(named(mujoco.mjtObj.mjOBJ_GEOM, name) for name in tool_names),
+        board_geom=named(mujoco.mjtObj.mjOBJ_GEOM, "board"),
         qpos_adr=np.array([model.jnt_qposadr[j] for j in joints], dtype=int),
         dof_adr=np.array([model.jnt_dofadr[j] for j in joints], dtype=int),
         kp=np.zeros(len(joints)),
         kv=np.zeros(len(joints)),
-        texture_id=mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_TEXTURE, "tops"),
-        texture_size=(0, 0)
-        if texture_rgb is None
-        else (int(texture_rgb.shape[1]), int(texture_rgb.shape[0])),
+        texture_id=texture_id,
+        texture_size=(0, 0) if texture_id < 0 else _texture_size(model, texture_id),
         props=props,
     )
-    if robot is not None:
-        _tune_servos(scene, robot, settings)
-    mujoco.mj_forward(model, data)  # place every geom before anything is rendered
-    return scene
+
+
+def _texture_size(model: Any, texture_id: int) -> tuple[int, int]:
+    """(width, height) of a compiled texture, pixels."""
+    return int(model.tex_width[texture_id]), int(model.tex_height[texture_id])
 
 
 def _tune_servos(scene: SimScene, robot: RobotModel, settings: Settings) -> None:
@@ -472,76 +518,103 @@ def _add_tool(wrist: Any, robot: RobotModel) -> list[str]:
     return names
 
 
+@dataclass(frozen=True)
+class _ToolPart:
+    """One geom of a tool in the flange frame (metres, kilograms)."""
+
+    name: str
+    shape: Literal["box", "cylinder"]
+    size: list[float]
+    """MuJoCo's size: half extents of a box; radius and half length of a cylinder."""
+    pos: list[float]
+    rgba: tuple[float, ...]
+    mass: float
+    along: np.ndarray | None = None
+    """(3,) the direction of a cylinder not along the flange's z axis."""
+
+
 def tool_geoms(body: Any, tool: Tool) -> list[str]:
     """Geometry of the tool in the flange frame; returns the names of its geoms."""
     import mujoco
 
-    box, cylinder = mujoco.mjtGeom.mjGEOM_BOX, mujoco.mjtGeom.mjGEOM_CYLINDER
-    tip = np.asarray(tool.tcp, dtype=float)
-    reach = float(tip[2])
-    parts: list[tuple[str, Any, list[float], list[float], tuple[float, ...], float]] = []
-    if tool.blade_length > 0:  # a knife: a shank down from the flange, the blade at the tip
-        blade_height = min(0.04, 0.5 * reach)
-        length = float(tool.blade_length)
-        shank = reach - blade_height
-        parts.append(
-            ("tool_shank", cylinder, [0.012, shank / 2, 0], [0, 0, shank / 2], HANDLE_RGBA, 0.3)
-        )
-        parts.append(
-            (
-                "tool_blade",
-                box,
-                [length / 2, 0.001, blade_height / 2],
-                [tip[0] - length / 2, tip[1], reach - blade_height / 2],
-                STEEL_RGBA,
-                0.15,
-            )
-        )
-    elif tool.name == "piping_bag":  # a bag tapering to a nozzle
-        bag, taper = 0.6 * reach, 0.25 * reach
-        nozzle = reach - bag - taper
-        parts += [
-            ("tool_bag", cylinder, [0.035, bag / 2, 0], [0, 0, bag / 2], BAG_RGBA, 0.3),
-            (
-                "tool_taper",
-                cylinder,
-                [0.015, taper / 2, 0],
-                [0, 0, bag + taper / 2],
-                BAG_RGBA,
-                0.05,
-            ),
-            (
-                "tool_nozzle",
-                cylinder,
-                [0.004, nozzle / 2, 0],
-                [tip[0], tip[1], reach - nozzle / 2],
-                STEEL_RGBA,
-                0.01,
-            ),
-        ]
-    else:  # any other tool: a rod from the flange to its tip
-        length = float(np.linalg.norm(tip))
-        parts.append(("tool_rod", cylinder, [0.006, length / 2, 0], list(tip / 2), STEEL_RGBA, 0.2))
+    shapes = {"box": mujoco.mjtGeom.mjGEOM_BOX, "cylinder": mujoco.mjtGeom.mjGEOM_CYLINDER}
     names = []
-    for name, kind, size, pos, rgba, mass in parts:
+    for part in _tool_parts(tool):
         geom = body.add_geom(
-            name=name,
-            type=kind,
-            size=size,
-            pos=pos,
-            rgba=list(rgba),
-            mass=mass,
+            name=part.name,
+            type=shapes[part.shape],
+            size=part.size,
+            pos=part.pos,
+            rgba=list(part.rgba),
+            mass=part.mass,
             group=ARM_GROUP,
             contype=CONTACT_TOOL,
             conaffinity=CONTACT_BOARD,
             solref=[0.01, 1.0],
         )
-        if name == "tool_rod":  # along the flange-to-tip vector
+        if part.along is not None:
             quat = np.zeros(4)
-            mujoco.mju_quatZ2Vec(quat, tip / max(float(np.linalg.norm(tip)), 1e-9))
+            mujoco.mju_quatZ2Vec(quat, part.along)
             geom.quat = quat.tolist()
-        names.append(name)
+        names.append(part.name)
     return names
+
+
+def _tool_parts(tool: Tool) -> list[_ToolPart]:
+    """A knife, a piping bag, or for any other tool a rod from the flange to its tip."""
+    tip = np.asarray(tool.tcp, dtype=float)
+    if tool.blade_length > 0:
+        return _knife_parts(tip, float(tool.blade_length))
+    if tool.name == "piping_bag":
+        return _piping_bag_parts(tip)
+    length = float(np.linalg.norm(tip))
+    along = tip / max(length, 1e-9)
+    return [
+        _ToolPart(
+            "tool_rod", "cylinder", [0.006, length / 2, 0], list(tip / 2), STEEL_RGBA, 0.2, along
+        )
+    ]
+
+
+def _knife_parts(tip: np.ndarray, blade_length: float) -> list[_ToolPart]:
+    """A shank down from the flange, the blade at the tip (`tip` (3,) in the flange frame)."""
+    reach = float(tip[2])
+    blade_height = min(0.04, 0.5 * reach)
+    shank = reach - blade_height
+    return [
+        _ToolPart(
+            "tool_shank", "cylinder", [0.012, shank / 2, 0], [0, 0, shank / 2], HANDLE_RGBA, 0.3
+        ),
+        _ToolPart(
+            "tool_blade",
+            "box",
+            [blade_length / 2, 0.001, blade_height / 2],
+            [tip[0] - blade_length / 2, tip[1], reach - blade_height / 2],
+            STEEL_RGBA,
+            0.15,
+        ),
+    ]
+
+
+def _piping_bag_parts(tip: np.ndarray) -> list[_ToolPart]:
+    """A bag tapering to a nozzle whose end is the tip (`tip` (3,) in the flange frame)."""
+    reach = float(tip[2])
+    bag, taper = 0.6 * reach, 0.25 * reach
+    nozzle = reach - bag - taper
+    return [
+        _ToolPart("tool_bag", "cylinder", [0.035, bag / 2, 0], [0, 0, bag / 2], BAG_RGBA, 0.3),
+        _ToolPart(
+            "tool_taper", "cylinder", [0.015, taper / 2, 0], [0, 0, bag + taper / 2], BAG_RGBA, 0.05
+        ),
+        _ToolPart(
+            "tool_nozzle",
+            "cylinder",
+            [0.004, nozzle / 2, 0],
+            [tip[0], tip[1], reach - nozzle / 2],
+            STEEL_RGBA,
+            0.01,
+        ),
+    ]
 
 
 def _add_cameras(

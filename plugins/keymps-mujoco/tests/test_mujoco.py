@@ -19,7 +19,7 @@ from keymps.plugin.manager import components, create_component
 from keymps.robot.description import BUILTIN_TOOLS, Tool
 from keymps.robot.model import RobotModel, solve_path
 from keymps.robot.safety import SafetyError, validate
-from keymps.run import Run, RunOptions
+from keymps.run import Run, RunOptions, RunOverrides
 from keymps.types import Piece, ToolPath, ValidatedTrajectory
 
 OUTLINE = np.array([[0.09, 0.04], [0.21, 0.04], [0.21, 0.14], [0.09, 0.14]])
@@ -280,7 +280,9 @@ def test_a_whole_run_in_the_simulator_with_video_frames_in_the_recording(tmp_pat
         "robot: {tool: knife}\n"
         "executor: {name: mujoco, video_fps: 2, video_height_px: 96, shadows: false}\n"
     )
-    run = keymps.run_task(task_file, out=tmp_path / "run", quiet=True)
+    run = keymps.run_task(
+        task_file, options=RunOptions(quiet=True), overrides=RunOverrides(out=tmp_path / "run")
+    )
     execution = json.loads((run.folder / "run.json").read_text())["execution"]
     assert execution["ok"], execution["message"]
     assert execution["figures"]["cuts"] == 1.0
