@@ -22,6 +22,7 @@ from keymps.outcome.cut_sweep import Footprint, Stretches, covered_stretches, ed
 from keymps.outcome.deposits import deposits_of
 from keymps.outcome.pieces import CRUMB_FRACTION, Regions
 from keymps.robot.safety_geometry import row_norms
+from keymps.sorted_values import distinct
 from keymps.types import CutEffect, Effect, PieceEffect, ToolPath, Trajectory
 
 if TYPE_CHECKING:
@@ -80,7 +81,7 @@ def predict(
     by_id = {food.id: food for food in foods}
     runs = [
         (tool_path.pieces[int(index)], pieces == index)
-        for index in np.unique(pieces)
+        for index in distinct(pieces)
         if tool_path.pieces[int(index)].kind == "work"
     ]
     if not tool.cuts:
