@@ -99,7 +99,11 @@ class RunOverrides:
                 object.__setattr__(self, name, Path(value))
 
     def task_changes(self) -> dict[str, Any]:
-        """The task fields this changes, by override name (what apply_overrides takes)."""
+        """The task fields this changes, by override name.
+
+        Returns:
+            {override name: value} for every field set but `out` (what apply_overrides takes).
+        """
         changes = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "out"}
         return {name: value for name, value in changes.items() if value is not None}
 

@@ -19,6 +19,7 @@ import numpy as np
 __all__ = [
     "EQUAL_PARTS_TOLERANCE",
     "STAGES",
+    "AnswerMode",
     "BackendAnswer",
     "CutEffect",
     "CutOrientation",

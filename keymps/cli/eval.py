@@ -102,30 +102,13 @@ def eval_command(
     from keymps._memory import collector_paused_for_start_up
 
     with collector_paused_for_start_up() as start_up_done:
-        from keymps.perception.board_model import prepare_lab_tables
-
-        # OpenCV's Lab tables (100 ms) on the idle core while the suite loads; the worker
-        # processes forked from this one inherit them (keymps.eval.pool waits before forking)
-        prepare_lab_tables()
-        from keymps.plugin.manager import skip_pydantic_plugin_scan
-
-        skip_pydantic_plugin_scan()  # before the suite's models: the plugin scan is read once
-        from keymps.eval.pool import get_going
-        from keymps.eval.report import markdown_table, write_summary
-        from keymps.eval.runner import EvalOptions, backend_named
+        warm = _get_going(backend, model, api_base, concurrency, processes, warm_planner)
+        from keymps.eval.runner import EvalOptions
         from keymps.eval.suites import load_suite
-        from keymps.planning.warm.dispatch import mode_from
 
-        warm = mode_from(warm_planner)
-        # litellm's import (or the warm planner) and the workers' fork server, while the
-        # suite is read
-        chosen_backend = backend_named(backend, model, api_base)
-        get_going(chosen_backend, model, api_base, concurrency, processes, warm)
         suite = load_suite(suite_file)
         chosen = methods or ("keymps",)
-        folder = out or Path("eval") / "-".join(
-            [suite.name, *([m for m in chosen] if methods else [])]
-        )
+        folder = out or Path("eval") / "-".join([suite.name, *(chosen if methods else ())])
         options = EvalOptions(
             out=folder,
             methods=tuple(dict.fromkeys(chosen)),
@@ -143,31 +126,73 @@ def eval_command(
         )
         # start-up's objects frozen: never scanned again, here or in the forked workers
         start_up_done()
-        try:
-            records = _run(suite, options, quiet)
-        except KeyboardInterrupt as interrupt:
-            from keymps.cli.errors import interrupted_exit_code
-            from keymps.eval.runner import RESULTS_FILE, read_results
+        records = _run_or_resume_hint(suite, options, quiet)
+        _report(records, suite, folder)
 
-            kept = len(read_results(folder / RESULTS_FILE))
-            click.echo(
-                f"interrupted: {kept} finished runs are in {folder / RESULTS_FILE}; run the same "
-                "command again to resume",
-                err=True,
-            )
-            sys.exit(interrupted_exit_code(interrupt))
-        rows = write_summary(records, suite, folder)
-        click.echo(markdown_table(rows, suite))
-        failed = sum(1 for r in records if not r.get("ok"))
+
+def _get_going(
+    backend: str | None,
+    model: str | None,
+    api_base: str | None,
+    concurrency: int,
+    processes: int | None,
+    warm_planner: bool | None,
+) -> Any:
+    """Start what the runs will need on the other core while the suite is read; the warm
+    planner mode (keymps.planning.warm.dispatch)."""
+    from keymps.perception.board_model import prepare_lab_tables
+
+    # OpenCV's Lab tables (100 ms) on the idle core while the suite loads; the worker
+    # processes forked from this one inherit them (keymps.eval.pool waits before forking)
+    prepare_lab_tables()
+    from keymps.plugin.manager import skip_pydantic_plugin_scan
+
+    skip_pydantic_plugin_scan()  # before the suite's models: the plugin scan is read once
+    from keymps.eval.pool import get_going
+    from keymps.eval.runner import backend_named
+    from keymps.planning.warm.dispatch import mode_from
+
+    warm = mode_from(warm_planner)
+    # litellm's import (or the warm planner) and the workers' fork server
+    get_going(
+        backend_named(backend, model, api_base), model, api_base, concurrency, processes, warm
+    )
+    return warm
+
+
+def _run_or_resume_hint(suite: Suite, options: EvalOptions, quiet: bool) -> list[dict[str, Any]]:
+    """Every run's record; on Ctrl-C, how many are kept and how to resume, then exit."""
+    try:
+        return _run(suite, options, quiet)
+    except KeyboardInterrupt as interrupt:
+        from keymps.cli.errors import interrupted_exit_code
+        from keymps.eval.runner import RESULTS_FILE, read_results
+
+        results = options.out / RESULTS_FILE
         click.echo(
-            f"{len(records)} runs ({failed} failed); results in {folder}/ "
-            "(results.jsonl, summary.md, summary.csv, gallery.html)"
+            f"interrupted: {len(read_results(results))} finished runs are in {results}; run the "
+            "same command again to resume",
+            err=True,
         )
-        from keymps.cli.app import everything_written
+        sys.exit(interrupted_exit_code(interrupt))
 
-        # results.jsonl is synced record by record, the summaries are written and closed and the
-        # workers have ended (skipping the teardown saves 0.3-0.5 s here)
-        everything_written()
+
+def _report(records: list[dict[str, Any]], suite: Suite, folder: Path) -> None:
+    """Write the summaries and print the table and where everything is."""
+    from keymps.eval.report import markdown_table, write_summary
+
+    rows = write_summary(records, suite, folder)
+    click.echo(markdown_table(rows, suite))
+    failed = sum(1 for r in records if not r.get("ok"))
+    click.echo(
+        f"{len(records)} runs ({failed} failed); results in {folder}/ "
+        "(results.jsonl, summary.md, summary.csv, gallery.html)"
+    )
+    from keymps.cli.app import everything_written
+
+    # results.jsonl is synced record by record, the summaries are written and closed and the
+    # workers have ended (skipping the teardown saves 0.3-0.5 s here)
+    everything_written()
 
 
 PERCEPTION = "perception"

@@ -141,48 +141,20 @@ class BoardDetector:
         self.options = options or BoardOptions()
 
     def detect(self, scene: SceneImage | np.ndarray) -> Detection:
-        import cv2
+        """The objects on the board, the largest (or `pick`) as the detection's own box.
 
-        raw = scene.image if isinstance(scene, SceneImage) else np.asarray(scene)
-        if raw.size == 0 or raw.ndim not in (2, 3):
-            raise DetectionError(f"the scene image is empty (shape {raw.shape})")
-        image = to_bgr8(raw)
+        Raises:
+            DetectionError: an empty image, the board taken for an object, or no object.
+        """
+        image, lab = _image_and_lab(scene, self.options.blur)
         height, width = image.shape[:2]
         area = SearchArea.of((width, height), self.options.roi)
-        kernel = self.options.blur
-        blurred = cv2.GaussianBlur(image, (kernel, kernel), 0) if kernel > 1 else image
-        lab = to_lab(blurred)
         distance, board, board_image, noise, shadow_px = self._board_distance(lab, area)
         min_area = self.min_area(area)
-        # a region touches a side when it reaches the first 1.5 px inside the left-out edge
-        bands = area.side_bands(1.5 + self.options.edge)
-        if self.options.edge:
-            distance[area.border_band(self.options.edge)] = 0.0
-            left_out = area.side_bands(self.options.edge)
-            bands = [band & ~out for band, out in zip(bands, left_out, strict=True)]
-
+        bands = self._side_bands(area, distance)
         t_noise = max(MIN_THRESHOLD, NOISE_FACTOR * noise)
         first = self._regions(distance > t_noise, distance, area, bands, min_area)
-        candidates = [
-            r for r in first if r.contrast >= TEXTURE_CONTRAST * t_noise or _board(r, self.options)
-        ]
-        if self.options.threshold is not None:
-            threshold, how = float(self.options.threshold), "detector.threshold"
-            above = distance > threshold
-        elif candidates:
-            strongest = max(candidates, key=lambda r: r.area)
-            threshold = max(t_noise, 0.5 * strongest.edge_contrast)
-            how = (
-                "automatic: each region at half its own edge contrast (the largest "
-                f"{strongest.edge_contrast:.1f}), at least {NOISE_FACTOR:g} x the board's noise "
-                f"{noise:.2f}"
-            )
-            objects_first = [r for r in candidates if not _board(r, self.options)]
-            above = _each_at_half_its_contrast(first, objects_first, distance, threshold, t_noise)
-        else:
-            threshold, how = t_noise, f"automatic: {NOISE_FACTOR:g} x the board's noise {noise:.2f}"
-            above = distance > threshold
-        regions = self._regions(above, distance, area, bands, min_area)
+        threshold, how, above = self._threshold(first, distance, t_noise, noise)
         report: dict[str, Any] = {
             "detector": "board",
             "searched_area": {"polygon_px": area.polygon.round(2).tolist(), "pixels": area.pixels},
@@ -192,6 +164,74 @@ class BoardDetector:
             "min_area_px": min_area,
             "regions": [],
         }
+        regions = self._regions(above, distance, area, bands, min_area)
+        objects = self._objects(regions, lab, t_noise, report)
+        if not objects:
+            raise DetectionError(_nothing_found(min_area, threshold, how, shadow_px))
+        chosen, numbered = self._choose(objects, report)
+        return Detection(
+            bbox_px=chosen.bbox,
+            crop=_crop(image, chosen.bbox, self.options.padding),
+            crop_origin_px=_crop_origin(chosen.bbox, self.options.padding),
+            contour_px=chosen.contour.astype(float),
+            mask=chosen.mask,
+            others_px=tuple(r.bbox for r in objects if r is not chosen),
+            warnings=tuple(_warnings(chosen, self.options.pick, objects, self.options)),
+            objects=tuple(
+                DetectedObject(
+                    id=i + 1,
+                    bbox_px=r.bbox,
+                    contour_px=r.contour.astype(float),
+                    area_px=r.area,
+                    mask=r.mask,
+                )
+                for i, r in enumerate(numbered)
+            ),
+            report=report,
+        )
+
+    def _side_bands(self, area: SearchArea, distance: np.ndarray) -> list[np.ndarray]:
+        """Where a region touches each side; the left-out edge zeroed in `distance` (in place)."""
+        # a region touches a side when it reaches the first 1.5 px inside the left-out edge
+        bands = area.side_bands(1.5 + self.options.edge)
+        if self.options.edge:
+            distance[area.border_band(self.options.edge)] = 0.0
+            left_out = area.side_bands(self.options.edge)
+            bands = [band & ~out for band, out in zip(bands, left_out, strict=True)]
+        return bands
+
+    def _threshold(
+        self, first: list[Region], distance: np.ndarray, t_noise: float, noise: float
+    ) -> tuple[float, str, np.ndarray]:
+        """The threshold, how it was chosen, and the pixels above it (per region, when automatic)."""
+        if self.options.threshold is not None:
+            threshold = float(self.options.threshold)
+            return threshold, "detector.threshold", distance > threshold
+        candidates = [
+            r for r in first if r.contrast >= TEXTURE_CONTRAST * t_noise or _board(r, self.options)
+        ]
+        if not candidates:
+            how = f"automatic: {NOISE_FACTOR:g} x the board's noise {noise:.2f}"
+            return t_noise, how, distance > t_noise
+        strongest = max(candidates, key=lambda r: r.area)
+        threshold = max(t_noise, 0.5 * strongest.edge_contrast)
+        how = (
+            "automatic: each region at half its own edge contrast (the largest "
+            f"{strongest.edge_contrast:.1f}), at least {NOISE_FACTOR:g} x the board's noise "
+            f"{noise:.2f}"
+        )
+        objects_first = [r for r in candidates if not _board(r, self.options)]
+        above = _each_at_half_its_contrast(first, objects_first, distance, threshold, t_noise)
+        return threshold, how, above
+
+    def _objects(
+        self, regions: list[Region], lab: np.ndarray, t_noise: float, report: dict[str, Any]
+    ) -> list[Region]:
+        """The regions that are objects, each region's verdict added to `report`.
+
+        Raises:
+            DetectionError: a region is the board (or the table) rather than an object.
+        """
         objects, board_like = [], []
         for region in regions:
             entry = region.describe()
@@ -214,19 +254,10 @@ class BoardDetector:
             report["regions"].append(entry)
         if board_like:
             raise DetectionError(_board_message(*board_like[0]))
-        if not objects:
-            shade = (
-                f"; {shadow_px} px darker than the board in the board's own colour were taken "
-                "for shadow (an object of exactly the board's colour, only darker, cannot be "
-                "told from one)"
-                if shadow_px >= min_area
-                else ""
-            )
-            raise DetectionError(
-                f"no object found: nothing of at least {min_area} px differs from the board's "
-                f"colour model by more than {threshold:.1f} (Lab; {how}){shade}; if an object "
-                "is there, lower detector.threshold, or check the image and scene.camera"
-            )
+        return objects
+
+    def _choose(self, objects: list[Region], report: dict[str, Any]) -> tuple[Region, list[Region]]:
+        """The chosen object and those kept, in reading order; `objects` sorted by area."""
         objects.sort(key=lambda r: r.area, reverse=True)
         pick = self.options.pick
         if pick is not None and pick >= len(objects):
@@ -239,36 +270,12 @@ class BoardDetector:
             "bbox_px": list(chosen.bbox),
             "why": "the largest object" if pick is None else f"detector.pick = {pick}",
         }
-        kept = objects if pick is None else [chosen]
-        numbered = sorted(kept, key=_reading_order)
+        numbered = sorted(objects if pick is None else [chosen], key=_reading_order)
         report["objects"] = [
             {"id": i + 1, "bbox_px": list(r.bbox), "area_px": round(r.area, 1)}
             for i, r in enumerate(numbered)
         ]
-        pad = self.options.padding
-        x0, y0, x1, y1 = chosen.bbox
-        cx0, cy0 = max(0, x0 - pad), max(0, y0 - pad)
-        cx1, cy1 = min(width, x1 + pad), min(height, y1 + pad)
-        return Detection(
-            bbox_px=chosen.bbox,
-            crop=np.ascontiguousarray(image[cy0:cy1, cx0:cx1]),
-            crop_origin_px=(cx0, cy0),
-            contour_px=chosen.contour.astype(float),
-            mask=chosen.mask,
-            others_px=tuple(r.bbox for r in objects if r is not chosen),
-            warnings=tuple(_warnings(chosen, pick, objects, self.options)),
-            objects=tuple(
-                DetectedObject(
-                    id=i + 1,
-                    bbox_px=r.bbox,
-                    contour_px=r.contour.astype(float),
-                    area_px=r.area,
-                    mask=r.mask,
-                )
-                for i, r in enumerate(numbered)
-            ),
-            report=report,
-        )
+        return chosen, numbered
 
     def min_area(self, area: SearchArea) -> int:
         if self.options.min_area is not None:
@@ -467,6 +474,47 @@ def _board_message(region: Region, why: str) -> str:
             "detector.max_coverage"
         )
     )
+
+
+def _image_and_lab(scene: SceneImage | np.ndarray, blur: int) -> tuple[np.ndarray, np.ndarray]:
+    """The scene as 8-bit BGR, and in CIE Lab after a `blur` px Gaussian blur (none for 1)."""
+    import cv2
+
+    raw = scene.image if isinstance(scene, SceneImage) else np.asarray(scene)
+    if raw.size == 0 or raw.ndim not in (2, 3):
+        raise DetectionError(f"the scene image is empty (shape {raw.shape})")
+    image = to_bgr8(raw)
+    blurred = cv2.GaussianBlur(image, (blur, blur), 0) if blur > 1 else image
+    return image, to_lab(blurred)
+
+
+def _nothing_found(min_area: int, threshold: float, how: str, shadow_px: int) -> str:
+    """Why no object was found, and what to try."""
+    shade = (
+        f"; {shadow_px} px darker than the board in the board's own colour were taken "
+        "for shadow (an object of exactly the board's colour, only darker, cannot be "
+        "told from one)"
+        if shadow_px >= min_area
+        else ""
+    )
+    return (
+        f"no object found: nothing of at least {min_area} px differs from the board's "
+        f"colour model by more than {threshold:.1f} (Lab; {how}){shade}; if an object "
+        "is there, lower detector.threshold, or check the image and scene.camera"
+    )
+
+
+def _crop_origin(bbox: tuple[int, int, int, int], pad: int) -> tuple[int, int]:
+    """The crop's top-left pixel: the box grown by `pad` px, within the image."""
+    return max(0, bbox[0] - pad), max(0, bbox[1] - pad)
+
+
+def _crop(image: np.ndarray, bbox: tuple[int, int, int, int], pad: int) -> np.ndarray:
+    """The box grown by `pad` px on every side, cut to the image."""
+    height, width = image.shape[:2]
+    x0, y0 = _crop_origin(bbox, pad)
+    x1, y1 = min(width, bbox[2] + pad), min(height, bbox[3] + pad)
+    return np.ascontiguousarray(image[y0:y1, x0:x1])
 
 
 def _reading_order(region: Region) -> tuple[float, float]:

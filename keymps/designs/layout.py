@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 
@@ -258,90 +259,132 @@ def _ring_count(perimeter: float, given: int | None) -> int:
     return int(min(max(round(perimeter / DOT_SPACING_MM), 6), 24))
 
 
-def _icing(intent: Intent, shape: CropShape, max_pairs: int) -> tuple[np.ndarray, str]:
-    o = shape.outline
-    what = shape.describe()
-    c = o.centre
-    inner = o.inner_radius() if o.kind != "round" else o.radius
-    if intent.design == "dot":
-        return patterns.dots(np.array([c])), f"{what}: one dot in the middle"
+Layout = tuple[np.ndarray, str]
+"""Pairs (K, 2, 2) in crop millimetres and one line saying how they were laid out."""
+
+
+def _icing(intent: Intent, shape: CropShape, max_pairs: int) -> Layout:
+    """The icing design `intent` names, laid out on `shape` in at most `max_pairs` pairs."""
     if intent.design == "dots_ring" and (intent.layers or 1) > 1:
         return _rings_of_dots(intent, shape, max_pairs)
-    if intent.design == "dots_ring":
-        path, ring_note = _dot_path(o, _ring_fraction(intent, shape, RING_FRACTION))
-        count = _ring_count(_perimeter(path), intent.count)
-        return patterns.dots_along_path(path, count), (
-            f"{what}: {count} dots evenly spaced {ring_note}"
+    lay_out = _ICING.get(intent.design)
+    if lay_out is None:
+        raise KeympsError(f"the offline planner has no design for {intent.describe()}")
+    return lay_out(intent, shape, max_pairs)
+
+
+def _inner(o: Outline) -> float:
+    """The radius of the largest circle about the centre inside the outline, mm."""
+    return o.inner_radius() if o.kind != "round" else o.radius
+
+
+def _dot(intent: Intent, shape: CropShape, max_pairs: int) -> Layout:
+    return patterns.dots(
+        np.array([shape.outline.centre])
+    ), f"{shape.describe()}: one dot in the middle"
+
+
+def _dots_ring(intent: Intent, shape: CropShape, max_pairs: int) -> Layout:
+    path, ring_note = _dot_path(shape.outline, _ring_fraction(intent, shape, RING_FRACTION))
+    count = _ring_count(_perimeter(path), intent.count)
+    return patterns.dots_along_path(path, count), (
+        f"{shape.describe()}: {count} dots evenly spaced {ring_note}"
+    )
+
+
+def _rings(intent: Intent, shape: CropShape, max_pairs: int) -> Layout:
+    """Concentric icing rings on a round object, nested outlines on any other."""
+    o, what = shape.outline, shape.describe()
+    layers = intent.count or 1
+    if layers * 4 > max_pairs:
+        raise KeympsError(
+            f"{layers} icing rings need at least {layers * 4} pairs, more than "
+            f"planner.max_pairs = {max_pairs}"
         )
-    if intent.design == "rings":
-        layers = intent.count or 1
-        if layers * 4 > max_pairs:
-            raise KeympsError(
-                f"{layers} icing rings need at least {layers * 4} pairs, more than "
-                f"planner.max_pairs = {max_pairs}"
-            )
-        if o.kind == "round":
-            outer = _ring_fraction(intent, shape, RING_FRACTION) * o.radius
-            radii = [outer - k * 0.7 * outer / layers for k in range(layers)]
-            segments = _segments(max_pairs // layers, 36)
-            return patterns.concentric_rings(c, radii, segments), (
-                f"{what}: {layers} concentric icing rings, radii "
-                + ", ".join(f"{r / 10:.1f}" for r in radii)
-                + " cm"
-            )
-        small = min(o.length, o.width)
-        first = (1 - _ring_fraction(intent, shape, 0.76)) * small / 2
-        insets = [first + k * 0.7 * (small / 2 - first) / layers for k in range(layers)]
-        loops = [patterns.polyline(patterns.inset_path(o, inset), closed=True) for inset in insets]
-        return np.concatenate(loops, axis=0), (
-            f"{what}: {layers} nested icing outlines following the edge"
+    if o.kind == "round":
+        outer = _ring_fraction(intent, shape, RING_FRACTION) * o.radius
+        radii = [outer - k * 0.7 * outer / layers for k in range(layers)]
+        segments = _segments(max_pairs // layers, 36)
+        return patterns.concentric_rings(o.centre, radii, segments), (
+            f"{what}: {layers} concentric icing rings, radii "
+            + ", ".join(f"{r / 10:.1f}" for r in radii)
+            + " cm"
         )
-    if intent.design == "dots_spiral":
-        path, ring_note = _dot_path(o, _ring_fraction(intent, shape, 0.85))
-        count = _ring_count(_perimeter(path), intent.count)
-        dots = patterns.dots_along_path(path, count)
-        segments = _segments(max_pairs - count, 48)
-        swirl = patterns.spiral(c, 0.06 * inner, 0.6 * inner, 2.5, segments)
-        return np.concatenate([dots, swirl], axis=0), (
-            f"{what}: {count} dots {ring_note} and a 2.5-turn spiral inside"
+    small = min(o.length, o.width)
+    first = (1 - _ring_fraction(intent, shape, 0.76)) * small / 2
+    insets = [first + k * 0.7 * (small / 2 - first) / layers for k in range(layers)]
+    loops = [patterns.polyline(patterns.inset_path(o, inset), closed=True) for inset in insets]
+    return np.concatenate(loops, axis=0), (
+        f"{what}: {layers} nested icing outlines following the edge"
+    )
+
+
+def _dots_spiral(intent: Intent, shape: CropShape, max_pairs: int) -> Layout:
+    o = shape.outline
+    path, ring_note = _dot_path(o, _ring_fraction(intent, shape, 0.85))
+    count = _ring_count(_perimeter(path), intent.count)
+    dots = patterns.dots_along_path(path, count)
+    segments = _segments(max_pairs - count, 48)
+    swirl = patterns.spiral(o.centre, 0.06 * _inner(o), 0.6 * _inner(o), 2.5, segments)
+    return np.concatenate([dots, swirl], axis=0), (
+        f"{shape.describe()}: {count} dots {ring_note} and a 2.5-turn spiral inside"
+    )
+
+
+def _spiral(intent: Intent, shape: CropShape, max_pairs: int) -> Layout:
+    o = shape.outline
+    segments = _segments(max_pairs, 60)
+    return patterns.spiral(o.centre, 0.05 * _inner(o), 0.8 * _inner(o), 3.0, segments), (
+        f"{shape.describe()}: a 3-turn spiral from the centre"
+    )
+
+
+def _star(intent: Intent, shape: CropShape, max_pairs: int) -> Layout:
+    inner, points = _inner(shape.outline), intent.count or 5
+    return patterns.star(shape.outline.centre, 0.7 * inner, points), (
+        f"{shape.describe()}: a {points}-pointed star in the middle, "
+        f"{1.4 * inner / 10:.1f} cm across"
+    )
+
+
+def _digits(intent: Intent, shape: CropShape, max_pairs: int) -> Layout:
+    """The text in seven-segment lines, as tall as fits well inside the object."""
+    assert intent.text is not None
+    o = shape.outline
+    text_width, _ = patterns.seven_segment_size(intent.text, 1.0)
+    # the text box must fit well inside the object: half-diagonal within 80 % of its inradius
+    height = 0.8 * _inner(o) / math.hypot(text_width / 2, 0.5)
+    if o.kind == "elongated":
+        height = min(0.8 * o.length / text_width, 0.7 * o.width)
+    return patterns.seven_segment(intent.text, o.centre, height), (
+        f"{shape.describe()}: {intent.text!r} in seven-segment icing lines, "
+        f"{height / 10:.1f} cm tall"
+    )
+
+
+def _dot_per_slice(intent: Intent, shape: CropShape, max_pairs: int) -> Layout:
+    """A dot in each of `count` wedges (round) or grid pieces (any other shape)."""
+    assert intent.count is not None
+    o, what = shape.outline, shape.describe()
+    if o.kind == "round":
+        return patterns.dot_per_radial_slice(o, intent.count), (
+            f"{what}: one dot at the middle of each of {intent.count} equal wedges"
         )
-    if intent.design == "spiral":
-        segments = _segments(max_pairs, 60)
-        return patterns.spiral(c, 0.05 * inner, 0.8 * inner, 3.0, segments), (
-            f"{what}: a 3-turn spiral from the centre"
-        )
-    if intent.design == "star":
-        points = intent.count or 5
-        return patterns.star(c, 0.7 * inner, points), (
-            f"{what}: a {points}-pointed star in the middle, {1.4 * inner / 10:.1f} cm across"
-        )
-    if intent.design == "digits":
-        assert intent.text is not None
-        text_width, _ = patterns.seven_segment_size(intent.text, 1.0)
-        # the text box must fit well inside the object: half-diagonal within 80 % of its inradius
-        height = 0.8 * inner / math.hypot(text_width / 2, 0.5)
-        if o.kind == "elongated":
-            height = min(0.8 * o.length / text_width, 0.7 * o.width)
-        return patterns.seven_segment(intent.text, c, height), (
-            f"{what}: {intent.text!r} in seven-segment icing lines, {height / 10:.1f} cm tall"
-        )
-    if intent.design == "dot_per_slice":
-        assert intent.count is not None
-        if o.kind == "round":
-            return patterns.dot_per_radial_slice(o, intent.count), (
-                f"{what}: one dot at the middle of each of {intent.count} equal wedges"
-            )
-        rows, cols = patterns.grid_shape(intent.count, o.length / o.width)
-        return patterns.dot_per_grid_cell(o, rows, cols), (
-            f"{what}: one dot at the middle of each piece of a {rows} x {cols} grid"
-        )
-    if intent.design == "free":
-        path, ring_note = _dot_path(o, _ring_fraction(intent, shape, 0.85))
-        count = _ring_count(_perimeter(path), None)
-        return np.concatenate(
-            [patterns.dots_along_path(path, count), patterns.star(c, 0.5 * inner, 5)], axis=0
-        ), f"{what}: a free design: {count} dots {ring_note} and a five-pointed star in the middle"
-    raise KeympsError(f"the offline planner has no design for {intent.describe()}")
+    rows, cols = patterns.grid_shape(intent.count, o.length / o.width)
+    return patterns.dot_per_grid_cell(o, rows, cols), (
+        f"{what}: one dot at the middle of each piece of a {rows} x {cols} grid"
+    )
+
+
+def _free(intent: Intent, shape: CropShape, max_pairs: int) -> Layout:
+    o = shape.outline
+    path, ring_note = _dot_path(o, _ring_fraction(intent, shape, 0.85))
+    count = _ring_count(_perimeter(path), None)
+    star = patterns.star(o.centre, 0.5 * _inner(o), 5)
+    return np.concatenate([patterns.dots_along_path(path, count), star], axis=0), (
+        f"{shape.describe()}: a free design: {count} dots {ring_note} and a five-pointed star "
+        "in the middle"
+    )
 
 
 def _rings_of_dots(intent: Intent, shape: CropShape, max_pairs: int) -> tuple[np.ndarray, str]:
@@ -401,3 +444,17 @@ def _dot_path(o: Outline, fraction: float) -> tuple[np.ndarray, str]:
 def _perimeter(path: np.ndarray) -> float:
     closed = np.vstack([path, path[:1]])
     return float(np.linalg.norm(np.diff(closed, axis=0), axis=1).sum())
+
+
+_ICING: dict[str, Callable[[Intent, CropShape, int], Layout]] = {
+    "dot": _dot,
+    "dots_ring": _dots_ring,
+    "rings": _rings,
+    "dots_spiral": _dots_spiral,
+    "spiral": _spiral,
+    "star": _star,
+    "digits": _digits,
+    "dot_per_slice": _dot_per_slice,
+    "free": _free,
+}
+"""How each icing design is laid out (dots_ring in several layers: _rings_of_dots)."""

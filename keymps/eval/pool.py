@@ -205,90 +205,142 @@ def run_in_processes(
     lab_tables_ready()  # a forked worker inherits the tables, and no thread of their build
     forking = fork_here(backend)
     context: Any = multiprocessing.get_context("fork") if forking else fork_server(backend)
-    job_queue = context.Queue()
-    result_queue = context.Queue()
-    runs = runs_in_flight(options.concurrency, processes, backend)
-    shares = threads_per_process(runs, processes)
+    shares = threads_per_process(runs_in_flight(options.concurrency, processes, backend), processes)
     here = shares.pop(0) if backend in OFFLINE_BACKENDS and len(shares) > 1 else 0
+    channels = _Channels.open(context, len(shares))
+    workers = _workers(context, channels, shares, suite, options, backend, job_runner)
+    # before this process has any other thread (a queue's feeder included)
+    unfreeze_after = forking and _fork(workers)
+    for job in [*jobs, *[None] * (len(shares) + (1 if here else 0))]:
+        channels.jobs.put(job)
+    stop_serving, stop_computing = threading.Event(), threading.Event()
+    serving = broker.serve(channels.vlm_requests, channels.vlm_replies, stop_serving)
+    # Process.start() waits until the fork server has imported everything: start them aside
+    starting = threading.Thread(target=_start, args=(workers,), name="keymps-eval-start")
+    computing = threading.Thread(
+        target=_take_jobs,
+        args=(
+            suite, options, backend, here, channels.jobs, channels.results, job_runner,
+            CpuTurn(active=False), None, stop_computing,
+        ),
+        name="keymps-eval-here",
+        daemon=True,
+    )  # fmt: skip
+    finished = False
+    try:
+        starting.start()
+        if here:
+            computing.start()
+        _collect(channels.results, workers, len(jobs), on_record)
+        finished = True
+    finally:
+        if unfreeze_after:
+            gc.unfreeze()  # this process's collector as it was (a caller's process goes on)
+        stop_computing.set()
+        starting.join()  # a worker still starting reads the end of the queue and leaves
+        _end_workers(workers, patient=finished)
+        broker.close()
+        stop_serving.set()
+        serving.join(timeout=5)
+        channels.close()
+
+
+@dataclass(frozen=True)
+class _Channels:
+    """The queues between this process and its workers."""
+
+    jobs: Any
+    results: Any
+    vlm_requests: Any
+    vlm_replies: list[Any]
+    """One per worker: the broker's answers to that worker's calls."""
+
+    @classmethod
+    def open(cls, context: Any, workers: int) -> _Channels:
+        replies = [context.Queue() for _ in range(workers)]
+        return cls(context.Queue(), context.Queue(), context.Queue(), replies)
+
+    def close(self) -> None:
+        """Close every queue without waiting for what was never read."""
+        for channel in (self.jobs, self.results, self.vlm_requests, *self.vlm_replies):
+            # The workers are gone: what this process still has to send (jobs never taken,
+            # replies to ended runs) is dropped instead of waited for, which could be forever
+            # (a full pipe nobody reads, or a lock held by a worker ended mid-write).
+            channel.cancel_join_thread()
+            channel.close()
+
+
+def _workers(
+    context: Any,
+    channels: _Channels,
+    shares: list[int],
+    suite: Suite,
+    options: EvalOptions,
+    backend: str,
+    job_runner: JobRunner,
+) -> list[Any]:
+    """The worker processes (not started), one per share of the runs in flight."""
     environment = dict(os.environ)
-    vlm_requests = context.Queue()
-    vlm_replies = [context.Queue() for _ in shares]
-    workers = [
+    return [
         context.Process(
             target=_worker,
             args=(
-                suite, options, backend, threads, environment, job_queue, result_queue,
-                (index, vlm_requests, vlm_replies[index]), job_runner,
+                suite, options, backend, threads, environment, channels.jobs, channels.results,
+                (index, channels.vlm_requests, channels.vlm_replies[index]), job_runner,
             ),
             name=f"keymps-eval-{index}",
             daemon=True,
         )
         for index, threads in enumerate(shares)
     ]  # fmt: skip
-    unfreeze_after = forking and gc.get_freeze_count() == 0  # (else who froze first unfreezes)
-    if forking:  # before this process has any other thread (a queue's feeder included)
-        # Python's recipe for a fork without exec: what this process made so far is never
-        # scanned by a worker's garbage collector, so its pages stay shared, not copied
-        gc.freeze()
-        for worker in workers:
+
+
+def _fork(workers: list[Any]) -> bool:
+    """Fork the workers from this process; True when this call froze its garbage collector (and
+    the caller unfreezes it: else who froze first unfreezes)."""
+    unfreeze = gc.get_freeze_count() == 0
+    # Python's recipe for a fork without exec: what this process made so far is never
+    # scanned by a worker's garbage collector, so its pages stay shared, not copied
+    gc.freeze()
+    for worker in workers:
+        worker.start()
+    return unfreeze
+
+
+def _start(workers: list[Any]) -> None:
+    """Start the workers not started yet."""
+    for worker in workers:
+        if worker.pid is None:
             worker.start()
-    for job in jobs:
-        job_queue.put(job)
-    for _ in range(len(shares) + (1 if here else 0)):
-        job_queue.put(None)
+
+
+def _collect(
+    results: Any,
+    workers: list[Any],
+    count: int,
+    on_record: Callable[[Job, dict[str, Any]], None],
+) -> None:
+    """Hand `count` records to `on_record` as they come; a worker that died stops it."""
     received = 0
-    stop_serving = threading.Event()
-    stop_computing = threading.Event()
-    serving = broker.serve(vlm_requests, vlm_replies, stop_serving)
+    while received < count:
+        try:
+            job, record = results.get(timeout=POLL_S)
+        except queue.Empty:
+            _check_alive(workers)
+            continue
+        on_record(job, record)
+        received += 1
 
-    # Process.start() waits until the fork server has imported everything: start them aside
-    def start_workers() -> None:
-        for worker in workers:
-            if worker.pid is None:
-                worker.start()
 
-    starting = threading.Thread(target=start_workers, name="keymps-eval-start")
-
-    def compute_here() -> None:
-        _take_jobs(
-            suite, options, backend, here, job_queue, result_queue, job_runner,
-            CpuTurn(active=False), None, stop_computing,
-        )  # fmt: skip
-
-    computing = threading.Thread(target=compute_here, name="keymps-eval-here", daemon=True)
-    try:
-        starting.start()
-        if here:
-            computing.start()
-        while received < len(jobs):
-            try:
-                job, record = result_queue.get(timeout=POLL_S)
-            except queue.Empty:
-                _check_alive(workers)
-                continue
-            on_record(job, record)
-            received += 1
-    finally:
-        if unfreeze_after:
-            gc.unfreeze()  # this process's collector as it was (a caller's process goes on)
-        stop_computing.set()
-        starting.join()  # a worker still starting reads the end of the queue and leaves
-        for worker in workers:
-            if worker.pid is None:  # never started
-                continue
-            worker.join(timeout=5 if received == len(jobs) else 0)
-            if worker.is_alive():
-                worker.terminate()
-                worker.join(timeout=5)
-        broker.close()
-        stop_serving.set()
-        serving.join(timeout=5)
-        for channel in (job_queue, result_queue, vlm_requests, *vlm_replies):
-            # The workers are gone: what this process still has to send (jobs never taken,
-            # replies to ended runs) is dropped instead of waited for, which could be forever
-            # (a full pipe nobody reads, or a lock held by a worker ended mid-write).
-            channel.cancel_join_thread()
-            channel.close()
+def _end_workers(workers: list[Any], patient: bool) -> None:
+    """Join the started workers (5 s each when `patient`, else none), terminating the rest."""
+    for worker in workers:
+        if worker.pid is None:  # never started
+            continue
+        worker.join(timeout=5 if patient else 0)
+        if worker.is_alive():
+            worker.terminate()
+            worker.join(timeout=5)
 
 
 def fork_server(backend: str) -> Any:

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -43,6 +44,8 @@ from keymps.types import (
 if TYPE_CHECKING:
     from keymps.config.task import Task
     from keymps.perception.scene_objects import SceneObject
+    from keymps.planning.coordinates import Convention
+    from keymps.planning.session import PlanSession
     from keymps.run import Run
 
 
@@ -151,14 +154,8 @@ def make_plan(
     None). Each pair is assigned to the object it lies on (plan.pair_objects), and the pairs are
     ordered object by object along a short tour from the robot base.
     """
-    from keymps.perception.scene_objects import scene_objects
-    from keymps.planning.coordinates import rescale, sent_size, to_pixels
-    from keymps.planning.coordinates import resolve as resolve_convention
     from keymps.planning.family import check_plan, check_sentence, families_from_descriptions
     from keymps.planning.intent import plan_intents
-    from keymps.planning.objects import mark_objects, plan_objects, scaled_objects
-    from keymps.planning.prompt import find_prompt, png_bytes, png_data_url, prompt_family
-    from keymps.planning.session import PlanSession
     from keymps.plugin.components import BackendAbilities
     from keymps.plugin.manager import create_vlm_backend
 
@@ -166,23 +163,79 @@ def make_plan(
         raise KeympsError("primitives: the task lists no primitives to choose from")
     families = dict(families) if families is not None else families_from_descriptions(primitives)
     check_sentence(task, task.instruction, families)
-    planner = task.planner
     remember(*keys_the_task_may_send(task))
     backend_object = create_vlm_backend(backend, backend_options(task))
-    prompt_path = find_prompt(
+    prompt_path = _prompt_path(task, primitives)
+    asks_model = BackendAbilities.of(backend_object).asks_model
+    view = _view(task, detection, scene, objects, task.planner.model if asks_model else None)
+    session = _session(task, run, (backend, backend_object), primitives, view, prompt_path)
+    session.calls.extend(earlier_calls)  # recorded before this round's calls
+    keyword, placed, rationale = _ask(session, task.planner.combined, repair)
+    check_plan(task, keyword, families)
+    pairs_crop, layout = _pairs_in_crop(placed, keyword, families, task, detection, view)
+    if layout is not None:
+        rationale = f"{rationale} [named design laid out by keymps: {layout}]".strip()
+    pairs_crop, owners = _by_object(pairs_crop, view.crop_objects, task, detection, scene)
+    return Plan(
+        keyword=keyword,
+        pairs_crop_px=pairs_crop,
+        pairs_px=pairs_crop + np.asarray(detection.crop_origin_px, dtype=float),
+        backend=backend,
+        model=view.model,
+        rationale=redact_text(rationale),
+        calls=tuple(session.calls),
+        coordinates=view.convention,
+        design=placed.design.model_dump() if placed.design is not None else None,
+        image_sent_px=view.size if view.size != view.crop_size else None,
+        pair_objects=owners,
+        intents=plan_intents(placed, session.family, asks_model),
+    )
+
+
+@dataclass(frozen=True)
+class _View:
+    """The crop as the model sees it (`size` px) beside the full-resolution crop it came from."""
+
+    model: str | None  # None: the backend asks no model and answers in pixels of the full crop
+    convention: Convention
+    crop_size: tuple[int, int]
+    crop_metres_per_px: tuple[float, float]
+    crop_objects: tuple[PlanObject, ...]
+    size: tuple[int, int]
+    image: np.ndarray
+    mask: np.ndarray | None
+    metres_per_px: tuple[float, float]
+    objects: tuple[PlanObject, ...]
+
+
+def _prompt_path(task: Task, primitives: Mapping[str, str]) -> Path:
+    """The system prompt template: the task's planner.prompt, else the family's shipped one."""
+    from keymps.planning.prompt import find_prompt, prompt_family
+
+    planner = task.planner
+    return find_prompt(
         task.resolve(planner.prompt) if planner.prompt else None,
         task.folder,
         prompt_family(primitives),
         where=f"{task.where('planner', 'prompt')}: planner.prompt",
     )
-    asks_model = BackendAbilities.of(backend_object).asks_model
-    model = planner.model if asks_model else None
-    # a backend that asks no model answers in pixels of the full crop
-    convention = resolve_convention(planner.coordinates, model) if asks_model else "pixels"
-    answer_mode = planner.answer
+
+
+def _view(
+    task: Task,
+    detection: Detection,
+    scene: SceneImage,
+    objects: tuple[SceneObject, ...] | None,
+    model: str | None,
+) -> _View:
+    """The crop, its mask, scale and objects, at the size `model` is sent (full size for None)."""
+    from keymps.perception.scene_objects import scene_objects
+    from keymps.planning.coordinates import resolve, sent_size
+    from keymps.planning.objects import plan_objects, scaled_objects
+
     crop = detection.crop
     crop_size = (int(crop.shape[1]), int(crop.shape[0]))
-    size = sent_size(crop_size, model) if asks_model else crop_size
+    size = sent_size(crop_size, model) if model is not None else crop_size
     metres_per_px = crop_metres_per_px(task, detection, scene)
     mask = crop_mask(detection, scene)
     sent, sent_mask, sent_metres = _downscaled(crop, mask, metres_per_px, size)
@@ -193,86 +246,110 @@ def make_plan(
     in_crop = plan_objects(
         objects, detection.crop_origin_px, crop_size, scene.image.shape, metres_per_px, mask
     )
-    in_sent = scaled_objects(in_crop, crop_size, size, sent_mask)
-    marked = mark_objects(sent, in_sent)  # several objects: their numbers on the image sent
+    return _View(
+        model=model,
+        convention=resolve(task.planner.coordinates, model) if model is not None else "pixels",
+        crop_size=crop_size,
+        crop_metres_per_px=metres_per_px,
+        crop_objects=in_crop,
+        size=size,
+        image=sent,
+        mask=sent_mask,
+        metres_per_px=sent_metres,
+        objects=scaled_objects(in_crop, crop_size, size, sent_mask),
+    )
+
+
+def _session(
+    task: Task,
+    run: Run,
+    backend: tuple[str, Any],
+    primitives: Mapping[str, str],
+    view: _View,
+    prompt_path: Path,
+) -> PlanSession:
+    """The plan session over the request built from `view`; vlm/crop.png written."""
+    from keymps.planning.objects import mark_objects
+    from keymps.planning.prompt import png_bytes, png_data_url, prompt_family
+    from keymps.planning.session import PlanSession
+
+    planner = task.planner
+    marked = mark_objects(view.image, view.objects)  # several objects: their numbers on it
     crop_png = png_bytes(marked)  # encoded once: sent, and kept as vlm/crop.png
-    image_url = png_data_url(marked, crop_png)
     base = PlanRequest(
         instruction=task.instruction,
-        crop=sent,
-        crop_mask=sent_mask,
-        metres_per_px=sent_metres,
+        crop=view.image,
+        crop_mask=view.mask,
+        metres_per_px=view.metres_per_px,
         primitives=dict(primitives),
         object_height=task.scene.object_height,
         max_pairs=planner.max_pairs,
         messages=[],
         schema={},
-        model=model,
+        model=view.model,
         temperature=planner.temperature,
         timeout_s=planner.timeout_s,
         task_name=task.name,
         line_width_mm=_line_width_mm(task),
-        objects=in_sent,
-        answer_mode=answer_mode,
+        objects=view.objects,
+        answer_mode=planner.answer,
     )
-    family = prompt_family(primitives)
     session = PlanSession(
         task=task,
         run=run,
-        backend_name=backend,
-        backend=backend_object,
+        backend_name=backend[0],
+        backend=backend[1],
         base=base,
         system_template=_read_prompt(prompt_path),
         template_source=str(prompt_path),
-        image_url=image_url,
-        convention=convention,
-        answer_mode=answer_mode,
-        family=family,
-        calls=list(earlier_calls),
+        image_url=png_data_url(marked, crop_png),
+        convention=view.convention,
+        answer_mode=planner.answer,
+        family=prompt_family(primitives),
     )
     session.vlm_folder.mkdir(parents=True, exist_ok=True)
     write_atomically(session.vlm_folder / "crop.png", crop_png)
-    if planner.combined:
-        combined = session.ask("combined", earlier=repair)
-        keyword, placed, rationale = combined.keyword, combined, combined.rationale
-    else:
-        chosen = session.ask("keyword")
-        placed = session.ask("pairs", keyword=chosen.keyword, earlier=repair)
-        keyword = chosen.keyword
-        rationale = " ".join(r for r in (chosen.rationale, placed.rationale) if r)
-    check_plan(task, keyword, families)
-    if placed.design is not None:
-        on = _design_object(placed.design, in_crop)
-        pairs_crop, layout = _lay_out(
-            placed.design,
-            keyword,
-            families,
-            detection,
-            on.mask,
-            metres_per_px,
-            planner.max_pairs,
-            _line_width_mm(task),
-        )
-        rationale = f"{rationale} [named design laid out by keymps: {layout}]".strip()
-    else:
+    return session
+
+
+def _ask(
+    session: PlanSession, combined: bool, repair: Sequence[tuple[str, list[str]]]
+) -> tuple[str, Any, str]:
+    """The keyword, the answer that places the pairs and the rationale: one call or two."""
+    if combined:
+        answer = session.ask("combined", earlier=repair)
+        return answer.keyword, answer, answer.rationale
+    chosen = session.ask("keyword")
+    placed = session.ask("pairs", keyword=chosen.keyword, earlier=repair)
+    rationale = " ".join(r for r in (chosen.rationale, placed.rationale) if r)
+    return chosen.keyword, placed, rationale
+
+
+def _pairs_in_crop(
+    placed: Any,
+    keyword: str,
+    families: Mapping[str, str],
+    task: Task,
+    detection: Detection,
+    view: _View,
+) -> tuple[np.ndarray, str | None]:
+    """The answer's pairs in full-crop pixels, (K, 2, 2), and a named design's layout note."""
+    from keymps.planning.coordinates import rescale, to_pixels
+
+    if placed.design is None:
         answered = np.asarray(placed.pairs, dtype=float).reshape(-1, 2, 2)
-        pairs_crop = rescale(to_pixels(answered, convention, size), size, crop_size)
-    pairs_crop, owners = _by_object(pairs_crop, in_crop, task, detection, scene)
-    pairs_px = pairs_crop + np.asarray(detection.crop_origin_px, dtype=float)
-    intents = plan_intents(placed, family, asks_model)
-    return Plan(
-        keyword=keyword,
-        pairs_crop_px=pairs_crop,
-        pairs_px=pairs_px,
-        backend=backend,
-        model=base.model,
-        rationale=redact_text(rationale),
-        calls=tuple(session.calls),
-        coordinates=convention,
-        design=placed.design.model_dump() if placed.design is not None else None,
-        image_sent_px=size if size != crop_size else None,
-        pair_objects=owners,
-        intents=intents,
+        pixels = to_pixels(answered, view.convention, view.size)
+        return rescale(pixels, view.size, view.crop_size), None
+    on = _design_object(placed.design, view.crop_objects)
+    return _lay_out(
+        placed.design,
+        keyword,
+        families,
+        detection,
+        on.mask,
+        view.crop_metres_per_px,
+        task.planner.max_pairs,
+        _line_width_mm(task),
     )
 
 

@@ -109,11 +109,25 @@ class BackendBase:
     on one event loop instead of calling `complete` from each run's thread."""
 
     def complete(self, request: PlanRequest) -> BackendAnswer:
-        """Answer one planning call (see VlmBackend.complete)."""
+        """Answer one planning call (see VlmBackend.complete).
+
+        Args:
+            request: The call: step, prompt, crop, JSON schema and answer mode.
+
+        Returns:
+            The backend's answer text and what it cost.
+        """
         raise NotImplementedError(f"{type(self).__name__} does not implement complete()")
 
     async def acomplete(self, request: PlanRequest) -> BackendAnswer:
-        """Answer one planning call on an event loop; only called when `supports_async`."""
+        """Answer one planning call on an event loop; only called when `supports_async`.
+
+        Args:
+            request: The call, as for `complete`.
+
+        Returns:
+            The backend's answer text and what it cost.
+        """
         raise NotImplementedError(f"{type(self).__name__} does not implement acomplete()")
 
 
@@ -122,8 +136,11 @@ class BackendAbilities:
     """What one backend object can do: its BackendBase flags, or their defaults."""
 
     asks_model: bool = BackendBase.asks_model
+    """Whether it asks a model (its answers are recorded and cached as a model's)."""
     cacheable: bool = BackendBase.cacheable
+    """Whether its answers may be kept in the plan cache and reused."""
     supports_async: bool = BackendBase.supports_async
+    """Whether `keymps eval` may call its `acomplete` on the broker's event loop."""
 
     @classmethod
     def of(cls, backend: object) -> BackendAbilities:

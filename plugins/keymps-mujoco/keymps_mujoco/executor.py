@@ -103,23 +103,12 @@ class Execution:
         }
 
     def simulate(self) -> ExecutionReport:
-        from keymps_mujoco.marks import Painter
+        """Follow the trajectory in the scene; the paint, video and outcome image, judged."""
         from keymps_mujoco.model import build_scene
         from keymps_mujoco.render import Renderer
-        from keymps_mujoco.simulate import simulate
-        from keymps_mujoco.video import VideoRecorder
 
-        options, inputs, trajectory = self.options, self.inputs, self.trajectory
-        settings = Settings(
-            timestep_s=options.timestep_s,
-            bandwidth_hz=options.bandwidth_hz,
-            damping_ratio=options.damping_ratio,
-            top_size_px=inputs.top_size_px,
-            perspective_size_px=(
-                round(options.video_height_px * options.perspective_aspect),
-                options.video_height_px,
-            ),
-        )
+        inputs, trajectory = self.inputs, self.trajectory
+        settings = self._settings()
         scene = build_scene(
             inputs.robot,
             inputs.board_size,
@@ -128,35 +117,16 @@ class Execution:
             inputs.texture_rgb,
             settings,
         )
-        painter = Painter(
-            inputs.texture_rgb
-            if inputs.texture_rgb is not None
-            else np.full((inputs.top_size_px[1], inputs.top_size_px[0], 3), 200, np.uint8),
-            inputs.board_size,
-            inputs.board_shift,
-            inputs.footprint_masks,
-            options.cut_width_m,
-            options.icing_radius_m,
-        )
+        painter = self._painter()
         blade = float(inputs.robot.tool.blade_length)
         kind = np.asarray(trajectory.kind)
         pieces = np.asarray(trajectory.piece_index)
         renderer = Renderer(scene)
-        video = None
-        if options.video:
-            video = VideoRecorder(
-                self.folder / VIDEO_FILE,
-                renderer,
-                options.video_fps,
-                [self._camera_size(name, settings) for name in options.video_cameras],
-                lambda mjv: self._decorate(mjv, painter),
-                options.shadows,
-            )
+        video = self._video(renderer, settings, painter)
         lowest = np.full(len(kind), np.inf)  # the tip's height at each working sample
 
         def on_step(step: Any) -> None:
-            i = step.index
-            if kind[i] == "work":
+            if kind[step.index] == "work":
                 self._mark(step, painter, blade, lowest)
             if video is not None and video.due(step.t):
                 if painter.changed and scene.texture_id >= 0:
@@ -167,34 +137,10 @@ class Execution:
             if video is not None:
                 scene.set_joints(trajectory.q[0])  # the first frame shows the start
                 video.frame(0.0)
-            result = simulate(
-                scene,
-                trajectory.t,
-                trajectory.q,
-                trajectory.qd,
-                trajectory.qdd,
-                trajectory.tool_xyz,
-                trajectory.rate_hz,
-                divergence_m=options.divergence_mm / 1000,
-                torque_limits=tuple(
-                    float(v) * options.torque_limit_fraction for v in inputs.robot.effort_limits
-                ),
-                joint_names=tuple(inputs.robot.joint_names),
-                on_step=on_step,
-            )
-            files: list[str] = []
-            if video is not None:
-                files.append(str(video.close()))
-            if options.outcome:
-                if scene.texture_id >= 0:
-                    renderer.upload_texture(painter.texture())
-                image = renderer.render(
-                    TOP_CAMERA,
-                    inputs.top_size_px,
-                    show_arm=False,
-                    extra=lambda mjv: self._decorate(mjv, painter),
-                )
-                files.append(str(self.context.write_image("outcome", image)))
+            result = self._follow(scene, on_step)
+            files = [str(video.close())] if video is not None else []
+            if self.options.outcome:
+                files.append(self._outcome_image(scene, renderer, painter))
         finally:
             if video is not None:
                 video.close()
@@ -202,18 +148,101 @@ class Execution:
         figures = self._figures(result, lowest, kind, pieces, painter, video)
         measured = self._measured(lowest, kind, pieces, painter)
         problems = self._problems(result, figures)
+        message = "; ".join(problems) if problems else self._summary(figures)
+        return ExecutionReport(
+            NAME, not problems, message, tuple(files), figures, measured=measured
+        )
+
+    def _settings(self) -> Settings:
+        """The physics and camera settings from the options and the scene."""
+        options = self.options
+        return Settings(
+            timestep_s=options.timestep_s,
+            bandwidth_hz=options.bandwidth_hz,
+            damping_ratio=options.damping_ratio,
+            top_size_px=self.inputs.top_size_px,
+            perspective_size_px=(
+                round(options.video_height_px * options.perspective_aspect),
+                options.video_height_px,
+            ),
+        )
+
+    def _painter(self) -> Any:
+        """A painter over the scene's texture (plain grey without one)."""
+        from keymps_mujoco.marks import Painter
+
+        inputs = self.inputs
+        return Painter(
+            inputs.texture_rgb
+            if inputs.texture_rgb is not None
+            else np.full((inputs.top_size_px[1], inputs.top_size_px[0], 3), 200, np.uint8),
+            inputs.board_size,
+            inputs.board_shift,
+            inputs.footprint_masks,
+            self.options.cut_width_m,
+            self.options.icing_radius_m,
+        )
+
+    def _video(self, renderer: Any, settings: Settings, painter: Any) -> Any:
+        """The video recorder, or None when the options ask for no video."""
+        from keymps_mujoco.video import VideoRecorder
+
+        options = self.options
+        if not options.video:
+            return None
+        return VideoRecorder(
+            self.folder / VIDEO_FILE,
+            renderer,
+            options.video_fps,
+            [self._camera_size(name, settings) for name in options.video_cameras],
+            lambda mjv: self._decorate(mjv, painter),
+            options.shadows,
+        )
+
+    def _follow(self, scene: Any, on_step: Any) -> Any:
+        """Step the scene along the trajectory within the options' limits (a SimResult)."""
+        from keymps_mujoco.simulate import simulate
+
+        options, robot, trajectory = self.options, self.inputs.robot, self.trajectory
+        return simulate(
+            scene,
+            trajectory.t,
+            trajectory.q,
+            trajectory.qd,
+            trajectory.qdd,
+            trajectory.tool_xyz,
+            trajectory.rate_hz,
+            divergence_m=options.divergence_mm / 1000,
+            torque_limits=tuple(
+                float(v) * options.torque_limit_fraction for v in robot.effort_limits
+            ),
+            joint_names=tuple(robot.joint_names),
+            on_step=on_step,
+        )
+
+    def _outcome_image(self, scene: Any, renderer: Any, painter: Any) -> str:
+        """outcome.png: the painted food from the top-down camera, the arm hidden; its path."""
+        if scene.texture_id >= 0:
+            renderer.upload_texture(painter.texture())
+        image = renderer.render(
+            TOP_CAMERA,
+            self.inputs.top_size_px,
+            show_arm=False,
+            extra=lambda mjv: self._decorate(mjv, painter),
+        )
+        return str(self.context.write_image("outcome", image))
+
+    def _summary(self, figures: dict[str, float]) -> str:
+        """One line: what was simulated and how closely the arm followed."""
         summary = (
-            f"simulated {trajectory.duration_s:.1f} s in MuJoCo: max tracking error "
+            f"simulated {self.trajectory.duration_s:.1f} s in MuJoCo: max tracking error "
             f"{figures['max_tracking_error_mm']:.2f} mm, max torque "
             f"{100 * figures['max_torque_ratio']:.0f}% of the UR3's, max tool-board force "
             f"{figures['max_contact_force_n']:.1f} N"
         )
         if "cuts" in figures:
             summary += f", {figures['cuts_reached_board']:.0f}/{figures['cuts']:.0f} cuts reached the board"
-        message = "; ".join(problems) if problems else summary
-        return ExecutionReport(
-            NAME, not problems, message, tuple(files), figures, measured=measured
-        )
+        return summary
 
     def _camera_size(self, camera: str, settings: Settings) -> tuple[str, tuple[int, int]]:
         height = self.options.video_height_px
