@@ -80,6 +80,7 @@ def _compose(seen: Seen, keyword: str, starts: np.ndarray, goals: np.ndarray) ->
         travel_speed=task.motion.travel_speed,
         yaw_mode=robot.tool.yaw,
         home=robot.home_tool_position(),
+        home_yaw=robot.home_yaw(),
     )
     pieces = tuple(p.points for p in path.pieces if p.kind == "work")
     lines = np.stack([starts[:, :2], goals[:, :2]], axis=1)
