@@ -119,6 +119,10 @@ def test_keymps_run_collects_garbage_once_started(tmp_path: Path) -> None:
     from keymps.cli.app import cli
 
     seen: list[bool] = []
+    # A low first threshold: in a process that has run a thousand tests the run's net new
+    # containers may not reach the default 700, and no collection would show the collector on.
+    thresholds = gc.get_threshold()
+    gc.set_threshold(50, *thresholds[1:])
     gc.callbacks.append(lambda phase, info: seen.append(phase == "start"))
     try:
         done = CliRunner().invoke(
@@ -134,6 +138,7 @@ def test_keymps_run_collects_garbage_once_started(tmp_path: Path) -> None:
         )
     finally:
         gc.callbacks.pop()
+        gc.set_threshold(*thresholds)
     assert done.exit_code == 0, done.output
     assert any(seen)  # the stages ran with the collector on (start-up's objects frozen)
     assert gc.isenabled() and gc.get_freeze_count() == 0
