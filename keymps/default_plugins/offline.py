@@ -91,16 +91,11 @@ def choose_primitive(
     if len(names) == 1 and (names[0] in icing) == (family == "icing"):
         return names[0], "the only primitive"
     cutting = [n for n in names if n not in icing]
-    named_by = _words(task_name.replace("-", " ").replace("_", " "))
-    context = " ".join([sentence, task_name.replace("-", " ").replace("_", " "), *object_names])
-    mentioned = _words(context)
-    family_names = icing if family == "icing" else cutting
-    asked = [n for n in family_names if (stems := _stems(n)) and stems <= _stems(context)]
-    if len(asked) == 1:
-        in_sentence = _stems(asked[0]) <= _stems(sentence)
-        if in_sentence or not _stems(asked[0]) <= _stems(" ".join(named_by)):
-            return asked[0], "the sentence names it"
-        return asked[0], f"the task's name ({task_name}) names it"
+    task_words = task_name.replace("-", " ").replace("_", " ")
+    context = " ".join([sentence, task_words, *object_names])
+    asked = _asked_for(icing if family == "icing" else cutting, sentence, task_name, context)
+    if asked:
+        return asked
     if family == "icing":
         if icing:
             return icing[0], "its description is for icing"
@@ -108,11 +103,33 @@ def choose_primitive(
             f"the sentence asks for icing, but no primitive of this task is for icing (cutting "
             f"primitives: {', '.join(names)}): use an icing task (piping_bag and an icing primitive)"
         )
-    if not [n for n in names if n not in icing]:
+    if not cutting:
         raise KeympsError(
             f"the sentence asks for cutting, but every primitive of this task is for icing "
             f"({', '.join(names)}): use a cutting task (knife and a cutting primitive)"
         )
+    return _cutting_primitive(cutting, primitives, context)
+
+
+def _asked_for(
+    family_names: Sequence[str], sentence: str, task_name: str, context: str
+) -> tuple[str, str] | None:
+    """(name, why) of the one primitive of the family the sentence or task name names."""
+    asked = [n for n in family_names if (stems := _stems(n)) and stems <= _stems(context)]
+    if len(asked) != 1:
+        return None
+    named_by = _words(task_name.replace("-", " ").replace("_", " "))
+    in_sentence = _stems(asked[0]) <= _stems(sentence)
+    if in_sentence or not _stems(asked[0]) <= _stems(" ".join(named_by)):
+        return asked[0], "the sentence names it"
+    return asked[0], f"the task's name ({task_name}) names it"
+
+
+def _cutting_primitive(
+    cutting: Sequence[str], primitives: Mapping[str, str], context: str
+) -> tuple[str, str]:
+    """(name, why) of a cut: the one whose description names the object, else by hardness."""
+    mentioned = _words(context)
     named = [n for n in cutting if mentioned & _named_objects(primitives[n])]
     if len(named) == 1:
         word = sorted(mentioned & _named_objects(primitives[named[0]]))[0]
