@@ -39,6 +39,7 @@ __all__ = [
     "Piece",
     "PieceEffect",
     "PieceKind",
+    "PieceShape",
     "Plan",
     "PlanIntent",
     "PlanObject",
@@ -311,6 +312,9 @@ CutOrientation = Literal["vertical", "horizontal", "lengthwise", "crosswise"]
 """A direction of cuts in the object's own frame (PlanIntent.orientation)."""
 EqualBy = Literal["area", "width"]
 """What equal pieces compare: their areas, or their widths across parallel cuts."""
+PieceShape = Literal["square", "wedge", "strip", "round"]
+"""The shape asked of pieces (PlanIntent.piece_shape): squares of a grid, wedges meeting at the
+centre, strips between parallel cuts (along a long object), rounds across a long object."""
 IntentSource = Literal["offline", "design", "answer", "expect"]
 """Who stated an intent: the offline planner, a named design, a VLM answer, the task file."""
 EQUAL_PARTS_TOLERANCE = 0.05
@@ -350,6 +354,15 @@ class PlanIntent:
     """Direction of the cuts in the object's own frame: "vertical" / "horizontal" along the
     object's side nearest the image's vertical / horizontal (the image's own axes for a round
     object); "lengthwise" / "crosswise" along / across its long axis."""
+    piece_shape: PieceShape | None = None
+    """The pieces' shape ("3 strips", "8 wedges", "9 squares", "half-inch rounds"): "strip",
+    pieces between parallel cuts (along a long object's length); "wedge", cuts whose lines
+    meet at the object's centre; "square", every piece's sides within 1.25:1; "round", cuts
+    across a long object."""
+    edge_distance_mm: float | None = None
+    """Icing: how far in from the object's edge (mm, board) the outer ring of dots or icing
+    line runs, measured to the dots' centres or the line's centreline ("1 inch from the
+    edge")."""
     dots: int | None = None
     """Icing dots on the object, every ring of dots together."""
     rings: int | None = None
@@ -380,12 +393,16 @@ class PlanIntent:
             parts.append(f"of an object {self.object_length_mm / 10:g} cm long")
         if self.orientation is not None:
             parts.append(f"cut {self.orientation}" + ("ly" if self.orientation[-1] == "l" else ""))
+        if self.piece_shape is not None:
+            parts.append(f"{self.piece_shape} pieces")
         if self.dots is not None:
             parts.append(f"{self.dots} dot" + ("" if self.dots == 1 else "s"))
         if self.rings is not None:
             parts.append(f"{self.rings} ring" + ("" if self.rings == 1 else "s"))
         if self.digits is not None:
             parts.append(f"the digits {self.digits!r}")
+        if self.edge_distance_mm is not None:
+            parts.append(f"{self.edge_distance_mm:.1f} mm in from the edge")
         if not parts and self.design is not None:
             parts.append(self.design.replace("_", " "))
         if not parts:
@@ -691,6 +708,14 @@ class DepositEffect:
     """The stroke it is piped in: deposits joined end to end share one (0-based)."""
     on_top: bool
     """Whether it lies on the object's top surface (inside its footprint)."""
+    pairs: tuple[int, ...] = ()
+    """Every keypoint pair (0-based, in order) its work piece pipes: several where lines that
+    meet are one continuous stroke (`pair_index` is the first); empty: `pair_index` only."""
+
+    @property
+    def piped_pairs(self) -> tuple[int, ...]:
+        """The keypoint pairs it was piped from (`pairs`, or `pair_index` alone)."""
+        return self.pairs or (self.pair_index,)
 
 
 @dataclass(frozen=True)

@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from keymps.outcome.predict import Food, Tool, predict
+from keymps.outcome.shapes import SHAPE_TOLERANCES, edge_distance_problems, piece_shape_problems
 from keymps.outcome.verdict import (
     TOLERANCES,
     cut_problems,
@@ -47,7 +48,7 @@ def check_outcome(
     predicted = predict(model, trajectory, tool_path, foods, tool)
     problems = judge(predicted, foods, tool, intents, tool_path)
     verdict: OutcomeVerdict = "pass" if not problems else ("accepted" if accept else "fail")
-    tolerances = dict(TOLERANCES)
+    tolerances = TOLERANCES | SHAPE_TOLERANCES
     for intent in intents:
         if intent.equal is not None:
             tolerances["equal"] = intent.equal
@@ -66,16 +67,18 @@ def judge(
     if tool.cuts:
         problems = cut_problems(predicted, foods, tool.blade_length)
     else:
-        pairs = sorted({p.pair_index for p in tool_path.pieces if p.kind == "work"})
+        pairs = sorted({k for p in tool_path.pieces if p.kind == "work" for k in p.piped_pairs})
         problems = icing_problems(predicted, pairs, tool.line_width)
     for intent in intents:
         for food in foods:
             if food.id not in worked or intent.object_id not in (None, food.id):
                 continue
             if tool.cuts:
-                problems += intent_problems(predicted, intent, food)
+                found = intent_problems(predicted, intent, food)
+                problems += found or piece_shape_problems(predicted, intent, food)
             else:
                 problems += icing_intent_problems(predicted, intent, food)
+                problems += edge_distance_problems(predicted, intent, food)
     return problems
 
 

@@ -51,15 +51,16 @@ class Merge:
 
 
 def deposits_of(
-    work: Sequence[tuple[int, Any, np.ndarray]], line_width: float
+    work: Sequence[tuple[int | tuple[int, ...], Any, np.ndarray]], line_width: float
 ) -> tuple[tuple[DepositEffect, ...], int, int]:
-    """(deposits, strokes, loops) of the work pieces: each (pair index, its object (a
-    keymps.outcome.predict.Food, or None), (n, 3) tip positions)."""
-    placed: list[tuple[int, Any, np.ndarray]] = []
-    for pair, food, tip in work:
+    """(deposits, strokes, loops) of the work pieces: each (its pair index, or the pair indices
+    it pipes in order, its object (a keymps.outcome.predict.Food, or None), (n, 3) tip
+    positions)."""
+    placed: list[tuple[tuple[int, ...], Any, np.ndarray]] = []
+    for pairs, food, tip in work:
         xy = _deposited(tip, food)
         if xy is not None:
-            placed.append((pair, food, xy))
+            placed.append(((pairs,) if isinstance(pairs, int) else tuple(pairs), food, xy))
     blobs = _blobs([xy for _, _, xy in placed], line_width)
     shaped = [
         ("dot", xy.mean(axis=0, keepdims=True)) if blob else ("line", _simplified(xy))
@@ -67,21 +68,22 @@ def deposits_of(
     ]
     tops = _tops([food for _, food, _ in placed], shaped, line_width)
     found = [
-        (kind, pair, food.id if food is not None else 0, path, top)
-        for (pair, food, _), (kind, path), top in zip(placed, shaped, tops, strict=True)
+        (kind, pairs, food.id if food is not None else 0, path, top)
+        for (pairs, food, _), (kind, path), top in zip(placed, shaped, tops, strict=True)
     ]
     stroke_of, loops = _strokes([(kind, path) for kind, _, _, path, _ in found], line_width)
     deposits = tuple(
         DepositEffect(
             kind,  # type: ignore[arg-type]
-            pair_index,
+            pairs[0],
             object_id,
             path,
             (DOT_DIAMETER_FACTOR if kind == "dot" else 1.0) * line_width,
             stroke_of[k],
             on_top,
+            pairs,
         )
-        for k, (kind, pair_index, object_id, path, on_top) in enumerate(found)
+        for k, (kind, pairs, object_id, path, on_top) in enumerate(found)
     )
     return deposits, len(set(stroke_of)), loops
 

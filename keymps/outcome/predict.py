@@ -87,7 +87,7 @@ def predict(
     if not tool.cuts:
         deposits, strokes, loops = deposits_of(
             [
-                (piece.pair_index, by_id.get(piece.object_id), positions[rows])
+                (piece.piped_pairs, by_id.get(piece.object_id), positions[rows])
                 for piece, rows in runs
             ],
             tool.line_width,

@@ -64,6 +64,7 @@ def _deposit(deposit: DepositEffect) -> dict[str, Any]:
     return {
         "kind": deposit.kind,
         "pair": deposit.pair_index + 1,
+        "pairs": [pair + 1 for pair in deposit.piped_pairs],
         "object": deposit.object_id,
         "path_m": _points(deposit.path_m),
         "width_m": _number(deposit.width_m),

@@ -372,7 +372,7 @@ def icing_problems(effect: Effect, work_pairs: Sequence[int], line_width: float)
     """What is wrong with the icing whatever was asked: every icing pair deposits on the top
     surface, and no two deposits run together."""
     problems: list[str] = []
-    deposited = {d.pair_index for d in effect.deposits}
+    deposited = {pair for d in effect.deposits for pair in d.piped_pairs}
     empty = [p + 1 for p in work_pairs if p not in deposited]
     if empty:
         problems.append(

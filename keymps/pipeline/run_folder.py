@@ -15,10 +15,11 @@ from keymps.robot.safety import SafetyError
 from keymps.run import Run, write_atomically
 from keymps.types import ToolPath, ValidatedTrajectory
 
-SCHEMA_VERSION = "1.4"
+SCHEMA_VERSION = "1.5"
 """1.1: `status` (ok, failed, interrupted). 1.2: `unfinished`, the placeholder written before the
 first stage. 1.3: `pieces` (the tool path's pieces: the kind and the keypoint pairs of each).
-1.4: `outcome` (the predicted result, the verdict)."""
+1.4: `outcome` (the predicted result, the verdict). 1.5: `outcome`'s deposits' `pairs` (every pair
+a stroke pipes)."""
 
 RESERVED_BYTES = 16384
 """run.json's placeholder holds this much disk space until the run ends (typical records are

@@ -14,14 +14,20 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from keymps.designs.grammar import Intent
-from keymps.types import EQUAL_PARTS_TOLERANCE, IntentSource, PlanIntent
+from keymps.types import EQUAL_PARTS_TOLERANCE, IntentSource, PieceShape, PlanIntent
 
 ORIENTATIONS = ("vertical", "horizontal", "lengthwise", "crosswise")
 
 
 def intent_of_design(design: Intent, source: IntentSource = "offline") -> PlanIntent:
     """What the grammar's design `design` claims to leave on the object."""
-    claim = PlanIntent(family=design.family, design=design.design, source=source)
+    claim = PlanIntent(
+        family=design.family,
+        design=design.design,
+        piece_shape=design.piece_shape,
+        edge_distance_mm=design.edge_distance_mm,
+        source=source,
+    )
     count = design.count
     if design.design == "equal" and count is not None:
         return replace(
@@ -68,7 +74,8 @@ class IntentAnswer(BaseModel):
     """The optional `intent` field of an answer: what the pairs are meant to achieve.
 
     A VLM's schema asks for the fields of INTENT_FIELDS; the offline planner also states the
-    design, what equal parts compare and the object's stated length (answer_of_intent)."""
+    design, what equal parts compare, the object's stated length, the pieces' shape and the
+    icing's distance from the edge (answer_of_intent); an answer may state them too."""
 
     model_config = ConfigDict(extra="forbid")
     pieces: int | None = Field(default=None, strict=True, ge=1, le=1000)
@@ -83,6 +90,9 @@ class IntentAnswer(BaseModel):
     equal_by: Literal["area", "width"] | None = None
     object_length_cm: float | None = Field(default=None, gt=0, le=1000, allow_inf_nan=False)
     design: str | None = Field(default=None, max_length=40)
+    piece_shape: PieceShape | None = None
+    edge_distance_cm: float | None = Field(default=None, gt=0, le=1000, allow_inf_nan=False)
+    """Icing: the outer ring's distance in from the object's edge, cm."""
 
 
 INTENT_FIELDS = {
@@ -132,6 +142,7 @@ def intent_of_answer(
             dots=answer.dots,
             rings=answer.rings,
             digits=answer.digits,
+            edge_distance_mm=10 * answer.edge_distance_cm if answer.edge_distance_cm else None,
             object_id=answer.object,
             source=source,
         ), []
@@ -144,6 +155,7 @@ def intent_of_answer(
         equal=EQUAL_PARTS_TOLERANCE if answer.equal else None,
         equal_by=answer.equal_by if answer.equal else None,
         orientation=answer.orientation,  # type: ignore[arg-type]
+        piece_shape=answer.piece_shape,
         slice_width_mm=10 * answer.slice_width_cm if answer.slice_width_cm else None,
         object_length_mm=10 * answer.object_length_cm if answer.object_length_cm else None,
         object_id=answer.object,
@@ -165,6 +177,8 @@ def answer_of_intent(intent: PlanIntent) -> dict[str, Any]:
         "equal_by": intent.equal_by,
         "object_length_cm": intent.object_length_mm / 10 if intent.object_length_mm else None,
         "design": intent.design,
+        "piece_shape": intent.piece_shape,
+        "edge_distance_cm": intent.edge_distance_mm / 10 if intent.edge_distance_mm else None,
     }
     return {name: value for name, value in stated.items() if value is not None}
 

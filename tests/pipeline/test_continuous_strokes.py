@@ -66,6 +66,18 @@ def test_the_spiral_is_one_work_piece_piped_without_a_lift(
     assert record["trajectory"]["duration_s"] < 0.5 * 129.8  # per-pair pieces took 129.8 s
 
 
+def test_the_outcome_records_every_pair_the_spiral_pipes(
+    dots_and_spiral: tuple[Any, dict],
+) -> None:
+    """run.json's predicted deposits name all 48 pairs of the spiral's stroke, not its first."""
+    _, record = dots_and_spiral
+    deposits = record["outcome"]["predicted"]["deposits"]
+    work = [piece["pairs"] for piece in record["pieces"] if piece["kind"] == "work"]
+    assert [d["pairs"] for d in deposits] == [[k + 1 for k in pairs] for pairs in work]
+    assert all(d["pair"] == d["pairs"][0] for d in deposits)
+    assert len(deposits[-1]["pairs"]) == 48 and deposits[-1]["kind"] == "line"
+
+
 @pytest.mark.parametrize(
     ("instruction", "strokes"),
     [
