@@ -110,7 +110,7 @@ class StageError(KeympsError):
     stage raised (a SafetyError's list of problems, say) for run.json.
 
     Args:
-        stage: The stage's name (one of keymps.run.STAGES).
+        stage: The stage's name (one of keymps.types.STAGES).
         message: One line; a leading `"<stage>: "` is dropped, so the stage is named once.
         detail: The error the stage raised, when there was one.
     """

@@ -789,6 +789,7 @@ class ExecutionReport:
 
 
 STAGES: tuple[str, ...] = (
+    "image",
     "detect",
     "plan",
     "ground",
@@ -799,4 +800,5 @@ STAGES: tuple[str, ...] = (
     "outcome",
     "execute",
 )
-"""Pipeline stage names in execution order; 'image' (loading the scene) comes first."""
+"""The stages of a run in execution order: the names of run.json's timings_s, of
+`keymps.run.StageResults`' fields and of `keymps_stage_done`'s stage."""

@@ -71,7 +71,7 @@ class UrScriptExecutor:
 
     def execute(self, validated: ValidatedTrajectory, run: Run) -> ExecutionReport:
         from keymps.robot.identity import UNIVERSAL_ROBOTS, arm_identity
-        from keymps.run import write_atomically
+        from keymps.run_files import write_atomically
 
         trajectory = require_validated(validated, self.name)
         arm = arm_identity(run)

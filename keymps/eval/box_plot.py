@@ -82,7 +82,7 @@ def write_box_plot(
     values: dict[str, dict[str, list[float]]], cases: Sequence[str], title: str, path: Path
 ) -> Path:
     """Draw values[method][case] (D in mm) for `cases` in order and write the PNG to `path`."""
-    from keymps.run import write_image
+    from keymps.run_files import write_image
 
     return write_image(path, draw_box_plot(values, cases, title))
 

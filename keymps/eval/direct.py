@@ -1,6 +1,7 @@
 """The methods that ask a VLM directly (keymps-text, vlm-keyword, vlm-dmp, vlm-mdmp).
 
-They detect the object like KeyMPs, ask with their own prompt (prompts/methods/METHOD.md) and
+They perceive the scene through keymps run's own image and detect stages
+(keymps.pipeline.stages), ask with their own prompt (prompts/methods/METHOD.md) and
 answer schema, repair invalid answers once, record every call under the run's vlm/ folder, and
 return the motion they generate (no robot checks, as in the paper).
 """
@@ -24,11 +25,9 @@ def _finish(
 ) -> MethodOutput:
     """Attach the calls, draw the generated motion over the scene (the plan image), keep the
     sidecar."""
-    from keymps.perception.frames import ImageFrame
-    from keymps.run import image_file, write_image
+    from keymps.run_files import image_file, write_image
 
-    frame = ImageFrame.from_task(seen.task, seen.scene.size_px)
-    pieces_px = [frame.to_pixels(np.asarray(piece)[:, :2]) for piece in output.work_pieces]
+    pieces_px = [seen.frame.to_pixels(np.asarray(piece)[:, :2]) for piece in output.work_pieces]
     image = on_text_thread(_draw_motion, seen.scene.image.copy(), pieces_px)
     path = write_image(image_file(context.folder, "plan", context.image_format), image)
     return replace(output, calls=tuple(calls), images={"plan": str(path)}, scene=seen.truth)
@@ -81,6 +80,7 @@ def _compose(seen: Seen, keyword: str, starts: np.ndarray, goals: np.ndarray) ->
         travel_speed=task.motion.travel_speed,
         yaw_mode=robot.tool.yaw,
         home=robot.home_tool_position(),
+        home_yaw=robot.home_yaw(),
     )
     pieces = tuple(p.points for p in path.pieces if p.kind == "work")
     lines = np.stack([starts[:, :2], goals[:, :2]], axis=1)
@@ -89,7 +89,7 @@ def _compose(seen: Seen, keyword: str, starts: np.ndarray, goals: np.ndarray) ->
 
 def keymps_text(context: MethodContext) -> MethodOutput:
     """KeyMPs-text: the pairs from text only, then Appendix B/C grounding and the primitive."""
-    from keymps.perception.frames import ImageFrame, height_pair
+    from keymps.perception.frames import height_pair
     from keymps.planning.answer import answer_schema, parse_and_validate
 
     seen = look(context)
@@ -110,8 +110,7 @@ def keymps_text(context: MethodContext) -> MethodOutput:
     )
     pairs_px = np.asarray(answer.pairs, dtype=float).reshape(-1, 2, 2)
     pairs_px = pairs_px + np.asarray(seen.detection.crop_origin_px, dtype=float)
-    frame = ImageFrame.from_task(seen.task, seen.scene.size_px)
-    board = frame.to_board(pairs_px.reshape(-1, 2)).reshape(-1, 2, 2)
+    board = seen.frame.to_board(pairs_px.reshape(-1, 2)).reshape(-1, 2, 2)
     z_start, z_goal = height_pair(seen.task)
     starts = np.column_stack([board[:, 0], np.full(len(board), z_start)])
     goals = np.column_stack([board[:, 1], np.full(len(board), z_goal)])

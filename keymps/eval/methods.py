@@ -10,13 +10,13 @@
 - vlm-dmp / vlm-mdmp: the VLM writes one / several DMPs' parameters (start, goal, weights).
 
 keymps, keymps-design and vlm-keypoint run through keymps.run_task (any backend, offline included). The others
-need a VLM; they detect the object like KeyMPs, ask with their own prompt (prompts/methods/),
+need a VLM; they perceive through keymps run's own stages (keymps.pipeline.stages), ask with
+their own prompt (prompts/methods/) through the planning session,
 and are scored on the motion they generate (no robot checks, as in the paper).
 """
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -93,29 +93,6 @@ def _through(context: MethodContext) -> str:
     return "ground" if context.outcome == "off" else "outcome"
 
 
-def primitive_descriptions(names: list[str], search_dirs: list[Path]) -> dict[str, str]:
-    """name -> description, read once per file version (parsing a primitive's YAML is slow)."""
-    from keymps.primitives.dictionary import find_primitive_files
-
-    files = find_primitive_files(search_dirs)
-    key = tuple((n, str(files.get(n)), _mtime(files.get(n))) for n in names)
-    return dict(_descriptions(key, tuple(search_dirs)))
-
-
-def _mtime(path: Path | None) -> float:
-    return path.stat().st_mtime if path is not None else 0.0
-
-
-@functools.lru_cache(maxsize=32)
-def _descriptions(
-    key: tuple[Any, ...], search_dirs: tuple[Path, ...]
-) -> tuple[tuple[str, str], ...]:
-    from keymps.primitives.dictionary import load_primitives
-
-    loaded = load_primitives([name for name, _, _ in key], list(search_dirs))
-    return tuple((name, p.description) for name, p in loaded.items())
-
-
 class PartialRunError(KeympsError):
     """A pipeline run that stopped at a stage; the results of the stages before it are kept."""
 
@@ -125,7 +102,7 @@ class PartialRunError(KeympsError):
 
 
 def _pipeline_output(results: StageResults, context: MethodContext) -> MethodOutput:
-    from keymps.run import image_file
+    from keymps.run_files import image_file
 
     plan, grounding, tool_path = results.plan, results.ground, results.compose
     pieces = tuple(p.points for p in tool_path.pieces if p.kind == "work") if tool_path else ()

@@ -3,10 +3,12 @@
 Three measurements, each for the board detector and the paper's threshold detector:
 - found: the chosen box within 3 px of the true box (keymps.scenes.perception_cases.flat_case);
 - refused: an empty board stops at the detect stage;
-- design error: a photo at 20-45 degrees goes the pipeline's way (rectify, detect, the offline
-  planner, ground) and each keypoint is compared, in board millimetres, with the same design
-  laid out on the true object seen from straight above. The threshold detector goes the old way
-  (detector.roi = the board corners, the homography for grounding).
+- design error: a photo at 20-45 degrees goes the pipeline's way (its image, detect, plan and
+  ground stages, keymps.pipeline.stages, with the offline planner) and each keypoint is
+  compared, in board millimetres, with the same design laid out on the true object seen from
+  straight above. The threshold detector goes the old way: the photo is not rectified
+  (detector.roi = the board corners, the homography for grounding); its detect, plan and
+  ground stages are the pipeline's.
 `benchmarks/perception.py` runs it and prints the table docs/perception.md shows.
 """
 
@@ -18,8 +20,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from keymps.errors import KeympsError
+from keymps.pipeline import stages
 from keymps.scenes.perception_cases import BOARD_M, PhotoCase, flat_case, photo_case
-from keymps.types import Detection, Plan, SceneImage
+from keymps.types import Detection, SceneImage
 
 if TYPE_CHECKING:
     from keymps.plugin.components import Detector
@@ -55,13 +58,10 @@ def _detector(name: str, options: dict[str, Any] | None = None) -> Detector:
     return create_detector(name, options or {})
 
 
-def _detect(detector: Detector, scene: SceneImage | np.ndarray) -> Detection | None:
-    from keymps.perception.search_area import refuse_the_board
-
-    if not isinstance(scene, SceneImage):
-        scene = SceneImage(image=scene, source="perception-case")
+def _detect(task: Any, detector: Detector, scene: SceneImage) -> stages.Perception | None:
+    """The detect stage on `scene`, as a run does it; None when it refuses."""
     try:
-        return refuse_the_board(detector.detect(scene), scene.size_px)
+        return stages.detected(task, scene, detector.detect(scene))
     except KeympsError:
         return None
 
@@ -74,11 +74,13 @@ def flat_benchmark(
         name: {"found": Tally(), "refused": Tally(), "hue_only": Tally()} for name in detectors
     }
     built = {name: _detector(name) for name in detectors}
+    task = _flat_task()
     for seed in range(count):
         empty, hue_only = seed % 10 == 9, seed % 7 == 3 and seed % 10 != 9
         case = flat_case(seed, empty=empty, hue_only=hue_only)
         for name, detector in built.items():
-            detection = _detect(detector, case.image)
+            found = _detect(task, detector, SceneImage(case.image, "board"))
+            detection = found.detection if found is not None else None
             tallies = results[name]
             if empty:
                 tallies["refused"].add(detection is None, 0.0, f"seed {seed}")
@@ -94,6 +96,20 @@ def flat_benchmark(
             if hue_only:
                 tallies["hue_only"].add(ok, error, f"seed {seed}")
     return results
+
+
+def _flat_task() -> Any:
+    """A task on a top-down board of the flat cases' size (no camera: nothing rectified)."""
+    from keymps.config.task import Task
+
+    return Task.model_validate(
+        {
+            "name": "perception-benchmark",
+            "instruction": INSTRUCTION,
+            "scene": {"image": "board.png", "workspace": {"size": list(BOARD_M)}},
+            "primitives": ["line"],
+        }
+    )
 
 
 def _task(case: PhotoCase, corners: np.ndarray, intrinsics: bool, detector: dict[str, Any]) -> Any:
@@ -118,27 +134,29 @@ def _task(case: PhotoCase, corners: np.ndarray, intrinsics: bool, detector: dict
     )
 
 
-def _offline_design(task: Any, detection: Detection, scene: SceneImage) -> Plan:
-    """The offline planner's design, made the way a run makes it
-    (keymps.planning.planner.make_plan)."""
+def _design_m(task: Any, perception: stages.Perception) -> np.ndarray:
+    """The dots of the offline planner's design, planned and grounded the way a run does."""
     import tempfile
     from pathlib import Path
 
     from keymps.planning.backend_choice import AUTO_OFFLINE
-    from keymps.planning.planner import make_plan
     from keymps.run import Run
 
-    primitives = {"line": "icing: descend to the surface, then move laterally"}
     with tempfile.TemporaryDirectory(prefix="keymps-perception-") as folder:
         run = Run(task=task, folder=Path(folder))
-        return make_plan(task, detection, scene, primitives, run, AUTO_OFFLINE)
+        plan = stages.plan(task, perception, _primitives(task), run, AUTO_OFFLINE)
+    return stages.ground(task, perception, plan).segments_m[:, 0, :2]
 
 
-def _design_m(task: Any, detection: Detection, scene: SceneImage) -> np.ndarray:
-    from keymps.perception.frames import ground
+_PRIMITIVES: dict[tuple[str, ...], Any] = {}
 
-    plan = _offline_design(task, detection, scene)
-    return ground(plan, detection, task, scene).segments_m[:, 0, :2]  # the dots
+
+def _primitives(task: Any) -> Any:
+    """The task's primitives, read once per process (parsing a primitive's YAML is slow)."""
+    key = tuple(task.primitives)
+    if key not in _PRIMITIVES:
+        _PRIMITIVES[key] = stages.load_primitives(task)
+    return _PRIMITIVES[key]
 
 
 def _reference_m(case: PhotoCase) -> np.ndarray:
@@ -158,31 +176,27 @@ def _reference_m(case: PhotoCase) -> np.ndarray:
     task = _task(case, case.corners_px, False, {"name": "board"})
     camera = task.scene.camera.model_copy(update={"board_corners_px": None})
     task = task.model_copy(update={"scene": task.scene.model_copy(update={"camera": camera})})
-    return _design_m(task, detection, SceneImage(image, "truth"))
+    truth = stages.detected(task, SceneImage(image, "truth"), detection)
+    return _design_m(task, truth)
 
 
 def _photo_design_error(case: PhotoCase, method: str) -> float:
     """Largest keypoint distance (mm) from the reference; inf when no design came out."""
     from keymps.perception.markers import find_board_corners
-    from keymps.perception.rectify import rectify_scene, top_surface
 
     try:
         corners = find_board_corners(case.photo).corners_px if case.markers else case.corners_px
         photo = SceneImage(case.photo, "photo")
-        if method == "threshold":
+        if method == "threshold":  # the old way: the photo as it is
             task = _task(case, corners, False, {"name": "threshold", "roi": corners.tolist()})
-            detection = _detect(_detector("threshold", {"roi": corners.tolist()}), photo)
-            scene = photo
+            perception = _detect(task, _detector("threshold", {"roi": corners.tolist()}), photo)
         else:
             intrinsics = method == "board+intrinsics"
             task = _task(case, corners, intrinsics, {"name": "board"})
-            scene = rectify_scene(photo, task)
-            detection = _detect(_detector("board"), scene)
-            if detection is not None:
-                detection = top_surface(detection, scene)
-        if detection is None:
+            perception = _detect(task, _detector("board"), stages.rectified(task, photo))
+        if perception is None:
             return float("inf")
-        found = _design_m(task, detection, scene)
+        found = _design_m(task, perception)
     except KeympsError:
         return float("inf")
     reference = _reference_m(case)

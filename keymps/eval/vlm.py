@@ -36,11 +36,14 @@ def render_prompt(path: Path, values: dict[str, str]) -> str:
 
 @dataclass(frozen=True)
 class Seen:
-    """The case as the direct methods see it: the task, the scene, the detection, the crop."""
+    """The case as the direct methods see it: what `keymps run` perceives, and the primitives."""
 
     task: Any
     scene: Any
+    """The scene as the stages see it (rectified with board corners)."""
     detection: Any
+    frame: Any
+    """The scene's image frame (keymps.perception.frames.ImageFrame.for_scene)."""
     crop_box_m: tuple[float, float, float, float]
     """Board metres covered by the crop: x_min, y_min, x_max, y_max."""
     metres_per_px: tuple[float, float]
@@ -50,20 +53,17 @@ class Seen:
 
 
 def look(context: MethodContext) -> Seen:
+    """The case's image and detect stages, run the way `keymps run` runs them."""
     from keymps.config.task import load_task
     from keymps.perception.frames import ImageFrame
+    from keymps.pipeline.stages import load_primitives, perceive
     from keymps.planning.planner import crop_metres_per_px
-    from keymps.plugin.manager import create_detector, create_image_source
-    from keymps.primitives.dictionary import default_search_dirs, load_primitives
     from keymps.run import Run
 
     task = load_task(context.task_path)
-    run = Run(task=task, folder=context.folder)
-    source = create_image_source(task.scene.source, task.scene.source_options)
-    scene = source.load(run)
-    detector = create_detector(task.detector.name, task.detector.options)
-    detection = detector.detect(scene)
-    frame = ImageFrame.from_task(task, scene.size_px)
+    perception = perceive(task, Run(task=task, folder=context.folder))
+    scene, detection = perception.scene, perception.detection
+    frame = ImageFrame.for_scene(task, scene)
     x0, y0 = detection.crop_origin_px
     w, h = detection.crop_size_px
     corners = frame.to_board(np.array([[x0, y0], [x0 + w, y0 + h]], dtype=float))
@@ -73,14 +73,14 @@ def look(context: MethodContext) -> Seen:
         float(corners[:, 0].max()),
         float(corners[:, 1].max()),
     )
-    primitives = load_primitives(task.primitives, default_search_dirs(task.folder))
     return Seen(
         task=task,
         scene=scene,
         detection=detection,
+        frame=frame,
         crop_box_m=box,
         metres_per_px=crop_metres_per_px(task, detection, scene),
-        primitives=primitives,
+        primitives=load_primitives(task),
         truth=scene.truth,
     )
 
@@ -137,10 +137,11 @@ def ask(
     schema: dict[str, Any],
     validate: Callable[[Any], tuple[Any, list[str]]],
 ) -> tuple[Any, list[dict[str, Any]]]:
-    """Ask the VLM with the method's prompt through the planner's own session (repair, cache,
-    cassette, redaction, vlm/ records); return (answer, call summaries)."""
+    """Ask the VLM with the method's prompt through the planner's own session (messages,
+    repair, cache, cassette, redaction, vlm/ records); return (answer, call summaries).
+
+    `validate(data)` checks the answer's JSON object: (parsed or None, problems)."""
     from keymps.config.overrides import apply_overrides
-    from keymps.planning.answer import extract_json
     from keymps.planning.backend_choice import keys_the_task_may_send
     from keymps.planning.planner import backend_options
     from keymps.planning.prompt import png_data_url
@@ -154,18 +155,6 @@ def ask(
     remember(*keys_the_task_may_send(task))
     backend = create_vlm_backend(context.backend, backend_options(task))
     system = render_prompt(PROMPTS_DIR / f"{method}.md", _values(seen, context))
-    image_url = png_data_url(seen.detection.crop)
-    user_text = f"Instruction: {task.instruction}"
-    content: Any = user_text
-    if with_image:
-        content = [
-            {"type": "text", "text": user_text},
-            {"type": "image_url", "image_url": {"url": image_url}},
-        ]
-    first: list[dict[str, Any]] = [
-        {"role": "system", "content": system},
-        {"role": "user", "content": content},
-    ]
     base = PlanRequest(
         instruction=task.instruction,
         crop=seen.detection.crop,
@@ -174,7 +163,7 @@ def ask(
         primitives={n: p.description for n, p in seen.primitives.items()},
         object_height=task.scene.object_height,
         max_pairs=task.planner.max_pairs,
-        messages=first,
+        messages=[],
         schema=schema,
         step="direct",
         model=task.planner.model,
@@ -194,25 +183,10 @@ def ask(
         base=base,
         system_template=system,
         template_source=str(PROMPTS_DIR / f"{method}.md"),
-        image_url=image_url,
+        image_url=png_data_url(seen.detection.crop),
     )
-
-    def request_for(history: list[tuple[str, list[str]]]) -> PlanRequest:
-        messages = list(first)
-        for answer_text, problems in history:
-            messages += [
-                {"role": "assistant", "content": answer_text},
-                {"role": "user", "content": _repair(problems)},
-            ]
-        return session.request_with(messages, schema, attempt=len(history) + 1)
-
-    def parse(text: str) -> tuple[Any, list[str]]:
-        try:
-            return validate(extract_json(text))
-        except ValueError as error:
-            return None, [f"the answer is not a JSON object ({error})"]
-
-    parsed = session.ask_until_valid(f"{method} answer", request_for, parse)
+    user_text = f"Instruction: {task.instruction}"
+    parsed = session.ask_own_prompt(f"{method} answer", user_text, with_image, schema, validate)
     calls = [
         {
             "latency_s": call.latency_s,
@@ -224,11 +198,3 @@ def ask(
         for call in session.calls
     ]
     return parsed, calls
-
-
-def _repair(problems: list[str]) -> str:
-    return (
-        "Your answer was invalid:\n"
-        + "\n".join(f"- {p}" for p in problems)
-        + "\nAnswer again with the corrected JSON object only."
-    )

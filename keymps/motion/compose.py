@@ -59,9 +59,10 @@ def compose_tool_path(
     per pair.
 
     yaw_mode 'follow' (a blade): the work piece's yaw is the segment's horizontal direction
-    (within +-180 degrees), so that the blade trails the tip: a yaw taken modulo 180 degrees let
-    the edge lead, and the first fifth of a cut was left uncut; 'fixed' (a piping bag): yaw stays
-    `home_yaw`. Yaw changes only while moving over, above the object.
+    (radians, unwrapped: within half a turn of the cut before, the first cut's of `home_yaw`),
+    so that the blade trails the tip: a yaw taken modulo 180 degrees let the edge lead, and the
+    first fifth of a cut was left uncut; 'fixed' (a piping bag): yaw stays `home_yaw`. Yaw
+    changes only while moving over, above the object.
 
     `footprint` ((N, 2) board metres, the object's outline): work that would reach further
     outside it than the safety check allows (a sawing stroke overshooting a cut that ends just
@@ -283,14 +284,16 @@ def _blade_strokes(
             continue
         heading = math.atan2(delta[1], delta[0])
         reverse = math.remainder(heading + math.pi, math.tau)
-        if _is_chord(start, goal, outlines[k]) and _turn(reverse, previous) < _turn(
-            heading, previous
+        if _is_chord(start, goal, outlines[k]) and _turn(reverse, previous, home_yaw) < _turn(
+            heading, previous, home_yaw
         ):
             swapped = np.array([[*goal[:2], start[2]], [*start[:2], goal[2]]])
             strokes.append(Chain((k,), (True,), swapped))
             heading = reverse
         else:
             strokes.append(Chain((k,), (False,), ends[k]))
+        # Unwrapped: the wrist turns the short way, never across +-180 degrees the long way.
+        heading = _nearest_turn(heading, home_yaw if previous is None else previous)
         headings.append(heading)
         previous = heading
     held: float = next((h for h in headings if h is not None), home_yaw)
@@ -301,10 +304,15 @@ def _blade_strokes(
     return strokes, yaws
 
 
-def _turn(heading: float, previous: float | None) -> float:
-    """How far the wrist turns from `previous` to `heading` (radians; from 0 for the first
-    cut, which keeps the first cut's yaw near the home orientation)."""
-    return abs(math.remainder(heading - (0.0 if previous is None else previous), math.tau))
+def _turn(heading: float, previous: float | None, home_yaw: float) -> float:
+    """How far the wrist turns from `previous` to `heading` (radians; from `home_yaw` for the
+    first cut, which keeps the first cut's yaw near the arm's home orientation)."""
+    return abs(math.remainder(heading - (home_yaw if previous is None else previous), math.tau))
+
+
+def _nearest_turn(heading: float, reference: float) -> float:
+    """`heading` plus the whole turns that bring it within half a turn of `reference`."""
+    return reference + math.remainder(heading - reference, math.tau)
 
 
 def _is_chord(start: np.ndarray, goal: np.ndarray, outline: np.ndarray | None) -> bool:

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from keymps.errors import KeympsError
-from keymps.run import write_atomically
+from keymps.run_files import write_atomically
 from keymps.types import Trajectory
 
 CSV_HEADER = "t,q1,q2,q3,q4,q5,q6,x,y,z,piece,kind"

@@ -24,6 +24,7 @@ from keymps.errors import (
     os_error_message,
 )
 from keymps.interrupts import first_signal, interrupts_deferred, signals_received
+from keymps.pipeline import stages
 from keymps.planning.backend_choice import AUTO_VLM, NO_SERVER
 from keymps.plugin.manager import (
     call_each,
@@ -32,8 +33,10 @@ from keymps.plugin.manager import (
     create_image_source,
     get_manager,
 )
-from keymps.run import IMAGE_FORMATS, STAGES, Run, RunOptions, RunOverrides, clear_earlier_run
+from keymps.run import Run, RunOptions, RunOverrides
+from keymps.run_files import IMAGE_FORMATS
 from keymps.types import (
+    STAGES,
     Detection,
     ExecutionReport,
     Outcome,
@@ -251,6 +254,8 @@ class _Pipeline:
         self.current: str | None = None
         """The stage running, if any, and the last one done: where an interrupt stopped it."""
         self.done: str | None = None
+        self.perception: stages.Perception | None = None
+        """What the image and detect stages found, once they have run."""
 
     @property
     def primitives(self) -> dict[str, Primitive]:
@@ -362,13 +367,6 @@ class _Pipeline:
     def perceive(self) -> tuple[SceneImage, Detection, Any]:
         """The image and detect stages: the scene, the detection and the scene's objects."""
         from keymps.perception import frames as geometry
-        from keymps.perception.rectify import rectify_scene, top_surface
-        from keymps.perception.scene_objects import (
-            crop_covering_objects,
-            grounded_objects,
-            scene_objects,
-        )
-        from keymps.perception.search_area import refuse_the_board
 
         run, parts, task = self.run, self.parts, self.run.task
         source, detector, primitives = parts.image_source, parts.detector, parts.primitives
@@ -376,29 +374,22 @@ class _Pipeline:
         # with board corners, every later stage works in the rectified top-down image
         scene: SceneImage = self.stage(
             "image",
-            lambda: rectify_scene(self.returned("image", source.load(run), SceneImage), task),
+            lambda: stages.rectified(task, self.returned("image", source.load(run), SceneImage)),
         )
-        size = scene.size_px
-        pixel_shape = geometry.pixel_shape_warning(task, size)
+        pixel_shape = geometry.pixel_shape_warning(task, scene.size_px)
         if pixel_shape:
             run.warnings.append(pixel_shape)
 
-        found: dict[str, Any] = {}
-
         def detect() -> Detection:
             detected = self.returned("detect", detector.detect(scene), Detection)
-            detection = top_surface(refuse_the_board(detected, size), scene)
-            detection = crop_covering_objects(detection, scene.image)
-            frame = geometry.ImageFrame.for_scene(task, scene)
-            objects = scene_objects(detection, task, frame)  # a count mismatch stops here
-            found["objects"] = objects
-            run.objects = grounded_objects(objects, frame)
-            run.outline_m = geometry.object_outline_m(detection, task, scene)
-            return detection
+            self.perception = stages.detected(task, scene, detected)
+            run.objects, run.outline_m = self.perception.grounded, self.perception.outline_m
+            return self.perception.detection
 
         detection = self.stage("detect", detect)
         run.warnings.extend(detection.warnings)
-        return scene, detection, found["objects"]
+        assert self.perception is not None  # the detect stage sets it
+        return scene, detection, self.perception.objects
 
     def replan(
         self,
@@ -429,26 +420,12 @@ class _Pipeline:
     ) -> Plan:
         """The plan stage (again, with the problems of the earlier rounds' outcomes), plan.png."""
         from keymps.pipeline.overlay import draw_plan, draw_plan_on_photo
-        from keymps.planning import planner as planning
 
-        run, parts, task = self.run, self.parts, self.run.task
-        descriptions = {name: p.description for name, p in self.primitives.items()}
-        families = {name: p.family for name, p in self.primitives.items()}
-        earlier = run.stages.plan.calls if repair and run.stages.plan is not None else ()
+        run, parts, task, perception = self.run, self.parts, self.run.task, self.perception
+        assert perception is not None  # the detect stage ran
         plan: Plan = self.stage(
             "plan",
-            lambda: planning.make_plan(
-                task,
-                detection,
-                scene,
-                descriptions,
-                run,
-                parts.backend,
-                families,
-                objects,
-                repair=repair,
-                earlier_calls=earlier,
-            ),  # fmt: skip
+            lambda: stages.plan(task, perception, self.primitives, run, parts.backend, repair),
         )
         _write_file(lambda: run.write_image("plan", draw_plan(scene.image, detection, plan)))
         on_photo = draw_plan_on_photo(scene, detection, plan)
@@ -464,14 +441,13 @@ class _Pipeline:
         from keymps.motion.chains import JOIN_LINE_WIDTHS
         from keymps.motion.compose import compose_tool_path
         from keymps.motion.timing import time_trajectory
-        from keymps.perception import frames as geometry
         from keymps.robot.model import solve_path
         from keymps.robot.safety import validate
 
         run, parts, task = self.run, self.parts, self.run.task
-        grounding = self.stage(
-            "ground", lambda: geometry.ground(plan, detection, task, scene, objects)
-        )
+        perception = self.perception
+        assert perception is not None  # the detect stage ran
+        grounding = self.stage("ground", lambda: stages.ground(task, perception, plan))
         if self.through == "ground":
             return None
         robot = parts.robot
@@ -488,6 +464,7 @@ class _Pipeline:
                     travel_speed=task.motion.travel_speed,
                     yaw_mode=robot.tool.yaw,
                     home=robot.home_tool_position(),
+                    home_yaw=robot.home_yaw(),
                     footprint=run.outline_m,
                     objects=grounding.objects,
                     join_distance=JOIN_LINE_WIDTHS * robot.tool.line_width,
@@ -634,7 +611,7 @@ def _backend_under_way(task: Task, backend: str, options: RunOptions) -> RunOpti
 def _prepare_folder(run: Run) -> None:
     """Remove an earlier run's files, then write the placeholder run.json that holds the disk
     space of the record (a run.json that is a folder, a full disk: refused before any stage)."""
-    from keymps.pipeline.run_folder import reserve_run_json
+    from keymps.pipeline.run_folder import clear_earlier_run, reserve_run_json
 
     clear_earlier_run(run.folder)
     with interrupts_deferred():

@@ -1,4 +1,5 @@
-"""run.json: the machine-readable record of a run (schema documented in docs/run-folder.md)."""
+"""The run folder: run.json, the machine-readable record of a run (schema documented in
+docs/run-folder.md), and the removal of an earlier run's files."""
 
 from __future__ import annotations
 
@@ -6,13 +7,15 @@ import errno
 import json
 import math
 import os
+from pathlib import Path
 from typing import Any
 
 from keymps._version import __version__
-from keymps.errors import RunInterrupted, StageError
+from keymps.errors import KeympsError, RunInterrupted, StageError
 from keymps.outcome.record import outcome_record
 from keymps.robot.safety import SafetyError
-from keymps.run import Run, write_atomically
+from keymps.run import Run
+from keymps.run_files import IMAGE_FORMATS, write_atomically
 from keymps.types import ToolPath, ValidatedTrajectory
 
 SCHEMA_VERSION = "1.5"
@@ -269,3 +272,42 @@ def _overwrite_in_place(path: Any, data: bytes) -> bool:
         return False
     finally:
         os.close(descriptor)
+
+
+EARLIER_RUN_FILES = (
+    "trajectory.csv",
+    "trajectory.json",
+    "trajectory.script",
+    "run.rrd",
+    "execution.mp4",
+    *(
+        f"{stem}.{suffix}"
+        for stem in ("plan", "plan_photo", "plan_outcome", "outcome")
+        for suffix in IMAGE_FORMATS
+    ),
+)
+"""What a run and the bundled plugins write beside run.json (docs/run-folder.md)."""
+
+
+def clear_earlier_run(folder: Path) -> None:
+    """Remove an earlier run's files (EARLIER_RUN_FILES, vlm/'s files, run.json last) from a
+    folder holding its run.json, so that no file of that run passes for the new run's (a failed
+    run left the old trajectory.csv beside its own run.json). A folder without run.json is left
+    as it is. Call with the folder's lock held."""
+    record = folder / "run.json"
+    if not record.is_file():
+        return
+    answers = folder / "vlm"
+    try:
+        for name in EARLIER_RUN_FILES:
+            (folder / name).unlink(missing_ok=True)
+        if answers.is_dir() and not answers.is_symlink():
+            for entry in answers.iterdir():
+                if entry.is_file() or entry.is_symlink():  # a link itself, never its target
+                    entry.unlink()
+        record.unlink()
+    except OSError as error:
+        what = Path(error.filename).name if error.filename else "files"
+        raise KeympsError(
+            f"{folder}: cannot remove the earlier run's {what}: {error.strerror}"
+        ) from None

@@ -30,6 +30,7 @@ from keymps.planning.backend_choice import (
     model_provider,
 )
 from keymps.planning.redaction import redact_text, remember
+from keymps.run_files import write_atomically
 from keymps.types import (
     BackendAnswer,
     Detection,
@@ -307,7 +308,7 @@ def _session(
         family=prompt_family(primitives),
     )
     session.vlm_folder.mkdir(parents=True, exist_ok=True)
-    (session.vlm_folder / "crop.png").write_bytes(crop_png)
+    write_atomically(session.vlm_folder / "crop.png", crop_png)
     return session
 
 

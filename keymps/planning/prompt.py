@@ -249,15 +249,26 @@ def build_messages(
         )
     if keyword is not None:
         text += f"\nThe chosen primitive is: {keyword}"
+    return conversation(system_text, text, image_url, history)
+
+
+def conversation(
+    system_text: str,
+    user_text: str,
+    image_url: str | None,
+    history: Sequence[tuple[str, Sequence[str]]],
+) -> list[dict[str, Any]]:
+    """System prompt, the user's text (with the image, unless None), then each earlier answer
+    and its problems (an outcome's under their own heading), asking for a corrected answer."""
+    content: Any = user_text
+    if image_url is not None:
+        content = [
+            {"type": "text", "text": user_text},
+            {"type": "image_url", "image_url": {"url": image_url}},
+        ]
     messages: list[dict[str, Any]] = [
         {"role": "system", "content": system_text},
-        {
-            "role": "user",
-            "content": [
-                {"type": "text", "text": text},
-                {"type": "image_url", "image_url": {"url": image_url}},
-            ],
-        },
+        {"role": "user", "content": content},
     ]
     for answer, errors in history:
         messages.append({"role": "assistant", "content": answer})

@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any
 from keymps.errors import KeympsError
 from keymps.planning.answer import Step, answer_schema
 from keymps.planning.redaction import redact
+from keymps.run_files import write_atomically
 from keymps.types import AnswerMode, BackendAnswer, PlanRequest, VlmCall
 
 if TYPE_CHECKING:
@@ -114,14 +115,38 @@ class PlanSession:
             share_key=self._cache_key(messages, schema) if self.use_cache else None,
         )
 
-    def request_with(
-        self, messages: list[dict[str, Any]], schema: dict[str, Any], attempt: int
-    ) -> PlanRequest:
-        """The base request with these messages and schema (a direct method's own prompt)."""
-        share_key = self._cache_key(messages, schema) if self.use_cache else None
-        return replace(
-            self.base, messages=messages, schema=schema, attempt=attempt, share_key=share_key
-        )
+    def ask_own_prompt(
+        self,
+        label: str,
+        user_text: str,
+        with_image: bool,
+        schema: dict[str, Any],
+        validate: Callable[[Any], tuple[Any, list[str]]],
+    ) -> Any:
+        """The validated answer to a caller's own prompt (`keymps eval`'s direct methods):
+        `system_template` (already filled), `user_text` with the crop when `with_image`, the
+        plan stage's repair messages; `validate(data)` checks the answer's JSON object and
+        returns (parsed or None, problems). Cache, cassette and records as for the plan steps."""
+        from keymps.planning.answer import extract_json
+        from keymps.planning.prompt import conversation
+
+        image_url = self.image_url if with_image else None
+
+        def request_for(history: list[tuple[str, list[str]]]) -> PlanRequest:
+            messages = conversation(self.system_template, user_text, image_url, history)
+            share_key = self._cache_key(messages, schema) if self.use_cache else None
+            attempt = len(history) + 1
+            return replace(
+                self.base, messages=messages, schema=schema, attempt=attempt, share_key=share_key
+            )
+
+        def parse(text: str) -> tuple[Any, list[str]]:
+            try:
+                return validate(extract_json(text))
+            except ValueError as error:
+                return None, [f"the answer is not a JSON object ({error})"]
+
+        return self.ask_until_valid(label, request_for, parse)
 
     def ask(
         self,
@@ -288,7 +313,7 @@ class PlanSession:
             "retries": redact(list(answer.retries)),
         }
         path = self.vlm_folder / f"{index:02d}-{request.step}-attempt{request.attempt}.json"
-        path.write_text(json.dumps(record, indent=2), encoding="utf-8")
+        write_atomically(path, json.dumps(record, indent=2))
         if self.run.options.record is not None and answer.text:
             append_to_cassette(
                 Path(self.run.options.record),

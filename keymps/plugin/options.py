@@ -28,10 +28,10 @@ def _inside_the_run_folder(path: Path) -> Path:
 
 def run_file_clash(path: Path) -> str | None:
     """Why a plugin may not write `path` (relative) in the run folder, None when it may: a
-    control character in it, a file the run writes itself (keymps.run.RUN_OWN_FILES, compared
+    control character in it, a file the run writes itself (keymps.run_files.RUN_OWN_FILES, compared
     case-folded), its vlm/ records, or a hidden name (the lock, the temporary files every file
     is written through)."""
-    from keymps.run import RUN_OWN_FILES
+    from keymps.run_files import RUN_OWN_FILES
 
     text = str(path)
     if any(ord(c) < 32 or ord(c) == 127 for c in text):

@@ -55,7 +55,7 @@ UR_ARMS: dict[str, dict[str, object]] = {
 """Per model: the DH table, the CB3 URDF whose meshes draw it, joint speeds (rad/s), peak
 joint torques (N m) and the controller rate (Hz)."""
 
-UR_STANDOFF = {"ur3": 0.20, "ur3e": 0.20, "ur5": 0.25, "ur5e": 0.25, "ur16e": 0.30}
+UR_STANDOFF = {"ur3": 0.22, "ur3e": 0.22, "ur5": 0.25, "ur5e": 0.25, "ur16e": 0.30}
 """Metres from the board's near edge to the base, by model (the others: 0.35)."""
 UR_HOME = (0.0, -1.9, 1.9, -1.57, -1.57, 0.0)
 """Elbow up, wrist outward, the tool pointing down in front of the base."""

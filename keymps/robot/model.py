@@ -352,6 +352,7 @@ class RobotModel:
         of fewer than six joints) reachable with the tool down but not at this yaw."""
         x, y, z = (float(v) for v in position)
         point = f"board point ({x:.3f}, {y:.3f}, {z:.3f}) m"
+        shortfall = self._shortfall(yaw, result)
         held = [
             other
             for other in np.linspace(-math.pi, math.pi, 12, endpoint=False)
@@ -364,15 +365,27 @@ class RobotModel:
                 f"{math.degrees(held[0]):.0f} degrees works)"
             )
         else:
-            what = (
-                f"cannot reach {point} with the tool pointing down ({where}; "
-                f"{result.position_error_m * 1000:.1f} mm short)"
-            )
+            what = f"cannot reach {point} with the tool pointing down ({where}; {shortfall})"
         bx, by, bz, byaw = self.base
         return (
             f"robot: {self.spec.description or self.kind} {what}; move the base (task "
             f"robot.base, now [{bx:g}, {by:g}, {bz:g}, {byaw:g}]) or the work"
         )
+
+    def _shortfall(self, yaw: float, result: IkResult) -> str:
+        """What stopped the solver: the joints it left at a limit, else the distance short."""
+        at = np.flatnonzero((result.q <= self.lower + 1e-9) | (result.q >= self.upper - 1e-9))
+        short = (
+            f"{result.position_error_m * 1000:.1f} mm and "
+            f"{math.degrees(result.rotation_error_rad):.1f} degrees short"
+        )
+        if not len(at):
+            return short
+        limits = ", ".join(
+            f"{self.joint_names[j]} at its limit ({math.degrees(result.q[j]):.0f} degrees)"
+            for j in at
+        )
+        return f"{limits}, {short} at yaw {math.degrees(yaw):.0f} degrees"
 
     def _ur_seed(self, position: np.ndarray, yaw: float) -> np.ndarray:
         """Closed-form elbow-up, wrist-outward joints of a UR arm, tool pointing down."""
@@ -465,6 +478,26 @@ class RobotModel:
             z -= 0.005
             point[2] = z
         return point
+
+    def home_yaw(self) -> float:
+        """The tool yaw (radians about board z) that puts the last joint, the tool's roll on a
+        table arm, in the middle of its range over the board's middle: where a knife's cuts turn
+        from, so that the roll has room both ways (the Panda's seventh joint lacks 28 degrees of
+        a whole turn). 0 for an arm whose roll turns a whole turn either way (a UR) or that
+        cannot point the tool down there."""
+        low, high = float(self.lower[-1]), float(self.upper[-1])
+        if high - low >= 2 * math.tau:
+            return 0.0
+        try:
+            q = self.tool_down_seed(self.home_tool_position(), 0.0)
+        except KeympsError:
+            return 0.0
+        turned = q.copy()
+        turned[-1] += 0.1 if turned[-1] + 0.1 <= high else -0.1
+        gain = _wrap(self._yaw_of(turned) - self._yaw_of(q)) / (turned[-1] - q[-1])
+        if abs(gain) < 0.5:  # the last joint is no roll about the tool's axis
+            return 0.0
+        return _wrap(((low + high) / 2 - q[-1]) * math.copysign(1.0, gain))
 
     def configuration_problem(self, q: np.ndarray) -> str | None:
         """Why `q` is not a configuration paths may use (None when it is): inside the joint

@@ -160,7 +160,38 @@ def test_knife_yaw_is_the_cut_direction_so_the_blade_trails_the_tip(dictionary: 
         travel = piece.points[-1, :2] - piece.points[0, :2]
         tool_x = np.array([math.cos(piece.yaw[0]), math.sin(piece.yaw[0])])
         assert tool_x @ travel > 0.999 * np.linalg.norm(travel)
-        assert abs(piece.yaw[0]) <= math.pi + 1e-12
+    yaws = np.concatenate([piece.yaw for piece in path.pieces])
+    assert np.abs(np.diff(yaws)).max() <= math.pi / 6 + 1e-9  # 30 degrees a ray, the short way
+
+
+def test_chords_turn_from_the_arms_home_yaw_and_the_wrist_always_the_short_way(
+    dictionary: dict,
+) -> None:
+    """Random chords across a disc (any count, direction and order) and a random home yaw: the
+    first chord runs the way nearer the home yaw (an arm whose roll is short of a whole turn,
+    the Panda's, has room both ways), and no move turns the wrist by more than half a turn,
+    across +-180 degrees included (yaws are unwrapped)."""
+    rng = np.random.default_rng(37)
+    angles = np.linspace(0.0, 2 * math.pi, 48, endpoint=False)
+    centre = np.array([0.15, 0.09])
+    circle = centre + 0.05 * np.c_[np.cos(angles), np.sin(angles)]
+    for _ in range(150):
+        home_yaw = float(rng.uniform(-math.pi, math.pi))
+        chords = []
+        for direction in rng.uniform(0.0, 2 * math.pi, int(rng.integers(1, 7))):
+            half = 0.06 * np.array([math.cos(direction), math.sin(direction)])
+            offset = rng.uniform(-0.03, 0.03) * np.array([-half[1], half[0]]) / 0.06
+            a, b = centre + offset - half, centre + offset + half
+            chords.append(cut(a[0], a[1], b[0], b[1]))
+        path = compose(chords, dictionary["straight"], footprint=circle, home_yaw=home_yaw)
+        works = [p for p in path.pieces if p.kind == "work"]
+        assert abs(works[0].yaw[0] - home_yaw) <= math.pi / 2 + 1e-9
+        for piece in path.pieces:
+            assert np.abs(np.diff(piece.yaw)).sum() <= math.pi + 1e-9
+        for work in works:
+            travel = work.points[-1, :2] - work.points[0, :2]
+            tool_x = np.array([math.cos(work.yaw[0]), math.sin(work.yaw[0])])
+            assert tool_x @ travel > 0.999 * np.linalg.norm(travel)
 
 
 def test_a_chord_runs_the_way_that_turns_the_wrist_least_with_the_edge_trailing(

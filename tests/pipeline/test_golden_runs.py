@@ -10,7 +10,8 @@ a stroke followed the last bit of NumPy's rounding. icing_spiral, icing_star and
 were recorded again when icing lines that meet became one continuous stroke (issue 39 item 3:
 the motion changed on purpose; the other five reproduce). The four cutting cases were
 recorded again when the shipped pizza was centred on its board and the cutting tasks' UR3 base
-moved 2 cm back (issue 39 item 4, and the arm's self-contact check). A faster implementation
+moved 2 cm back (issue 39 item 4, and the arm's self-contact check); the four icing cases when
+that 2 cm became the UR3's default place (issue 37: only their timing moved). A faster implementation
 must give the same motion and the same verdicts; if an output changes on purpose, record again
 with `python tests/pipeline/test_golden_runs.py --record` and say why in the commit.
 """

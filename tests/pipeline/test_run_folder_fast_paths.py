@@ -14,7 +14,7 @@ RNG_SEED = 20261201
 def test_run_folder_png_keeps_every_pixel(tmp_path: Any) -> None:
     import cv2
 
-    from keymps.run import write_image
+    from keymps.run_files import write_image
 
     rng = np.random.default_rng(RNG_SEED + 16)
     for trial in range(6):

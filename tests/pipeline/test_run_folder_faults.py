@@ -31,7 +31,8 @@ import keymps
 from keymps.config import task as task_module
 from keymps.errors import KeympsError, TaskFileError
 from keymps.pipeline.folder_lock import FolderLock
-from keymps.run import RunOptions, RunOverrides, open_atomically, write_atomically
+from keymps.run import RunOptions, RunOverrides
+from keymps.run_files import open_atomically, write_atomically
 
 REPO = Path(__file__).resolve().parents[2]
 KEYMPS = [sys.executable, "-c", "from keymps.cli.app import main; main()"]

@@ -141,6 +141,29 @@ def test_the_panda_reaches_the_board_with_its_redundancy_away_from_its_limits() 
     assert np.median(margin) > 0.2  # radians from the nearest limit: the null space kept it away
 
 
+def test_the_pandas_home_yaw_leaves_its_seventh_joint_room_both_ways() -> None:
+    """Joint 7 turns 28 degrees short of a whole turn: cuts turn from the yaw that puts it in
+    the middle of its range (a UR's wrist turns two turns each way: no preference)."""
+    for base in (None, (0.15, -0.35, 0.0, 90.0), (-0.25, 0.09, 0.0, 0.0)):
+        robot = RobotModel("panda", base, BUILTIN_TOOLS["knife"], object_height=0.02)
+        q = robot.tool_down_seed(robot.home_tool_position(), robot.home_yaw())
+        assert abs(q[-1] - (robot.lower[-1] + robot.upper[-1]) / 2) < 0.3  # yaw 0: 2.2 rad off
+    assert RobotModel("ur3").home_yaw() == 0.0
+
+
+def test_a_path_stopped_by_a_joint_limit_names_the_joint() -> None:
+    """The Panda 25 cm from the board folding towards its base: the elbow's limit, not a
+    distance, is what stops it (the message said "0.0 mm short" of such points)."""
+    robot = RobotModel("panda", (0.15, -0.25, 0.0, 90.0), BUILTIN_TOOLS["knife"])
+    points = np.linspace([0.15, 0.09, 0.10], [0.15, 0.0, 0.05], 40)
+    yaws = np.full(len(points), math.pi / 2)
+    seed = robot.tool_down_seed(points[0], math.pi / 2)
+    with pytest.raises(KeympsError) as caught:
+        robot.solve_points(points, yaws, seed, where="path")
+    message = str(caught.value)
+    assert "panda_joint4 at its limit (-176 degrees)" in message and "\n" not in message
+
+
 def test_the_so101_holds_the_tool_down_where_its_roll_allows_and_says_where_not() -> None:
     """Five joints: the tool points down anywhere in its reach band, at a yaw its wrist roll
     (-2.74 .. 2.84 rad) can give; the 0.6 rad of yaw beyond is refused, not tilted."""
@@ -284,9 +307,8 @@ def test_the_shipped_tasks_run_on_every_arm_that_reaches_the_board(
     import keymps
 
     task = load_task(REPO / "tasks" / task_file)
-    # another arm at its own default place: the cutting tasks set the UR3's base
-    base = task.robot.base if model == task.robot.model else None
-    arm = task.robot.model_copy(update={"model": model, "base": base})
+    assert task.robot.base is None  # a user swapping `model:` gets each arm at its own place
+    arm = task.robot.model_copy(update={"model": model})
     task = task.model_copy(update={"robot": arm})
     run = keymps.run_task(
         task,
@@ -320,7 +342,6 @@ def test_the_shipped_tasks_are_refused_in_one_line_where_the_so101_cannot_reach(
     assert "\n" not in message
     if task_file == "cake_icing.yaml":  # the 6 cm cake: refused before planning, at its height
         assert ": scene.object_height: 0.06 m: the so101 cannot reach 0.090 m above" in message
-    else:  # reaches over the board, not everywhere the cuts go
-        assert message.startswith("solve: robot: SO-101 (LeRobot), 5 joints cannot ")
-        assert "board point (" in message
+    else:  # it reaches every cut only by folding its gripper into its shoulder
+        assert message.startswith("check: safety: the arm would hit itself (shoulder_link_5 and ")
     assert not (tmp_path / "trajectory.csv").exists()

@@ -21,7 +21,8 @@ from typing import Any
 
 from keymps.errors import KeympsError, os_error_message
 from keymps.plugin import hookimpl
-from keymps.run import Run, write_atomically
+from keymps.run import Run
+from keymps.run_files import write_atomically
 from keymps.types import STAGES
 
 APPLICATION_ID = "keymps"
@@ -35,7 +36,7 @@ DISCONNECT_TIMEOUT_S = 5.0
 """Longest wait for a viewer connection to close after the flush (a viewer that is gone)."""
 ROBOT_RATE_HZ = 25.0
 """The animated robot and tool tip are subsampled to this rate; joint series keep every sample."""
-STAGE_ORDER: tuple[str, ...] = ("image", *STAGES, "finished")
+STAGE_ORDER: tuple[str, ...] = (*STAGES, "finished")
 """Position on the `stage` timeline."""
 
 
