@@ -91,16 +91,11 @@ def choose_primitive(
     if len(names) == 1 and (names[0] in icing) == (family == "icing"):
         return names[0], "the only primitive"
     cutting = [n for n in names if n not in icing]
-    named_by = _words(task_name.replace("-", " ").replace("_", " "))
-    context = " ".join([sentence, task_name.replace("-", " ").replace("_", " "), *object_names])
-    mentioned = _words(context)
-    family_names = icing if family == "icing" else cutting
-    asked = [n for n in family_names if (stems := _stems(n)) and stems <= _stems(context)]
-    if len(asked) == 1:
-        in_sentence = _stems(asked[0]) <= _stems(sentence)
-        if in_sentence or not _stems(asked[0]) <= _stems(" ".join(named_by)):
-            return asked[0], "the sentence names it"
-        return asked[0], f"the task's name ({task_name}) names it"
+    task_words = task_name.replace("-", " ").replace("_", " ")
+    context = " ".join([sentence, task_words, *object_names])
+    asked = _asked_for(icing if family == "icing" else cutting, sentence, task_name, context)
+    if asked:
+        return asked
     if family == "icing":
         if icing:
             return icing[0], "its description is for icing"
@@ -108,11 +103,33 @@ def choose_primitive(
             f"the sentence asks for icing, but no primitive of this task is for icing (cutting "
             f"primitives: {', '.join(names)}): use an icing task (piping_bag and an icing primitive)"
         )
-    if not [n for n in names if n not in icing]:
+    if not cutting:
         raise KeympsError(
             f"the sentence asks for cutting, but every primitive of this task is for icing "
             f"({', '.join(names)}): use a cutting task (knife and a cutting primitive)"
         )
+    return _cutting_primitive(cutting, primitives, context)
+
+
+def _asked_for(
+    family_names: Sequence[str], sentence: str, task_name: str, context: str
+) -> tuple[str, str] | None:
+    """(name, why) of the one primitive of the family the sentence or task name names."""
+    asked = [n for n in family_names if (stems := _stems(n)) and stems <= _stems(context)]
+    if len(asked) != 1:
+        return None
+    named_by = _words(task_name.replace("-", " ").replace("_", " "))
+    in_sentence = _stems(asked[0]) <= _stems(sentence)
+    if in_sentence or not _stems(asked[0]) <= _stems(" ".join(named_by)):
+        return asked[0], "the sentence names it"
+    return asked[0], f"the task's name ({task_name}) names it"
+
+
+def _cutting_primitive(
+    cutting: Sequence[str], primitives: Mapping[str, str], context: str
+) -> tuple[str, str]:
+    """(name, why) of a cut: the one whose description names the object, else by hardness."""
+    mentioned = _words(context)
     named = [n for n in cutting if mentioned & _named_objects(primitives[n])]
     if len(named) == 1:
         word = sorted(mentioned & _named_objects(primitives[named[0]]))[0]
@@ -142,23 +159,13 @@ class OfflineBackend(BackendBase):
 
     def complete(self, request: PlanRequest) -> BackendAnswer:
         from keymps.designs.grammar import read_instruction
-        from keymps.planning.named_design import design_answer
         from keymps.types import BackendAnswer
 
         started = time.perf_counter()
         objects = _objects(request)
         clauses = _clauses(request.instruction, objects)
         intents = [(read_clause(clause, read_instruction), clause) for clause in clauses]
-        families = {intent.family for intent, _ in intents}
-        if len(families) > 1:
-            raise KeympsError(
-                "the offline planner makes one plan with one primitive, but the sentence asks "
-                + " and ".join(
-                    f"{intent.family} on {_labels(clause.objects, objects)}"
-                    for intent, clause in intents
-                )
-            )
-        family = intents[0][0].family
+        family = _one_family(intents, objects)
         names = [objects[i].name or "" for _, clause in intents for i in clause.objects]
         keyword, why = choose_primitive(
             family, request.primitives, request.instruction, request.task_name, names
@@ -170,49 +177,81 @@ class OfflineBackend(BackendBase):
         jobs = [(intent, objects[i]) for intent, clause in intents for i in clause.objects]
         if request.step in ("combined", "pairs") and request.answer_mode == "design":
             # planner.answer: design: the intent itself, laid out by keymps like any design
-            if len(jobs) > 1:
-                raise KeympsError(
-                    f"the offline planner reads {len(jobs)} designs ("
-                    + "; ".join(f"{i.describe()} on {o.label}" for i, o in jobs)
-                    + "), but planner.answer: design names one: use planner.answer: either"
-                )
-            intent, obj = jobs[0]
-            _refuse_what_a_named_design_loses(intent)
-            answer["design"] = design_answer(intent) | (
-                {"object": obj.id} if len(objects) > 1 else {}
-            )
-            rationale = f"named design {intent.design}; {rationale}"
+            answer["design"], named = _named_design(jobs, several=len(objects) > 1)
+            rationale = f"{named}; {rationale}"
         elif request.step in ("combined", "pairs"):
-            budget = max(1, request.max_pairs // len(jobs))
-            laid = [_lay_out(intent, obj, request, budget) for intent, obj in jobs]
-            pairs_px = np.concatenate([pairs for pairs, _ in laid], axis=0)
-            if len(pairs_px) > request.max_pairs:
-                raise KeympsError(
-                    f"the offline design needs {len(pairs_px)} keypoint pairs, more than "
-                    f"planner.max_pairs = {request.max_pairs}"
-                )
-            answer["pairs"] = np.round(pairs_px, 3).tolist()
-            if "intent" in request.schema.get("schema", {}).get("properties", {}):
-                answer["intent"] = _stated(jobs, several=len(objects) > 1)
-            if len(jobs) == 1:
-                layout = laid[0][1]
-            else:
-                layout = "; ".join(
-                    f"{obj.label}: {text}" for (_, obj), (_, text) in zip(jobs, laid, strict=True)
-                )
+            laid_out, layout = _laid_out_pairs(jobs, request, several=len(objects) > 1)
+            answer |= laid_out
             rationale = f"{layout}; {rationale}"
-        described = "; ".join(
-            intent.describe()
-            + ("" if len(objects) == 1 else f" on {_labels(clause.objects, objects)}")
-            for intent, clause in intents
-        )
-        answer["rationale"] = f"offline planner ({described}): {rationale}"
+        answer["rationale"] = f"offline planner ({_described(intents, objects)}): {rationale}"
         return BackendAnswer(
             text=json.dumps(answer),
             latency_s=time.perf_counter() - started,
             cost_usd=0.0,
             model=None,
         )
+
+
+def _one_family(intents: list[tuple[Intent, Clause]], objects: dict[int, PlanObject]) -> str:
+    """The design family all clauses share (one plan has one primitive), else refuse."""
+    if len({intent.family for intent, _ in intents}) > 1:
+        raise KeympsError(
+            "the offline planner makes one plan with one primitive, but the sentence asks "
+            + " and ".join(
+                f"{intent.family} on {_labels(clause.objects, objects)}"
+                for intent, clause in intents
+            )
+        )
+    return intents[0][0].family
+
+
+def _described(intents: list[tuple[Intent, Clause]], objects: dict[int, PlanObject]) -> str:
+    """The designs read from the sentence, each with its objects when there are several."""
+    return "; ".join(
+        intent.describe() + ("" if len(objects) == 1 else f" on {_labels(clause.objects, objects)}")
+        for intent, clause in intents
+    )
+
+
+def _named_design(
+    jobs: list[tuple[Intent, PlanObject]], several: bool
+) -> tuple[dict[str, Any], str]:
+    """The answer's `design` field for the one design the sentence asks for, and its mention."""
+    from keymps.planning.named_design import design_answer
+
+    if len(jobs) > 1:
+        raise KeympsError(
+            f"the offline planner reads {len(jobs)} designs ("
+            + "; ".join(f"{i.describe()} on {o.label}" for i, o in jobs)
+            + "), but planner.answer: design names one: use planner.answer: either"
+        )
+    intent, obj = jobs[0]
+    _refuse_what_a_named_design_loses(intent)
+    design = design_answer(intent) | ({"object": obj.id} if several else {})
+    return design, f"named design {intent.design}"
+
+
+def _laid_out_pairs(
+    jobs: list[tuple[Intent, PlanObject]], request: PlanRequest, several: bool
+) -> tuple[dict[str, Any], str]:
+    """The answer's `pairs` (crop pixels) and `intent` fields for every job, and the layout."""
+    budget = max(1, request.max_pairs // len(jobs))
+    laid = [_lay_out(intent, obj, request, budget) for intent, obj in jobs]
+    pairs_px = np.concatenate([pairs for pairs, _ in laid], axis=0)
+    if len(pairs_px) > request.max_pairs:
+        raise KeympsError(
+            f"the offline design needs {len(pairs_px)} keypoint pairs, more than "
+            f"planner.max_pairs = {request.max_pairs}"
+        )
+    fields: dict[str, Any] = {"pairs": np.round(pairs_px, 3).tolist()}
+    if "intent" in request.schema.get("schema", {}).get("properties", {}):
+        fields["intent"] = _stated(jobs, several=several)
+    if len(jobs) == 1:
+        return fields, laid[0][1]
+    layout = "; ".join(
+        f"{obj.label}: {text}" for (_, obj), (_, text) in zip(jobs, laid, strict=True)
+    )
+    return fields, layout
 
 
 def _stated(jobs: list[tuple[Intent, PlanObject]], several: bool) -> list[dict[str, Any]]:

@@ -279,14 +279,43 @@ def _part_count(reader: _Reader) -> tuple[int | None, PieceShape | None]:
 
 
 def _icing_intent(reader: _Reader) -> Intent | None:
+    """The icing design the sentence asks for: the first of the designs, in this order, it names
+    (each reader remembers the phrases it understood, even when it then declines)."""
+    for read in (
+        _dot_per_slice,
+        _digits,
+        _star,
+        _spiral,
+        _rings_of_dots,
+        _rings,
+        _middle_dot,
+        _dots_ring,
+        _free_design,
+    ):
+        intent = read(reader)
+        if intent is not None:
+            return intent
+    return None
+
+
+def _dots_around(reader: _Reader) -> bool:
+    """Dots (or dots of icing) around, along the border, edge or rim, or in a circle or ring."""
+    return reader.has(rf"\b{DOTS}\b|\bdots? of icing\b") and reader.has(
+        r"\baround\b|\bborder\b|\bedge\b|\brim\b|\bcircle\b|\bring\b"
+    )
+
+
+def _dot_per_slice(reader: _Reader) -> Intent | None:
     match = reader.find(
         rf"\b(?:1|a|an) (?:\w+ )?(?:dot|drop|rosette|blob|dollop)s?\b.*\beach of (?:the )?{COUNT} "
         rf"{PIECES}"
     ) or reader.find(
         rf"\b(?:dot|rosette)s? (?:on|in) (?:the middle of )?each of (?:the )?{COUNT} {PIECES}"
     )
-    if match:
-        return Intent("icing", "dot_per_slice", count=int(match.group(1)))
+    return Intent("icing", "dot_per_slice", count=int(match.group(1))) if match else None
+
+
+def _digits(reader: _Reader) -> Intent | None:
     match = reader.find(r"\b(\d+)(?:st|nd|rd|th) birthday\b") or reader.find(
         r"\b(?:digits?|numbers?|number|write|seven_segment\w*)\s+(?:of\s+|the\s+)?"
         r"(?:(?:number|digits?)\s+)?(\d+)\b"
@@ -294,33 +323,44 @@ def _icing_intent(reader: _Reader) -> Intent | None:
     if match and (reader.has(r"digit|seven_segment|number|write|birthday")):
         reader.find(r"\bseven_segment\b")
         return Intent("icing", "digits", text=match.group(1))
-    if reader.has(r"\bstars?\b"):
-        match = reader.find(rf"{COUNT}[- ]?(?:pointed|point|pointy)\s+star\b") or reader.find(
-            rf"\bstar\s+with\s+{COUNT}\s+(?:points|tips|arms)\b"
-        )
-        count = int(match.group(1)) if match else 5
-        if not match:
-            reader.find(r"\b(?:a|an|1)\s+(?:\w+\s+){0,2}star\b|\bstar\b")
-        return Intent("icing", "star", count=count)
-    dots_around = reader.has(rf"\b{DOTS}\b|\bdots? of icing\b") and reader.has(
-        r"\baround\b|\bborder\b|\bedge\b|\brim\b|\bcircle\b|\bring\b"
+    return None
+
+
+def _star(reader: _Reader) -> Intent | None:
+    if not reader.has(r"\bstars?\b"):
+        return None
+    match = reader.find(rf"{COUNT}[- ]?(?:pointed|point|pointy)\s+star\b") or reader.find(
+        rf"\bstar\s+with\s+{COUNT}\s+(?:points|tips|arms)\b"
     )
-    if reader.has(r"\bspiral|\bswirl"):
-        reader.find(r"\bspiral\w*|\bswirl\w*")
-        reader.find(r"\b2 (?:types?|kinds?|sorts?) of (?:designs?|patterns?)\b")
-        if dots_around:
-            reader.find(r"\bdots? around\b|\baround\b")
-            return Intent("icing", "dots_spiral", count=_dot_count(reader))
-        return Intent("icing", "spiral")
-    rings = _rings_of_dots(reader)
-    if rings is not None:
-        return rings
+    count = int(match.group(1)) if match else 5
+    if not match:
+        reader.find(r"\b(?:a|an|1)\s+(?:\w+\s+){0,2}star\b|\bstar\b")
+    return Intent("icing", "star", count=count)
+
+
+def _spiral(reader: _Reader) -> Intent | None:
+    if not reader.has(r"\bspiral|\bswirl"):
+        return None
+    reader.find(r"\bspiral\w*|\bswirl\w*")
+    reader.find(r"\b2 (?:types?|kinds?|sorts?) of (?:designs?|patterns?)\b")
+    if _dots_around(reader):
+        reader.find(r"\bdots? around\b|\baround\b")
+        return Intent("icing", "dots_spiral", count=_dot_count(reader))
+    return Intent("icing", "spiral")
+
+
+def _rings(reader: _Reader) -> Intent | None:
     match = reader.find(counted(r"(?:layers?|rings?|circles?|lines)\b"))
     if match and reader.has(r"\baround\b|\blayers?\b|\brings?\b|\bcircles?\b"):
         return Intent("icing", "rings", count=int(match.group(1)))
     if reader.has(r"\blayers?\b|\brings? of icing\b|\bicing (?:line|ring) around\b"):
         reader.find(r"\blayers?\b|\brings?\b|\bline\b")
         return Intent("icing", "rings", count=1)
+    return None
+
+
+def _middle_dot(reader: _Reader) -> Intent | None:
+    """One dot in the middle; refuses N dots in the middle (neither design)."""
     middle = r"(?:in|on|at|into)\s+(?:the\s+)?(?:very\s+|exact\s+)?(?:middle|cent(?:re|er))"
     single = rf"\b(?:1|a|an)\s+{FILLER}{{0,2}}(?:dot|rosette|drop|blob|dollop|kiss)\b"
     if reader.find(rf"{single}(?:\s+of\s+\w+)?\s+(?:right\s+)?{middle}") or reader.find(
@@ -328,18 +368,27 @@ def _icing_intent(reader: _Reader) -> Intent | None:
     ):
         return Intent("icing", "dot", count=1)
     several = re.search(rf"{counted(DOTS)}(?:\s+of\s+\w+)?\s+{middle}", reader.text)
-    if several and not dots_around:
+    if several and not _dots_around(reader):
         raise UnreadableInstruction(
             f"the offline planner puts 1 dot in the middle, or N dots around the object; "
             f"{several.group(0)!r} is neither (it never guesses). Ask for 'a dot in the middle' or "
             f"'{several.group(1)} dots around the cake', or {VLM_HINT}"
         )
-    if dots_around or reader.has(counted(DOTS)):
-        reader.find(r"\baround\b|\bborder\b|\bedge\b")
-        dots = _dot_count(reader)
-        if dots == 1 and not dots_around:  # "pipe 1 dot": where one dot goes, the middle
-            return Intent("icing", "dot", count=1)
-        return Intent("icing", "dots_ring", count=dots)
+    return None
+
+
+def _dots_ring(reader: _Reader) -> Intent | None:
+    dots_around = _dots_around(reader)
+    if not (dots_around or reader.has(counted(DOTS))):
+        return None
+    reader.find(r"\baround\b|\bborder\b|\bedge\b")
+    dots = _dot_count(reader)
+    if dots == 1 and not dots_around:  # "pipe 1 dot": where one dot goes, the middle
+        return Intent("icing", "dot", count=1)
+    return Intent("icing", "dots_ring", count=dots)
+
+
+def _free_design(reader: _Reader) -> Intent | None:
     if reader.find(
         r"\b(?:simple|interesting|any|nice|pretty|beautiful|creative|random|your own)\b.*\bdesign\b"
         r"|\bsurprise me\b|\bdecorate (?:it|the cake)\b"

@@ -37,6 +37,7 @@ from keymps.planning.redaction import redact
 if TYPE_CHECKING:
     from keymps.eval.broker import VlmBroker
     from keymps.eval.turn import CpuTurn
+    from keymps.planning.warm.dispatch import WarmDispatch
 
 RESULTS_FILE = "results.jsonl"
 
@@ -478,22 +479,8 @@ def run_suite(
 
     Jobs start heaviest first (heaviest_first): the last to end are short, so neither core
     waits long for the other."""
-    from keymps.eval.broker import BROKERED_BACKEND, VlmBroker
-    from keymps.eval.methods import check_runnable, get_method
-    from keymps.eval.pool import (
-        OFFLINE_BACKENDS,
-        JobRunner,
-        default_processes,
-        get_going,
-        run_in_processes,
-    )
-    from keymps.eval.turn import CpuTurn
-
     backend = resolve_backend(options)
-    for name in options.methods:
-        check_runnable(get_method(name), backend)
-    given = (options.model, options.api_base, options.concurrency, options.processes)
-    warm = get_going(backend, *given, options.warm_planner)  # (keymps eval began it earlier)
+    warm = _get_going(options, backend)
     jobs = plan_jobs(suite, options)
     if jobs:
         check_planner_options(suite, jobs[0], options)
@@ -519,6 +506,35 @@ def run_suite(
         if on_result:
             on_result(job, record)
 
+    _run_jobs(suite, todo, options, backend, warm, finished)
+    return [records[key(job)] for job in jobs]
+
+
+def _get_going(options: EvalOptions, backend: str) -> WarmDispatch | None:
+    """Refuse a method the backend cannot run; the planner's warm-up (keymps eval began it
+    earlier), or None."""
+    from keymps.eval.methods import check_runnable, get_method
+    from keymps.eval.pool import get_going
+
+    for name in options.methods:
+        check_runnable(get_method(name), backend)
+    given = (options.model, options.api_base, options.concurrency, options.processes)
+    return get_going(backend, *given, options.warm_planner)
+
+
+def _run_jobs(
+    suite: Suite,
+    todo: list[Job],
+    options: EvalOptions,
+    backend: str,
+    warm: WarmDispatch | None,
+    finished: ProgressCallback,
+) -> None:
+    """Run the jobs in processes, or in threads of this one, all through one VLM broker."""
+    from keymps.eval.broker import BROKERED_BACKEND, VlmBroker
+    from keymps.eval.pool import OFFLINE_BACKENDS, JobRunner, default_processes, run_in_processes
+    from keymps.eval.turn import CpuTurn
+
     processes = options.processes or default_processes(options.concurrency, len(todo), backend)
     if backend not in OFFLINE_BACKENDS:  # more processes than VLM calls would only wait
         processes = min(processes, options.concurrency)
@@ -534,7 +550,6 @@ def run_suite(
             _run_in_threads(suite, todo, options, backend, finished, broker, turn)
     finally:
         broker.close()
-    return [records[key(job)] for job in jobs]
 
 
 def _run_in_threads(

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
@@ -73,11 +73,29 @@ def compose_tool_path(
     """
     home_arr = _finite_point(home, "home")
     _check_settings(object_top, clearance, work_speed, travel_speed, yaw_mode)
-    if not segments:
-        raise MotionError("compose: the plan has no keypoint pairs to execute")
-    if not (math.isfinite(join_distance) and join_distance >= 0):
-        raise MotionError(f"compose: join_distance must be metres >= 0, got {join_distance}")
-    ends = np.array(
+    _check_join(segments, join_distance)
+    ends = _segment_ends(segments)
+    outlines = {o.id: np.asarray(o.outline_m, dtype=float).reshape(-1, 2) for o in objects}
+    single = np.asarray(footprint, dtype=float).reshape(-1, 2) if footprint is not None else None
+    strokes, yaws = _strokes(
+        segments, ends, primitive, yaw_mode, join_distance, home_yaw, outlines, single
+    )
+    owners = [segments[c.pairs[0]].object_id for c in strokes]
+    headings = yaws if yaw_mode == "follow" else [None] * len(yaws)
+    work_paths = [
+        _work_path(primitive, chain, work_speed, heading, outlines.get(owner, single))
+        for chain, heading, owner in zip(strokes, headings, owners, strict=True)
+    ]
+    heights = _leg_heights(work_paths, owners, home_arr, objects, object_top, clearance)
+    first_yaw = yaws[0] if yaw_mode == "follow" else home_yaw
+    speeds = (float(work_speed), float(travel_speed))
+    pieces = _pieces(strokes, owners, work_paths, yaws, heights, home_arr, first_yaw, speeds)
+    return ToolPath(pieces=tuple(pieces), keyword=primitive.name)
+
+
+def _segment_ends(segments: Sequence[Segment]) -> np.ndarray:
+    """The pairs' (start, goal) points, (N, 2, 3) board metres; refuses a non-finite one."""
+    return np.array(
         [
             [
                 _finite_point(s.start, f"segment {k + 1} start"),
@@ -86,31 +104,26 @@ def compose_tool_path(
             for k, s in enumerate(segments)
         ]
     )
-    outlines = {o.id: np.asarray(o.outline_m, dtype=float).reshape(-1, 2) for o in objects}
-    single = np.asarray(footprint, dtype=float).reshape(-1, 2) if footprint is not None else None
-    joined = primitive.family == "icing" and yaw_mode == "fixed"
-    if joined:
+
+
+def _strokes(
+    segments: Sequence[Segment],
+    ends: np.ndarray,
+    primitive: Primitive,
+    yaw_mode: str,
+    join_distance: float,
+    home_yaw: float,
+    outlines: Mapping[int, np.ndarray],
+    single: np.ndarray | None,
+) -> tuple[list[Chain], list[float]]:
+    """The work strokes and their yaws: icing lines piped as chains, cuts one per pair."""
+    if primitive.family == "icing" and yaw_mode == "fixed":
         strokes = pipe_chains(ends, [s.object_id for s in segments], join_distance)
-        yaws = [home_yaw] * len(strokes)
-    elif yaw_mode == "follow":
+        return strokes, [home_yaw] * len(strokes)
+    if yaw_mode == "follow":
         edges = [outlines.get(s.object_id, single) for s in segments]
-        strokes, yaws = _blade_strokes(ends, edges, home_yaw)
-    else:
-        strokes = [Chain((k,), (False,), ends[k]) for k in range(len(segments))]
-        yaws = [home_yaw] * len(strokes)
-    owners = [segments[c.pairs[0]].object_id for c in strokes]
-    work_paths = [
-        _work_path(
-            primitive, chain, work_speed, yaw if yaw_mode == "follow" else None,
-            outlines.get(owner, single),
-        )
-        for chain, yaw, owner in zip(strokes, yaws, owners, strict=True)
-    ]  # fmt: skip
-    heights = _leg_heights(work_paths, owners, home_arr, objects, object_top, clearance)
-    first_yaw = yaws[0] if yaw_mode == "follow" else home_yaw
-    speeds = (float(work_speed), float(travel_speed))
-    pieces = _pieces(strokes, owners, work_paths, yaws, heights, home_arr, first_yaw, speeds)
-    return ToolPath(pieces=tuple(pieces), keyword=primitive.name)
+        return _blade_strokes(ends, edges, home_yaw)
+    return [Chain((k,), (False,), ends[k]) for k in range(len(segments))], [home_yaw] * len(ends)
 
 
 def _work_path(
@@ -362,6 +375,13 @@ def _finite_point(value: object, name: str) -> np.ndarray:
     if arr.shape != (3,) or not np.isfinite(arr).all():
         raise MotionError(f"compose: {name} must be a finite [x, y, z] point, got {value!r}")
     return arr
+
+
+def _check_join(segments: Sequence[Segment], join_distance: float) -> None:
+    if not segments:
+        raise MotionError("compose: the plan has no keypoint pairs to execute")
+    if not (math.isfinite(join_distance) and join_distance >= 0):
+        raise MotionError(f"compose: join_distance must be metres >= 0, got {join_distance}")
 
 
 def _check_settings(

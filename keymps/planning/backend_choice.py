@@ -156,32 +156,11 @@ def choose_backend(
     api_base_override: str | None,
 ) -> tuple[str, str]:
     """(backend name, one sentence saying why): `auto` means a VLM when one is configured."""
-    requested = backend_override or task.planner.backend
     model = model_override or task.planner.model
     api_base = api_base_override or task.planner.api_base
-    overridden = ""
-    if (
-        backend_override is None
-        and requested in MODEL_FREE
-        and (model_override or api_base_override)
-    ):
-        # a model or server given on the command line is meant, whatever the task file says
-        given = " and ".join(
-            flag
-            for flag, value in (("--model", model_override), ("--api-base", api_base_override))
-            if value
-        )
-        overridden = f" ({given} on the command line overrides the task's backend: {requested})"
-        requested = "auto"
+    requested, overridden = _requested(task, backend_override, model_override, api_base_override)
     if requested != "auto":
-        try:
-            _check_backend(task, requested, model)
-        except KeympsError as error:
-            if backend_override:
-                raise KeympsError(f"--backend {requested}: {error}") from None
-            raise KeympsError(
-                f"{task.where('planner', 'backend')}: planner.backend: {error}"
-            ) from None
+        _check_requested(task, requested, model, backend_override)
         origin = "--backend" if backend_override else "the task's planner.backend"
         return requested, f"{origin} asks for the {requested} planner"
     if not model:
@@ -199,6 +178,46 @@ def choose_backend(
     source = credential_source(task, model)
     if source:
         return AUTO_VLM, f"model {model} with credentials from ${source}{overridden}"
+    return _without_credentials(task, model, bool(model_override), overridden)
+
+
+def _requested(
+    task: Task,
+    backend_override: str | None,
+    model_override: str | None,
+    api_base_override: str | None,
+) -> tuple[str, str]:
+    """(backend asked for, why the command line overrode the task's, or "")."""
+    requested = backend_override or task.planner.backend
+    if backend_override is not None or requested not in MODEL_FREE:
+        return requested, ""
+    if not (model_override or api_base_override):
+        return requested, ""
+    # a model or server given on the command line is meant, whatever the task file says
+    given = " and ".join(
+        flag
+        for flag, value in (("--model", model_override), ("--api-base", api_base_override))
+        if value
+    )
+    return "auto", f" ({given} on the command line overrides the task's backend: {requested})"
+
+
+def _check_requested(
+    task: Task, requested: str, model: str | None, backend_override: str | None
+) -> None:
+    """Refuse a named backend that cannot work, naming the flag or task line that asked."""
+    try:
+        _check_backend(task, requested, model)
+    except KeympsError as error:
+        if backend_override:
+            raise KeympsError(f"--backend {requested}: {error}") from None
+        raise KeympsError(f"{task.where('planner', 'backend')}: planner.backend: {error}") from None
+
+
+def _without_credentials(
+    task: Task, model: str, on_command_line: bool, overridden: str
+) -> tuple[str, str]:
+    """A model with no key and no server: offline, Ollama's default address, or refuse."""
     wanted = ((task.planner.api_key_env,) if task.planner.api_key_env else ()) + PROVIDER_KEYS.get(
         model_provider(model), ()
     )
@@ -208,7 +227,7 @@ def choose_backend(
         if wanted
         else f"no key variable known for provider {model_provider(model)!r}, no api_base"
     )
-    if model_override:
+    if on_command_line:
         # a model asked for on the command line is meant: never fall back silently
         if model_provider(model) in ("ollama", "ollama_chat"):
             return AUTO_VLM, f"model {model} from Ollama at its default address{overridden}"

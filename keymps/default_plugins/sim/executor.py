@@ -42,6 +42,8 @@ from keymps.types import (
 )
 
 if TYPE_CHECKING:
+    from pathlib import Path
+
     from keymps.config.task import Task
     from keymps.run import Run
     from keymps.types import Trajectory
@@ -357,53 +359,70 @@ class SimExecutor:
         found = marks(result, tops, blade_length, knife=model.tool.blade_length > 0)
         clip = Footprint(outline) if outline is not None else None
         lengths = [covered_length(sweep, clip) for sweep in found.sweeps]
-        period = float(np.diff(result.t).mean()) if len(result.t) > 1 else 0.0
-        figures = {
-            "duration_s": trajectory.duration_s,
-            "max_tracking_error_mm": float(errors.max() * 1000),
-            "rms_tracking_error_mm": float(np.sqrt(np.mean(errors**2)) * 1000),
-            "min_tool_z_mm": float(result.tool_xyz[:, 2].min() * 1000),
-            "below_board_s": float(len(found.contacts) * period),
-            "cuts": float(len(found.cuts)),
-            "blade_length_mm": float(blade_length * 1000),
-            "cut_length_mm": round(sum(lengths) * 1000, 1),
-            **{f"cut_{k + 1}_length_mm": round(v * 1000, 1) for k, v in enumerate(lengths)},
-            "icing_strokes": float(len(found.strokes)),
-            "icing_length_mm": _length_mm(found.strokes),
-            "icing_dots": float(len(found.dots)),
-        }
-        files: list[str] = []
-        if self.options.image:
-            scene = run.stages.image
-            picture = scene.image if isinstance(scene, SceneImage) else None
-            path = run.write_image(
-                "outcome",
-                render_outcome(
-                    task,
-                    picture,
-                    found,
-                    self.options,
-                    outline,
-                    rectified=isinstance(scene, SceneImage) and scene.rectification is not None,
-                ),
-            )
-            files.append(str(path))
+        figures = _figures(trajectory, result, errors, found, blade_length, lengths)
+        files = [str(self._write_outcome(run, found, outline))] if self.options.image else []
         problems = _problems(found, figures)
-        counts = [
-            _count(len(found.cuts), "cut"),
-            _count(len(found.strokes), "icing stroke"),
-            _count(len(found.dots), "dot"),
-        ]
-        made = ", ".join(c for c in counts if not c.startswith("0 ")) or "no cut, stroke or dot"
-        summary = (
-            f"simulated {trajectory.duration_s:.1f} s: {made}; max tracking error "
-            f"{figures['max_tracking_error_mm']:.3f} mm"
-        )
-        message = "; ".join(problems) if problems else summary
+        message = "; ".join(problems) if problems else _summary(found, trajectory, figures)
         measured = _measured(found, lengths, tops, tool_path, result)
         return ExecutionReport(
             self.name, not problems, message, tuple(files), figures, measured=measured
         )
+
+    def _write_outcome(self, run: Run, found: Marks, outline: list[np.ndarray] | None) -> Path:
+        """outcome.png: the marks drawn on the run's picture, clipped to the objects' footprints."""
+        scene = run.stages.image
+        picture = scene.image if isinstance(scene, SceneImage) else None
+        return run.write_image(
+            "outcome",
+            render_outcome(
+                run.task,
+                picture,
+                found,
+                self.options,
+                outline,
+                rectified=isinstance(scene, SceneImage) and scene.rectification is not None,
+            ),
+        )
+
+
+def _figures(
+    trajectory: Trajectory,
+    result: Replay,
+    errors: np.ndarray,
+    found: Marks,
+    blade_length: float,
+    lengths: list[float],
+) -> dict[str, float]:
+    """The report's figures: duration, tracking error, depth, and what the tool left."""
+    period = float(np.diff(result.t).mean()) if len(result.t) > 1 else 0.0
+    return {
+        "duration_s": trajectory.duration_s,
+        "max_tracking_error_mm": float(errors.max() * 1000),
+        "rms_tracking_error_mm": float(np.sqrt(np.mean(errors**2)) * 1000),
+        "min_tool_z_mm": float(result.tool_xyz[:, 2].min() * 1000),
+        "below_board_s": float(len(found.contacts) * period),
+        "cuts": float(len(found.cuts)),
+        "blade_length_mm": float(blade_length * 1000),
+        "cut_length_mm": round(sum(lengths) * 1000, 1),
+        **{f"cut_{k + 1}_length_mm": round(v * 1000, 1) for k, v in enumerate(lengths)},
+        "icing_strokes": float(len(found.strokes)),
+        "icing_length_mm": _length_mm(found.strokes),
+        "icing_dots": float(len(found.dots)),
+    }
+
+
+def _summary(found: Marks, trajectory: Trajectory, figures: dict[str, float]) -> str:
+    """One line for a replay without problems: what it made and its tracking error."""
+    counts = [
+        _count(len(found.cuts), "cut"),
+        _count(len(found.strokes), "icing stroke"),
+        _count(len(found.dots), "dot"),
+    ]
+    made = ", ".join(c for c in counts if not c.startswith("0 ")) or "no cut, stroke or dot"
+    return (
+        f"simulated {trajectory.duration_s:.1f} s: {made}; max tracking error "
+        f"{figures['max_tracking_error_mm']:.3f} mm"
+    )
 
 
 def _problems(found: Marks, figures: dict[str, float]) -> list[str]:
