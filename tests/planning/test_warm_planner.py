@@ -236,13 +236,20 @@ def test_the_socket_and_its_folder_are_the_users_alone(planner: Planner) -> None
     for path in (planner.place.lock, planner.place.log):
         assert stat.S_IMODE(path.lstat().st_mode) == 0o600, path
     listening = Path("/proc/net/tcp").read_text() + Path("/proc/net/tcp6").read_text()
-    inodes = {Path(f"/proc/{planner.pid}/fd/{fd}").readlink().name for fd in _fds(planner.pid)}
+    inodes = _open_file_targets(planner.pid)
     tcp = {line.split()[9] for line in listening.splitlines()[1:] if line.split()[3] == "0A"}
     assert not {f"socket:[{inode}]" for inode in tcp} & inodes  # nothing listens on TCP
 
 
-def _fds(pid: int) -> list[str]:
-    return [p.name for p in Path(f"/proc/{pid}/fd").iterdir()]
+def _open_file_targets(pid: int) -> set[str]:
+    """What the process's open descriptors point at, e.g. ``socket:[1234]``."""
+    targets = set()
+    for fd in Path(f"/proc/{pid}/fd").iterdir():
+        try:
+            targets.add(os.readlink(fd))
+        except FileNotFoundError:  # closed between listing and reading: nothing open there
+            continue
+    return targets
 
 
 @pytest.mark.skipif(os.getuid() != 0, reason="needs root: a process of another user that can "
