@@ -88,10 +88,10 @@ def test_a_run_never_imports_numpy_ma(task: str) -> None:
     """The reason this module exists: a whole offline run (board detection, the design, the
     sim's marks and cut sweeps) without numpy.ma."""
     code = (
-        "import sys, tempfile; from keymps import run_task;"
+        "import sys, tempfile; from keymps import RunOptions, RunOverrides, run_task;"
         "d = tempfile.mkdtemp();"
-        f"run_task({str(TASKS / task)!r}, out=d + '/r', rerun='off', backend='offline',"
-        " executor='sim', quiet=True);"
+        f"run_task({str(TASKS / task)!r}, options=RunOptions(rerun='off', quiet=True),"
+        " overrides=RunOverrides(out=d + '/r', backend='offline', executor='sim'));"
         "print('numpy.ma' in sys.modules)"
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)

@@ -116,6 +116,10 @@ if sys.argv[3] == "keymps":  # the allocator setting of the keymps command and e
     except ImportError:  # a baseline from before it
         pass
 from keymps import load_task, run_task
+try:
+    from keymps.run import RunOptions, RunOverrides
+except ImportError:  # a baseline from before them: its run_task took their fields by name
+    RunOverrides = None
 
 def run(task, out):
     try:  # no run finds the path grids of the run before (a new task would not)
@@ -123,7 +127,10 @@ def run(task, out):
         _GRIDS.clear()
     except ImportError:
         pass
-    return run_task(task, out=out, rerun="off", backend="offline", executor="sim")
+    changes = {"out": out, "backend": "offline", "executor": "sim"}
+    if RunOverrides is None:
+        return run_task(task, rerun="off", **changes)
+    return run_task(task, options=RunOptions(rerun="off"), overrides=RunOverrides(**changes))
 
 out = {}
 with tempfile.TemporaryDirectory() as folder:

@@ -17,6 +17,7 @@ from keymps.eval.suites import load_suite
 from keymps.eval.tasks import case_task_data
 from keymps.eval.vlm import look
 from keymps.pipeline.engine import run_task
+from keymps.run import RunOptions, RunOverrides
 from keymps.scenes.perception_cases import BOARD_M, photo_case
 
 EVAL = Path(__file__).resolve().parents[2] / "keymps" / "eval"
@@ -65,7 +66,12 @@ def _context(task: Path, folder: Path) -> MethodContext:
 
 def _same_perception(run_folder: Path, task: Path, direct_folder: Path) -> Any:
     """The engine's image and detect results beside what a direct method sees, compared."""
-    run = run_task(task, out=run_folder, rerun="off", quiet=True, through="ground")
+    run = run_task(
+        task,
+        options=RunOptions(rerun="off", quiet=True),
+        overrides=RunOverrides(out=run_folder),
+        through="ground",
+    )
     seen = look(_context(task, direct_folder))
     scene, detection = run.stages.image, run.stages.detect
     assert scene is not None and detection is not None

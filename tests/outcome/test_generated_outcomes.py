@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from keymps import load_task, run_task
+from keymps import RunOptions, RunOverrides, load_task, run_task
 from keymps.errors import KeympsError
 from keymps.outcome.pieces import check_equal_parts
 from keymps.plugin import hookimpl
@@ -160,8 +160,12 @@ def _run(case: Case, folder: Path) -> tuple[Case, str, str]:
     )
     SPEC.update(flaw=case.flaw, rng=np.random.default_rng(case.seed))
     try:
-        run = run_task(load_task(task), out=folder / "run", rerun="off", quiet=True,
-                       through="outcome")  # fmt: skip
+        run = run_task(
+            load_task(task),
+            options=RunOptions(rerun="off", quiet=True),
+            overrides=RunOverrides(out=folder / "run"),
+            through="outcome",
+        )
         did = "ok"
     except KeympsError as error:
         run, did = error.run, getattr(error, "stage", "error")

@@ -14,13 +14,14 @@ import numpy as np
 import pytest
 from helpers.vlm_server import Reply, VlmServer
 
-from keymps import load_task, run_task
+from keymps import RunOptions, RunOverrides, load_task, run_task
 from keymps.errors import StageError
 from keymps.outcome.pieces import check_equal_parts
 from keymps.scenes.render import ObjectSpec, SceneSpec, render_scene
 
 KNIFE = "primitives: [straight, sawing]\nrobot: {tool: knife}\nheight: {mode: start}\n"
 ICING = "primitives: [line]\nrobot: {tool: piping_bag}\nheight: {mode: both}\n"
+QUIET = RunOptions(rerun="off", quiet=True)
 
 
 def _scene(tmp_path: Path, obj: ObjectSpec, seed: int = 1) -> tuple[Path, dict]:
@@ -41,10 +42,10 @@ def _task(
     return path
 
 
-def _refused(task: Path, out: Path, **overrides: object) -> tuple[StageError, dict]:
+def _refused(task: Path, out: Path, api_base: str | None = None) -> tuple[StageError, dict]:
     """The run's outcome error and its run.json; nothing after the outcome stage ran."""
     with pytest.raises(StageError) as caught:
-        run_task(load_task(task), out=out, rerun="off", quiet=True, **overrides)
+        run_task(load_task(task), options=QUIET, overrides=RunOverrides(out=out, api_base=api_base))
     error = caught.value
     record = json.loads((out / "run.json").read_text())
     assert error.stage == "outcome" and "\n" not in str(error)
@@ -61,7 +62,7 @@ def test_a_turned_square_cake_cut_vertically_into_3_is_refused_or_cut_right(tmp_
     task = _task(tmp_path, png, "Cut it vertically into 3 slices", KNIFE, 0.06)
     out = tmp_path / "run"
     try:
-        run = run_task(load_task(task), out=out, rerun="off", quiet=True)
+        run = run_task(load_task(task), options=QUIET, overrides=RunOverrides(out=out))
     except StageError as error:
         assert error.stage == "outcome" and "\n" not in str(error)
         assert "vertical" in str(error) or "equal" in str(error)
@@ -114,7 +115,7 @@ def test_forty_dots_around_an_11_cm_cake_merge_into_a_ring(tmp_path):
     assert len(deposits) == 40 and all(d["kind"] == "dot" and d["on_top"] for d in deposits)
     # the same sentence with 20 dots (13.4 mm apart) is fine
     task = _task(tmp_path, png, "Put 20 dots around the cake", ICING, 0.06)
-    run = run_task(load_task(task), out=tmp_path / "twenty", rerun="off", quiet=True)
+    run = run_task(load_task(task), options=QUIET, overrides=RunOverrides(out=tmp_path / "twenty"))
     assert run.stages.outcome.verdict == "pass" and run.stages.execute.ok
 
 
@@ -122,8 +123,11 @@ def test_the_shipped_cutting_task_cuts_every_line_through_in_the_sim(tmp_path):
     """The sim executor's cuts, with the blade where the wrist turns it, are the predicted
     ones: none stops short (the modulo-180 yaw left the first fifth of some uncut)."""
     repo = Path(__file__).resolve().parents[2]
-    run = run_task(repo / "tasks" / "object_cutting.yaml", backend="offline",
-                   out=tmp_path / "run", rerun="off", quiet=True)  # fmt: skip
+    run = run_task(
+        repo / "tasks" / "object_cutting.yaml",
+        options=QUIET,
+        overrides=RunOverrides(backend="offline", out=tmp_path / "run"),
+    )
     predicted, measured = run.stages.outcome.predicted, run.stages.execute.measured
     assert measured is not None and len(measured.cuts) == len(predicted.cuts) == 4
     for cut, made in zip(predicted.cuts, measured.cuts, strict=True):

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from keymps import load_task, run_task
+from keymps import RunOptions, RunOverrides, load_task, run_task
 from keymps.errors import StageError
 from keymps.outcome.measured import measured_problems
 from keymps.plugin import hookimpl
@@ -59,8 +59,11 @@ def test_the_run_is_not_ok_when_the_executor_measures_less(tmp_path, keymps_plug
     keymps_plugins.register(Plugin(), name="slipping-knife")
     task = load_task(REPO / "tasks" / "object_cutting.yaml")
     with pytest.raises(StageError) as caught:
-        run_task(task, backend="offline", executor="slipping", out=tmp_path / "run",
-                 rerun="off", quiet=True)  # fmt: skip
+        run_task(
+            task,
+            options=RunOptions(rerun="off", quiet=True),
+            overrides=RunOverrides(backend="offline", executor="slipping", out=tmp_path / "run"),
+        )
     message = str(caught.value)
     assert caught.value.stage == "execute" and "falls short of the prediction" in message
     assert "80 % of the" in message and "(and 3 more)" in message

@@ -10,12 +10,13 @@ import numpy as np
 import pytest
 from helpers.vlm_server import Reply, VlmServer
 
-from keymps import load_task, run_task
+from keymps import RunOptions, RunOverrides, load_task, run_task
 from keymps.config.task import Expect
 from keymps.errors import StageError
 from keymps.scenes.render import ObjectSpec, SceneSpec, render_scene
 
 KEY_VARIABLE = "OUTCOME_REPAIR_API_KEY"
+QUIET = RunOptions(rerun="off", quiet=True)
 
 
 @pytest.fixture(scope="module")
@@ -26,9 +27,11 @@ def cake(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, np.ndarray]:
         folder / "cake.png"
     )
     exact = run_task(
-        _task(folder, png, "backend: offline"), out=folder / "exact", rerun="off", quiet=True,
+        _task(folder, png, "backend: offline"),
+        options=QUIET,
+        overrides=RunOverrides(out=folder / "exact"),
         through="ground",
-    )  # fmt: skip
+    )
     return png, np.asarray(exact.stages.plan.pairs_crop_px)
 
 
@@ -67,9 +70,10 @@ def test_unequal_pieces_go_back_and_the_repaired_plan_runs(cake, tmp_path):
     with VlmServer() as server:
         server.script(Reply.json_answer(_answer(off_centre)), Reply.json_answer(_answer(exact)))
         run = run_task(
-            load_task(_vlm_task(tmp_path, png)), api_base=server.openai_base,
-            out=tmp_path / "run", rerun="off", quiet=True,
-        )  # fmt: skip
+            load_task(_vlm_task(tmp_path, png)),
+            options=QUIET,
+            overrides=RunOverrides(api_base=server.openai_base, out=tmp_path / "run"),
+        )
         requests = server.chat_requests
     assert len(requests) == 2
     repair = requests[1].body["messages"]
@@ -95,9 +99,10 @@ def test_repair_rounds_are_bounded_by_planner_attempts(cake, tmp_path):
     with VlmServer(responder=lambda request: json.dumps(_answer(wrong))) as server:
         with pytest.raises(StageError) as caught:
             run_task(
-                load_task(_vlm_task(tmp_path, png, attempts=3)), api_base=server.openai_base,
-                out=tmp_path / "run", rerun="off", quiet=True,
-            )  # fmt: skip
+                load_task(_vlm_task(tmp_path, png, attempts=3)),
+                options=QUIET,
+                overrides=RunOverrides(api_base=server.openai_base, out=tmp_path / "run"),
+            )
         assert len(server.chat_requests) == 3
     message = str(caught.value)
     assert caught.value.stage == "outcome" and "3 plan rounds with the VLM" in message
@@ -112,9 +117,10 @@ def test_accept_outcome_executes_a_wrong_plan_and_says_so(cake, tmp_path):
     off_centre = exact + np.array([14.0, 9.0])
     with VlmServer(responder=lambda request: json.dumps(_answer(off_centre))) as server:
         run = run_task(
-            load_task(_vlm_task(tmp_path, png)), api_base=server.openai_base,
-            out=tmp_path / "run", rerun="off", quiet=True, accept_outcome=True,
-        )  # fmt: skip
+            load_task(_vlm_task(tmp_path, png)),
+            options=RunOptions(rerun="off", quiet=True, accept_outcome=True),
+            overrides=RunOverrides(api_base=server.openai_base, out=tmp_path / "run"),
+        )
         assert len(server.chat_requests) == 1  # accepted: no repair round
     record = json.loads((run.folder / "run.json").read_text())
     assert record["ok"] and record["outcome"]["verdict"] == "accepted"
@@ -129,7 +135,11 @@ def test_the_offline_planner_is_not_asked_again(tmp_path):
     task = load_task(repo / "tasks" / "object_cutting.yaml")
     task = task.model_copy(update={"expect": Expect(pieces=7, equal=True)})
     with pytest.raises(StageError) as caught:
-        run_task(task, backend="offline", out=tmp_path / "run", rerun="off", quiet=True)
+        run_task(
+            task,
+            options=QUIET,
+            overrides=RunOverrides(backend="offline", out=tmp_path / "run"),
+        )
     assert "the cuts leave 8 pieces" in str(caught.value) and "plan rounds" not in str(caught.value)
     record = json.loads((tmp_path / "run" / "run.json").read_text())
     assert record["outcome"]["intent"][0]["source"] == "expect"

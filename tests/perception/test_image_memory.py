@@ -54,19 +54,21 @@ def task(folder: Path, image: Path) -> Path:
 CHILD = """
 import json, resource, sys
 import keymps
+from keymps import RunOptions, RunOverrides
 from keymps.errors import KeympsError
 
 def status(field):
     text = open("/proc/self/status").read()
     return int(text.split(field + ":")[1].split()[0]) * 1024
 
-keymps.run_task(sys.argv[1], out=sys.argv[2], rerun="off")  # imports and warms up
+OFF = RunOptions(rerun="off")
+keymps.run_task(sys.argv[1], options=OFF, overrides=RunOverrides(out=sys.argv[2]))  # warms up
 base, limit_gb = status("VmHWM"), float(sys.argv[5])
 if limit_gb:
     limit = status("VmSize") + int(limit_gb * 2**30)
     resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
 try:
-    keymps.run_task(sys.argv[3], out=sys.argv[4], rerun="off")
+    keymps.run_task(sys.argv[3], options=OFF, overrides=RunOverrides(out=sys.argv[4]))
     error = None
 except KeympsError as caught:
     error = str(caught)

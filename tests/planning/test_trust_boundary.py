@@ -625,7 +625,11 @@ from keymps.errors import KeympsError
 started, error = time.perf_counter(), None
 try:
     task = keymps.load_task(sys.argv[1])
-    keymps.run_task(task, api_base=sys.argv[2], out=sys.argv[3], rerun="off", executor="sim")
+    keymps.run_task(
+        task,
+        options=keymps.RunOptions(rerun="off"),
+        overrides=keymps.RunOverrides(api_base=sys.argv[2], out=sys.argv[3], executor="sim"),
+    )
 except KeympsError as caught:
     error = str(caught)
 # VmHWM: this process's own peak (ru_maxrss would start from the forking parent's size)

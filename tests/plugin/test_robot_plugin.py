@@ -88,12 +88,16 @@ def test_keymps_plugins_lists_the_installed_robot(installed: Path) -> None:
 RUN = """
 import json, sys
 import numpy as np
-from keymps import load_task, run_task
+from keymps import RunOptions, RunOverrides, load_task, run_task
 
 task = load_task(sys.argv[1])
 robot = task.robot.model_copy(update={"model": "boxarm", "tool": task.robot.tool})
 task = task.model_copy(update={"robot": robot})
-run = run_task(task, out=sys.argv[2], rerun="off", backend="offline", executor="sim", quiet=True)
+run = run_task(
+    task,
+    options=RunOptions(rerun="off", quiet=True),
+    overrides=RunOverrides(out=sys.argv[2], backend="offline", executor="sim"),
+)
 trajectory = run.stages.check.trajectory
 positions, rotations = run.robot.tool_poses(np.asarray(trajectory.q))
 print(json.dumps({

@@ -370,7 +370,11 @@ def test_every_cut_of_the_shipped_cutting_tasks_runs_its_whole_length_in_mujoco(
     task = keymps.load_task(repo / "tasks" / f"{shipped}.yaml")
     executor = {"name": "mujoco", "video": False, "outcome": False}
     task = task.model_copy(update={"executor": task.executor.model_validate(executor)})
-    run = keymps.run_task(task, backend="offline", out=tmp_path / "run", quiet=True, rerun="off")
+    run = keymps.run_task(
+        task,
+        options=keymps.RunOptions(rerun="off", quiet=True),
+        overrides=keymps.RunOverrides(backend="offline", out=tmp_path / "run"),
+    )
     outcome, measured = run.stages.outcome, run.stages.execute.measured
     assert outcome is not None and measured is not None
     assert outcome.verdict == "pass" and outcome.measured_problems == ()
