@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 import keymps
@@ -149,6 +150,43 @@ def test_overrides_are_validated(tmp_path: Path, observer: EnginePlugin) -> None
             _task_copy(tmp_path),
             overrides=RunOverrides(image=tmp_path / "nope.png", out=tmp_path / "r"),
         )
+
+
+def test_the_deprecated_keywords_still_run_and_warn_at_the_callers_line(
+    tmp_path: Path, observer: EnginePlugin
+) -> None:
+    """The only call of the old `run_task(task, out=..., rerun=...)` form in the tests (the
+    pytest configuration turns its warning into an error everywhere else)."""
+    deprecated = r"^run_task\(\*\*keywords\) is deprecated: pass options=RunOptions"
+    instruction = "Put 10 icing dots around the cake"
+    with pytest.warns(DeprecationWarning, match=deprecated) as caught:
+        old = keymps.run_task(
+            _task_copy(tmp_path),
+            instruction=instruction,
+            executor="recording",
+            out=tmp_path / "old",
+            rerun="off",
+            quiet=True,
+        )
+    warned = [w for w in caught if issubclass(w.category, DeprecationWarning)]
+    assert len(warned) == 1 and warned[0].filename == __file__
+    new = keymps.run_task(
+        _task_copy(tmp_path),
+        options=RunOptions(rerun="off", quiet=True),
+        overrides=RunOverrides(instruction=instruction, executor="recording", out=tmp_path / "new"),
+    )
+    assert old.folder == tmp_path / "old" and old.options == new.options
+    assert old.task.instruction == new.task.instruction == instruction
+    assert old.stages.execute is not None and old.stages.execute.ok
+    executed_old, executed_new = (c.trajectory.q for c in RecordingExecutor.calls)
+    assert executed_new is new.stages.check.trajectory.q
+    assert executed_old.shape[0] > 100 and np.array_equal(executed_old, executed_new)
+    with (
+        pytest.warns(DeprecationWarning),
+        pytest.raises(KeympsError, match=r"run option\(s\): outt"),
+    ):
+        keymps.run_task(_task_copy(tmp_path), outt=tmp_path / "typo")
+    assert not (tmp_path / "typo").exists()
 
 
 def test_a_failing_observer_is_a_warning_not_a_failed_run(tmp_path: Path, keymps_plugins) -> None:
