@@ -18,6 +18,7 @@ outputs all pass through `redact` (docs/security.md).
 
 from __future__ import annotations
 
+import functools
 import os
 import re
 import threading
@@ -107,20 +108,26 @@ def known_secrets(extra: Iterable[str] = ()) -> list[Form]:
     (base64, hex, %XX, reversed; its \\uXXXX escapes as a pattern), and the pieces of every
     key that is sent or may be (`remember`, `extra`) however a server splits it
     (keymps.planning.secret_forms)."""
-    from keymps.planning.secret_forms import encoded_forms, escape_pattern, fragments
-
     with _lock:
         sent = set(_remembered)
     sent.update(s for s in extra if s)
     sent -= NOT_SECRETS
-    values = sent | set(environment_secrets())
+    return list(_forms_of(frozenset(sent | set(environment_secrets())), frozenset(sent)))
+
+
+@functools.lru_cache(maxsize=32)
+def _forms_of(values: frozenset[str], sent: frozenset[str]) -> tuple[Form, ...]:
+    """`known_secrets` for these values (`sent`: those whose pieces count too), longest first;
+    cached, since every write redacts and the secrets rarely change."""
+    from keymps.planning.secret_forms import encoded_forms, escape_pattern, fragments
+
     forms: set[str] = set()
     for value in values:
         forms |= encoded_forms(value)
     for value in sent:
         forms |= fragments(value)
     escaped = escape_pattern(values)
-    return [*sorted(forms - NOT_SECRETS, key=len, reverse=True), *([escaped] if escaped else [])]
+    return (*sorted(forms - NOT_SECRETS, key=len, reverse=True), *([escaped] if escaped else []))
 
 
 def redact_text(text: str, secrets: Iterable[Form] | None = None) -> str:
