@@ -2,7 +2,8 @@
 
 The fuzz suites (tests/*/test_*_fuzz.py and test_litellm_faults.py) add each
 distinct case they try to the session's `fuzz_counter`; pytest's terminal summary then prints
-one line per suite, so CI logs show how many cases ran (docs/safety.md).
+one line per suite, so CI logs show how many cases ran (docs/safety.md). The tests run in
+pytest-xdist workers: each worker hands its counts to the controlling process when it ends.
 """
 
 from __future__ import annotations
@@ -29,6 +30,20 @@ class FuzzCounter:
     def total(self, prefix: str = "") -> int:
         return sum(len(v) for k, v in self.distinct.items() if k.startswith(prefix))
 
+    def as_data(self) -> dict[str, Any]:
+        """The counts as plain data, for a worker to send to the controlling process."""
+        return {
+            suite: {"distinct": sorted(digests), "outcomes": dict(self.outcomes[suite])}
+            for suite, digests in self.distinct.items()
+        }
+
+    def merge(self, data: dict[str, Any]) -> None:
+        """Add a worker's counts (`as_data`)."""
+        for suite, counts in data.items():
+            self.distinct[suite].update(counts["distinct"])
+            for outcome, n in counts["outcomes"].items():
+                self.outcomes[suite][outcome] += n
+
     def lines(self) -> list[str]:
         lines = []
         for suite in sorted(self.distinct):
@@ -43,6 +58,18 @@ COUNTER = FuzzCounter()
 @pytest.fixture(scope="session")
 def fuzz_counter() -> FuzzCounter:
     return COUNTER
+
+
+def pytest_sessionfinish(session: pytest.Session) -> None:
+    worker_output = getattr(session.config, "workeroutput", None)
+    if worker_output is not None:  # a pytest-xdist worker
+        worker_output["fuzz_counter"] = COUNTER.as_data()
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_testnodedown(node: Any, error: Any) -> None:
+    """pytest-xdist's controller: a worker ended; its counts join the summary."""
+    COUNTER.merge(getattr(node, "workeroutput", {}).get("fuzz_counter", {}))
 
 
 def pytest_terminal_summary(terminalreporter: Any) -> None:

@@ -69,7 +69,8 @@ def main() -> None:
             env.pop("PYTHONDONTWRITEBYTECODE", None)
             env["PYTHONPYCACHEPREFIX"] = str(Path(folder) / "pycache")
         measured = commands(Path(folder) / "run")
-        interleaved(measured, 1, env)  # warm the file cache (and the bytecode cache)
+        if not args.quick:  # warm the file cache (and the bytecode cache)
+            interleaved(measured, 1, env)
         result = interleaved(measured, args.repeats, env)
     for name, seconds in result.items():
         print(f"{name:<18} {seconds * 1000:8.1f} ms")

@@ -230,7 +230,7 @@ def main() -> None:
     )
     args = parser.parse_args()
     if args.quick:
-        args.requests, args.long, args.slow_requests = 8, 120, 4
+        args.requests, args.long, args.slow_requests = 8, 40, 4
         args.latency, args.slow_latency = 0.05, 0.2
     work = Path(tempfile.mkdtemp(prefix="keymps-eval-perf-"))
     server = Server(args.latency)
@@ -239,7 +239,7 @@ def main() -> None:
     try:
         # imports, litellm's first request, first renders, and the fork server of the worker
         # processes (started once per process, like the imports)
-        run(16, 8, api_base, work / "warmup")
+        run(4 if args.quick else 16, 8, api_base, work / "warmup")
         seconds: dict[int, float] = {}
         for concurrency in (1, 8):
             seconds[concurrency], records = run(
