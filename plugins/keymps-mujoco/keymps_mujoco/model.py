@@ -77,6 +77,9 @@ class SimScene:
     dof_adr: np.ndarray
     kp: np.ndarray
     kv: np.ndarray
+    timestep_s: float
+    """The physics step the scene was built with (a simulation shortens the model's to divide
+    its controller period; `reset` puts this one back)."""
     texture_id: int = -1
     """The 2D texture on the board's and the objects' tops (-1: plain colours)."""
     texture_size: tuple[int, int] = (0, 0)
@@ -90,6 +93,16 @@ class SimScene:
         self.data.qvel[self.dof_adr] = 0.0
         self.data.ctrl[:] = q
         mujoco.mj_forward(self.model, self.data)
+
+    def reset(self, q: np.ndarray) -> None:
+        """Back to the state of a newly built scene, the arm at rest at `q` (radians): time 0,
+        no velocity, actuator state, contact or solver warm start left from an earlier
+        simulation, and the built timestep."""
+        import mujoco
+
+        mujoco.mj_resetData(self.model, self.data)
+        self.model.opt.timestep = self.timestep_s
+        self.set_joints(q)
 
 
 def build_scene(
@@ -247,6 +260,7 @@ def _sim_scene(
         dof_adr=np.array([model.jnt_dofadr[j] for j in joints], dtype=int),
         kp=np.zeros(len(joints)),
         kv=np.zeros(len(joints)),
+        timestep_s=float(model.opt.timestep),
         texture_id=texture_id,
         texture_size=(0, 0) if texture_id < 0 else _texture_size(model, texture_id),
         props=props,

@@ -5,7 +5,9 @@ set-points move linearly (servoJ's interpolation), with velocity and inertial fe
 the position servos do not lag; gravity is compensated through the actuators. The physics runs
 `substeps` steps per controller period. After each period the tool tip, the joint torques and
 the tool's contact with the board are recorded; a state that is not finite, a tool tip further
-than `divergence_m` from the plan, or a torque above its limit stops the simulation.
+than `divergence_m` from the plan, or a torque above its limit stops the simulation. Every
+run starts from the scene reset (SimScene.reset): a scene simulated before gives the same
+result, bit for bit, as a new one.
 """
 
 from __future__ import annotations
@@ -112,7 +114,8 @@ def simulate(
     joint_names: tuple[str, ...] = (),
     on_step: Callable[[Step], None] | None = None,
 ) -> SimResult:
-    """Run a trajectory of n samples; `on_step` sees every controller period's end.
+    """Run a trajectory of n samples from a reset scene; `on_step` sees every controller
+    period's end.
 
     Args:
         scene: The compiled scene with an arm, its servos tuned.
@@ -130,8 +133,8 @@ def simulate(
     """
     import time
 
+    scene.reset(q[0])  # a scene that ran before starts as a new one would
     substeps = _set_substeps(scene.model, rate_hz)
-    scene.set_joints(q[0])
     leads = _feed_forward_leads(scene)
     limits = np.asarray(torque_limits, dtype=float)
     tracking = _Tracking.start(len(t), len(limits), scene.data.site_xpos[scene.tcp_site])

@@ -171,6 +171,99 @@ def test_a_torque_limit_or_divergence_fails_cleanly(tmp_path: Path) -> None:
     assert not strict.ok and "diverged" in strict.message
 
 
+def knife_on_the_board(task: Task) -> ValidatedTrajectory:
+    """A plunge onto the board and back up: the blade presses on it for a while."""
+    down = line([0.15, 0.09, 0.03], [0.17, 0.09, 0.0])
+    up = line([0.17, 0.09, 0.0], [0.17, 0.09, 0.03])
+    return validated_path(task, [("work", down), ("travel", up)])
+
+
+FRESH_PROCESS = """
+import json, sys
+import numpy as np
+sys.path.insert(0, sys.argv[1])
+from test_mujoco import execute, knife_on_the_board, make_run, make_task, simulated
+from pathlib import Path
+task = make_task("knife")
+validated = knife_on_the_board(task)
+np.savez(Path(sys.argv[2]) / "fresh.npz", **simulated(validated, reused=False))
+report = execute(validated, make_run(task, Path(sys.argv[2]), outline=True), video=True,
+                 video_height_px=64, video_fps=10)
+(Path(sys.argv[2]) / "figures.json").write_text(json.dumps(report.figures))
+"""
+
+
+def simulated(validated: ValidatedTrajectory, reused: bool) -> dict[str, Any]:
+    """The SimResult of `validated` (and the clock and timestep after it) in a new scene, or in
+    one that first ran part of it at another controller rate, then up to where the blade
+    presses on the board (moving, in contact, the solver warm)."""
+    from keymps_mujoco.model import build_scene
+    from keymps_mujoco.simulate import simulate
+
+    trajectory = validated.trajectory
+    t, q, qd, qdd = trajectory.t, trajectory.q, trajectory.qd, trajectory.qdd
+    tip = np.asarray(trajectory.tool_xyz)
+    robot = RobotModel.from_task(make_task("knife"))
+    scene = build_scene(robot, (0.30, 0.18), (0.0, 0.0))
+    if reused:
+        simulate(scene, t[:50], q[:50], qd[:50], qdd[:50], tip[:50], 300.0)
+        whole = simulate(scene, t, q, qd, qdd, tip, trajectory.rate_hz)
+        pressed = int(np.argmax(whole.contact_force_n > 0)) + 1
+        earlier = simulate(scene, t[:pressed], q[:pressed], qd[:pressed], qdd[:pressed],
+                           tip[:pressed], trajectory.rate_hz)  # fmt: skip
+        assert earlier.contact_force_n[-1] > 0 and scene.data.ncon > 0
+    result = simulate(scene, t, q, qd, qdd, tip, trajectory.rate_hz)
+    return {
+        "t": result.t, "tip": result.tip, "torque_max_nm": result.torque_max_nm,
+        "torque_peak_t": result.torque_peak_t, "contact_force_n": result.contact_force_n,
+        "steps": result.steps, "time": scene.data.time, "timestep": scene.model.opt.timestep,
+    }  # fmt: skip
+
+
+def test_a_reused_scene_simulates_exactly_as_a_fresh_process(tmp_path: Path) -> None:
+    """simulate() on a scene that had run before kept its clock and its shortened timestep:
+    the torque peaks came 2.4 s late (the earlier run's length) and a run after one at another
+    controller rate took 1485 physics steps instead of 1188. The second run now equals a fresh
+    process's bit for bit, and so does a second execution's figures and video."""
+    import json
+    import subprocess
+    import sys
+
+    import cv2
+
+    task = make_task("knife")
+    validated = knife_on_the_board(task)
+    fresh_folder = tmp_path / "fresh"
+    fresh_folder.mkdir()
+    subprocess.run(
+        [sys.executable, "-c", FRESH_PROCESS, str(Path(__file__).parent), str(fresh_folder)],
+        check=True,
+    )
+    fresh = np.load(fresh_folder / "fresh.npz")
+    again = simulated(validated, reused=True)
+    for name, value in again.items():
+        assert np.array_equal(value, fresh[name]), name
+    assert again["time"] == pytest.approx(validated.trajectory.duration_s)
+    for attempt in ("first", "second"):
+        report = execute(validated, make_run(task, tmp_path / attempt, outline=True),
+                         video=True, video_height_px=64, video_fps=10)  # fmt: skip
+    figures = json.loads((fresh_folder / "figures.json").read_text())
+    assert {k: v for k, v in report.figures.items() if k != "wall_time_s"} == {
+        k: v for k, v in figures.items() if k != "wall_time_s"
+    }
+    videos = [cv2.VideoCapture(str(folder / "execution.mp4")) for folder in
+              (fresh_folder, tmp_path / "second")]  # fmt: skip
+    frames = 0
+    while True:
+        (ok, frame), (ok_again, frame_again) = (video.read() for video in videos)
+        assert ok == ok_again
+        if not ok:
+            break
+        assert np.array_equal(frame, frame_again), frames
+        frames += 1
+    assert frames == report.figures["video_frames"] > 0
+
+
 def test_the_executor_refuses_an_unvalidated_trajectory(tmp_path: Path) -> None:
     task = make_task("piping_bag", height=0.06)
     validated = validated_path(task, [("work", line([0.12, 0.09, 0.07], [0.18, 0.09, 0.07]))])
