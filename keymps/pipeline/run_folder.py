@@ -7,6 +7,8 @@ import errno
 import json
 import math
 import os
+import re
+import shutil
 from pathlib import Path
 from typing import Any
 
@@ -18,11 +20,11 @@ from keymps.run import Run
 from keymps.run_files import IMAGE_FORMATS, write_atomically
 from keymps.types import ToolPath, ValidatedTrajectory
 
-SCHEMA_VERSION = "1.5"
+SCHEMA_VERSION = "1.6"
 """1.1: `status` (ok, failed, interrupted). 1.2: `unfinished`, the placeholder written before the
 first stage. 1.3: `pieces` (the tool path's pieces: the kind and the keypoint pairs of each).
 1.4: `outcome` (the predicted result, the verdict). 1.5: `outcome`'s deposits' `pairs` (every pair
-a stroke pipes)."""
+a stroke pipes). 1.6: `files` (the run's files and folders, relative to its folder)."""
 
 RESERVED_BYTES = 16384
 """run.json's placeholder holds this much disk space until the run ends (typical records are
@@ -161,6 +163,7 @@ def run_record(run: Run, error: BaseException | None) -> dict[str, Any]:
             "figures": {k: _rounded(float(v)) for k, v in executed.figures.items()},
         },
         "warnings": list(run.warnings),
+        "files": run_files(run),
     }
 
 
@@ -220,7 +223,7 @@ def write_run_json(run: Run, error: BaseException | None = None) -> None:
 
 SHORT_FIELDS = (
     "schema_version", "keymps_version", "ok", "status", "error", "task", "task_file",
-    "backend", "execution", "warnings",
+    "backend", "execution", "warnings", "files",
 )  # fmt: skip
 """What run.json keeps when the disk is full and the whole record does not fit its reserved
 space (`"short": true` says so)."""
@@ -280,27 +283,89 @@ EARLIER_RUN_FILES = (
     "trajectory.script",
     "run.rrd",
     "execution.mp4",
+    "ur_rtde.log",
+    "trajectory_bag/",
     *(
         f"{stem}.{suffix}"
         for stem in ("plan", "plan_photo", "plan_outcome", "outcome")
         for suffix in IMAGE_FORMATS
     ),
 )
-"""What a run and the bundled plugins write beside run.json (docs/run-folder.md)."""
+"""What a run and the bundled plugins write beside run.json under their default names (a
+folder's ends in /, docs/run-folder.md): removed from an earlier run's folder whatever its
+run.json lists (it lists nothing when its run was killed, or recorded before schema 1.6)."""
+
+RECORD_BYTES_READ = 4 << 20
+"""An earlier run.json larger than this is not read for its files (a record is 5-50 kB)."""
+_TEMPORARY = re.compile(r"\..+\.\d+-[0-9a-f]{8}\.tmp")
+"""A hidden temporary file or folder of open_atomically (or an exporter writing the same way)
+that a killed run left behind."""
+
+
+def run_files(run: Run) -> list[str]:
+    """The run's files and folders in its folder, relative to it, sorted (a folder's name ends
+    in /): EARLIER_RUN_FILES' that are there, and every one its executor reported; run.json,
+    vlm/ and the lock aside."""
+    folder = run.folder
+    names = {name for name in EARLIER_RUN_FILES if _kind_of(folder / name) == _kind(name)}
+    executed = run.stages.execute
+    for reported in executed.files if executed is not None else ():
+        name = _relative(folder, Path(reported))
+        if name is not None:
+            names.add(name + "/" if _kind_of(folder / name) == "folder" else name)
+    return sorted(names)
+
+
+def _kind(name: str) -> str:
+    return "folder" if name.endswith("/") else "file"
+
+
+def _kind_of(path: Path) -> str | None:
+    """file (a link too, never followed), folder, or None when nothing is there."""
+    if path.is_symlink() or path.is_file():
+        return "file"
+    return "folder" if path.is_dir() else None
+
+
+def _relative(folder: Path, path: Path) -> str | None:
+    """`path` (absolute, or relative like `folder`) relative to `folder` (POSIX, no ..), or
+    None when it is not inside it or is the folder itself."""
+    for base, inside in ((folder, path), (folder.absolute(), path.absolute())):
+        try:
+            name = inside.relative_to(base).as_posix()
+        except ValueError:
+            continue
+        return _safe(name)
+    return None
+
+
+def _safe(name: str) -> str | None:
+    """`name` if it is a plain relative path inside a run folder that names no file the run
+    keeps itself (run.json, vlm/, the lock), else None."""
+    parts = Path(name.rstrip("/")).parts
+    if not parts or Path(name).is_absolute() or any(p in ("..", ".", "") for p in parts):
+        return None
+    if parts[0] in ("run.json", "vlm", ".keymps.lock"):
+        return None
+    return name
 
 
 def clear_earlier_run(folder: Path) -> None:
-    """Remove an earlier run's files (EARLIER_RUN_FILES, vlm/'s files, run.json last) from a
-    folder holding its run.json, so that no file of that run passes for the new run's (a failed
-    run left the old trajectory.csv beside its own run.json). A folder without run.json is left
-    as it is. Call with the folder's lock held."""
+    """Remove an earlier run's files from a folder holding its run.json, so that no file of that
+    run passes for the new run's (a failed run left the old trajectory.csv beside its own
+    run.json; a run without the rosbag executor the old bag): EARLIER_RUN_FILES, the files and
+    folders its run.json lists, vlm/'s files, a killed run's temporaries, run.json last. Nothing
+    is reached through a link or outside the folder. A folder without run.json is left as it
+    is. Call with the folder's lock held."""
     record = folder / "run.json"
     if not record.is_file():
         return
+    names = dict.fromkeys([*EARLIER_RUN_FILES, *_recorded_files(folder, record)])
+    names.update(dict.fromkeys(_temporaries(folder)))
+    for name in names:
+        _remove(folder, name)
     answers = folder / "vlm"
     try:
-        for name in EARLIER_RUN_FILES:
-            (folder / name).unlink(missing_ok=True)
         if answers.is_dir() and not answers.is_symlink():
             for entry in answers.iterdir():
                 if entry.is_file() or entry.is_symlink():  # a link itself, never its target
@@ -311,3 +376,65 @@ def clear_earlier_run(folder: Path) -> None:
         raise KeympsError(
             f"{folder}: cannot remove the earlier run's {what}: {error.strerror}"
         ) from None
+
+
+def _recorded_files(folder: Path, record: Path) -> list[str]:
+    """The files and folders an earlier run.json lists: `files` (1.6), else its executor's
+    (`execution.files`, paths as that run named them); none from a record that cannot be read."""
+    try:
+        if record.stat().st_size > RECORD_BYTES_READ:
+            return []
+        data = json.loads(record.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return []
+    if not isinstance(data, dict):
+        return []
+    listed = data.get("files")
+    if isinstance(listed, list):
+        return [name for name in listed if isinstance(name, str) and _safe(name)]
+    execution = data.get("execution")
+    reported = execution.get("files") if isinstance(execution, dict) else None
+    names = []
+    for path in reported if isinstance(reported, list) else ():
+        name = _relative(folder, Path(path)) if isinstance(path, str) else None
+        if name is not None:
+            names.append(name + "/" if _kind_of(folder / name) == "folder" else name)
+    return names
+
+
+def _temporaries(folder: Path) -> list[str]:
+    """A killed run's hidden temporary files and folders at the top of its folder."""
+    try:
+        entries = [entry for entry in folder.iterdir() if _TEMPORARY.fullmatch(entry.name)]
+    except OSError:
+        return []
+    return [e.name + "/" if _kind_of(e) == "folder" else e.name for e in entries]
+
+
+def _remove(folder: Path, name: str) -> None:
+    """Remove file or folder `name` of an earlier run (a link itself, never what it leads to),
+    then the folders it leaves empty; nothing through a link. One line naming it if it cannot."""
+    path = folder / name.rstrip("/")
+    if any(parent.is_symlink() for parent in _parents(folder, path)):
+        return
+    try:
+        if _kind(name) == "folder" and _kind_of(path) == "folder":
+            shutil.rmtree(path)
+        elif _kind_of(path) is not None:
+            path.unlink()
+        else:
+            return
+    except OSError as error:
+        raise KeympsError(
+            f"{folder}: cannot remove the earlier run's {name.rstrip('/')}: {error.strerror}"
+        ) from None
+    for parent in _parents(folder, path):
+        try:
+            parent.rmdir()
+        except OSError:  # not empty (or gone): it holds other files
+            break
+
+
+def _parents(folder: Path, path: Path) -> list[Path]:
+    """The folders between `folder` and `path`, innermost first."""
+    return list(path.parents)[: len(path.relative_to(folder).parts) - 1]

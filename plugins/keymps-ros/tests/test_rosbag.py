@@ -241,3 +241,51 @@ def test_bad_options_are_one_line(options: dict[str, object], message: str) -> N
 def test_the_package_registers_its_executors_through_its_entry_point() -> None:
     executors = components("executor", build_manager())
     assert {"rosbag", "ros2"} <= set(executors)
+
+
+def run_into(folder: Path, executor: dict[str, Any], instruction: str | None = None) -> Any:
+    """The shipped icing task run into `folder` with `executor` (a failed run: its error)."""
+    import json
+
+    import keymps
+
+    repo = Path(__file__).resolve().parents[3]
+    task = keymps.load_task(repo / "tasks" / "cake_icing.yaml")
+    task = task.model_copy(update={"executor": task.executor.model_validate(executor)})
+    overrides = keymps.RunOverrides(backend="offline", out=folder, instruction=instruction)
+    try:
+        keymps.run_task(task, options=keymps.RunOptions(rerun="off", quiet=True),
+                        overrides=overrides)  # fmt: skip
+    except KeympsError as error:
+        return error
+    return json.loads((folder / "run.json").read_text())
+
+
+def test_a_later_run_into_the_folder_leaves_no_bag_of_an_earlier_one(tmp_path: Path) -> None:
+    """A run with the rosbag executor, then one with another executor into the same --out: the
+    earlier run's bag stayed beside the new run's run.json, and a script reading the folder
+    took its motion for the new run's. Its bag goes with the rest of the earlier run's files,
+    wherever `executor.bag` put it, even after the folder was moved."""
+    folder = tmp_path / "run"
+    first = run_into(folder, {"name": "rosbag"})
+    assert first["files"] == ["plan.png", "plan_outcome.png", "trajectory.csv", "trajectory_bag/"]
+    assert first["execution"]["files"] == [str(folder / "trajectory_bag")]
+    (folder / "notes.txt").write_text("mine")  # not a run's: kept
+    second = run_into(folder, {"name": "sim"})
+    assert sorted(p.name for p in folder.iterdir()) == sorted(
+        [".keymps.lock", "notes.txt", "run.json", "vlm", *second["files"]]
+    )
+    assert "trajectory_bag/" not in second["files"] and "outcome.png" in second["files"]
+
+    run_into(folder, {"name": "rosbag", "bag": "exports/icing/bag"})
+    assert (folder / "exports" / "icing" / "bag" / "metadata.yaml").is_file()
+    moved = tmp_path / "moved"
+    folder.rename(moved)  # run.json names its files relative to its folder
+    failed = run_into(moved, {"name": "rosbag"}, instruction="asdf")
+    assert isinstance(failed, KeympsError) and "cannot turn 'asdf' into a design" in str(failed)
+    assert sorted(p.name for p in moved.iterdir()) == [
+        ".keymps.lock",
+        "notes.txt",
+        "run.json",
+        "vlm",
+    ]
