@@ -286,8 +286,8 @@ def _dot(intent: Intent, shape: CropShape, max_pairs: int) -> Layout:
 
 def _dots_ring(intent: Intent, shape: CropShape, max_pairs: int) -> Layout:
     path, ring_note = _dot_path(shape.outline, _ring_fraction(intent, shape, RING_FRACTION))
-    count = _ring_count(_perimeter(path), intent.count)
-    return patterns.dots_along_path(path, count), (
+    count = _ring_count(patterns.perimeter(path), intent.count)
+    return _ring_dots(shape.outline, path, count), (
         f"{shape.describe()}: {count} dots evenly spaced {ring_note}"
     )
 
@@ -313,17 +313,34 @@ def _rings(intent: Intent, shape: CropShape, max_pairs: int) -> Layout:
     small = min(o.length, o.width)
     first = (1 - _ring_fraction(intent, shape, 0.76)) * small / 2
     insets = [first + k * 0.7 * (small / 2 - first) / layers for k in range(layers)]
-    loops = [patterns.polyline(patterns.inset_path(o, inset), closed=True) for inset in insets]
+    paths = _fitting(max_pairs, [patterns.inset_path(o, inset) for inset in insets])
+    loops = [patterns.polyline(path, closed=True) for path in paths]
     return np.concatenate(loops, axis=0), (
         f"{what}: {layers} nested icing outlines following the edge"
     )
 
 
+LOOP_TOLERANCES_MM = (0.5, 1.0, 2.0)
+"""How far nested icing outlines may cut inside the measured ones, tried in turn, to fit
+planner.max_pairs (the edge distance is held to 1.5 mm at least)."""
+
+
+def _fitting(max_pairs: int, paths: list[np.ndarray]) -> list[np.ndarray]:
+    """Closed paths as they are, or thinned (LOOP_TOLERANCES_MM) until their segments fit
+    `max_pairs` pairs."""
+    fitting = paths
+    for tolerance in LOOP_TOLERANCES_MM:
+        if sum(len(path) for path in fitting) <= max_pairs:
+            break
+        fitting = [patterns.thinned_path(path, tolerance) for path in paths]
+    return fitting
+
+
 def _dots_spiral(intent: Intent, shape: CropShape, max_pairs: int) -> Layout:
     o = shape.outline
     path, ring_note = _dot_path(o, _ring_fraction(intent, shape, 0.85))
-    count = _ring_count(_perimeter(path), intent.count)
-    dots = patterns.dots_along_path(path, count)
+    count = _ring_count(patterns.perimeter(path), intent.count)
+    dots = _ring_dots(o, path, count)
     segments = _segments(max_pairs - count, 48)
     swirl = patterns.spiral(o.centre, 0.06 * _inner(o), 0.6 * _inner(o), 2.5, segments)
     return np.concatenate([dots, swirl], axis=0), (
@@ -379,9 +396,9 @@ def _dot_per_slice(intent: Intent, shape: CropShape, max_pairs: int) -> Layout:
 def _free(intent: Intent, shape: CropShape, max_pairs: int) -> Layout:
     o = shape.outline
     path, ring_note = _dot_path(o, _ring_fraction(intent, shape, 0.85))
-    count = _ring_count(_perimeter(path), None)
+    count = _ring_count(patterns.perimeter(path), None)
     star = patterns.star(o.centre, 0.5 * _inner(o), 5)
-    return np.concatenate([patterns.dots_along_path(path, count), star], axis=0), (
+    return np.concatenate([_ring_dots(o, path, count), star], axis=0), (
         f"{shape.describe()}: a free design: {count} dots {ring_note} and a five-pointed star "
         "in the middle"
     )
@@ -396,10 +413,10 @@ def _rings_of_dots(intent: Intent, shape: CropShape, max_pairs: int) -> tuple[np
     rings, counts = [], []
     for fraction in fractions:
         path, _ = _dot_path(o, fraction)
-        count = _ring_count(_perimeter(path), intent.count)
+        count = _ring_count(patterns.perimeter(path), intent.count)
         if intent.count is None:
-            count = max(3, int(round(_perimeter(path) / DOT_SPACING_MM)))
-        rings.append(patterns.dots_along_path(path, count))
+            count = max(3, int(round(patterns.perimeter(path) / DOT_SPACING_MM)))
+        rings.append(_ring_dots(o, path, count))
         counts.append(count)
     pairs = np.concatenate(rings, axis=0)
     if len(pairs) > max_pairs:
@@ -441,9 +458,12 @@ def _dot_path(o: Outline, fraction: float) -> tuple[np.ndarray, str]:
     return patterns.inset_path(o, inset), f"along the edge, {inset / 10:.1f} cm in from it"
 
 
-def _perimeter(path: np.ndarray) -> float:
-    closed = np.vstack([path, path[:1]])
-    return float(np.linalg.norm(np.diff(closed, axis=0), axis=1).sum())
+def _ring_dots(o: Outline, path: np.ndarray, count: int) -> np.ndarray:
+    """`count` dots along a ring: evenly by arc on a circle, each as far from the next on any
+    other path (spaced by arc, the two either side of a corner would merge first)."""
+    if o.kind == "round":
+        return patterns.dots_along_path(path, count)
+    return patterns.dots(patterns.points_equally_apart(path, count))
 
 
 _ICING: dict[str, Callable[[Intent, CropShape, int], Layout]] = {

@@ -22,9 +22,9 @@ from keymps.designs.outline import (
     chord,
     circle_polygon,
     direction,
+    inset_polygon,
     line_hits,
     ray,
-    rectangle_polygon,
 )
 
 # --- cutting ---------------------------------------------------------------------------------
@@ -208,20 +208,23 @@ def ring_of_dots(
 
 
 def inset_path(outline: Outline, inset: float) -> np.ndarray:
-    """A closed path `inset` inside the boundary: a circle for round objects, else a rectangle."""
+    """A closed path `inset` inside the boundary: a circle for round objects, else the measured
+    boundary itself moved in (its rounded corners and uneven sides followed, so that every point
+    of the path is `inset` from the nearest edge, as the outcome stage measures it)."""
     if outline.kind == "round":
         return circle_polygon(outline.centre, max(outline.radius - inset, 0.0), 360)
-    length, width = outline.length - 2 * inset, outline.width - 2 * inset
-    if length <= 0 or width <= 0:
-        raise ValueError("inset larger than the object")
-    low_u, high_u = outline.extent(outline.axis_angle)
-    low_v, high_v = outline.extent(outline.axis_angle + math.pi / 2)
-    middle = (
-        outline.centre
-        + (low_u + high_u) / 2 * outline.axis
-        + (low_v + high_v) / 2 * direction(outline.axis_angle + math.pi / 2)
-    )
-    return rectangle_polygon(middle, length, width, outline.axis_angle)
+    if inset <= 0:
+        return np.asarray(outline.polygon, float)
+    return inset_polygon(outline.polygon, inset)
+
+
+def thinned_path(path: np.ndarray, tolerance: float) -> np.ndarray:
+    """A closed path with as few of its vertices as keep it within `tolerance` (its units) of
+    itself (Douglas-Peucker): icing lines along it need fewer pairs."""
+    import cv2
+
+    points = np.asarray(path, np.float32).reshape(-1, 1, 2)  # what approxPolyDP takes
+    return np.asarray(cv2.approxPolyDP(points, tolerance, True), float).reshape(-1, 2)
 
 
 def points_along_closed_path(path: np.ndarray, count: int, start_angle: float = TOP) -> np.ndarray:
@@ -241,6 +244,93 @@ def points_along_closed_path(path: np.ndarray, count: int, start_angle: float = 
 def dots_along_path(path: np.ndarray, count: int, start_angle: float = TOP) -> np.ndarray:
     """`count` dots equally spaced along a closed path (e.g. `inset_path`)."""
     return dots(points_along_closed_path(path, count, start_angle))
+
+
+CHORD_SAMPLES = 2000
+"""points_equally_apart walks a closed path resampled at this many points."""
+
+
+def points_equally_apart(path: np.ndarray, count: int, start_angle: float = TOP) -> np.ndarray:
+    """`count` points on a closed path, each the same straight-line distance from the next (and
+    the last from the first), starting where points_along_closed_path does. Spaced by arc
+    length instead, the two points either side of a square's corner are down to 0.71 of the
+    spacing apart: icing dots there merge first. Where equal chords from that start keep the
+    points closer than arc spacing does (three points on a long path), arc spacing.
+
+    Args:
+        path: (N, 2) a closed path's vertices in order (not repeated at the end).
+        count: How many points (at least 1).
+        start_angle: The first point's direction from the path's centre, radians.
+
+    Returns:
+        (count, 2) the points in the path's order.
+    """
+    by_arc = points_along_closed_path(path, count, start_angle)
+    if count < 3:
+        return by_arc
+    ring = points_along_closed_path(path, CHORD_SAMPLES, start_angle)
+    # equal chords fit from the closest arc-spaced neighbours' gap (or 0) up to the arc spacing
+    low, high = 0.0, perimeter(ring) / count
+    if _walk(ring, _closest(by_arc), count) is not None:
+        low = _closest(by_arc)
+    for _ in range(24):  # to a ten-millionth of the spacing at most
+        chord = (low + high) / 2
+        if _walk(ring, chord, count) is None:
+            high = chord
+        else:
+            low = chord
+    placed = _walk(ring, low, count)  # low always fits (a chord of 0 does): never None
+    if placed is None or _closest(placed) < _closest(by_arc):
+        return by_arc  # a few points on a long path: no equal chords from this start
+    return placed
+
+
+def gaps(points: np.ndarray) -> np.ndarray:
+    """(n,) the distance from each of a closed chain of points (n, 2) to the next (the last's
+    to the first)."""
+    return np.asarray(np.linalg.norm(np.diff(np.vstack([points, points[:1]]), axis=0), axis=1))
+
+
+def perimeter(path: np.ndarray) -> float:
+    """The length of a closed path (n, 2)."""
+    return float(gaps(path).sum())
+
+
+def _closest(points: np.ndarray) -> float:
+    """The shortest distance between neighbours on a closed chain of points (n, 2)."""
+    return float(gaps(points).min())
+
+
+def _walk(ring: np.ndarray, chord: float, count: int) -> np.ndarray | None:
+    """Points along `ring` (M, 2) from its first, each `chord` from the one before, or None
+    when `count` of them do not fit with the last at least `chord` from the first."""
+    points, index = [ring[0]], 0
+    window = int(3 * chord / max(perimeter(ring) / len(ring), 1e-12)) + 2
+    for _ in range(count - 1):
+        beyond = np.empty(0, int)
+        for ahead in (ring[index + 1 : index + 1 + window], ring[index + 1 :]):  # near first
+            beyond = np.flatnonzero(np.linalg.norm(ahead - points[-1], axis=1) >= chord)
+            if len(beyond):
+                break
+        if not len(beyond):
+            return None
+        index += 1 + int(beyond[0])
+        before = ring[index - 1]
+        points.append(
+            before + _fraction(points[-1], before, ring[index], chord) * (ring[index] - before)
+        )
+    if np.linalg.norm(points[-1] - points[0]) < chord:
+        return None
+    return np.array(points)
+
+
+def _fraction(centre: np.ndarray, a: np.ndarray, b: np.ndarray, radius: float) -> float:
+    """Where along a -> b (0-1) the segment leaves the circle about `centre` (a inside it)."""
+    d, f = b - a, a - centre
+    qa, qb, qc = float(d @ d), float(2 * f @ d), float(f @ f - radius**2)
+    if qa < 1e-24:
+        return 0.0
+    return float(np.clip((-qb + math.sqrt(max(qb * qb - 4 * qa * qc, 0.0))) / (2 * qa), 0, 1))
 
 
 def polyline(points: np.ndarray, closed: bool = False) -> np.ndarray:

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from keymps.designs import patterns
+from keymps.designs.outline import rectangle_polygon
 from keymps.designs.patterns import Outline
 
 
@@ -17,7 +18,7 @@ def disk(radius=50.0, centre=(100.0, 80.0)) -> Outline:
 
 
 def bar(length=200.0, width=40.0, angle=0.0, centre=(150.0, 100.0)) -> Outline:
-    polygon = patterns.rectangle_polygon(centre, length, width, angle)
+    polygon = rectangle_polygon(centre, length, width, angle)
     kind = "square" if length == width else "elongated"
     return Outline(kind, polygon, np.array(centre), angle)
 
@@ -98,8 +99,79 @@ def test_dots_along_an_inset_square_are_evenly_spaced():
     path = patterns.inset_path(bar(100, 100), 10.0)
     points = patterns.points_along_closed_path(path, 8)
     closed = np.vstack([points, points[:1]])
-    assert np.all(np.abs(points - [150, 100]).max(axis=1) == pytest.approx(40.0))
-    assert np.allclose(np.abs(np.diff(closed, axis=0)).sum(axis=1), 40.0)  # 320 / 8, by arc
+    # the raster places the inset to a cell (1/600 of the outline: 0.17 mm here; an edge on a
+    # cell's centre is the worst case)
+    assert np.abs(np.abs(points - [150, 100]).max(axis=1) - 40.0).max() < 1.01 * 100 / 600
+    assert np.abs(np.abs(np.diff(closed, axis=0)).sum(axis=1) - 40.0).max() < 1.01 * 200 / 600
+
+
+def rounded_rectangle(length: float, width: float, corner: float, angle: float) -> np.ndarray:
+    """A rounded rectangle's outline (a square cake), turned by `angle`, centred on (150, 100)."""
+    half = np.array([length / 2 - corner, width / 2 - corner])
+    arcs = []
+    for k, (sx, sy) in enumerate([(1, 1), (-1, 1), (-1, -1), (1, -1)]):
+        turn = np.linspace(k * math.pi / 2, (k + 1) * math.pi / 2, 24)
+        arcs.append(half * [sx, sy] + corner * np.stack([np.cos(turn), np.sin(turn)], axis=1))
+    ring = np.concatenate(arcs)
+    c, s = math.cos(angle), math.sin(angle)
+    return ring @ np.array([[c, s], [-s, c]]) + [150.0, 100.0]
+
+
+def distance_to_boundary(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
+    a, b = polygon, np.roll(polygon, -1, axis=0)
+    ab = b - a
+    t = np.clip(np.einsum("pij,ij->pi", points[:, None] - a, ab) / (ab**2).sum(axis=1), 0, 1)
+    nearest = a + t[..., None] * ab
+    return np.linalg.norm(nearest - points[:, None], axis=2).min(axis=1)
+
+
+def test_an_inset_follows_the_measured_outline_at_its_distance():
+    """The ring of dots on a square cake ran along a rectangle inside its outline: at the
+    rounded corners and along a wavy side it came nearer the edge than asked. Every point of
+    the path (where the dots go) now lies the inset from the outline, to two raster cells,
+    over 200 outlines."""
+    rng = np.random.default_rng(5)
+    for _ in range(200):
+        length = rng.uniform(80, 160)
+        width = length * rng.uniform(0.5, 1.0)
+        polygon = rounded_rectangle(length, width, rng.uniform(0, 0.2) * width,
+                                    rng.uniform(-math.pi, math.pi))  # fmt: skip
+        polygon += rng.normal(0, 0.15, polygon.shape)  # a measured outline is not smooth
+        inset = rng.uniform(5, 0.4 * width)
+        outline = Outline("square", polygon, polygon.mean(axis=0), 0.0)
+        path = patterns.inset_path(outline, inset)
+        dense = np.concatenate([np.linspace(a, b, 8, endpoint=False)
+                                for a, b in zip(path, np.roll(path, -1, axis=0), strict=True)])  # fmt: skip
+        cell = np.ptp(polygon, axis=0).max() / 600
+        assert np.abs(distance_to_boundary(dense, polygon) - inset).max() < 2.2 * cell
+    with pytest.raises(ValueError, match="inset larger than the object"):
+        patterns.inset_path(bar(100, 40), 20.5)
+
+
+def test_points_equally_apart_keep_dots_apart_at_corners():
+    """10 dots on a 30 mm square spaced by arc: the two either side of a corner came 8.5 mm
+    apart, a dot's diameter (8 mm) from merging; equally apart they are all 10.8 mm apart. On
+    120 turned rounded rectangles the closest two are never closer than by arc, and from 6
+    points on (a ring the layout lays out) every gap is the same."""
+    square = rectangle_polygon((0, 0), 30.0, 30.0)
+    by_arc = patterns.gaps(patterns.points_along_closed_path(square, 10))
+    apart = patterns.gaps(patterns.points_equally_apart(square, 10))
+    assert np.ptp(apart) < 1e-3 and apart.min() > 10.7 > 8.5 > by_arc.min()
+    rng = np.random.default_rng(11)
+    for _ in range(120):
+        length = rng.uniform(20, 120)
+        width = length * rng.uniform(0.4, 1.0)
+        path = rounded_rectangle(length, width, rng.uniform(0, 0.3) * width, rng.uniform(-3, 3))
+        count = int(rng.integers(3, 30))
+        gaps = patterns.gaps(patterns.points_equally_apart(path, count))
+        assert (
+            gaps.min() >= patterns.gaps(patterns.points_along_closed_path(path, count)).min() - 1e-9
+        )
+        assert count < 6 or np.ptp(gaps) < 1e-3 * gaps.mean()
+    circle = patterns.circle_polygon((0, 0), 40.0, 360)
+    ring = patterns.points_equally_apart(circle, 12)
+    assert np.abs(np.linalg.norm(ring, axis=1) - 40.0).max() < 0.01
+    assert np.allclose(ring[0], [0, -40], atol=0.01)  # starts at the top, like the arc spacing
 
 
 def test_concentric_rings_and_spiral_are_chains():
