@@ -22,28 +22,23 @@ import argparse
 import json
 import math
 import os
-import re
 import tempfile
 import time
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Any
 
-CROP = re.compile(r"(\d+) x (\d+) pixels")
+from instant_vlm import InstantVlm, crop_size  # beside this script
+
 # as `keymps eval` does before NumPy loads: runs, not BLAS threads, are the parallelism
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 
 def _answer(body: dict[str, Any]) -> str:
-    texts = []
-    for message in body.get("messages", []):
-        content = message.get("content")
-        parts = content if isinstance(content, list) else [{"text": str(content)}]
-        texts += [part.get("text", "") for part in parts if isinstance(part, dict)]
-    width, height = (int(v) for v in CROP.findall(json.dumps(texts))[-1])
+    """Six equal wedges of the round cake the request shows: three diameters at 60 degrees."""
+    width, height = crop_size(body)
     cx, cy, r = width / 2, height / 2, min(width, height) / 2 - 1
     pairs = []
-    for k in range(3):  # three diameters at 60 degrees: six equal wedges of a round cake
+    for k in range(3):
         a = math.radians(90 + 60 * k)
         pairs.append(
             [
@@ -52,73 +47,6 @@ def _answer(body: dict[str, Any]) -> str:
             ]
         )
     return json.dumps({"keyword": "straight", "pairs": pairs, "rationale": "six wedges"})
-
-
-def _serve(latency: Any, port: Any) -> None:
-    """The server process: answers every request after latency.value seconds."""
-
-    class Handler(BaseHTTPRequestHandler):
-        protocol_version = "HTTP/1.1"  # keeps connections open, as VLM servers do
-        # Headers and body go out as two writes; with Nagle's algorithm on, the body would wait
-        # for the client's delayed ACK (40 ms on Linux). Servers like uvicorn set TCP_NODELAY.
-        disable_nagle_algorithm = True
-
-        def log_message(self, format: str, *args: Any) -> None:
-            pass
-
-        def do_POST(self) -> None:
-            body = json.loads(self.rfile.read(int(self.headers["Content-Length"])))
-            time.sleep(latency.value)
-            reply = {
-                "id": "perf",
-                "object": "chat.completion",
-                "created": int(time.time()),
-                "model": body.get("model", "perf"),
-                "choices": [
-                    {
-                        "index": 0,
-                        "message": {"role": "assistant", "content": _answer(body)},
-                        "finish_reason": "stop",
-                    }
-                ],
-                "usage": {"prompt_tokens": 100, "completion_tokens": 50, "total_tokens": 150},
-            }
-            data = json.dumps(reply).encode()
-            self.send_response(200)
-            self.send_header("Content-Type", "application/json")
-            self.send_header("Content-Length", str(len(data)))
-            self.end_headers()
-            self.wfile.write(data)
-
-    server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-    server.daemon_threads = True
-    port.value = server.server_address[1]
-    server.serve_forever()
-
-
-class Server:
-    """The VLM stand-in, in a process of its own (a VLM server is not part of keymps' work:
-    its CPU and memory are left out of the figures, its answers still cost their latency)."""
-
-    def __init__(self, latency: float):
-        import multiprocessing
-
-        context = multiprocessing.get_context("spawn")
-        self.latency = context.Value("d", latency)
-        port = context.Value("i", 0)
-        self.process = context.Process(target=_serve, args=(self.latency, port), daemon=True)
-        self.process.start()
-        while not port.value:
-            time.sleep(0.01)
-        self.api_base = f"http://127.0.0.1:{port.value}/v1"
-        self.pid = str(self.process.pid)
-
-    def set_latency(self, seconds: float) -> None:
-        self.latency.value = seconds
-
-    def close(self) -> None:
-        self.process.terminate()
-        self.process.join(timeout=5)
 
 
 def _rss_kb(pid: str) -> int:
@@ -233,7 +161,7 @@ def main() -> None:
         args.requests, args.long, args.slow_requests = 8, 40, 4
         args.latency, args.slow_latency = 0.05, 0.2
     work = Path(tempfile.mkdtemp(prefix="keymps-eval-perf-"))
-    server = Server(args.latency)
+    server = InstantVlm(_answer, args.latency)
     EXCLUDED.add(server.pid)
     api_base = server.api_base
     try:
