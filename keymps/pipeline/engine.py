@@ -597,14 +597,14 @@ def _backend_under_way(task: Task, backend: str, options: RunOptions) -> RunOpti
     (litellm's import, seconds) started on a thread, to overlap the stages before planning."""
     if backend in NO_SERVER or options.dispatch is not None:  # (eval's broker warms up itself)
         return options
-    from keymps.planning.planner import backend_options, prepare_backend
+    from keymps.planning.planner import backend_options, prepare_backend_in_background
     from keymps.planning.warm.dispatch import warm_dispatch
 
     if backend == AUTO_VLM:
         dispatch = warm_dispatch(options.warm_planner)
         if dispatch is not None:
             return replace(options, dispatch=dispatch)
-    prepare_backend(backend, backend_options(task))
+    prepare_backend_in_background(backend, backend_options(task))
     return options
 
 
