@@ -19,7 +19,7 @@ import numpy as np
 
 from keymps.errors import KeympsError
 from keymps.motion.spline import CubicSpline, SplineTable
-from keymps.motion.strokes import Stroke, _Shifted, split_stroke, split_strokes
+from keymps.motion.strokes import ShiftedPath, Stroke, split_stroke, split_strokes
 from keymps.types import JointPath, ToolPath, Trajectory
 
 if TYPE_CHECKING:
@@ -169,7 +169,7 @@ class _StrokeRates:
         spline_of: list[CubicSpline | None] = []
         for stroke in strokes:
             q_of_s, offsets = stroke.q_of_s, []
-            while isinstance(q_of_s, _Shifted):  # q(s + outer) = inner(s + outer + ...)
+            while isinstance(q_of_s, ShiftedPath):  # q(s + outer) = inner(s + outer + ...)
                 offsets.append(q_of_s.offset)
                 q_of_s = q_of_s.q_of_s
             self.offsets.append(offsets)
@@ -227,7 +227,7 @@ class _StrokeRates:
             yield slice(0, len(sd)), None if q is None else q.T, qd.T, qdd.T
             return
         for k, start, count in zip(which, starts, counts, strict=True):
-            for offset in self.offsets[k]:  # as _Shifted adds them, outermost first
+            for offset in self.offsets[k]:  # as ShiftedPath adds them, outermost first
                 at[start : start + count] = at[start : start + count] + offset
         rows = self.table.intervals([self.spline_index[k] for k in which], at, counts)
         for part, q, dq, ddq in self.table.chunks(at, rows, values):
