@@ -9,6 +9,7 @@ pytest-xdist workers: each worker hands its counts to the controlling process wh
 from __future__ import annotations
 
 import hashlib
+import signal
 from collections import defaultdict
 from typing import Any
 
@@ -58,6 +59,16 @@ COUNTER = FuzzCounter()
 @pytest.fixture(scope="session")
 def fuzz_counter() -> FuzzCounter:
     return COUNTER
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """The Ctrl-C and hang-up tests need those signals delivered: a suite started in the
+    background of a shell without job control (or under nohup) inherits them ignored, and every
+    process a test starts would inherit that too."""
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    if signal.getsignal(signal.SIGHUP) is signal.SIG_IGN:
+        signal.signal(signal.SIGHUP, signal.SIG_DFL)
 
 
 def pytest_sessionfinish(session: pytest.Session) -> None:

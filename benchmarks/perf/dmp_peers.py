@@ -175,43 +175,27 @@ class MovementPrimitives:
         return y[:SAMPLES]
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeat", type=int, default=21, help="runs per measurement (median)")
-    parser.add_argument(
-        "--quick", action="store_true", help="3 repeats: checks the script runs (CI)"
-    )
-    args = parser.parse_args()
-    if args.quick:
-        args.repeat = 3
-    warnings.filterwarnings("ignore")
-    pydmps_module, mp_class = _require_peers()
-    t, y = demonstration()
-    ours = Keymps(t, y)
-    peers = [PyDmps(pydmps_module, t, y), MovementPrimitives(mp_class, t, y)]
-    repeat = max(3, args.repeat)
+Results = dict[str, dict[str, float]]
+"""Library name -> fit_s, rollout_s, rmse_mm (and keymps' fit_warm_s, rollout_warm_s)."""
 
+
+def measured(ours: Keymps, peers: list[Any], y: np.ndarray, repeat: int) -> Results:
+    """Median fit and rollout seconds of every library, interleaved (keymps cold and warm), and
+    each one's fit RMSE against the demonstration."""
     ours.rollout()  # imports and first-call costs out of the way
     for peer in peers:
         peer.rollout()
-    fits = interleaved_medians(
-        {
-            "keymps": (ours.fit, ours.clear),
-            "keymps_warm": (ours.fit, None),
-            **{peer.name: (peer.fit, None) for peer in peers},
-        },
-        repeat,
-    )
-    rollouts = interleaved_medians(
-        {
-            "keymps": (ours.rollout, ours.clear),
-            "keymps_warm": (ours.rollout, None),
-            **{peer.name: (peer.rollout, None) for peer in peers},
-        },
-        repeat,
-    )
+    medians = {}
+    for step in ("fit", "rollout"):
+        operations = {
+            "keymps": (getattr(ours, step), ours.clear),
+            "keymps_warm": (getattr(ours, step), None),
+            **{peer.name: (getattr(peer, step), None) for peer in peers},
+        }
+        medians[step] = interleaved_medians(operations, repeat)
+    fits, rollouts = medians["fit"], medians["rollout"]
     ours.fit()
-    results: dict[str, dict[str, float]] = {
+    results: Results = {
         "keymps": {
             "fit_s": fits["keymps"],
             "fit_warm_s": fits["keymps_warm"],
@@ -227,17 +211,27 @@ def main() -> None:
             "rollout_s": rollouts[peer.name],
             "rmse_mm": rmse_mm(peer.rollout(), y),
         }
+    return results
 
-    # Re-target: the same cut turned 90 degrees about z.
+
+def retargeted_strokes(
+    t: np.ndarray, y: np.ndarray, libraries: list[Any]
+) -> tuple[tuple[float, float], dict[str, tuple[float, float]]]:
+    """The stroke (along, across the blade, mm) of the demonstration, and of each library's
+    rollout re-targeted to the same cut turned 90 degrees about z."""
     start = y[0]
     turn = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
     goal = start + turn @ (y[-1] - y[0])
     pattern = _detrended(t, y[:, 0] - y[0, 0])
-    demo_along, demo_across = stroke_mm(t, y, y[0], y[-1], pattern)
-    strokes = {"keymps": stroke_mm(t, ours.rollout(start, goal), start, goal, pattern)}
-    for peer in peers:
-        strokes[peer.name] = stroke_mm(t, peer.rollout(start, goal), start, goal, pattern)
+    demo = stroke_mm(t, y, y[0], y[-1], pattern)
+    strokes = {
+        library.name: stroke_mm(t, library.rollout(start, goal), start, goal, pattern)
+        for library in libraries
+    }
+    return demo, strokes
 
+
+def print_speeds(t: np.ndarray, results: Results, peers: list[Any], repeat: int) -> None:
     print(f"demonstration: bundled sawing demo, {SAMPLES} samples over {t[-1] - t[0]:.1f} s, "
           f"{BASIS} basis functions per axis, median of {repeat} interleaved runs")  # fmt: skip
     print()
@@ -256,32 +250,61 @@ def main() -> None:
     print()
     mp = results["movement_primitives 0.9.1"]
     best_rollout = min(results[p.name]["rollout_s"] for p in peers)
-    best_rmse = min(results[p.name]["rmse_mm"] for p in peers)
     fastest = min(peers, key=lambda p: results[p.name]["rollout_s"]).name
     print(f"fit:     keymps {mp['fit_s'] / k['fit_s']:.1f}x faster than movement_primitives "
           f"cold, {mp['fit_s'] / k['fit_warm_s']:.1f}x warm")  # fmt: skip
     print(f"rollout: keymps {best_rollout / k['rollout_s']:.1f}x faster than the fastest peer "
           f"({fastest}) cold, {best_rollout / k['rollout_warm_s']:.1f}x warm")  # fmt: skip
     print()
+
+
+def print_strokes(demo: tuple[float, float], strokes: dict[str, tuple[float, float]]) -> None:
     print("re-targeted to the cut turned 90 degrees about z: stroke amplitude (mm)")
     print(f"{'':28s} {'along blade':>12s} {'across blade':>13s}")
-    print(f"{'demonstration':28s} {demo_along:12.2f} {demo_across:13.2f}")
+    print(f"{'demonstration':28s} {demo[0]:12.2f} {demo[1]:13.2f}")
     for name, (along, across) in strokes.items():
         print(f"{name:28s} {along:12.2f} {across:13.2f}")
-    best_stroke = max(abs(strokes[p.name][0]) for p in peers)
     print()
-    figures = {
+
+
+def figures(
+    results: Results, demo_along: float, strokes: dict[str, tuple[float, float]]
+) -> dict[str, float]:
+    """The machine-readable figures: keymps against movement_primitives and the best peer."""
+    k, mp = results["keymps"], results["movement_primitives 0.9.1"]
+    peers = [name for name in results if name != "keymps"]
+    best_rollout = min(results[name]["rollout_s"] for name in peers)
+    return {
         "fit_speedup_vs_movement_primitives": mp["fit_s"] / k["fit_s"],
         "fit_speedup_vs_movement_primitives_warm": mp["fit_s"] / k["fit_warm_s"],
         "rollout_speedup_vs_best_peer": best_rollout / k["rollout_s"],
         "rollout_speedup_vs_best_peer_warm": best_rollout / k["rollout_warm_s"],
         "rmse_mm_keymps": k["rmse_mm"],
-        "rmse_mm_best_peer": best_rmse,
+        "rmse_mm_best_peer": min(results[name]["rmse_mm"] for name in peers),
         "stroke_demo_mm": demo_along,
         "stroke_kept_mm_keymps": abs(strokes["keymps"][0]),
-        "stroke_kept_mm_best_peer": best_stroke,
+        "stroke_kept_mm_best_peer": max(abs(strokes[name][0]) for name in peers),
     }
-    for name, value in figures.items():
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeat", type=int, default=21, help="runs per measurement (median)")
+    parser.add_argument(
+        "--quick", action="store_true", help="3 repeats: checks the script runs (CI)"
+    )
+    args = parser.parse_args()
+    repeat = 3 if args.quick else max(3, args.repeat)
+    warnings.filterwarnings("ignore")
+    pydmps_module, mp_class = _require_peers()
+    t, y = demonstration()
+    ours = Keymps(t, y)
+    peers = [PyDmps(pydmps_module, t, y), MovementPrimitives(mp_class, t, y)]
+    results = measured(ours, peers, y, repeat)
+    demo, strokes = retargeted_strokes(t, y, [ours, *peers])
+    print_speeds(t, results, peers, repeat)
+    print_strokes(demo, strokes)
+    for name, value in figures(results, demo[0], strokes).items():
         print(f"{name}: {value:.4g}")
 
 

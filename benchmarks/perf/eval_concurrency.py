@@ -22,28 +22,24 @@ import argparse
 import json
 import math
 import os
-import re
 import tempfile
 import time
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-CROP = re.compile(r"(\d+) x (\d+) pixels")
+from instant_vlm import InstantVlm, crop_size  # beside this script
+
 # as `keymps eval` does before NumPy loads: runs, not BLAS threads, are the parallelism
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 
 def _answer(body: dict[str, Any]) -> str:
-    texts = []
-    for message in body.get("messages", []):
-        content = message.get("content")
-        parts = content if isinstance(content, list) else [{"text": str(content)}]
-        texts += [part.get("text", "") for part in parts if isinstance(part, dict)]
-    width, height = (int(v) for v in CROP.findall(json.dumps(texts))[-1])
+    """Six equal wedges of the round cake the request shows: three diameters at 60 degrees."""
+    width, height = crop_size(body)
     cx, cy, r = width / 2, height / 2, min(width, height) / 2 - 1
     pairs = []
-    for k in range(3):  # three diameters at 60 degrees: six equal wedges of a round cake
+    for k in range(3):
         a = math.radians(90 + 60 * k)
         pairs.append(
             [
@@ -52,73 +48,6 @@ def _answer(body: dict[str, Any]) -> str:
             ]
         )
     return json.dumps({"keyword": "straight", "pairs": pairs, "rationale": "six wedges"})
-
-
-def _serve(latency: Any, port: Any) -> None:
-    """The server process: answers every request after latency.value seconds."""
-
-    class Handler(BaseHTTPRequestHandler):
-        protocol_version = "HTTP/1.1"  # keeps connections open, as VLM servers do
-        # Headers and body go out as two writes; with Nagle's algorithm on, the body would wait
-        # for the client's delayed ACK (40 ms on Linux). Servers like uvicorn set TCP_NODELAY.
-        disable_nagle_algorithm = True
-
-        def log_message(self, format: str, *args: Any) -> None:
-            pass
-
-        def do_POST(self) -> None:
-            body = json.loads(self.rfile.read(int(self.headers["Content-Length"])))
-            time.sleep(latency.value)
-            reply = {
-                "id": "perf",
-                "object": "chat.completion",
-                "created": int(time.time()),
-                "model": body.get("model", "perf"),
-                "choices": [
-                    {
-                        "index": 0,
-                        "message": {"role": "assistant", "content": _answer(body)},
-                        "finish_reason": "stop",
-                    }
-                ],
-                "usage": {"prompt_tokens": 100, "completion_tokens": 50, "total_tokens": 150},
-            }
-            data = json.dumps(reply).encode()
-            self.send_response(200)
-            self.send_header("Content-Type", "application/json")
-            self.send_header("Content-Length", str(len(data)))
-            self.end_headers()
-            self.wfile.write(data)
-
-    server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-    server.daemon_threads = True
-    port.value = server.server_address[1]
-    server.serve_forever()
-
-
-class Server:
-    """The VLM stand-in, in a process of its own (a VLM server is not part of keymps' work:
-    its CPU and memory are left out of the figures, its answers still cost their latency)."""
-
-    def __init__(self, latency: float):
-        import multiprocessing
-
-        context = multiprocessing.get_context("spawn")
-        self.latency = context.Value("d", latency)
-        port = context.Value("i", 0)
-        self.process = context.Process(target=_serve, args=(self.latency, port), daemon=True)
-        self.process.start()
-        while not port.value:
-            time.sleep(0.01)
-        self.api_base = f"http://127.0.0.1:{port.value}/v1"
-        self.pid = str(self.process.pid)
-
-    def set_latency(self, seconds: float) -> None:
-        self.latency.value = seconds
-
-    def close(self) -> None:
-        self.process.terminate()
-        self.process.join(timeout=5)
 
 
 def _rss_kb(pid: str) -> int:
@@ -218,7 +147,48 @@ def run(
     return time.perf_counter() - started, records
 
 
-def main() -> None:
+def at_both_concurrencies(requests: int, api_base: str, work: Path, label: str) -> dict[int, float]:
+    """Seconds of the same runs at --concurrency 1 and 8; each run must succeed and reach the
+    server (an answer from the cache would make the timing wrong)."""
+    seconds: dict[int, float] = {}
+    for concurrency in (1, 8):
+        out = work / f"{label.replace(' ', '-')}c{concurrency}"
+        seconds[concurrency], records = run(requests, concurrency, api_base, out)
+        failed = [r for r in records if not r.get("ok")]
+        if failed:
+            raise SystemExit(f"{len(failed)} runs failed, first: {failed[0]['error']}")
+        if any(r.get("cached") for r in records):
+            raise SystemExit("some answers came from the cache: the timing would be wrong")
+        print(f"{label}c{concurrency}: {len(records)} requests in {seconds[concurrency]:.1f} s")
+    return seconds
+
+
+@dataclass(frozen=True)
+class MemoryRun:
+    """The long run at --concurrency 8: CPU per request, and resident memory after 100 runs
+    and its growth over the rest."""
+
+    requests: int
+    cpu_s_per_request: float
+    rss_after_100_mb: float
+    peak_rss_growth_mb: float
+
+
+def memory_run(requests: int, api_base: str, out: Path) -> MemoryRun:
+    cpu = CpuMeter()
+    samples: list[float] = []
+    seconds, records = run(requests, 8, api_base, out, samples, cpu)
+    settled = samples[min(len(samples) - 1, 100)]
+    print(f"long run: {len(records)} requests in {seconds:.1f} s")
+    return MemoryRun(
+        requests=len(records),
+        cpu_s_per_request=cpu.seconds() / max(1, len(records)),
+        rss_after_100_mb=settled,
+        peak_rss_growth_mb=max(samples[100:] or samples) - settled,
+    )
+
+
+def parse_arguments() -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--requests", type=int, default=80)
     parser.add_argument("--latency", type=float, default=0.2)
@@ -232,56 +202,36 @@ def main() -> None:
     if args.quick:
         args.requests, args.long, args.slow_requests = 8, 40, 4
         args.latency, args.slow_latency = 0.05, 0.2
-    work = Path(tempfile.mkdtemp(prefix="keymps-eval-perf-"))
-    server = Server(args.latency)
-    EXCLUDED.add(server.pid)
-    api_base = server.api_base
-    try:
+    return args
+
+
+def main() -> None:
+    args = parse_arguments()
+    with (
+        InstantVlm(_answer, args.latency) as server,
+        tempfile.TemporaryDirectory(prefix="keymps-eval-perf-") as folder,
+    ):
+        EXCLUDED.add(server.pid)
+        work = Path(folder)
         # imports, litellm's first request, first renders, and the fork server of the worker
         # processes (started once per process, like the imports)
-        run(4 if args.quick else 16, 8, api_base, work / "warmup")
-        seconds: dict[int, float] = {}
-        for concurrency in (1, 8):
-            seconds[concurrency], records = run(
-                args.requests, concurrency, api_base, work / f"c{concurrency}"
-            )
-            failed = [r for r in records if not r.get("ok")]
-            if failed:
-                raise SystemExit(f"{len(failed)} runs failed, first: {failed[0]['error']}")
-            if any(r.get("cached") for r in records):
-                raise SystemExit("some answers came from the cache: the timing would be wrong")
-            print(f"c{concurrency}: {len(records)} requests in {seconds[concurrency]:.1f} s")
+        run(4 if args.quick else 16, 8, server.api_base, work / "warmup")
+        seconds = at_both_concurrencies(args.requests, server.api_base, work, "")
         server.set_latency(args.slow_latency)
-        slow: dict[int, float] = {}
-        for concurrency in (1, 8):
-            slow[concurrency], _ = run(
-                args.slow_requests, concurrency, api_base, work / f"slow-c{concurrency}"
-            )
-            print(
-                f"slow c{concurrency}: {args.slow_requests} requests in {slow[concurrency]:.1f} s"
-            )
+        slow = at_both_concurrencies(args.slow_requests, server.api_base, work, "slow ")
         server.set_latency(args.latency)
-        cpu = CpuMeter()
-        samples: list[float] = []
-        long_seconds, records = run(args.long, 8, api_base, work / "long", samples, cpu)
-        cpu_per_job = cpu.seconds() / max(1, len(records))
-        settled = samples[min(len(samples) - 1, 100)]
-        growth = max(samples[100:] or samples) - settled
-        print(f"long run: {len(records)} requests in {long_seconds:.1f} s")
-    finally:
-        server.close()
-    serial_floor = args.requests * args.latency
+        memory = memory_run(args.long, server.api_base, work / "long")
     print(f"requests: {args.requests}")
     print(f"server_latency_s: {args.latency}")
     print(f"seconds_c1: {seconds[1]:.2f}")
     print(f"seconds_c8: {seconds[8]:.2f}")
-    print(f"latency_share_c1: {serial_floor / seconds[1]:.2f}")
-    print(f"cpu_s_per_request: {cpu_per_job:.3f}")
+    print(f"latency_share_c1: {args.requests * args.latency / seconds[1]:.2f}")
+    print(f"cpu_s_per_request: {memory.cpu_s_per_request:.3f}")
     print(f"speedup_c8_vs_c1: {seconds[1] / seconds[8]:.2f}")
     print(f"speedup_c8_vs_c1_at_{args.slow_latency:g}s: {slow[1] / slow[8]:.2f}")
-    print(f"long_requests: {len(records)}")
-    print(f"rss_after_100_mb: {settled:.1f}")
-    print(f"peak_rss_growth_mb: {growth:.1f}")
+    print(f"long_requests: {memory.requests}")
+    print(f"rss_after_100_mb: {memory.rss_after_100_mb:.1f}")
+    print(f"peak_rss_growth_mb: {memory.peak_rss_growth_mb:.1f}")
 
 
 if __name__ == "__main__":

@@ -158,6 +158,70 @@ def same_figures(a: dict[str, float], b: dict[str, float]) -> list[str]:
     ]
 
 
+Times = dict[tuple[str, str, str], list[float]]
+"""(task, version, stage) -> milliseconds of each timed repeat."""
+
+
+def planned_runs(folder: Path) -> dict[str, Any]:
+    """A warm run of each task (the offline planner, the sim executor), after a first one that
+    pays the imports and caches."""
+    from keymps import run_task
+
+    def offline_run(task: str, out: Path) -> Any:
+        options = RunOptions(rerun="off")
+        overrides = RunOverrides(out=out, backend="offline", executor="sim")
+        return run_task(ROOT / task, options=options, overrides=overrides)
+
+    runs = {}
+    for name, task in TASKS.items():
+        offline_run(task, folder / f"cold-{name}")
+        runs[name] = offline_run(task, folder / name)
+    return runs
+
+
+def timed_repeats(runs: dict[str, Any], baseline: Baseline, repeats: int) -> Times:
+    """Both versions' stages on every run, `repeats` times after a warm-up, the order of the
+    versions alternating; the warm-up's reports are compared instead of timed."""
+    times: Times = {}
+    for repeat in range(repeats + 1):
+        for name, run in runs.items():
+            order = ("baseline", "this") if repeat % 2 else ("this", "baseline")
+            reports = {}
+            for version in order:
+                seconds, reports[version] = stages_once(run, version, baseline)
+                for stage, value in seconds.items():
+                    times.setdefault((name, version, stage), []).append(value * 1000)
+            if repeat == 0:
+                for key in list(times):
+                    times[key].clear()
+                print_comparison(name, reports)
+    return times
+
+
+def print_comparison(name: str, reports: dict[str, Any]) -> None:
+    """Whether both versions' validation and sim figures of one run are the same."""
+    for what, a, b in zip(("validation", "sim"), reports["baseline"], reports["this"], strict=True):
+        differ = same_figures(a, b)
+        verdict = f"differ: {', '.join(differ)}" if differ else "the same"
+        print(f"{name} {what} figures: {verdict}")
+
+
+def speedup_lines(runs: dict[str, Any], times: Times) -> list[tuple[str, str]]:
+    """Prints each stage's median and minimum, baseline -> this; returns the median speed-ups."""
+    lines = []
+    for name in runs:
+        for stage in STAGES:
+            before, after = times[(name, "baseline", stage)], times[(name, "this", stage)]
+            ratio = statistics.median(before) / statistics.median(after)
+            print(
+                f"{name:8s} {stage:8s} median {statistics.median(before):6.1f} -> "
+                f"{statistics.median(after):6.1f} ms ({ratio:.2f}x), "
+                f"min {min(before):6.1f} -> {min(after):6.1f} ms"
+            )
+            lines.append((f"{stage}_speedup_{name}", f"{ratio:.2f}"))
+    return lines
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--baseline", default="a668308", help="git commit to compare with")
@@ -168,56 +232,14 @@ def main() -> None:
     arguments = parser.parse_args()
     if arguments.quick:
         arguments.repeats = 1
-
-    from keymps import run_task
-
     with tempfile.TemporaryDirectory() as scratch:
         folder = Path(scratch)
         baseline = Baseline(arguments.baseline, folder)
-        runs = {}
-        for name, task in TASKS.items():
-            cold = folder / f"cold-{name}"
-            run_task(
-                ROOT / task,
-                options=RunOptions(rerun="off"),
-                overrides=RunOverrides(out=cold, backend="offline", executor="sim"),
-            )
-            runs[name] = run_task(
-                ROOT / task,
-                options=RunOptions(rerun="off"),
-                overrides=RunOverrides(out=folder / name, backend="offline", executor="sim"),
-            )
+        runs = planned_runs(folder)
         print(f"load {os.getloadavg()[0]:.2f} at start; baseline {arguments.baseline}")
-        times: dict[tuple[str, str, str], list[float]] = {}
-        for repeat in range(arguments.repeats + 1):
-            for name, run in runs.items():
-                order = ("baseline", "this") if repeat % 2 else ("this", "baseline")
-                reports = {}
-                for version in order:
-                    seconds, reports[version] = stages_once(run, version, baseline)
-                    for stage, value in seconds.items():
-                        times.setdefault((name, version, stage), []).append(value * 1000)
-                if repeat == 0:  # warm-up: compare the reports, drop the times
-                    for key in list(times):
-                        times[key].clear()
-                    for what, a, b in zip(
-                        ("validation", "sim"), reports["baseline"], reports["this"], strict=True
-                    ):
-                        differ = same_figures(a, b)
-                        verdict = f"differ: {', '.join(differ)}" if differ else "the same"
-                        print(f"{name} {what} figures: {verdict}")
+        times = timed_repeats(runs, baseline, arguments.repeats)
         print(f"load {os.getloadavg()[0]:.2f} at the end")
-        lines = []
-        for name in runs:
-            for stage in STAGES:
-                before, after = times[(name, "baseline", stage)], times[(name, "this", stage)]
-                ratio = statistics.median(before) / statistics.median(after)
-                print(
-                    f"{name:8s} {stage:8s} median {statistics.median(before):6.1f} -> "
-                    f"{statistics.median(after):6.1f} ms ({ratio:.2f}x), "
-                    f"min {min(before):6.1f} -> {min(after):6.1f} ms"
-                )
-                lines.append((f"{stage}_speedup_{name}", f"{ratio:.2f}"))
+        lines = speedup_lines(runs, times)
         for key, value in lines:
             print(f"{key}: {value}")
 

@@ -320,7 +320,122 @@ def cache_bytecode(pythons: list[str]) -> None:
         subprocess.run([python, "-c", compile_keymps], check=True, cwd=tempfile.gettempdir())
 
 
-def main() -> None:
+Lines = list[tuple[str, str]]
+"""The machine-readable `name: value` lines, in the order they are printed."""
+
+
+def startup_lines(repeats: int, folder: Path, baseline: Path | None) -> Lines:
+    """The CLI run against the import floor (and the baseline's CLI run)."""
+    measured = startup(repeats, folder, baseline)
+    ratio = measured["cli_run"] / measured["import_floor"]
+    print(
+        f"start-up (load {load()}): import floor {measured['import_floor'] * 1000:.0f} ms, "
+        f"keymps run --rerun off {measured['cli_run'] * 1000:.0f} ms, ratio {ratio:.2f}"
+    )
+    lines = [("cli_vs_import_floor", f"{ratio:.2f}")]
+    lines += [("cli_run_s", f"{measured['cli_run']:.3f}")]
+    lines += [("import_floor_s", f"{measured['import_floor']:.3f}")]
+    if baseline is not None:
+        before = measured["cli_run_baseline"] / measured["import_floor"]
+        print(
+            f"  baseline keymps run {measured['cli_run_baseline'] * 1000:.0f} ms, ratio {before:.2f}"
+        )
+        lines += [("baseline_cli_vs_import_floor", f"{before:.2f}")]
+    return lines
+
+
+def warm_lines(repeats: int, sources: dict[str, Path | None]) -> Lines:
+    """Warm milliseconds per second of trajectory of each task and source: as the keymps
+    command and eval workers run (the headline), then with the C library's default allocator,
+    as a program calling run_task has it (keymps/_memory.py)."""
+    lines: Lines = []
+    for allocator, suffix in (("keymps", ""), ("default", "_default_malloc")):
+        warm = interleaved_warm_runs(repeats, sources, allocator)
+        for prefix, measured_warm in warm.items():
+            for name, item in measured_warm.items():
+                computation = statistics.median(item["all"])
+                per_second = computation * 1000 / item["duration_s"]
+                stages = " ".join(f"{k} {v * 1000:.1f}" for k, v in item["stages"].items())
+                print(
+                    f"{prefix or 'this '}warm {name}, {allocator} allocator (load {load()}): "
+                    f"{computation * 1000:.0f} ms for {item['duration_s']:.1f} s of "
+                    f"trajectory = {per_second:.2f} ms per s; stages (ms): {stages}"
+                )
+                key = f"{prefix}warm_ms_per_trajectory_s_{name}{suffix}"
+                lines.append((key, f"{per_second:.2f}"))
+    return lines
+
+
+def interleaved_warm_runs(
+    repeats: int, sources: dict[str, Path | None], allocator: str
+) -> dict[str, dict[str, dict[str, Any]]]:
+    """warm_computation of each source, in two interleaved halves when there is a baseline;
+    each task's totals of both halves gathered under "all"."""
+    warm: dict[str, dict[str, dict[str, Any]]] = {prefix: {} for prefix in sources}
+    for _ in range(2 if len(sources) > 1 else 1):
+        for prefix, source in sources.items():
+            half = warm_computation(max(1, repeats // 2), source, allocator)
+            for name, item in half.items():
+                kept = warm[prefix].setdefault(name, {**item, "all": []})
+                kept["all"] += item["totals"]
+    return warm
+
+
+FLOOR_PAIRS = (
+    ("ik_closed_form", "ik_iterative"),
+    ("profile_numpy", "profile_calls"),
+    ("fk_batched", "fk_per_call"),
+    ("footprint_vectorized", "footprint_per_point"),
+    ("timing_at_once", "timing_by_stroke"),
+)
+"""(keymps' stage, the floor it is held against), as stage_floors names them."""
+
+
+def floor_lines(folder: Path, repeats: int) -> Lines:
+    """Each stage's speed-up over the implementation it replaced, per task."""
+    lines: Lines = []
+    for name, measured_stages in stage_floors(warm_runs(folder), repeats).items():
+        print(f"stages against their floors, {name} (load {load()}):")
+        for fast, slow in FLOOR_PAIRS:
+            a, b = measured_stages[fast], measured_stages[slow]
+            print(
+                f"  {fast:22s} {a * 1000:8.2f} ms   {slow:20s} {b * 1000:8.2f} ms   {b / a:6.1f}x"
+            )
+            lines.append((f"{fast}_speedup_{name}", f"{b / a:.1f}"))
+    return lines
+
+
+def recording_lines(folder: Path, sources: dict[str, Path | None]) -> Lines:
+    """The size of the icing run's recording, per source."""
+    lines: Lines = []
+    for prefix, source in sources.items():
+        size = recording_size(folder, source)
+        print(f"{prefix or 'this '}icing recording (load {load()}): {size:.2f} MB")
+        lines.append((f"{prefix}icing_recording_mb", f"{size:.2f}"))
+    return lines
+
+
+def eval_lines(folder: Path, times: int, repeats: int, sources: dict[str, Path | None]) -> Lines:
+    """The median runs per second of `times` whole eval commands per source, interleaved."""
+    rates: dict[str, list[float]] = {prefix: [] for prefix in sources}
+    runs = 0
+    for attempt in range(max(1, times)):
+        for prefix, source in sources.items():
+            rate, runs = eval_rate(folder, repeats, source, attempt)
+            rates[prefix].append(rate)
+    lines: Lines = []
+    for prefix, measured in rates.items():
+        shown = ", ".join(f"{rate:.2f}" for rate in measured)
+        median = statistics.median(measured)
+        print(
+            f"{prefix or 'this '}eval cutting_sim (load {load()}): {runs} runs, "
+            f"median {median:.2f} runs/s ({shown})"
+        )
+        lines.append((f"{prefix}eval_cutting_sim_runs_per_s", f"{median:.2f}"))
+    return lines
+
+
+def parse_arguments() -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--eval-repeats", type=int, default=1, help="cutting_sim repeats per case")
@@ -342,92 +457,25 @@ def main() -> None:
     args = parser.parse_args()
     if args.quick:
         args.repeats, args.eval_times = 1, 1
+    return args
+
+
+def main() -> None:
+    args = parse_arguments()
     baseline = args.baseline_python
-    lines: list[tuple[str, str]] = []
+    sources = {"": None} if baseline is None else {"": None, "baseline_": baseline}
     with tempfile.TemporaryDirectory() as scratch:
         folder = Path(scratch)
         if not args.no_bytecode:
             cache_bytecode([sys.executable] + ([str(baseline)] if baseline else []))
         cached = "not cached" if args.no_bytecode else "cached"
         print(f"load {load()} at start; {os.cpu_count()} cores; keymps bytecode {cached}")
-
-        measured = startup(args.repeats, folder, baseline)
-        ratio = measured["cli_run"] / measured["import_floor"]
-        print(
-            f"start-up (load {load()}): import floor {measured['import_floor'] * 1000:.0f} ms, "
-            f"keymps run --rerun off {measured['cli_run'] * 1000:.0f} ms, ratio {ratio:.2f}"
-        )
-        lines += [("cli_vs_import_floor", f"{ratio:.2f}")]
-        lines += [("cli_run_s", f"{measured['cli_run']:.3f}")]
-        lines += [("import_floor_s", f"{measured['import_floor']:.3f}")]
-        if baseline is not None:
-            before = measured["cli_run_baseline"] / measured["import_floor"]
-            print(
-                f"  baseline keymps run {measured['cli_run_baseline'] * 1000:.0f} ms, ratio {before:.2f}"
-            )
-            lines += [("baseline_cli_vs_import_floor", f"{before:.2f}")]
-
-        sources = {"": None} if baseline is None else {"": None, "baseline_": baseline}
-        # headline: as the keymps command and eval workers run; then the C library's default
-        # allocator, as a program calling run_task has it (keymps/_memory.py)
-        for allocator, suffix in (("keymps", ""), ("default", "_default_malloc")):
-            warm: dict[str, dict[str, dict[str, Any]]] = {prefix: {} for prefix in sources}
-            for _ in range(2 if baseline is not None else 1):  # interleaved in two halves
-                for prefix, source in sources.items():
-                    half = warm_computation(max(1, args.repeats // 2), source, allocator)
-                    for name, item in half.items():
-                        kept = warm[prefix].setdefault(name, {**item, "all": []})
-                        kept["all"] += item["totals"]
-            for prefix, measured_warm in warm.items():
-                for name, item in measured_warm.items():
-                    computation = statistics.median(item["all"])
-                    per_second = computation * 1000 / item["duration_s"]
-                    stages = " ".join(f"{k} {v * 1000:.1f}" for k, v in item["stages"].items())
-                    print(
-                        f"{prefix or 'this '}warm {name}, {allocator} allocator (load {load()}): "
-                        f"{computation * 1000:.0f} ms for {item['duration_s']:.1f} s of "
-                        f"trajectory = {per_second:.2f} ms per s; stages (ms): {stages}"
-                    )
-                    key = f"{prefix}warm_ms_per_trajectory_s_{name}{suffix}"
-                    lines.append((key, f"{per_second:.2f}"))
-
-        floors = stage_floors(warm_runs(folder), args.repeats)
-        for name, measured_stages in floors.items():
-            print(f"stages against their floors, {name} (load {load()}):")
-            for fast, slow in (
-                ("ik_closed_form", "ik_iterative"),
-                ("profile_numpy", "profile_calls"),
-                ("fk_batched", "fk_per_call"),
-                ("footprint_vectorized", "footprint_per_point"),
-                ("timing_at_once", "timing_by_stroke"),
-            ):
-                a, b = measured_stages[fast], measured_stages[slow]
-                print(
-                    f"  {fast:22s} {a * 1000:8.2f} ms   {slow:20s} {b * 1000:8.2f} ms   {b / a:6.1f}x"
-                )
-                lines.append((f"{fast}_speedup_{name}", f"{b / a:.1f}"))
-
-        for prefix, source in sources.items():
-            size = recording_size(folder, source)
-            print(f"{prefix or 'this '}icing recording (load {load()}): {size:.2f} MB")
-            lines.append((f"{prefix}icing_recording_mb", f"{size:.2f}"))
-
+        lines = startup_lines(args.repeats, folder, baseline)
+        lines += warm_lines(args.repeats, sources)
+        lines += floor_lines(folder, args.repeats)
+        lines += recording_lines(folder, sources)
         if not args.skip_eval:
-            rates: dict[str, list[float]] = {prefix: [] for prefix in sources}
-            runs = 0
-            for attempt in range(max(1, args.eval_times)):  # interleaved, as everything else
-                for prefix, source in sources.items():
-                    rate, runs = eval_rate(folder, args.eval_repeats, source, attempt)
-                    rates[prefix].append(rate)
-            for prefix, measured in rates.items():
-                shown = ", ".join(f"{rate:.2f}" for rate in measured)
-                print(
-                    f"{prefix or 'this '}eval cutting_sim (load {load()}): {runs} runs, "
-                    f"median {statistics.median(measured):.2f} runs/s ({shown})"
-                )
-                lines.append(
-                    (f"{prefix}eval_cutting_sim_runs_per_s", f"{statistics.median(measured):.2f}")
-                )
+            lines += eval_lines(folder, args.eval_times, args.eval_repeats, sources)
         lines.append(("bytecode_cached", str(int(not args.no_bytecode))))
         lines.append(("load_average", load()))
     for name, value in lines:

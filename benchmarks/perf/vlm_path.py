@@ -34,7 +34,6 @@ import argparse
 import json
 import math
 import os
-import re
 import statistics
 import subprocess
 import sys
@@ -42,14 +41,14 @@ import tempfile
 import threading
 import time
 from collections.abc import Callable
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Any
+
+from instant_vlm import InstantVlm, crop_size  # beside this script
 
 ROOT = Path(__file__).resolve().parents[2]
 TASK = ROOT / "tasks" / "cake_icing.yaml"
 CLI = ["-c", "from keymps.cli import main; main()"]
-CROP = re.compile(r"(\d+) x (\d+) pixels")
 MODEL = "openai/instant-vlm"
 EXCLUDED: set[str] = set()
 """Processes whose CPU is not keymps' (the VLM server's)."""
@@ -58,12 +57,7 @@ EXCLUDED: set[str] = set()
 def answer_for(body: dict[str, Any]) -> str:
     """A valid plan for the image the request describes: 15 dots on a ring (icing) or three
     vertical cuts across the crop (cutting)."""
-    texts = []
-    for message in body.get("messages", []):
-        content = message.get("content")
-        parts = content if isinstance(content, list) else [{"text": str(content)}]
-        texts += [part.get("text", "") for part in parts if isinstance(part, dict)]
-    width, height = (int(v) for v in CROP.findall(json.dumps(texts))[-1])
+    width, height = crop_size(body)
     schema = body.get("response_format", {}).get("json_schema", {}).get("schema", {})
     keywords = schema.get("properties", {}).get("keyword", {}).get("enum") or ["line"]
     keyword = "line" if "line" in keywords else keywords[0]
@@ -77,65 +71,6 @@ def answer_for(body: dict[str, Any]) -> str:
     else:
         pairs = [[[width * f, 0.25 * height], [width * f, 0.75 * height]] for f in (0.4, 0.5, 0.6)]
     return json.dumps({"keyword": keyword, "pairs": pairs, "design": None, "rationale": "bench"})
-
-
-def _serve(port: Any) -> None:
-    """The server process: answers every request at once."""
-
-    class Handler(BaseHTTPRequestHandler):
-        protocol_version = "HTTP/1.1"
-        disable_nagle_algorithm = True
-
-        def log_message(self, format: str, *args: Any) -> None:
-            pass
-
-        def do_POST(self) -> None:
-            body = json.loads(self.rfile.read(int(self.headers["Content-Length"])))
-            reply = {
-                "id": "bench",
-                "object": "chat.completion",
-                "created": int(time.time()),
-                "model": body.get("model", "bench"),
-                "choices": [
-                    {
-                        "index": 0,
-                        "message": {"role": "assistant", "content": answer_for(body)},
-                        "finish_reason": "stop",
-                    }
-                ],
-                "usage": {"prompt_tokens": 100, "completion_tokens": 50, "total_tokens": 150},
-            }
-            data = json.dumps(reply).encode()
-            self.send_response(200)
-            self.send_header("Content-Type", "application/json")
-            self.send_header("Content-Length", str(len(data)))
-            self.end_headers()
-            self.wfile.write(data)
-
-    server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-    server.daemon_threads = True
-    port.value = server.server_address[1]
-    server.serve_forever()
-
-
-class InstantServer:
-    """The VLM stand-in, in a process of its own (its CPU is not keymps')."""
-
-    def __init__(self) -> None:
-        import multiprocessing
-
-        context = multiprocessing.get_context("spawn")
-        port = context.Value("i", 0)
-        self.process = context.Process(target=_serve, args=(port,), daemon=True)
-        self.process.start()
-        while not port.value:
-            time.sleep(0.01)
-        self.api_base = f"http://127.0.0.1:{port.value}/v1"
-        EXCLUDED.add(str(self.process.pid))
-
-    def close(self) -> None:
-        self.process.terminate()
-        self.process.join(timeout=5)
 
 
 def timed(arguments: list[str], env: dict[str, str], cwd: Path) -> tuple[float, float]:
@@ -410,8 +345,11 @@ def main() -> None:
     args = parser.parse_args()
     rounds = 1 if args.quick else args.rounds
     eval_args = ("cutting_sim", ["1", "4"], 1) if args.quick else (args.suite, [], None)
-    server = InstantServer()
-    with tempfile.TemporaryDirectory(prefix="keymps-vlm-path-") as folder:
+    with (
+        InstantVlm(answer_for) as server,
+        tempfile.TemporaryDirectory(prefix="keymps-vlm-path-") as folder,
+    ):
+        EXCLUDED.add(server.pid)
         work = Path(folder)
         runtime = work / "runtime"
         runtime.mkdir(mode=0o700)
@@ -434,7 +372,6 @@ def main() -> None:
                 print(f"round {index + 1} done (load {os.getloadavg()[0]:.2f})", flush=True)
         finally:
             bench.stop_planner()
-            server.close()
     summarize(results, args.quick)
 
 

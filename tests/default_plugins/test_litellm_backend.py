@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import base64
 import json
+import subprocess
+import sys
 import time
 
 import cv2
@@ -277,3 +279,31 @@ def test_an_invalid_plan_stops_the_run_before_anything_moves(server, tmp_path):
     assert record["ok"] is False and record["keyword"] is None
     assert not (tmp_path / "run" / "trajectory.csv").exists()
     assert "execute" not in record["timings_s"]
+
+
+A_PROGRAM_THAT_PLANS = """
+import sys
+import numpy as np
+from keymps.default_plugins.litellm.backend import make_backend
+from keymps.types import PlanRequest
+
+backend = make_backend({"model": "openai/test-vlm", "api_base": sys.argv[1], "retries": 0})
+request = PlanRequest(
+    "Cut it in half", np.zeros((8, 8, 3), np.uint8), None, (0.001, 0.001), {"straight": "a cut"},
+    0.05, 4, [{"role": "user", "content": "Cut it in half"}], {"name": "plan", "schema": {}},
+)
+print(backend.complete(request).text)
+"""
+
+
+def test_a_program_that_planned_exits_without_an_unclosed_connection(server):
+    """litellm keeps the connection open for the next call and, at exit, closes only its async
+    clients: a program calling keymps (not the keymps command, which skips the teardown) was
+    told `ResourceWarning: unclosed <socket ...>` as it ended."""
+    program = [sys.executable, "-W", "error::ResourceWarning", "-c", A_PROGRAM_THAT_PLANS]
+    done = subprocess.run(
+        [*program, server.openai_base], capture_output=True, text=True, timeout=300
+    )
+    assert done.returncode == 0, done.stderr
+    assert json.loads(done.stdout) == GOOD and len(server.chat_requests) == 1
+    assert "ResourceWarning" not in done.stderr, done.stderr

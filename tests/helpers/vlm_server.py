@@ -161,8 +161,7 @@ class VlmServer:
         self._queue: list[Reply] = []
         self._lock = threading.Lock()
         self._closing = threading.Event()
-        self._server = ThreadingHTTPServer(("127.0.0.1", port), self._handler_class())
-        self._server.daemon_threads = True
+        self._server = _HttpServer(self, port)
         self._thread = threading.Thread(target=self._server.serve_forever, daemon=True)
 
     @property
@@ -207,155 +206,172 @@ class VlmServer:
         self._server.shutdown()
         self._server.server_close()
 
-    def _next(self) -> Reply | None:
+    def _record(self, request: Recorded) -> None:
         with self._lock:
-            return self._queue.pop(0) if self._queue else None
+            self.requests.append(request)
 
-    def _handler_class(self) -> type[BaseHTTPRequestHandler]:
-        server = self
+    def _reply_to(self, request: Recorded) -> Reply:
+        """The next scripted reply, or else the responder's answer to this request."""
+        with self._lock:
+            scripted = self._queue.pop(0) if self._queue else None
+        return scripted or Reply.text_answer(self.responder(request))
 
-        class Handler(BaseHTTPRequestHandler):
-            protocol_version = "HTTP/1.1"
-            disable_nagle_algorithm = True  # else each answer waits 40 ms for a delayed ACK
 
-            def log_message(self, format: str, *args: Any) -> None:
-                return None
+class _HttpServer(ThreadingHTTPServer):
+    daemon_threads = True
 
-            def _send_json(
-                self, status: int, data: Any, headers: dict[str, str] | None = None
-            ) -> None:
-                payload = json.dumps(data).encode()
-                self.send_response(status)
-                self.send_header("Content-Type", "application/json")
-                self.send_header("Content-Length", str(len(payload)))
-                for key, value in (headers or {}).items():
-                    self.send_header(key, value)
-                self.end_headers()
-                self.wfile.write(payload)
+    def __init__(self, owner: VlmServer, port: int):
+        self.owner = owner
+        super().__init__(("127.0.0.1", port), _Handler)
 
-            def _cut_short(self, headers: dict[str, str], start: bytes) -> None:
-                """A 200 with these headers and the first bytes of a body, then the close."""
-                self.send_response(200)
-                self.send_header("Content-Type", "application/json")
-                for key, value in headers.items():
-                    self.send_header(key, value)
-                self.end_headers()
-                self.wfile.write(start)
-                self.wfile.flush()
-                self.close_connection = True
 
-            def _trickle(self, reply: Reply, model: str) -> None:
-                payload = json.dumps(_openai_completion(reply.text, model)).encode()
-                self.send_response(200)
-                self.send_header("Content-Type", "application/json")
-                self.send_header("Content-Length", str(len(payload)))
-                self.end_headers()
-                self.wfile.flush()
-                for index in range(len(payload)):
-                    if server._closing.wait(reply.delay_s):
-                        break
-                    self.wfile.write(payload[index : index + 1])
-                    self.wfile.flush()
-                self.close_connection = True
+class _Handler(BaseHTTPRequestHandler):
+    """One connection: records each request, then answers as the next Reply says (a method
+    per kind of reply)."""
 
-            def do_GET(self) -> None:
-                headers = {k.lower(): v for k, v in self.headers.items()}
-                record = Recorded(self.path, headers, None, method="GET")
-                with server._lock:
-                    server.requests.append(record)
-                if self.path.rstrip("/").endswith(("/models", "/api/tags")):
-                    self._send_json(200, {"object": "list", "data": [], "models": []})
-                else:
-                    self._send_json(404, {"error": {"message": "not found"}})
+    server: _HttpServer
+    protocol_version = "HTTP/1.1"
+    disable_nagle_algorithm = True  # else each answer waits 40 ms for a delayed ACK
 
-            def do_POST(self) -> None:
-                # the client may give up first (a timeout test): nothing left to answer
-                with contextlib.suppress(BrokenPipeError, ConnectionResetError):
-                    self._answer_post()
+    def log_message(self, format: str, *args: Any) -> None:
+        return None
 
-            def _answer_post(self) -> None:
-                length = int(self.headers.get("Content-Length", "0"))
-                raw = self.rfile.read(length) if length else b""
-                try:
-                    body = json.loads(raw or b"{}")
-                except json.JSONDecodeError:
-                    body = {"_raw": raw.decode("utf-8", "replace")}
-                record = Recorded(self.path, {k.lower(): v for k, v in self.headers.items()}, body)
-                with server._lock:
-                    server.requests.append(record)
-                if self.path.endswith("/api/show"):
-                    self._send_json(200, {"model_info": {}, "details": {}, "template": ""})
-                    return
-                reply = server._next() or Reply.text_answer(server.responder(record))
-                if reply.kind == "trickle":
-                    self._trickle(reply, str(body.get("model", "test")))
-                    return
-                if reply.delay_s:
-                    time.sleep(reply.delay_s)
-                model = str(body.get("model", "test"))
-                if reply.kind == "error":
-                    self._send_json(
-                        reply.status,
-                        {
-                            "error": {
-                                "message": reply.text,
-                                "type": "server_error",
-                                "code": reply.status,
-                            }
-                        },
-                        reply.headers,
-                    )
-                    return
-                if reply.kind == "redirect":
-                    self.send_response(reply.status)
-                    elsewhere = reply.text.startswith(("http://", "https://"))
-                    self.send_header("Location", ("" if elsewhere else server.url) + reply.text)
-                    self.send_header("Content-Length", "0")
-                    self.end_headers()
-                    return
-                if reply.kind == "bad_chunks":  # a chunk header that is not a number
-                    self._cut_short({"Transfer-Encoding": "chunked"}, b'5\r\n{"cho\r\nZZZ\r\n')
-                    return
-                if reply.kind == "raw":
-                    self.send_response(200)
-                    if "Content-Type" not in reply.headers:
-                        self.send_header("Content-Type", "application/json")
-                    self.send_header("Content-Length", str(len(reply.body)))
-                    for key, value in reply.headers.items():
-                        self.send_header(key, value)
-                    self.end_headers()
-                    self.wfile.write(reply.body)
-                    return
-                if reply.kind == "reset":
-                    linger = struct.pack("ii", 1, 0)  # close with RST, not FIN
-                    self.connection.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, linger)
-                    self.close_connection = True
-                    return
-                if reply.kind == "broken_json":
-                    payload = b'{"id": "chatcmpl-test", "choices": [{"message": {"content": "{\\"ke'
-                    self.send_response(reply.status)
-                    self.send_header("Content-Type", "application/json")
-                    self.send_header("Content-Length", str(len(payload)))
-                    self.end_headers()
-                    self.wfile.write(payload)
-                    return
-                if reply.kind == "not_http":
-                    self.wfile.write(b"\x00\x01garbage, not HTTP\r\n\r\n")
-                    self.wfile.flush()
-                    self.close_connection = True
-                    return
-                if reply.kind == "truncated":  # 4096 bytes announced, 42 sent
-                    self._cut_short(
-                        {"Content-Length": "4096"}, b'{"id": "chatcmpl-test", "choices": [{"mess'
-                    )
-                    return
-                ended = reply.finish_reason
-                if self.path.endswith("/api/chat"):
-                    self._send_json(200, _ollama_completion(reply.text, model, True, ended))
-                elif self.path.endswith("/api/generate"):
-                    self._send_json(200, _ollama_completion(reply.text, model, False, ended))
-                else:
-                    completion = _openai_completion(reply.text, model, ended, reply.message)
-                    self._send_json(200, completion)
+    def do_GET(self) -> None:
+        headers = {k.lower(): v for k, v in self.headers.items()}
+        self.server.owner._record(Recorded(self.path, headers, None, method="GET"))
+        if self.path.rstrip("/").endswith(("/models", "/api/tags")):
+            self._send_json(200, {"object": "list", "data": [], "models": []})
+        else:
+            self._send_json(404, {"error": {"message": "not found"}})
 
-        return Handler
+    def do_POST(self) -> None:
+        # the client may give up first (a timeout test): nothing left to answer
+        with contextlib.suppress(BrokenPipeError, ConnectionResetError):
+            self._answer_post()
+
+    def _answer_post(self) -> None:
+        body = self._read_json()
+        record = Recorded(self.path, {k.lower(): v for k, v in self.headers.items()}, body)
+        self.server.owner._record(record)
+        if self.path.endswith("/api/show"):  # Ollama's model description
+            self._send_json(200, {"model_info": {}, "details": {}, "template": ""})
+            return
+        reply = self.server.owner._reply_to(record)
+        if reply.kind != "trickle":  # a trickle's delay_s is its pause between bytes
+            time.sleep(reply.delay_s)
+        replies: dict[str, Callable[[Reply, str], None]] = {
+            "answer": self._reply_answer,
+            "error": self._reply_error,
+            "redirect": self._reply_redirect,
+            "raw": self._reply_raw,
+            "trickle": self._reply_trickle,
+            "bad_chunks": self._reply_bad_chunks,
+            "truncated": self._reply_truncated,
+            "broken_json": self._reply_broken_json,
+            "not_http": self._reply_not_http,
+            "reset": self._reply_reset,
+        }
+        replies[reply.kind](reply, str(body.get("model", "test")))
+
+    def _read_json(self) -> Any:
+        """The request's JSON body ({} when empty; {"_raw": text} when it is no JSON)."""
+        length = int(self.headers.get("Content-Length", "0"))
+        raw = self.rfile.read(length) if length else b""
+        try:
+            return json.loads(raw or b"{}")
+        except json.JSONDecodeError:
+            return {"_raw": raw.decode("utf-8", "replace")}
+
+    def _reply_answer(self, reply: Reply, model: str) -> None:
+        """The model's answer in the endpoint's own format (Ollama chat or generate, OpenAI)."""
+        ended = reply.finish_reason
+        if self.path.endswith("/api/chat"):
+            self._send_json(200, _ollama_completion(reply.text, model, True, ended))
+        elif self.path.endswith("/api/generate"):
+            self._send_json(200, _ollama_completion(reply.text, model, False, ended))
+        else:
+            self._send_json(200, _openai_completion(reply.text, model, ended, reply.message))
+
+    def _reply_error(self, reply: Reply, model: str) -> None:
+        error = {"message": reply.text, "type": "server_error", "code": reply.status}
+        self._send_json(reply.status, {"error": error}, reply.headers)
+
+    def _reply_redirect(self, reply: Reply, model: str) -> None:
+        self.send_response(reply.status)
+        elsewhere = reply.text.startswith(("http://", "https://"))
+        self.send_header("Location", ("" if elsewhere else self.server.owner.url) + reply.text)
+        self.send_header("Content-Length", "0")
+        self.end_headers()
+
+    def _reply_raw(self, reply: Reply, model: str) -> None:
+        self.send_response(200)
+        if "Content-Type" not in reply.headers:
+            self.send_header("Content-Type", "application/json")
+        self.send_header("Content-Length", str(len(reply.body)))
+        for key, value in reply.headers.items():
+            self.send_header(key, value)
+        self.end_headers()
+        self.wfile.write(reply.body)
+
+    def _reply_trickle(self, reply: Reply, model: str) -> None:
+        """Headers at once, then one byte of the answer every reply.delay_s until it is sent or
+        the server closes."""
+        payload = json.dumps(_openai_completion(reply.text, model)).encode()
+        self.send_response(200)
+        self.send_header("Content-Type", "application/json")
+        self.send_header("Content-Length", str(len(payload)))
+        self.end_headers()
+        self.wfile.flush()
+        for index in range(len(payload)):
+            if self.server.owner._closing.wait(reply.delay_s):
+                break
+            self.wfile.write(payload[index : index + 1])
+            self.wfile.flush()
+        self.close_connection = True
+
+    def _reply_bad_chunks(self, reply: Reply, model: str) -> None:
+        """A chunked answer whose second chunk header is not a number."""
+        self._cut_short({"Transfer-Encoding": "chunked"}, b'5\r\n{"cho\r\nZZZ\r\n')
+
+    def _reply_truncated(self, reply: Reply, model: str) -> None:
+        """4096 bytes announced, 42 sent."""
+        self._cut_short({"Content-Length": "4096"}, b'{"id": "chatcmpl-test", "choices": [{"mess')
+
+    def _reply_broken_json(self, reply: Reply, model: str) -> None:
+        payload = b'{"id": "chatcmpl-test", "choices": [{"message": {"content": "{\\"ke'
+        self.send_response(reply.status)
+        self.send_header("Content-Type", "application/json")
+        self.send_header("Content-Length", str(len(payload)))
+        self.end_headers()
+        self.wfile.write(payload)
+
+    def _reply_not_http(self, reply: Reply, model: str) -> None:
+        self.wfile.write(b"\x00\x01garbage, not HTTP\r\n\r\n")
+        self.wfile.flush()
+        self.close_connection = True
+
+    def _reply_reset(self, reply: Reply, model: str) -> None:
+        linger = struct.pack("ii", 1, 0)  # close with RST, not FIN
+        self.connection.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, linger)
+        self.close_connection = True
+
+    def _send_json(self, status: int, data: Any, headers: dict[str, str] | None = None) -> None:
+        payload = json.dumps(data).encode()
+        self.send_response(status)
+        self.send_header("Content-Type", "application/json")
+        self.send_header("Content-Length", str(len(payload)))
+        for key, value in (headers or {}).items():
+            self.send_header(key, value)
+        self.end_headers()
+        self.wfile.write(payload)
+
+    def _cut_short(self, headers: dict[str, str], start: bytes) -> None:
+        """A 200 with these headers and the first bytes of a body, then the close."""
+        self.send_response(200)
+        self.send_header("Content-Type", "application/json")
+        for key, value in headers.items():
+            self.send_header(key, value)
+        self.end_headers()
+        self.wfile.write(start)
+        self.wfile.flush()
+        self.close_connection = True

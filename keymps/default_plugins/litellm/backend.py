@@ -75,10 +75,11 @@ def import_litellm() -> Any:
         os.environ.setdefault("LITELLM_LOCAL_MODEL_COST_MAP", "True")
         import litellm
 
-        from keymps.default_plugins.litellm import request_guard, response_cap
+        from keymps.default_plugins.litellm import closing, request_guard, response_cap
 
         response_cap.install()
         request_guard.install()
+        closing.install()
         litellm.suppress_debug_info = True
         litellm.telemetry = False
         return litellm
