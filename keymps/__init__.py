@@ -115,12 +115,12 @@ def run_task(
             StageError naming it ("detect: no object found"), and nothing after it runs, above
             all no executor. `error.run` is the Run it leaves behind.
     """
-    from keymps.pipeline.engine import _from_keywords
+    from keymps.pipeline.engine import apply_deprecated_keywords
     from keymps.pipeline.engine import run_task as _run_task
     from keymps.run import RunOptions, RunOverrides
 
     # the deprecated keywords converted here, so that their warning names the caller's line
-    options, overrides = _from_keywords(
+    options, overrides = apply_deprecated_keywords(
         options or RunOptions(), overrides or RunOverrides(), keywords
     )
     return _run_task(task, on_stage=on_stage, options=options, overrides=overrides, through=through)

@@ -8,7 +8,7 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from keymps.config.task import Task, _check_referenced_files, _display_path, read_task_text
+from keymps.config.task import Task, display_path, read_task_text, referenced_file_problems
 from keymps.config.yaml_positions import YamlSyntaxError, load_yaml_with_positions
 from keymps.errors import TaskFileError
 
@@ -55,12 +55,12 @@ def salvage_task(path: str | Path) -> tuple[Task, frozenset[str], list[str]] | N
         task = Task.model_validate({**data, "path": path.resolve()})
     except ValidationError:
         return None
-    source = _display_path(path)
+    source = display_path(path)
     task._source = source
     task._yaml = parsed
     problems = [
         problem
-        for problem in _check_referenced_files(task, source, parsed)
+        for problem in referenced_file_problems(task, source, parsed)
         if problem.split(": ", 2)[1].split(".")[0] not in broken
     ]
     return task, frozenset(broken), problems

@@ -604,7 +604,15 @@ def _annotated_metadata(annotation: Any) -> list[Any]:
     return found
 
 
-def _display_path(path: Path) -> str:
+def display_path(path: Path) -> str:
+    """A task file's path as its errors name it: relative to the working folder when inside it.
+
+    Args:
+        path: The task file.
+
+    Returns:
+        The path relative to the working folder, or as given.
+    """
     try:
         return str(path.resolve().relative_to(Path.cwd().resolve()))
     except (ValueError, OSError, RuntimeError):  # elsewhere, or a symlink loop
@@ -634,7 +642,7 @@ def parse_task(text: str, source: str = "<task>", path: Path | None = None) -> T
         task = Task.model_validate({**data, "path": path})
     except ValidationError as error:
         raise TaskFileError(_format_problems(source, parsed, error)) from None
-    problems = _check_referenced_files(task, source, parsed)
+    problems = referenced_file_problems(task, source, parsed)
     if problems:
         raise TaskFileError(problems)
     task._source = source
@@ -683,7 +691,18 @@ def image_file_problem(path: Path) -> str | None:
     return None
 
 
-def _check_referenced_files(task: Task, source: str, parsed: PositionedYaml) -> list[str]:
+def referenced_file_problems(task: Task, source: str, parsed: PositionedYaml) -> list[str]:
+    """What is wrong with the files a task names (its scene image), and what a shared task file
+    may not do (name any variable as its key, read any file).
+
+    Args:
+        task: The validated task.
+        source: The task file as its errors name it (display_path).
+        parsed: The task's YAML with positions, for each problem's line and column.
+
+    Returns:
+        One `file:line:col: field: problem` line per problem; empty when there is none.
+    """
     checks: list[tuple[tuple[str, ...], Path | None]] = [
         (("scene", "image"), task.scene.image if task.scene.source == "file" else None),
     ]
@@ -748,7 +767,7 @@ MAX_TASK_FILE_BYTES = 1_000_000
 def read_task_text(path: Path) -> str:
     """A task file's text: a regular file of at most MAX_TASK_FILE_BYTES, UTF-8 (one located
     TaskFileError otherwise: /dev/zero or a 4 GB file is never read)."""
-    source = _display_path(path)
+    source = display_path(path)
     if path.exists() and not path.is_dir() and not path.is_file():
         raise TaskFileError([f"{source}: not a regular file (a device or a pipe)"])
     if path.is_file() and path.stat().st_size > MAX_TASK_FILE_BYTES:
@@ -771,5 +790,5 @@ def load_task(path: str | Path) -> Task:
     """Read and validate a task file. Errors name the file, line, column and field."""
     path = Path(path)
     text = read_task_text(path)
-    source = _display_path(path)
+    source = display_path(path)
     return parse_task(text, source=source, path=path.resolve())

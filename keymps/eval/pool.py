@@ -387,7 +387,7 @@ def get_going(
     the fork server of the worker processes unless every run stays in this process
     (--processes 1, or one VLM call at a time). Returns at once: the warm planner's dispatch
     for the broker, or None. Offline runs need none of it."""
-    from keymps.planning.planner import prepare_backend
+    from keymps.planning.planner import prepare_backend_in_background
     from keymps.planning.warm.dispatch import warm_dispatch
 
     if backend in OFFLINE_BACKENDS:
@@ -396,7 +396,7 @@ def get_going(
         return _UNDER_WAY[backend]
     warm = warm_dispatch(warm_planner) if backend == AUTO_VLM else None
     if warm is None:
-        prepare_backend(backend, {"model": model, "api_base": api_base})
+        prepare_backend_in_background(backend, {"model": model, "api_base": api_base})
     if processes != 1 and concurrency > 1:
         start_fork_server(backend)
     _UNDER_WAY[backend] = warm

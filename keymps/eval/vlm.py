@@ -7,13 +7,18 @@ import re
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from keymps.bundled import bundled_dir
 from keymps.errors import KeympsError
 from keymps.eval.context import MethodContext
+
+if TYPE_CHECKING:
+    from keymps.config.task import Task
+    from keymps.planning.session import PlanSession
+    from keymps.types import PlanRequest, VlmCall
 
 PROMPTS_DIR = bundled_dir("prompts") / "methods"
 
@@ -143,19 +148,49 @@ def ask(
     `validate(data)` checks the answer's JSON object: (parsed or None, problems)."""
     from keymps.config.overrides import apply_overrides
     from keymps.planning.backend_choice import keys_the_task_may_send
-    from keymps.planning.planner import backend_options
-    from keymps.planning.prompt import png_data_url
     from keymps.planning.redaction import remember
-    from keymps.planning.session import PlanSession
-    from keymps.plugin.manager import create_vlm_backend
-    from keymps.run import Run, RunOptions
-    from keymps.types import PlanRequest
 
     task = apply_overrides(seen.task, {"model": context.model, "api_base": context.api_base})
     remember(*keys_the_task_may_send(task))
-    backend = create_vlm_backend(context.backend, backend_options(task))
-    system = render_prompt(PROMPTS_DIR / f"{method}.md", _values(seen, context))
-    base = PlanRequest(
+    session = _session(context, seen, task, method, schema)
+    user_text = f"Instruction: {task.instruction}"
+    parsed = session.ask_own_prompt(f"{method} answer", user_text, with_image, schema, validate)
+    return parsed, [_call_summary(call) for call in session.calls]
+
+
+def _session(
+    context: MethodContext, seen: Seen, task: Task, method: str, schema: dict[str, Any]
+) -> PlanSession:
+    """The plan session a run of `task` would open, with the method's prompt as its system
+    message and the case's crop as its image."""
+    from keymps.planning.planner import backend_options
+    from keymps.planning.prompt import png_data_url
+    from keymps.planning.session import PlanSession
+    from keymps.plugin.manager import create_vlm_backend
+    from keymps.run import Run, RunOptions
+
+    prompt = PROMPTS_DIR / f"{method}.md"
+    return PlanSession(
+        task=task,
+        run=Run(
+            task,
+            context.folder,
+            RunOptions(no_cache=context.no_cache, dispatch=context.dispatch),
+        ),
+        backend_name=context.backend,
+        backend=create_vlm_backend(context.backend, backend_options(task)),
+        base=_base_request(seen, task, schema),
+        system_template=render_prompt(prompt, _values(seen, context)),
+        template_source=str(prompt),
+        image_url=png_data_url(seen.detection.crop),
+    )
+
+
+def _base_request(seen: Seen, task: Task, schema: dict[str, Any]) -> PlanRequest:
+    """The request every call of the session starts from (its messages are the session's)."""
+    from keymps.types import PlanRequest
+
+    return PlanRequest(
         instruction=task.instruction,
         crop=seen.detection.crop,
         crop_mask=None,
@@ -171,30 +206,14 @@ def ask(
         timeout_s=task.planner.timeout_s,
         task_name=task.name,
     )
-    session = PlanSession(
-        task=task,
-        run=Run(
-            task,
-            context.folder,
-            RunOptions(no_cache=context.no_cache, dispatch=context.dispatch),
-        ),
-        backend_name=context.backend,
-        backend=backend,
-        base=base,
-        system_template=system,
-        template_source=str(PROMPTS_DIR / f"{method}.md"),
-        image_url=png_data_url(seen.detection.crop),
-    )
-    user_text = f"Instruction: {task.instruction}"
-    parsed = session.ask_own_prompt(f"{method} answer", user_text, with_image, schema, validate)
-    calls = [
-        {
-            "latency_s": call.latency_s,
-            "cost_usd": call.cost_usd,
-            "prompt_tokens": call.prompt_tokens,
-            "completion_tokens": call.completion_tokens,
-            "cached": call.cached,
-        }
-        for call in session.calls
-    ]
-    return parsed, calls
+
+
+def _call_summary(call: VlmCall) -> dict[str, Any]:
+    """What the method's result keeps of one call: latency, cost, tokens, whether cached."""
+    return {
+        "latency_s": call.latency_s,
+        "cost_usd": call.cost_usd,
+        "prompt_tokens": call.prompt_tokens,
+        "completion_tokens": call.completion_tokens,
+        "cached": call.cached,
+    }

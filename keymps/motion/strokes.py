@@ -455,14 +455,20 @@ def split_stroke(stroke: Stroke, at_s: float) -> tuple[Stroke, Stroke] | None:
         stroke.kind,
         stroke.s[index:] - offset,
         stroke.points[index:],
-        _Shifted(stroke.q_of_s, offset),
+        ShiftedPath(stroke.q_of_s, offset),
         stroke.speed,
     )
     return before, after
 
 
-class _Shifted:
-    """q(s + offset): the second part of a split stroke reuses its parent's spline."""
+class ShiftedPath:
+    """q(s + offset): the second part of a split stroke reuses its parent's spline.
+
+    Args:
+        q_of_s: The parent's joint path of its arc parameter s (a CubicSpline, or another
+            ShiftedPath): `q_of_s(s, nu)`, `with_derivatives(s)` and `derivatives(s)`.
+        offset: Where the part starts on the parent's s, metres.
+    """
 
     def __init__(self, q_of_s: Any, offset: float):
         self.q_of_s, self.offset = q_of_s, offset

@@ -19,7 +19,7 @@ import numpy as np
 
 from keymps.errors import KeympsError
 from keymps.motion.spline import CubicSpline, SplineTable
-from keymps.motion.strokes import Stroke, _Shifted, split_stroke, split_strokes
+from keymps.motion.strokes import ShiftedPath, Stroke, split_stroke, split_strokes
 from keymps.types import JointPath, ToolPath, Trajectory
 
 if TYPE_CHECKING:
@@ -71,32 +71,64 @@ class TimedStroke:
     alone (set by time_strokes)."""
 
 
-def _profile(length: float, limits: Limits, period: float) -> tuple[Any, float]:
-    """Rest-to-rest Ruckig profile of s over `length`, its duration a multiple of `period`."""
+def _profile(
+    length: float, limits: Limits, period: float, stroke: Stroke | None = None
+) -> tuple[Any, float]:
+    """Rest-to-rest Ruckig profile of s over `length`, its duration a multiple of `period`;
+    when Ruckig refuses it, a KeympsError naming the stroke, its limits and Ruckig's reason."""
     from keymps.interrupts import import_whole
 
     ruckig = import_whole("ruckig")
-    InputParameter, Result, Ruckig = ruckig.InputParameter, ruckig.Result, ruckig.Ruckig
-    RuckigTrajectory = ruckig.Trajectory
-
-    request = InputParameter(1)
+    request = ruckig.InputParameter(1)
     request.current_position = [0.0]
     request.target_position = [length]
     request.max_velocity = [limits.velocity]
     request.max_acceleration = [limits.acceleration]
     request.max_jerk = [limits.jerk]
-    generator = Ruckig(1)
-    profile = RuckigTrajectory(1)
-    result = generator.calculate(request, profile)
-    if result not in (Result.Working, Result.Finished):
-        raise KeympsError(f"timing: Ruckig could not time a stroke of {length:.4f} m ({result})")
+    generator = ruckig.Ruckig(1)
+    profile = ruckig.Trajectory(1)
+    refused = _calculate(ruckig, generator, request, profile)
+    if refused is not None:
+        raise _refusal(f"time {_named(stroke, length)}", limits, refused)
     rounded = math.ceil(profile.duration / period - 1e-9) * period
     if rounded - profile.duration > 1e-12:
         request.minimum_duration = rounded
-        result = generator.calculate(request, profile)
-        if result not in (Result.Working, Result.Finished):
-            raise KeympsError(f"timing: Ruckig could not stretch a stroke to {rounded:.3f} s")
+        refused = _calculate(ruckig, generator, request, profile)
+        if refused is not None:
+            raise _refusal(f"stretch {_named(stroke, length)} to {rounded:.3f} s", limits, refused)
     return profile, rounded
+
+
+def _calculate(ruckig: Any, generator: Any, request: Any, profile: Any) -> str | None:
+    """Ruckig's calculation of `profile`: None, or Ruckig's reason for refusing it (its result,
+    or its exception's)."""
+    try:
+        result = generator.calculate(request, profile)
+    except (getattr(ruckig, "RuckigError", RuntimeError), RuntimeError) as error:
+        return _ruckig_reason(error)  # (RuntimeError: a ruckig without RuckigError)
+    return None if result in (ruckig.Result.Working, ruckig.Result.Finished) else str(result)
+
+
+def _named(stroke: Stroke | None, length: float) -> str:
+    """'a 0.1000 m stroke of piece 2 (work)', or without the piece when the stroke is unknown."""
+    which = f" of piece {stroke.piece_index} ({stroke.kind})" if stroke is not None else ""
+    return f"a {length:.4f} m stroke{which}"
+
+
+def _refusal(doing: str, limits: Limits, reason: str) -> KeympsError:
+    """One line: what Ruckig could not do, at which limits of s, and Ruckig's reason."""
+    return KeympsError(
+        f"timing: Ruckig could not {doing} at velocity {limits.velocity:.4g} m/s, acceleration "
+        f"{limits.acceleration:.4g} m/s^2, jerk {limits.jerk:.4g} m/s^3: {reason}"
+    )
+
+
+def _ruckig_reason(error: Exception) -> str:
+    """The first line of a RuckigError (the rest repeats the whole input), without its tag."""
+    lines = str(error).strip().splitlines()
+    first = lines[0].strip() if lines else ""
+    first = first.removeprefix("[ruckig]").strip().removesuffix("input:").strip(" ,.")
+    return first or type(error).__name__
 
 
 def _sample_profile_by_calls(
@@ -169,7 +201,7 @@ class _StrokeRates:
         spline_of: list[CubicSpline | None] = []
         for stroke in strokes:
             q_of_s, offsets = stroke.q_of_s, []
-            while isinstance(q_of_s, _Shifted):  # q(s + outer) = inner(s + outer + ...)
+            while isinstance(q_of_s, ShiftedPath):  # q(s + outer) = inner(s + outer + ...)
                 offsets.append(q_of_s.offset)
                 q_of_s = q_of_s.q_of_s
             self.offsets.append(offsets)
@@ -227,7 +259,7 @@ class _StrokeRates:
             yield slice(0, len(sd)), None if q is None else q.T, qd.T, qdd.T
             return
         for k, start, count in zip(which, starts, counts, strict=True):
-            for offset in self.offsets[k]:  # as _Shifted adds them, outermost first
+            for offset in self.offsets[k]:  # as ShiftedPath adds them, outermost first
                 at[start : start + count] = at[start : start + count] + offset
         rows = self.table.intervals([self.spline_index[k] for k in which], at, counts)
         for part, q, dq, ddq in self.table.chunks(at, rows, values):
@@ -352,11 +384,11 @@ def time_strokes_at_once(
     for attempt in range(MAX_RETIMES):
         which, profiles, durations, failed = _profile_strokes(strokes, pending, limits, period)
         for k, error in failed:
-            out[k] = error
+            out[k] = error  # Ruckig's reason, kept: these are no longer pending
+        pending = []
         if not which:
             break
         ratios = _check_profiles(model, rates, which, profiles, durations, check_period)
-        pending = []
         for i, k in enumerate(which):
             if attempt == 0:
                 first[k] = profiles[i], durations[i]
@@ -381,7 +413,7 @@ def _profile_strokes(
     which, profiles, durations, failed = [], [], [], []
     for k in pending:
         try:
-            profile, duration = _profile(strokes[k].length, limits[k], period)
+            profile, duration = _profile(strokes[k].length, limits[k], period, strokes[k])
         except KeympsError as error:
             failed.append((k, error))
             continue

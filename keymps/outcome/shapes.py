@@ -10,17 +10,14 @@ from dataclasses import replace
 
 import numpy as np
 
+from keymps.outcome.directions import Shape, cut_angle, line_gap, measured_shape
 from keymps.outcome.predict import Food
 from keymps.outcome.verdict import (
     MIDDLE_FRACTION,
     ORIENTATION_TOLERANCE_DEG,
     PARALLEL_TOLERANCE_DEG,
     WIDTH_TOLERANCE_M,
-    Shape,
-    _angle,
-    _line_gap,
-    _orientation_problems,
-    measured_shape,
+    orientation_problems,
 )
 from keymps.types import CutEffect, DepositEffect, Effect, PieceEffect, PlanIntent
 
@@ -55,7 +52,7 @@ def piece_shape_problems(effect: Effect, intent: PlanIntent, food: Food) -> list
     if intent.piece_shape == "square":
         return _square_problems(pieces, intent)
     if intent.orientation is None:  # rounds: slices across a long object
-        return _orientation_problems(cuts, pieces, replace(intent, orientation="crosswise"), shape)
+        return orientation_problems(cuts, pieces, replace(intent, orientation="crosswise"), shape)
     return []
 
 
@@ -63,8 +60,8 @@ def _strip_problems(
     cuts: Sequence[CutEffect], pieces: Sequence[PieceEffect], intent: PlanIntent, shape: Shape
 ) -> list[str]:
     """Strips lie between parallel cuts, along a long object's length."""
-    angles = [_angle(cut) for cut in cuts]
-    spread = max(_line_gap(a, angles[0]) for a in angles)
+    angles = [cut_angle(cut) for cut in cuts]
+    spread = max(line_gap(a, angles[0]) for a in angles)
     if spread > math.radians(PARALLEL_TOLERANCE_DEG):
         return [
             f"the cuts are not parallel (they differ by up to {math.degrees(spread):.0f}°): they "
@@ -72,7 +69,7 @@ def _strip_problems(
         ]
     if shape.kind != "elongated" or intent.orientation is not None:
         return []
-    off = max(_line_gap(a, shape.axis) for a in angles)
+    off = max(line_gap(a, shape.axis) for a in angles)
     if off <= math.radians(ORIENTATION_TOLERANCE_DEG):
         return []
     return [

@@ -11,11 +11,11 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 
 from keymps.outcome.deposits import DOT_DIAMETER_FACTOR, merges
+from keymps.outcome.directions import Shape, cut_angle, line_gap, measured_shape
 from keymps.outcome.predict import PARTING_M, Food, line_inside
 from keymps.types import CutEffect, Effect, PieceEffect, PlanIntent
 
@@ -54,34 +54,6 @@ TOLERANCES: dict[str, float] = {
 }
 """The numbers the checks use, recorded in run.json (outcome.tolerances); the equal-parts
 tolerance is each intent's own `equal` (Appendix F: 0.05)."""
-
-
-@dataclass(frozen=True)
-class Shape:
-    """An object's measured frame: its kind and its own axes (board frame, radians)."""
-
-    kind: str
-    """round, square or elongated (keymps.designs.crop_shape.classify)."""
-    axis: float
-    """Direction of its long axis (a square: one side; a round object: the board's x)."""
-    centre: np.ndarray
-
-
-def measured_shape(outline_m: np.ndarray) -> Shape:
-    """The object's kind and own axes from its footprint: a long object's axis is its area's
-    principal axis (a bent eggplant's smallest enclosing rectangle is turned 6-10 degrees off
-    its length), a square's the sides of that rectangle, a round object's the image's."""
-    import cv2
-
-    from keymps.designs.crop_shape import classify
-    from keymps.designs.outline import polygon_centroid
-
-    polygon = 1000.0 * np.asarray(outline_m, float)
-    kind, angle = classify(polygon)
-    if kind == "elongated":
-        moments = cv2.moments(polygon.astype(np.float32))
-        angle = 0.5 * math.atan2(2 * moments["mu11"], moments["mu20"] - moments["mu02"])
-    return Shape(kind, 0.0 if kind == "round" else angle, polygon_centroid(polygon) / 1000.0)
 
 
 def cut_problems(effect: Effect, foods: Sequence[Food], blade_length: float = 0.0) -> list[str]:
@@ -192,7 +164,7 @@ def intent_problems(effect: Effect, intent: PlanIntent, food: Food) -> list[str]
             f"({_shares(pieces)} of the object); the intent is {intent.describe()}"
         )
     if intent.orientation is not None and cuts:
-        problems += _orientation_problems(cuts, pieces, intent, shape)
+        problems += orientation_problems(cuts, pieces, intent, shape)
     if problems:
         return problems
     if intent.equal is not None and intent.pieces is not None:
@@ -261,8 +233,8 @@ def _equal_widths(
 def _slicing(cuts: Sequence[CutEffect], food: Food) -> np.ndarray | str:
     """The widths (m) of the slices parallel cuts leave, from the low end of the object across
     them; or what stops them being slices."""
-    angles = [_angle(cut) for cut in cuts]
-    spread = max(_line_gap(a, angles[0]) for a in angles)
+    angles = [cut_angle(cut) for cut in cuts]
+    spread = max(line_gap(a, angles[0]) for a in angles)
     if spread > math.radians(PARALLEL_TOLERANCE_DEG):
         return f"the cuts are not parallel (they differ by up to {math.degrees(spread):.0f}°)"
     mean = angles[0] + float(np.mean([math.remainder(a - angles[0], math.pi) for a in angles]))
@@ -297,7 +269,7 @@ def _width_problems(cuts: Sequence[CutEffect], intent: PlanIntent, food: Food) -
 
 
 def _middle_problems(cut: CutEffect, food: Food) -> list[str]:
-    angle = _angle(cut)
+    angle = cut_angle(cut)
     across = np.array([-math.sin(angle), math.cos(angle)])
     extent = np.asarray(food.outline_m, float) @ across
     middle = (float(extent.min()) + float(extent.max())) / 2
@@ -312,15 +284,26 @@ def _middle_problems(cut: CutEffect, food: Food) -> list[str]:
     ]
 
 
-def _orientation_problems(
+def orientation_problems(
     cuts: Sequence[CutEffect], pieces: Sequence[PieceEffect], intent: PlanIntent, shape: Shape
 ) -> list[str]:
+    """The first cut that runs off the direction `intent.orientation` states, as one problem.
+
+    Args:
+        cuts: The cuts through the object (each with severed stretches).
+        pieces: The pieces they leave (named in the problem).
+        intent: What the plan states; its orientation picks the wanted directions.
+        shape: The object's measured frame.
+
+    Returns:
+        No problem, or one naming the cut, how far off it runs (degrees) and the pieces.
+    """
     wanted = _wanted_directions(intent, shape)
     if not wanted:
         return []
     tolerance = math.radians(ORIENTATION_TOLERANCE_DEG)
     for cut in cuts:
-        off = min(_line_gap(_angle(cut), direction) for direction in wanted)
+        off = min(line_gap(cut_angle(cut), direction) for direction in wanted)
         if off > tolerance:
             areas = ", ".join(f"{1e4 * p.area_m2:.1f}" for p in pieces[:12])
             left = f": pieces of {areas} cm² ({_shares(pieces)})" if len(pieces) > 1 else ""
@@ -348,24 +331,12 @@ def _wanted_directions(intent: PlanIntent, shape: Shape) -> list[float]:
     axes = (shape.axis, shape.axis + math.pi / 2)
     if intent.orientation in ("vertical", "horizontal"):
         image = math.pi / 2 if intent.orientation == "vertical" else 0.0
-        own = min(axes, key=lambda a: _line_gap(a, image))
-        aligned = _line_gap(own, image) <= math.radians(ALIGNED_DEG)
+        own = min(axes, key=lambda a: line_gap(a, image))
+        aligned = line_gap(own, image) <= math.radians(ALIGNED_DEG)
         return [image, own] if aligned else [own]
     if shape.kind != "elongated" or intent.orientation is None:
         return []
     return [axes[0] if intent.orientation == "lengthwise" else axes[1]]
-
-
-def _angle(cut: CutEffect) -> float:
-    """The direction of a cut's line (radians, board frame), from its severed stretches."""
-    ends = cut.severed_m.reshape(-1, 2)
-    start, end = ends[0], ends[-1]
-    return math.atan2(float(end[1] - start[1]), float(end[0] - start[0]))
-
-
-def _line_gap(a: float, b: float) -> float:
-    """The angle between two lines (directions modulo 180 degrees), 0 to 90 degrees."""
-    return abs(math.remainder(a - b, math.pi))
 
 
 def icing_problems(effect: Effect, work_pairs: Sequence[int], line_width: float) -> list[str]:

@@ -110,7 +110,7 @@ class ImageFrame:
             [[sx, sy], [sx + w_env, sy], [sx + w_env, sy + h_env], [sx, sy + h_env]],
             dtype=np.float64,
         )
-        matrix = _homography(corners, board)
+        matrix = homography(corners, board)
         return cls(matrix, size, (w_env, h_env), (sx, sy), "homography")
 
     @classmethod
@@ -210,8 +210,19 @@ def pixel_shape_warning(task: Task, image_size_px: tuple[int, int]) -> str | Non
     )
 
 
-def _homography(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
-    """The 3x3 map taking four points to four points (direct linear solve in float64)."""
+def homography(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """The 3x3 map taking four points to four points (direct linear solve in float64).
+
+    Args:
+        src: (4, 2) points, in any unit.
+        dst: (4, 2) the points they map to.
+
+    Returns:
+        (3, 3) the homography, its last entry 1.
+
+    Raises:
+        KeympsError: When three of the points lie on a line.
+    """
     rows = []
     rhs = []
     for (x, y), (u, v) in zip(src, dst, strict=True):

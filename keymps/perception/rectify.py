@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from keymps.errors import DetectionError, KeympsError
-from keymps.perception.frames import ImageFrame, _homography
+from keymps.perception.frames import ImageFrame, homography
 from keymps.types import DetectedObject, Detection, Rectification, SceneImage
 
 if TYPE_CHECKING:
@@ -107,7 +107,7 @@ def rectify_scene(scene: SceneImage, task: Task) -> SceneImage:
     if intrinsics is not None:
         ideal = undistort_points(corners, *intrinsics)
         position = _camera_position(ideal, board_m, intrinsics[0], task.scene.object_height)
-    to_photo = _homography(board_m, ideal) @ frame.matrix
+    to_photo = homography(board_m, ideal) @ frame.matrix
     map_x, map_y = _remap_grid(to_photo, size, intrinsics)
     rectified = cv2.remap(
         scene.image, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT

@@ -597,14 +597,14 @@ def _backend_under_way(task: Task, backend: str, options: RunOptions) -> RunOpti
     (litellm's import, seconds) started on a thread, to overlap the stages before planning."""
     if backend in NO_SERVER or options.dispatch is not None:  # (eval's broker warms up itself)
         return options
-    from keymps.planning.planner import backend_options, prepare_backend
+    from keymps.planning.planner import backend_options, prepare_backend_in_background
     from keymps.planning.warm.dispatch import warm_dispatch
 
     if backend == AUTO_VLM:
         dispatch = warm_dispatch(options.warm_planner)
         if dispatch is not None:
             return replace(options, dispatch=dispatch)
-    prepare_backend(backend, backend_options(task))
+    prepare_backend_in_background(backend, backend_options(task))
     return options
 
 
@@ -647,7 +647,7 @@ def run_task(
 
     if not isinstance(task, Task):
         task = load_task(task)
-    options, overrides = _from_keywords(
+    options, overrides = apply_deprecated_keywords(
         options or RunOptions(), overrides or RunOverrides(), keywords
     )
     _check_options(options, through)
@@ -666,10 +666,22 @@ def run_task(
     return _run_stages(_Pipeline(run, parts, on_stage, through), lock)
 
 
-def _from_keywords(
+def apply_deprecated_keywords(
     options: RunOptions, overrides: RunOverrides, keywords: dict[str, Any]
 ) -> tuple[RunOptions, RunOverrides]:
-    """`options` and `overrides` with run_task's deprecated keyword arguments applied."""
+    """`options` and `overrides` with run_task's deprecated keyword arguments applied.
+
+    Args:
+        options: How the run is carried out.
+        overrides: What it changes of the task file.
+        keywords: run_task's deprecated keyword arguments (a DeprecationWarning when any).
+
+    Returns:
+        The options and overrides with each keyword set on the one that has its field.
+
+    Raises:
+        KeympsError: Naming a keyword neither has.
+    """
     if not keywords:
         return options, overrides
     warnings.warn(

@@ -18,7 +18,7 @@ from keymps.outcome.record import outcome_record
 from keymps.robot.safety import SafetyError
 from keymps.run import Run
 from keymps.run_files import IMAGE_FORMATS, write_atomically
-from keymps.types import ToolPath, ValidatedTrajectory
+from keymps.types import ExecutionReport, ToolPath, Trajectory, ValidatedTrajectory
 
 SCHEMA_VERSION = "1.6"
 """1.1: `status` (ok, failed, interrupted). 1.2: `unfinished`, the placeholder written before the
@@ -107,8 +107,7 @@ def run_record(run: Run, error: BaseException | None) -> dict[str, Any]:
     """Everything run.json holds, as plain JSON data."""
     stages = run.stages
     task = run.task
-    scene, detection, plan = stages.image, stages.detect, stages.plan
-    grounding, trajectory, executed = stages.ground, stages.time, stages.execute
+    scene, plan, grounding = stages.image, stages.plan, stages.ground
     return {
         "schema_version": SCHEMA_VERSION,
         "keymps_version": __version__,
@@ -122,16 +121,7 @@ def run_record(run: Run, error: BaseException | None) -> dict[str, Any]:
         "backend_reason": run.backend_reason,
         "model": plan.model if plan is not None else task.planner.model,
         "image": _image_record(scene) if scene else None,
-        "detection": None
-        if detection is None
-        else {
-            "bbox_px": [int(v) for v in detection.bbox_px],
-            "crop_origin_px": [int(v) for v in detection.crop_origin_px],
-            "crop_size_px": list(detection.crop_size_px),
-            "warnings": list(detection.warnings),
-            "objects": _objects(run),
-            "report": detection.report,
-        },
+        "detection": _detection_record(run),
         "keyword": plan.keyword if plan is not None else None,
         "rationale": plan.rationale if plan is not None else None,
         "pairs_px": _rounded(plan.pairs_px.tolist(), 2) if plan is not None else None,
@@ -142,28 +132,53 @@ def run_record(run: Run, error: BaseException | None) -> dict[str, Any]:
         "pieces": _pieces(stages.compose),
         "timings_s": {k: _rounded(v, 4) for k, v in run.timings_s.items()},
         "vlm": _vlm_summary(plan),
-        "trajectory": None
-        if trajectory is None
-        else {
-            "duration_s": _rounded(trajectory.duration_s, 4),
-            "samples": trajectory.samples,
-            "rate_hz": trajectory.rate_hz,
-            "joint_names": list(trajectory.joint_names),
-        },
+        "trajectory": _trajectory_record(stages.time),
         "validation": _validation(stages.check, error),
         "outcome": outcome_record(stages.outcome, run.options.accept_outcome),
-        "execution": None
-        if executed is None
-        else {
-            "executor": executed.executor,
-            "ok": executed.ok,
-            "dry_run": executed.dry_run,
-            "message": executed.message,
-            "files": list(executed.files),
-            "figures": {k: _rounded(float(v)) for k, v in executed.figures.items()},
-        },
+        "execution": _execution_record(stages.execute),
         "warnings": list(run.warnings),
         "files": run_files(run),
+    }
+
+
+def _detection_record(run: Run) -> dict[str, Any] | None:
+    """The detect stage's boxes in full-image pixels, its warnings, objects and report."""
+    detection = run.stages.detect
+    if detection is None:
+        return None
+    return {
+        "bbox_px": [int(v) for v in detection.bbox_px],
+        "crop_origin_px": [int(v) for v in detection.crop_origin_px],
+        "crop_size_px": list(detection.crop_size_px),
+        "warnings": list(detection.warnings),
+        "objects": _objects(run),
+        "report": detection.report,
+    }
+
+
+def _trajectory_record(trajectory: Trajectory | None) -> dict[str, Any] | None:
+    """The timed trajectory's duration, samples, rate and joints (trajectory.csv has the rest)."""
+    if trajectory is None:
+        return None
+    return {
+        "duration_s": _rounded(trajectory.duration_s, 4),
+        "samples": trajectory.samples,
+        "rate_hz": trajectory.rate_hz,
+        "joint_names": list(trajectory.joint_names),
+    }
+
+
+def _execution_record(executed: ExecutionReport | None) -> dict[str, Any] | None:
+    """The executor's report: who ran it, its verdict, message, files and figures."""
+    if executed is None:
+        return None
+    return {
+        "executor": executed.executor,
+        "ok": executed.ok,
+        "dry_run": executed.dry_run,
+        "message": executed.message,
+        "files": list(executed.files),
+        "figures": {k: _rounded(float(v)) for k, v in executed.figures.items()},
     }
 
 

@@ -12,6 +12,7 @@ backend sends no key from the environment (docs/security.md).
 
 from __future__ import annotations
 
+import contextlib
 import threading
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -64,23 +65,19 @@ def backend_options(task: Task) -> dict[str, Any]:
     }
 
 
-def prepare_backend(backend: str, options: dict[str, Any]) -> threading.Thread:
+def prepare_backend_in_background(backend: str, options: dict[str, Any]) -> threading.Thread:
     """Start the backend's set-up (`prepare()`: litellm's import, seconds) on a thread now, so
     that it overlaps whatever comes before the first request; that request waits for what is
     left of it. A backend without `prepare`, or one that cannot be made with these options
     (the plan stage makes it again and says why), is left alone."""
+    from keymps.plugin.components import prepare_backend
     from keymps.plugin.manager import create_component, get_manager
 
     get_manager()  # set up in this thread: the plugin scan is not shared with a thread
 
     def set_up() -> None:
-        try:
-            made = create_component("vlm_backend", backend, options)
-            prepare = getattr(made, "prepare", None)
-            if callable(prepare):
-                prepare()
-        except Exception:  # noqa: S110 - the plan stage makes the backend again and says why
-            pass
+        with contextlib.suppress(Exception):  # the plan stage makes it again and says why
+            prepare_backend(create_component("vlm_backend", backend, options))
 
     thread = threading.Thread(target=set_up, name="keymps-backend-prepare", daemon=True)
     thread.start()

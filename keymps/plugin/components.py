@@ -66,8 +66,9 @@ class VlmBackend(Protocol):
     What a backend can do beyond `complete` is declared by inheriting BackendBase and setting
     its ability flags; a backend that does not inherit it gets the flags' defaults.
 
-    Optional: `def prepare()` does a slow set-up (an import) on a thread as soon as a run knows
-    it will use the backend.
+    Optional: `def prepare() -> None`, a slow set-up (an import) started on a thread as soon as
+    a run knows it will use the backend; BackendBase.prepare says when, on which thread and
+    what it may do (a backend without it needs no set-up).
     """
 
     name: str
@@ -130,6 +131,19 @@ class BackendBase:
         """
         raise NotImplementedError(f"{type(self).__name__} does not implement acomplete()")
 
+    def prepare(self) -> None:
+        """Do a slow one-off set-up before the first call (an import, a cache); by default nothing.
+
+        When: once a run knows it will plan with this backend, before its image is read (and
+        once per process in `keymps eval`), so that the set-up overlaps the stages before
+        planning. Where: on a background thread ("keymps-backend-prepare"), on an object made
+        for this alone; the plan stage makes its own backend and may call `complete` while
+        `prepare` still runs. So it may import libraries and fill process-wide caches, but
+        must keep nothing on `self` that `complete` relies on, must be safe to run beside
+        `complete`, and must send no key anywhere. Its errors are ignored there (the plan
+        stage makes the backend again and reports what is wrong).
+        """
+
 
 @dataclass(frozen=True)
 class BackendAbilities:
@@ -156,6 +170,18 @@ class BackendAbilities:
         return cls(
             **{flag: bool(getattr(backend, flag, default)) for flag, default in flags.items()}
         )
+
+
+def prepare_backend(backend: object) -> None:
+    """Run a backend's `prepare()` (BackendBase.prepare); a backend written against the plain
+    VlmBackend Protocol may lack it, and then there is nothing to do.
+
+    Args:
+        backend: A planner backend object.
+    """
+    prepare = getattr(backend, "prepare", None)
+    if callable(prepare):
+        prepare()
 
 
 class Executor(Protocol):

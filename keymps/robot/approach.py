@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from keymps.errors import SafetyError
-from keymps.robot.safety import _check_board, _check_joints, _check_workspace
+from keymps.robot.safety import check_board, check_joints, check_workspace
 from keymps.types import Piece, ToolPath, Trajectory, ValidationReport
 
 if TYPE_CHECKING:
@@ -86,12 +86,12 @@ def check_approach(
     problems: list[str] = []
     figures: dict[str, float] = {"duration_s": move.duration_s}
     joint_problems: list[str] = []
-    _check_joints(model, move, joint_problems, figures)
+    check_joints(model, move, joint_problems, figures)
     problems += [p for p in joint_problems if " jerk " not in p]
     board: list[str] = []
-    _check_board(move, positions, rotations, origins, board, figures)
+    check_board(move, positions, rotations, origins, board, figures)
     problems += [p for p in board if "tilts" not in p]
-    _check_workspace(move, path, positions, task, problems, figures)
+    check_workspace(move, path, positions, task, problems, figures)
     if problems:
         raise SafetyError([f"the move to the first sample: {p}" for p in problems])
     return ValidationReport(True, (), figures)

@@ -64,15 +64,15 @@ def validate(
         raise SafetyError(problems)
     figures["duration_s"] = trajectory.duration_s
     figures["samples"] = float(trajectory.samples)
-    _check_joints(model, trajectory, problems, figures)
+    check_joints(model, trajectory, problems, figures)
     positions, rotations, origins = model.tool_poses_and_joint_origins(
         np.asarray(trajectory.q, dtype=float)
     )
     _check_path(trajectory, tool_path, positions, problems, figures)
-    _check_board(trajectory, positions, rotations, origins, problems, figures)
+    check_board(trajectory, positions, rotations, origins, problems, figures)
     _check_collisions(model, trajectory, problems, figures)
     _check_footprint(trajectory, tool_path, positions, outline_m, problems, figures)
-    _check_workspace(trajectory, tool_path, positions, task, problems, figures)
+    check_workspace(trajectory, tool_path, positions, task, problems, figures)
     if problems:
         raise SafetyError(problems)
     return _issue(trajectory, ValidationReport(True, (), figures))
@@ -130,9 +130,18 @@ def _check_structure(
     return not problems
 
 
-def _check_joints(
+def check_joints(
     model: RobotModel, trajectory: Trajectory, problems: list[str], figures: dict[str, float]
 ) -> None:
+    """Joint positions inside their limits, no jumps, velocity, acceleration and jerk (from the
+    positions, and as reported) inside the arm's limits, at rest at both ends.
+
+    Args:
+        model: The arm and its joint limits.
+        trajectory: The samples to check.
+        problems: Extended with one line per problem found.
+        figures: Updated with the largest ratio to each limit (`max_joint_*_ratio`).
+    """
     q = np.asarray(trajectory.q, dtype=float)
     names = model.joint_names
     period = 1.0 / trajectory.rate_hz
@@ -205,7 +214,7 @@ def _check_path(
             )
 
 
-def _check_board(
+def check_board(
     trajectory: Trajectory,
     positions: np.ndarray,
     rotations: np.ndarray,
@@ -213,6 +222,16 @@ def _check_board(
     problems: list[str],
     figures: dict[str, float],
 ) -> None:
+    """The tool tip stays above the board and points down; the arm keeps its clearance.
+
+    Args:
+        trajectory: The samples (named in the problems).
+        positions: (n, 3) the tool tip per sample, board frame, metres.
+        rotations: (n, 3, 3) the tool's orientation per sample.
+        origins: (n, joints, 3) the joints' origins per sample, board frame, metres.
+        problems: Extended with one line per problem found.
+        figures: Updated with the lowest tool and arm points (mm) and the largest tilt (deg).
+    """
     z = positions[:, 2]
     figures["min_tool_z_mm"] = float(z.min() * 1000)
     if z.min() < -BOARD_TOLERANCE_M:
@@ -332,7 +351,7 @@ def _check_footprint(
     figures["max_work_outside_footprint_mm"] = worst * 1000
 
 
-def _check_workspace(
+def check_workspace(
     trajectory: Trajectory,
     tool_path: ToolPath,
     positions: np.ndarray,
@@ -340,7 +359,16 @@ def _check_workspace(
     problems: list[str],
     figures: dict[str, float],
 ) -> None:
-    """The tool tip never leaves the area the camera saw (scene.workspace, board frame)."""
+    """The tool tip never leaves the area the camera saw (scene.workspace, board frame).
+
+    Args:
+        trajectory: The samples (named in the problems).
+        tool_path: The planned pieces (a problem names the piece).
+        positions: (n, 3) the tool tip per sample, board frame, metres.
+        task: The task (its scene.workspace).
+        problems: Extended with one line per problem found.
+        figures: Updated with how far the tip leaves the workspace (`max_outside_workspace_mm`).
+    """
     workspace = task.scene.workspace
     low = np.asarray(workspace.shift, dtype=float)
     high = low + np.asarray(workspace.size, dtype=float)

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from keymps.scenes.render import _coverage, half_covered_box
+from keymps.scenes.render import half_covered_box, pixel_coverage
 from keymps.scenes.textures import smooth_noise
 
 BOARD_M = (0.30, 0.18)
@@ -168,7 +168,7 @@ def _alpha(polygon_px: np.ndarray, size: tuple[int, int]) -> tuple[np.ndarray, l
     x0, y0 = np.maximum(np.floor(polygon_px.min(axis=0)).astype(int) - 1, 0)
     x1, y1 = np.ceil(polygon_px.max(axis=0)).astype(int) + 1
     x1, y1 = min(x1, width), min(y1, height)
-    part = _coverage(polygon_px, None, (x0, y0, x1, y1))
+    part = pixel_coverage(polygon_px, None, (x0, y0, x1, y1))
     alpha[y0:y1, x0:x1] = part
     return alpha, half_covered_box(part, (x0, y0))
 

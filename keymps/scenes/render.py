@@ -183,10 +183,19 @@ def _place(spec: SceneSpec, rng: np.random.Generator) -> list[tuple[float, float
     return centres
 
 
-def _coverage(
+def pixel_coverage(
     polygon_px: np.ndarray, hole_px: np.ndarray | None, box: tuple[int, int, int, int]
 ) -> np.ndarray:
-    """Fraction of each pixel of the box inside the polygon (4x4 supersampling)."""
+    """Fraction of each pixel of the box inside the polygon (4x4 supersampling).
+
+    Args:
+        polygon_px: (n, 2) the outline, image pixels.
+        hole_px: (m, 2) a hole inside it, image pixels, or None.
+        box: (x0, y0, x1, y1) the pixels to cover, x1 and y1 excluded.
+
+    Returns:
+        (y1 - y0, x1 - x0) floats from 0 to 1.
+    """
     import cv2
 
     x0, y0, x1, y1 = box
@@ -251,7 +260,7 @@ def render_scene(spec: SceneSpec) -> RenderedScene:
         bx0, by0 = np.floor(outline_px.min(axis=0)).astype(int) - 1
         bx1, by1 = np.ceil(outline_px.max(axis=0)).astype(int) + 1
         box = (max(bx0, 0), max(by0, 0), min(bx1, width), min(by1, height))
-        alpha = _coverage(outline_px, hole_px, box)
+        alpha = pixel_coverage(outline_px, hole_px, box)
         u, v = _local_coordinates(frame, box, centre, obj.rotation_deg)
         colour = PAINTERS[obj.kind](
             Paint(u, v, obj, object_rng, spec.px_per_m, KINDS[obj.kind].shape)

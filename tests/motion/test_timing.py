@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from functools import cache
 from typing import Any
 
@@ -234,3 +235,37 @@ def test_a_spiral_piped_as_one_stroke_does_not_stop_at_its_48_joints() -> None:
     assert np.mean(moving > 0.029) > 0.9  # at the work speed, not stopping at each joint
     rests = (moving[1:-1] < 1e-4) & (moving[1:-1] <= moving[:-2]) & (moving[1:-1] <= moving[2:])
     assert rests.sum() <= 2  # where it reaches the drawing height and where it leaves it
+
+
+@pytest.mark.parametrize(
+    ("acceleration", "jerk", "ruckig_says"),
+    [
+        (0.0, 20.0, "zero limits conflict"),
+        (2.0, -1.0, "maximum jerk limit -1"),
+        (math.nan, 20.0, "maximum acceleration limit nan"),
+    ],
+)
+def test_strokes_ruckig_cannot_time_say_which_and_why_in_one_line(
+    acceleration: float, jerk: float, ruckig_says: str
+) -> None:
+    """Every stroke fails in Ruckig: each keeps Ruckig's own reason, named with its piece and
+    the limits it was asked for (not the joint-limit message of a stroke that stays too fast)."""
+    from keymps.errors import KeympsError
+    from keymps.motion.strokes import split_strokes
+    from keymps.motion.timing import Limits, time_strokes_at_once
+
+    path = radial_cuts(count=2)
+    model = RobotModel.from_task(make_task(tool="knife"))
+    strokes = split_strokes(model, path, solve_path(model, path))
+    timed = time_strokes_at_once(model, strokes, Limits(math.inf, acceleration, jerk), 1 / 500)
+    assert len(timed) == len(strokes) >= 4
+    for stroke, error in zip(strokes, timed, strict=True):
+        assert isinstance(error, KeympsError)
+        line = str(error)
+        assert "\n" not in line and "singularity" not in line, line
+        assert line.startswith(
+            f"timing: Ruckig could not time a {stroke.length:.4f} m stroke of piece "
+            f"{stroke.piece_index} ({stroke.kind}) at velocity {stroke.speed:.4g} m/s, "
+            f"acceleration {acceleration:.4g} m/s^2, jerk {jerk:.4g} m/s^3: "
+        ), line
+        assert ruckig_says in line, line

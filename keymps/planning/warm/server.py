@@ -94,13 +94,11 @@ class Server:
         .env file beside its installation) is kept apart and given to each request that does
         not set it itself, as a run's own import of litellm would; this process keeps the
         environment it was started with."""
+        from keymps.plugin.components import prepare_backend
         from keymps.plugin.manager import create_vlm_backend
 
         before = dict(os.environ)
-        backend = create_vlm_backend(BACKEND, {})
-        prepare = getattr(backend, "prepare", None)
-        if callable(prepare):
-            prepare()
+        prepare_backend(create_vlm_backend(BACKEND, {}))
         self.loaded = {k: v for k, v in os.environ.items() if before.get(k) != v}
         os.environ.clear()
         os.environ.update(before)
