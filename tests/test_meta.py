@@ -178,3 +178,51 @@ def test_the_dotted_names_in_docstrings_and_docs_exist() -> None:
         f"{name} ({', '.join(sorted(names[name]))})" for name in names if not _resolves(name)
     ]
     assert not missing, "no such keymps names: " + "; ".join(sorted(missing))
+
+
+def _source_files() -> Iterator[Path]:
+    yield from (REPO / "keymps").rglob("*.py")
+    yield from (REPO / "plugins").glob("*/*/**/*.py")
+
+
+def _private_names_defined(tree: ast.Module) -> set[str]:
+    """The module's own private names: functions, classes, globals, attributes it assigns."""
+    found: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            found.add(node.name)
+        elif isinstance(node, ast.Name) and isinstance(node.ctx, ast.Store):
+            found.add(node.id)
+        elif isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name):
+            found.add(node.target.id)
+        elif isinstance(node, ast.Attribute) and isinstance(node.ctx, ast.Store):
+            if isinstance(node.value, ast.Name) and node.value.id in ("self", "cls"):
+                found.add(node.attr)
+    return {name for name in found if name.startswith("_") and not name.startswith("__")}
+
+
+def test_no_module_reaches_into_another_modules_private_names() -> None:
+    """A name with a leading underscore is its module's own: other modules neither import it
+    nor read or set it on an object (say what is needed with a public name instead)."""
+    trees = {path: ast.parse(path.read_text(), str(path)) for path in _source_files()}
+    defined = {path: _private_names_defined(tree) for path, tree in trees.items()}
+    everywhere: set[str] = set().union(*defined.values())
+    modules = {path.stem for path in trees}
+    reaches = []
+    for path, tree in trees.items():
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").split(".")[0] in (
+                "keymps",
+                *(p.name for p in (REPO / "plugins").glob("*/keymps_*")),
+            ):
+                names = [a.name for a in node.names if a.name.startswith("_")]
+                # a package's private module (keymps._memory) is the package's own
+                names = [n for n in names if not n.startswith("__") and n not in modules]
+            elif isinstance(node, ast.Attribute) and not (
+                isinstance(node.value, ast.Name) and node.value.id in ("self", "cls")
+            ):
+                names = [node.attr] if node.attr in everywhere - defined[path] else []
+            else:
+                continue
+            reaches += [f"{path.relative_to(REPO)}:{node.lineno}: {name}" for name in names]
+    assert not reaches, "private names used outside their module:\n" + "\n".join(reaches)

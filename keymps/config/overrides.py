@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -53,8 +54,8 @@ def apply_overrides(task: Task, overrides: dict[str, Any]) -> Task:
         field = ".".join(str(p) for p in first["loc"])
         message = str(first["msg"]).removeprefix("Value error, ")
         raise KeympsError(f"override {field}: {message}") from None
-    updated._source = task._source
-    updated._yaml = task._yaml
-    # an api_base given here is the user's own: the one the file wrote no longer applies
-    updated._api_base_from_file = None if "api_base" in given else task._api_base_from_file
-    return updated
+    origin = task.origin
+    if "api_base" in given:
+        # an api_base given here is the user's own: the one the file wrote no longer applies
+        origin = replace(origin, api_base=None)
+    return updated.remember_origin(origin)

@@ -8,7 +8,13 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from keymps.config.task import Task, display_path, read_task_text, referenced_file_problems
+from keymps.config.task import (
+    Task,
+    TaskOrigin,
+    display_path,
+    read_task_text,
+    referenced_file_problems,
+)
 from keymps.config.yaml_positions import YamlSyntaxError, load_yaml_with_positions
 from keymps.errors import TaskFileError
 
@@ -56,8 +62,7 @@ def salvage_task(path: str | Path) -> tuple[Task, frozenset[str], list[str]] | N
     except ValidationError:
         return None
     source = display_path(path)
-    task._source = source
-    task._yaml = parsed
+    task.remember_origin(TaskOrigin(source, parsed))
     problems = [
         problem
         for problem in referenced_file_problems(task, source, parsed)

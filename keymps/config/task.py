@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import stat
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal, get_args
 
@@ -398,6 +399,19 @@ class Expect(StrictModel):
         return self
 
 
+@dataclass(frozen=True)
+class TaskOrigin:
+    """Where a task was read from: for errors found after loading, and the file's own api_base."""
+
+    source: str = "<task>"
+    """The task file as messages show it, or a name for a task built in code."""
+    written: PositionedYaml | None = None
+    """The file's YAML with each field's line and column (None for a task built in code)."""
+    api_base: str | None = None
+    """planner.api_base as the task file wrote it: a server no key is sent to unless the user
+    names it too (--api-base, user config; keymps.planning.backend_choice)."""
+
+
 class Task(StrictModel):
     """A validated task file: the sentence, the scene, and the components that carry it out.
 
@@ -431,11 +445,7 @@ class Task(StrictModel):
     """What the run must achieve; checked before anything moves (the outcome stage)."""
     path: Path | None = Field(default=None, exclude=True)
     """The task file this was loaded from (None when built in code)."""
-    _source: str = PrivateAttr(default="<task>")
-    _yaml: PositionedYaml | None = PrivateAttr(default=None)
-    _api_base_from_file: str | None = PrivateAttr(default=None)
-    """planner.api_base as the task file wrote it: a server no key is sent to unless the user
-    names it too (--api-base, user config; keymps.planning.backend_choice)."""
+    _origin: TaskOrigin = PrivateAttr(default_factory=lambda: TaskOrigin())
 
     @field_validator("name")
     @classmethod
@@ -469,7 +479,24 @@ class Task(StrictModel):
     def api_base_from_file(self) -> bool:
         """True when planner.api_base is the task file's own value, not one the user gave."""
         api_base = self.planner.api_base
-        return api_base is not None and api_base == self._api_base_from_file
+        return api_base is not None and api_base == self._origin.api_base
+
+    @property
+    def origin(self) -> TaskOrigin:
+        """Where this task was read from (see `remember_origin`)."""
+        return self._origin
+
+    def remember_origin(self, origin: TaskOrigin) -> Task:
+        """Keep where this task was read from, for `where` and `api_base_from_file`.
+
+        Args:
+            origin: The file as messages show it, its positioned YAML, and its own api_base.
+
+        Returns:
+            This task.
+        """
+        self._origin = origin
+        return self
 
     def resolve(self, relative: Path) -> Path:
         """A path from the task file, taken relative to the task file's folder.
@@ -492,10 +519,11 @@ class Task(StrictModel):
             `file:line:col` of the field (of its nearest written parent when the file leaves
             it out); the source's name alone for a task built in code.
         """
-        if self._yaml is None:
-            return self._source
-        line, column = self._yaml.locate(tuple(field_path))
-        return f"{self._source}:{line}:{column}"
+        origin = self._origin
+        if origin.written is None:
+            return origin.source
+        line, column = origin.written.locate(tuple(field_path))
+        return f"{origin.source}:{line}:{column}"
 
 
 def _field_name(loc: tuple[Any, ...]) -> str:
@@ -645,10 +673,7 @@ def parse_task(text: str, source: str = "<task>", path: Path | None = None) -> T
     problems = referenced_file_problems(task, source, parsed)
     if problems:
         raise TaskFileError(problems)
-    task._source = source
-    task._yaml = parsed
-    task._api_base_from_file = task.planner.api_base
-    return task
+    return task.remember_origin(TaskOrigin(source, parsed, task.planner.api_base))
 
 
 def file_problem(path: Path) -> str | None:

@@ -179,7 +179,7 @@ def _densify_all(
         ]
         all_p = np.concatenate([p[i] for (p, _, _), i in zip(dense, solve, strict=True)])
         all_y = np.concatenate([y[i] for (_, y, _), i in zip(dense, solve, strict=True)])
-        solved = model._solve_closed_form(all_p, all_y, parts[0][2][0])
+        solved = model.solve_closed_form(all_p, all_y, parts[0][2][0])
         if solved is not None:
             sizes = np.array([len(i) for i in solve])
             offsets = np.cumsum(sizes) - sizes

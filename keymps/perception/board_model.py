@@ -95,7 +95,8 @@ class BoardModel:
     residual: float
     """Median distance of those pixels to the model (the board's texture and noise), Lab."""
 
-    def _normalized(self, cols: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def normalized(self, cols: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pixel columns and rows mapped to [-1, 1] across the image (the polynomial's domain)."""
         width, height = self.size_px
         return (
             (2.0 * cols + 1.0) / width - 1.0,
@@ -104,14 +105,14 @@ class BoardModel:
 
     def at(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """Model colour (N, 3) at these pixel indices."""
-        x, y = self._normalized(cols.astype(np.float32), rows.astype(np.float32))
+        x, y = self.normalized(cols.astype(np.float32), rows.astype(np.float32))
         return _monomials(x, y, self.degree) @ self.coefficients
 
     def planes(self, out: np.ndarray | None = None) -> np.ndarray:
         """The model over the whole image, one plane per channel (3 x H x W, float32), into
         `out` if given (an earlier model's planes no longer needed)."""
         width, height = self.size_px
-        x, y = self._normalized(
+        x, y = self.normalized(
             np.arange(width, dtype=np.float32)[None, :],
             np.arange(height, dtype=np.float32)[:, None],
         )
@@ -166,7 +167,7 @@ def fit_board(
     # rows by index (take) rather than by mask or index pairs: the same rows, copied faster
     values = lab.reshape(-1, lab.shape[-1]).take(flat, axis=0).astype(np.float64)
     probe = BoardModel(np.zeros((1, 3)), degree, (width, height), 0, 0.0)
-    x, y = probe._normalized(cols.astype(np.float64), rows.astype(np.float64))
+    x, y = probe.normalized(cols.astype(np.float64), rows.astype(np.float64))
     design = _monomials(x, y, degree)
     # start from the median colour: where the border is mostly board, that is the board's,
     # even with something else along part of it (the table, an object's edge)

@@ -8,7 +8,8 @@ import inspect
 import os
 import sys
 import warnings
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from importlib import metadata
 from typing import Any, cast
@@ -306,6 +307,17 @@ def reset_manager() -> None:
     """Forget the process-wide manager (tests, or after installing a plugin)."""
     global _manager
     _manager = None
+
+
+@contextmanager
+def manager_in_use(manager: pluggy.PluginManager) -> Iterator[pluggy.PluginManager]:
+    """Make `manager` the process-wide one inside the block, the previous one after it."""
+    global _manager
+    previous, _manager = _manager, manager
+    try:
+        yield manager
+    finally:
+        _manager = previous
 
 
 def registrations(

@@ -43,9 +43,5 @@ def keymps_plugins() -> Iterator[PluginHarness]:
     from keymps.plugin import manager as plugins
 
     harness = PluginHarness()
-    previous = plugins._manager
-    plugins._manager = harness.manager
-    try:
+    with plugins.manager_in_use(harness.manager):
         yield harness
-    finally:
-        plugins._manager = previous

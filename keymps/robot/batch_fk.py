@@ -73,7 +73,7 @@ class BatchKinematics:
                 )
             )
         kinematics = cls(tuple(joints))
-        return kinematics if kinematics._agrees_with(model) else None
+        return kinematics if kinematics.agrees_with(model) else None
 
     def joint_poses(
         self, qs: np.ndarray, cos_sin: tuple[np.ndarray, np.ndarray] | None = None
@@ -160,7 +160,8 @@ class BatchKinematics:
         qs = np.atleast_2d(np.asarray(qs, dtype=float))
         return _in_chunks(qs, None, lambda q, _: self._origins(self.joint_poses(q), extra))
 
-    def _agrees_with(self, model: Any) -> bool:
+    def agrees_with(self, model: Any) -> bool:
+        """True when these kinematics match Pinocchio's `model` on a few probe configurations."""
         import pinocchio as pin
 
         data = model.createData()

@@ -551,16 +551,27 @@ class RobotModel:
         if method not in ("auto", "iterative"):
             raise ValueError(f"solve_points: unknown method {method!r}")
         if method == "auto" and self.closed_form is not None and len(points):
-            solved = self._solve_closed_form(points, yaws, seed)
+            solved = self.solve_closed_form(points, yaws, seed)
             if solved is not None:
                 return solved
         return self._solve_iterative(points, yaws, seed, where)
 
-    def _solve_closed_form(
+    def solve_closed_form(
         self, points: np.ndarray, yaws: np.ndarray, seed: np.ndarray
     ) -> tuple[np.ndarray, float, float] | None:
-        """All analytic branches at once, the one continuous with `seed` kept and each point
-        verified by Pinocchio's forward kinematics; None if any point is doubtful."""
+        """IK of consecutive points by the closed form: every analytic branch at once, the one
+        continuous with `seed` kept, each point verified by Pinocchio's forward kinematics.
+
+        Args:
+            points: (n, 3) tool points in the base frame, metres.
+            yaws: (n,) tool yaw about the vertical, radians.
+            seed: (dof,) joints the path starts near, radians.
+
+        Returns:
+            (n, dof) joints, the worst position error (m) and rotation error (rad); None when
+            any point is doubtful (no continuous branch, a joint limit, a configuration the
+            iterative solver words better), so the caller falls back to `solve_points`.
+        """
         assert self.closed_form is not None
         points = np.asarray(points, dtype=float)
         yaws = np.asarray(yaws, dtype=float)
@@ -746,7 +757,7 @@ def solve_path(model: RobotModel, tool_path: ToolPath) -> JointPath:
         # One analytic solve for the whole path: continuity runs across piece boundaries.
         points = np.concatenate([piece.points for piece in tool_path.pieces])
         yaws = np.concatenate([piece.yaw for piece in tool_path.pieces])
-        solved = model._solve_closed_form(points, yaws, seed)
+        solved = model.solve_closed_form(points, yaws, seed)
         if solved is not None:
             qs, worst_p, worst_r = solved
             ends = np.cumsum([len(piece.points) for piece in tool_path.pieces])[:-1]

@@ -69,7 +69,7 @@ def test_board_model_planes_are_the_term_by_term_image() -> None:
     for _ in range(30):
         model = _random_board_model(rng)
         width, height = model.size_px
-        x, y = model._normalized(
+        x, y = model.normalized(
             np.arange(width, dtype=np.float32)[None, :],
             np.arange(height, dtype=np.float32)[:, None],
         )
@@ -127,7 +127,7 @@ def test_board_fit_by_index_is_the_fit_by_mask() -> None:
             rows, cols = rows[keep], cols[keep]
         values = lab[rows, cols].astype(np.float64)
         probe = BoardModel(np.zeros((1, 3)), degree, (width, height), 0, 0.0)
-        design = _monomials(*probe._normalized(cols.astype(float), rows.astype(float)), degree)
+        design = _monomials(*probe.normalized(cols.astype(float), rows.astype(float)), degree)
         residual = np.linalg.norm(values - np.median(values, axis=0), axis=1)
         inliers = residual <= 3.0 * float(np.median(residual)) + 1.0
         coefficients = np.zeros((design.shape[1], 3))

@@ -91,7 +91,7 @@ def test_closed_form_solutions_are_verified_and_continuous() -> None:
     points = np.concatenate([piece.points for piece in tool_path.pieces])
     yaws = np.concatenate([piece.yaw for piece in tool_path.pieces])
     seed = model.tool_down_seed(points[0], float(yaws[0]))
-    assert model._solve_closed_form(points, yaws, seed) is not None  # no fallback here
+    assert model.solve_closed_form(points, yaws, seed) is not None  # no fallback here
     for piece, qs in zip(tool_path.pieces, joints.pieces, strict=True):
         positions, rotations = model.pinocchio_tool_poses(qs)
         targets = tool_poses_down(piece.points, piece.yaw)
@@ -106,7 +106,7 @@ def test_a_path_the_closed_form_cannot_take_falls_back_with_the_same_errors() ->
     seed = model.tool_down_seed(near[0], 0.0)
     # A point out of reach has no analytic solution: the iterative solver words the error.
     far = np.vstack([near, [[0.60, 0.40, 0.08]]])
-    assert model._solve_closed_form(far, np.zeros(3), seed) is None
+    assert model.solve_closed_form(far, np.zeros(3), seed) is None
     messages = []
     for method in ("auto", "iterative"):
         with pytest.raises(
@@ -146,7 +146,7 @@ def test_the_kinematics_self_checks_refuse_a_model_that_disagrees() -> None:
     assert batch is not None
     joints = list(batch.joints)
     joints[3] = dataclasses.replace(joints[3], translation=joints[3].translation + [1e-6, 0, 0])
-    assert not BatchKinematics(tuple(joints))._agrees_with(model.model)
+    assert not BatchKinematics(tuple(joints)).agrees_with(model.model)
 
 
 def test_batched_forward_kinematics_is_pinocchios() -> None:

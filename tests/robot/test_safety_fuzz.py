@@ -305,9 +305,8 @@ def _control(arm_q: list[float]) -> Any:
 @pytest.fixture(scope="module")
 def icing_run(tasks: dict[str, Any], tmp_path_factory: Any) -> Any:
     """A real validated icing trajectory (the offline planner, the sim stages, no executor)."""
-    from keymps.plugin import manager as plugin_module
     from keymps.plugin.hookspecs import hookimpl
-    from keymps.plugin.manager import build_manager
+    from keymps.plugin.manager import build_manager, manager_in_use
 
     manager = build_manager()
 
@@ -317,8 +316,7 @@ def icing_run(tasks: dict[str, Any], tmp_path_factory: Any) -> Any:
             register("recording", RecordingExecutor)
 
     manager.register(Keep(), name="keep")
-    previous, plugin_module._manager = plugin_module._manager, manager
-    try:
+    with manager_in_use(manager):
         RecordingExecutor.calls = []
         text = (Path(tasks["icing"].path)).read_text()
         path = Path(tasks["icing"].path).with_name("small.yaml")
@@ -331,8 +329,6 @@ def icing_run(tasks: dict[str, Any], tmp_path_factory: Any) -> Any:
             ),
         )
         return run, RecordingExecutor.calls[0]
-    finally:
-        plugin_module._manager = previous
 
 
 def _ur_executor(receive: Any, control: Any, **options: Any) -> Any:

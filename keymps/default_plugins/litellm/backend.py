@@ -194,7 +194,7 @@ class LitellmBackend(BackendBase):
         _REGISTERED.add(model)
 
     def complete(self, request: PlanRequest) -> BackendAnswer:
-        call = self._prepare(request)
+        call = self.prepare_call(request)
         started = time.perf_counter()
         retrying = self._retrying(call)
         for attempt in range(self.options.retries + 1):
@@ -206,13 +206,15 @@ class LitellmBackend(BackendBase):
                 if pause is None:
                     raise
                 time.sleep(pause)
-        return self._answer(call, response, time.perf_counter() - started, retrying.notes)
+        return self.answer_from_response(
+            call, response, time.perf_counter() - started, retrying.notes
+        )
 
     async def acomplete(self, request: PlanRequest) -> BackendAnswer:
         """complete() through litellm's async API: waits and retries without blocking a thread."""
         import asyncio
 
-        call = self._prepare(request)
+        call = self.prepare_call(request)
         started = time.perf_counter()
         retrying = self._retrying(call)
         for attempt in range(self.options.retries + 1):
@@ -224,9 +226,11 @@ class LitellmBackend(BackendBase):
                 if pause is None:
                     raise
                 await asyncio.sleep(pause)
-        return self._answer(call, response, time.perf_counter() - started, retrying.notes)
+        return self.answer_from_response(
+            call, response, time.perf_counter() - started, retrying.notes
+        )
 
-    def _within_deadline(self, call: _Call) -> Any:
+    def _within_deadline(self, call: PreparedCall) -> Any:
         """One try, ended by planner.timeout_s whatever the server does (deadline.py)."""
         from keymps.default_plugins.litellm.request_guard import guarded
         from keymps.default_plugins.litellm.response_cap import answers_capped
@@ -240,7 +244,7 @@ class LitellmBackend(BackendBase):
         except DeadlineExceeded:
             raise _timeout(call) from None
 
-    async def _awaited_within_deadline(self, call: _Call) -> Any:
+    async def _awaited_within_deadline(self, call: PreparedCall) -> Any:
         from keymps.default_plugins.litellm.request_guard import guarded
         from keymps.default_plugins.litellm.response_cap import answers_capped
 
@@ -253,7 +257,8 @@ class LitellmBackend(BackendBase):
         except DeadlineExceeded:
             raise _timeout(call) from None
 
-    def _prepare(self, request: PlanRequest) -> _Call:
+    def prepare_call(self, request: PlanRequest) -> PreparedCall:
+        """The litellm arguments for `request`: model, messages, key, server and schema."""
         from keymps.default_plugins.litellm.request_guard import guarded
         from keymps.planning.backend_choice import model_provider
 
@@ -295,9 +300,9 @@ class LitellmBackend(BackendBase):
             if _supports_schema(litellm, model, provider):
                 schema = {"type": "json_schema", "json_schema": request.schema}
                 arguments["response_format"] = schema
-        return _Call(litellm, model, local, arguments, trusted)
+        return PreparedCall(litellm, model, local, arguments, trusted)
 
-    def _retrying(self, call: _Call) -> Retrying:
+    def _retrying(self, call: PreparedCall) -> Retrying:
         return Retrying(
             call.litellm,
             call.arguments,
@@ -308,7 +313,10 @@ class LitellmBackend(BackendBase):
         )
 
     @staticmethod
-    def _answer(call: _Call, response: Any, latency: float, notes: list[str]) -> BackendAnswer:
+    def answer_from_response(
+        call: PreparedCall, response: Any, latency: float, notes: list[str]
+    ) -> BackendAnswer:
+        """litellm's `response` to `call` as keymps' answer: text, usage, cost, `latency` (s)."""
         from keymps.types import BackendAnswer
 
         usage = getattr(response, "usage", None)
@@ -340,14 +348,14 @@ class LitellmBackend(BackendBase):
         )
 
 
-def _timeout(call: _Call) -> Exception:
+def _timeout(call: PreparedCall) -> Exception:
     """litellm's own Timeout, so that the deadline reads like every other timeout."""
     provider = call.model.split("/", 1)[0] if "/" in call.model else "openai"
     return call.litellm.Timeout(message="deadline", model=call.model, llm_provider=provider)
 
 
 @dataclass(frozen=True)
-class _Call:
+class PreparedCall:
     """One prepared call: litellm, the model, whether it runs locally, the arguments, and
     whether its server is the user's (keymps.default_plugins.litellm.request_guard)."""
 

@@ -14,6 +14,7 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
+    from keymps.default_plugins.litellm.backend import LitellmBackend
     from keymps.types import PlanRequest
 
 WARM_UP_MODEL = "openai/keymps-warm-up"
@@ -85,13 +86,13 @@ def _warm_up_request() -> PlanRequest:
     )
 
 
-def warm_up(litellm: Any, warm: Any) -> None:
+def warm_up(litellm: Any, warm: LitellmBackend) -> None:
     """Set up litellm's first completion in this process, through `warm`, a litellm backend for
     WARM_UP_MODEL at WARM_UP_API_BASE (failures are ignored: the first real call then does what
     is left)."""
     with contextlib.suppress(Exception):
-        call = warm._prepare(_warm_up_request())
+        call = warm.prepare_call(_warm_up_request())
         response = litellm.completion(**call.arguments, client=_in_memory_client())
-        warm._answer(call, response, 0.0, [])
+        warm.answer_from_response(call, response, 0.0, [])
         with contextlib.suppress(Exception):  # litellm's own client, refused by the closed port
             litellm.completion(**call.arguments)
