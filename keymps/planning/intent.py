@@ -9,7 +9,7 @@ direction the cuts run in the object's own frame, how many dots or rings.
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Any, Literal
+from typing import Any, Literal, get_args
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -74,8 +74,8 @@ class IntentAnswer(BaseModel):
     """The optional `intent` field of an answer: what the pairs are meant to achieve.
 
     A VLM's schema asks for the fields of INTENT_FIELDS; the offline planner also states the
-    design, what equal parts compare, the object's stated length, the pieces' shape and the
-    icing's distance from the edge (answer_of_intent); an answer may state them too."""
+    design, what equal parts compare and the object's stated length (answer_of_intent); an
+    answer may state them too."""
 
     model_config = ConfigDict(extra="forbid")
     pieces: int | None = Field(default=None, strict=True, ge=1, le=1000)
@@ -103,6 +103,8 @@ INTENT_FIELDS = {
     "dots": ("integer", "how many icing dots in all"),
     "rings": ("integer", "how many closed icing lines (rings) around the object"),
     "digits": ("string", "the digits drawn, when the request asks for digits"),
+    "piece_shape": ("string", "the pieces' shape, when the request names one"),
+    "edge_distance_cm": ("number", "icing: the outer ring's distance in from the edge, in cm"),
 }
 
 
@@ -113,6 +115,7 @@ def intent_schema() -> dict[str, Any]:
         for name, (kind, description) in INTENT_FIELDS.items()
     }
     properties["orientation"]["enum"] = [*ORIENTATIONS, None]
+    properties["piece_shape"]["enum"] = [*get_args(PieceShape), None]
     return {
         "anyOf": [
             {

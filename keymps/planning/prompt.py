@@ -177,12 +177,13 @@ def _designs_text(family: str, answer: str, catalogue: str) -> str:
 
 INTENT_FORMAT = (
     '"intent": {"pieces": ..., "equal": ..., "orientation": ..., "slice_width_cm": ..., '
-    '"dots": ..., "rings": ..., "digits": ...}'
+    '"dots": ..., "rings": ..., "digits": ..., "piece_shape": ..., "edge_distance_cm": ...}'
 )
 INTENT_NOTE = (
     "\n`intent` states what your pairs achieve: how many pieces the cuts leave and whether "
     "they are equal, the cuts' direction relative to the object's own sides, the slice width, "
-    "how many dots, rings or which digits (null for what you do not claim; all of it null or "
+    "how many dots, rings or which digits, the pieces' shape (strip, wedge, square, round) "
+    "and the icing's distance in from the edge (null for what you do not claim; all of it null or "
     "the whole intent null for a design of your own). keymps predicts what the robot's motion "
     "does to the object and sends your answer back if the result differs from it."
 )

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from typing import get_args
 
 import numpy as np
 import pytest
@@ -12,10 +13,17 @@ from helpers.vlm_server import Reply, VlmServer
 from keymps.errors import KeympsError
 from keymps.planning.answer import answer_schema, extract_json, parse_and_validate
 from keymps.planning.planner import choose_backend
-from keymps.planning.prompt import PLACEHOLDERS, find_prompt, prompt_family, render_template
+from keymps.planning.prompt import (
+    PLACEHOLDERS,
+    find_prompt,
+    output_format,
+    prompt_family,
+    render_template,
+)
 from keymps.planning.session import redact
 from keymps.plugin.hookspecs import hookimpl
 from keymps.run import RunOptions
+from keymps.types import PieceShape
 
 GOOD = {"keyword": "sawing", "pairs": [[[10, 20], [150, 20]]], "rationale": "one cut"}
 
@@ -173,6 +181,19 @@ def test_schema_lists_the_primitives_and_is_strict():
     assert body["additionalProperties"] is False and schema["strict"] is True
     intent = body["properties"]["intent"]["anyOf"][0]  # strict: every field, each nullable
     assert intent["required"] == list(intent["properties"]) and not intent["additionalProperties"]
+
+
+def test_the_schema_and_the_prompt_ask_for_every_intent_field_the_outcome_stage_checks():
+    """docs/outcome.md's table: a VLM not asked for the pieces' shape or the edge distance
+    claims neither, and "3 strips" cut as wedges would pass unchecked."""
+    checked = ["pieces", "equal", "orientation", "slice_width_cm", "dots", "rings", "digits",
+               "piece_shape", "edge_distance_cm"]  # fmt: skip
+    body = answer_schema("combined", ["straight"], 64)["schema"]
+    intent = body["properties"]["intent"]["anyOf"][0]
+    assert list(intent["properties"]) == checked
+    assert intent["properties"]["piece_shape"]["enum"] == [*get_args(PieceShape), None]
+    asked = output_format("combined", "pairs", "pixels")
+    assert all(f'"{name}": ...' in asked for name in checked)
 
 
 # --- prompts ---------------------------------------------------------------------------------
