@@ -6,11 +6,12 @@ from pathlib import Path
 
 import numpy as np
 
+from helpers.task_files import ICING, KNIFE
 from keymps.scenes.render import ObjectSpec, SceneSpec, render_scene
 
+__all__ = ["BOARD", "ICING", "KNIFE", "loaves", "scene_file", "task_text"]
+
 BOARD = (0.38, 0.24)
-KNIFE = "primitives: [straight, sawing]\nrobot: {tool: knife}\nheight: {mode: start}\n"
-ICING = "primitives: [line]\nrobot: {tool: piping_bag}\nheight: {mode: both}\n"
 
 
 def scene_file(tmp_path: Path, objects: list[ObjectSpec], seed: int = 0) -> tuple[Path, dict]:

@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from helpers.task_files import ICING, KNIFE, write_task
 
 from keymps import RunOptions, RunOverrides, load_task, run_task
 from keymps.errors import KeympsError
@@ -132,31 +133,19 @@ def results(tmp_path_factory: pytest.TempPathFactory) -> list[tuple[Case, str, s
             register("imprecise", lambda options: ImpreciseOffline())
 
     harness.register(Plugin(), name="imprecise-plugin")
-    previous, plugins._manager = plugins._manager, harness.manager
     folder = tmp_path_factory.mktemp("generated")
-    found = []
-    try:
-        for case in _cases():
-            found.append(_run(case, folder))
-    finally:
-        plugins._manager = previous
-    return found
+    with plugins.manager_in_use(harness.manager):
+        return [_run(case, folder) for case in _cases()]
 
 
 def _run(case: Case, folder: Path) -> tuple[Case, str, str]:
     obj = ObjectSpec(case.kind, case.size[0], case.size[1], 0.05, case.rotation)
     rendered = render_scene(SceneSpec((obj,), seed=case.seed, board_size=BOARD))
     png, _ = rendered.save(folder / "scene.png")
-    tools = (
-        "primitives: [line]\nrobot: {tool: piping_bag}\nheight: {mode: both}\n"
-        if case.icing
-        else "primitives: [straight, sawing]\nrobot: {tool: knife}\nheight: {mode: start}\n"
-    )
-    task = folder / "task.yaml"
-    task.write_text(
-        f"name: generated\ninstruction: {case.sentence}\n"
-        f"scene: {{image: {png}, object_height: 0.05, workspace: {{size: {list(BOARD)}}}}}\n"
-        f"planner: {{backend: imprecise, attempts: 1}}\n{tools}executor: {{name: sim}}\n"
+    tools = ICING if case.icing else KNIFE
+    planner = "backend: imprecise, attempts: 1"
+    task = write_task(
+        folder, sentence=case.sentence, image=png, board_m=BOARD, planner=planner, tools=tools
     )
     SPEC.update(flaw=case.flaw, rng=np.random.default_rng(case.seed))
     try:

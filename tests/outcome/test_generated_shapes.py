@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 import pytest
 from helpers.phrasings import edge_cases
+from helpers.task_files import ICING, KNIFE, OFFLINE, vlm_planner, write_task
 from helpers.vlm_server import VlmServer
 
 from keymps import load_task, run_task
@@ -34,8 +35,6 @@ QUIET = RunOptions(rerun="off", quiet=True)
 CASES = 240
 BOARD = (0.30, 0.22)
 KEY_VARIABLE = "OUTCOME_SHAPES_API_KEY"
-KNIFE = "primitives: [straight, sawing]\nrobot: {tool: knife}\nheight: {mode: start}\n"
-ICING = "primitives: [line]\nrobot: {tool: piping_bag}\nheight: {mode: both}\n"
 STRIP_WIDTHS = ["1 inch", "2 cm", "1.5 inch", "30 mm", "half-inch", "1/2 inch", '1"']
 
 
@@ -116,21 +115,16 @@ def _respond(request: Any) -> str:
 
 
 def _task(folder: Path, case: Case, png: Path, planner: str) -> Path:
-    task = folder / "task.yaml"
-    task.write_text(
-        f"name: shapes\ninstruction: {case.sentence}\n"
-        f"scene: {{image: {png}, object_height: 0.05, workspace: {{size: {list(BOARD)}}}}}\n"
-        f"planner: {{{planner}}}\n{KNIFE if case.family != 'edge' else ICING}"
-        "executor: {name: sim}\n"
-    )
-    return task
+    tools = ICING if case.family == "edge" else KNIFE
+    return write_task(folder, sentence=case.sentence, image=png, board_m=BOARD, planner=planner,
+                      tools=tools, name="shapes")  # fmt: skip
 
 
 def _run(case: Case, folder: Path, server: VlmServer) -> tuple[Case, str, str]:
     obj = ObjectSpec(case.kind, *case.size, 0.05, case.rotation, centre=case.centre)
     rendered = render_scene(SceneSpec((obj,), seed=case.seed, board_size=BOARD))
     png, _ = rendered.save(folder / "scene.png")
-    offline = _task(folder, case, png, "backend: offline")
+    offline = _task(folder, case, png, OFFLINE)
     try:
         planned = run_task(load_task(offline), options=QUIET,
                            overrides=RunOverrides(out=folder / "plan"), through="ground")  # fmt: skip
@@ -142,8 +136,7 @@ def _run(case: Case, folder: Path, server: VlmServer) -> tuple[Case, str, str]:
         ANSWER.clear()
         ANSWER.update(_flawed(case, answer, planned.stages.plan.pairs_crop_px, planned))
         api_base = server.openai_base
-        task = _task(folder, case, png, "backend: litellm, model: openai/test-vlm, "
-                     f"api_key_env: {KEY_VARIABLE}, cache: false, attempts: 1")  # fmt: skip
+        task = _task(folder, case, png, vlm_planner(KEY_VARIABLE))
     try:
         overrides = RunOverrides(out=folder / "run", api_base=api_base)
         run = run_task(load_task(task), options=QUIET, overrides=overrides, through="outcome")
