@@ -10,6 +10,7 @@ import numpy as np
 from keymps.designs import patterns
 from keymps.designs.crop_shape import CropShape
 from keymps.designs.grammar import Intent
+from keymps.designs.outline import inset_polygon
 from keymps.designs.patterns import Outline
 from keymps.errors import KeympsError
 
@@ -285,7 +286,8 @@ def _dot(intent: Intent, shape: CropShape, max_pairs: int) -> Layout:
 
 
 def _dots_ring(intent: Intent, shape: CropShape, max_pairs: int) -> Layout:
-    path, ring_note = _dot_path(shape.outline, _ring_fraction(intent, shape, RING_FRACTION))
+    fraction = _ring_fraction(intent, shape, RING_FRACTION)
+    path, ring_note = _dot_path(shape.outline, fraction, _follows_edge(intent))
     count = _ring_count(patterns.perimeter(path), intent.count)
     return _ring_dots(shape.outline, path, count), (
         f"{shape.describe()}: {count} dots evenly spaced {ring_note}"
@@ -301,7 +303,7 @@ def _rings(intent: Intent, shape: CropShape, max_pairs: int) -> Layout:
             f"{layers} icing rings need at least {layers * 4} pairs, more than "
             f"planner.max_pairs = {max_pairs}"
         )
-    if o.kind == "round":
+    if o.kind == "round" and not _follows_edge(intent):
         outer = _ring_fraction(intent, shape, RING_FRACTION) * o.radius
         radii = [outer - k * 0.7 * outer / layers for k in range(layers)]
         segments = _segments(max_pairs // layers, 36)
@@ -312,8 +314,10 @@ def _rings(intent: Intent, shape: CropShape, max_pairs: int) -> Layout:
         )
     small = min(o.length, o.width)
     first = (1 - _ring_fraction(intent, shape, 0.76)) * small / 2
+    if intent.edge_distance_mm is not None:
+        first = intent.edge_distance_mm  # on a round object too, not scaled by its radius
     insets = [first + k * 0.7 * (small / 2 - first) / layers for k in range(layers)]
-    paths = _fitting(max_pairs, [patterns.inset_path(o, inset) for inset in insets])
+    paths = _fitting(max_pairs, [_edge_path(o, inset) for inset in insets])
     loops = [patterns.polyline(path, closed=True) for path in paths]
     return np.concatenate(loops, axis=0), (
         f"{what}: {layers} nested icing outlines following the edge"
@@ -338,7 +342,8 @@ def _fitting(max_pairs: int, paths: list[np.ndarray]) -> list[np.ndarray]:
 
 def _dots_spiral(intent: Intent, shape: CropShape, max_pairs: int) -> Layout:
     o = shape.outline
-    path, ring_note = _dot_path(o, _ring_fraction(intent, shape, 0.85))
+    fraction = _ring_fraction(intent, shape, 0.85)
+    path, ring_note = _dot_path(o, fraction, _follows_edge(intent))
     count = _ring_count(patterns.perimeter(path), intent.count)
     dots = _ring_dots(o, path, count)
     segments = _segments(max_pairs - count, 48)
@@ -395,7 +400,8 @@ def _dot_per_slice(intent: Intent, shape: CropShape, max_pairs: int) -> Layout:
 
 def _free(intent: Intent, shape: CropShape, max_pairs: int) -> Layout:
     o = shape.outline
-    path, ring_note = _dot_path(o, _ring_fraction(intent, shape, 0.85))
+    fraction = _ring_fraction(intent, shape, 0.85)
+    path, ring_note = _dot_path(o, fraction, _follows_edge(intent))
     count = _ring_count(patterns.perimeter(path), None)
     star = patterns.star(o.centre, 0.5 * _inner(o), 5)
     return np.concatenate([_ring_dots(o, path, count), star], axis=0), (
@@ -412,7 +418,7 @@ def _rings_of_dots(intent: Intent, shape: CropShape, max_pairs: int) -> tuple[np
     fractions = [outer - k * 0.7 * outer / layers for k in range(layers)]
     rings, counts = [], []
     for fraction in fractions:
-        path, _ = _dot_path(o, fraction)
+        path, _ = _dot_path(o, fraction, _follows_edge(intent))
         count = _ring_count(patterns.perimeter(path), intent.count)
         if intent.count is None:
             count = max(3, int(round(patterns.perimeter(path) / DOT_SPACING_MM)))
@@ -447,15 +453,31 @@ def _ring_fraction(intent: Intent, shape: CropShape, default: float) -> float:
     return 1 - edge / half
 
 
-def _dot_path(o: Outline, fraction: float) -> tuple[np.ndarray, str]:
-    if o.kind == "round":
+def _follows_edge(intent: Intent) -> bool:
+    """The sentence gives a distance from the edge: rings follow the measured outline."""
+    return intent.edge_distance_mm is not None
+
+
+def _dot_path(o: Outline, fraction: float, follow_edge: bool = False) -> tuple[np.ndarray, str]:
+    """The ring `fraction` of the way from the centre to the edge: a circle on a round object,
+    unless `follow_edge` (the sentence gave a distance from the edge): then, as on any other
+    object, the measured outline moved in, so a wavy crust keeps the distance all round."""
+    if o.kind == "round" and not follow_edge:
         radius = fraction * o.radius
         return patterns.circle_polygon(o.centre, radius, 360), (
             f"on a circle {2 * radius / 10:.1f} cm across, {(o.radius - radius) / 10:.1f} cm "
             "in from the edge"
         )
-    inset = (1 - fraction) * min(o.length, o.width) / 2
-    return patterns.inset_path(o, inset), f"along the edge, {inset / 10:.1f} cm in from it"
+    inset = (1 - fraction) * (o.radius if o.kind == "round" else min(o.length, o.width) / 2)
+    return _edge_path(o, inset), f"along the edge, {inset / 10:.1f} cm in from it"
+
+
+def _edge_path(o: Outline, inset: float) -> np.ndarray:
+    """The measured outline moved `inset` mm in: a round object's too (patterns.inset_path
+    gives it a circle), for a wavy crust holds the distance only along its own outline."""
+    if o.kind == "round" and inset > 0:
+        return inset_polygon(o.polygon, inset)
+    return patterns.inset_path(o, inset)
 
 
 def _ring_dots(o: Outline, path: np.ndarray, count: int) -> np.ndarray:

@@ -153,9 +153,9 @@ def edge_distance_problems(effect: Effect, intent: PlanIntent, food: Food) -> li
     low, high = float(min(distance.min(), outer.min())), float(outer.max())
     if wanted - allowed <= low and high <= wanted + allowed:
         return []
-    what = "dots" if ring is dots else "icing"
+    what = "dots lie" if ring is dots else "icing lies"
     return [
-        f"the outer {what} lies {1000 * low:.1f} to {1000 * high:.1f} mm in from the object's "
+        f"the outer {what} {1000 * low:.1f} to {1000 * high:.1f} mm in from the object's "
         f"edge; the intent is {intent.describe()} (± {1000 * allowed:.1f} mm)"
     ]
 

@@ -1,13 +1,16 @@
-"""Icing a distance from the edge of square and rectangular cakes, over generated scenes.
+"""Icing a distance from the edge of square, rectangular and round cakes, over generated scenes.
 
 "Pipe dots 1 cm from the edge of the square cake" was refused by the outcome stage: the layout
 ran the ring along a rectangle inside the measured outline, which comes nearer the edge at a
 cake's rounded corners and where the detected side is uneven. The layout now insets the measured
-outline itself (keymps.designs.outline.inset_polygon). Before, 8 of these 100 offline plans
-were refused (6 of them right by the true outline, 2 near the tolerance); now none.
+outline itself (keymps.designs.outline.inset_polygon). Before, 8 of 100 offline plans on
+square and rectangular cakes were refused (6 of them right by the true outline, 2 near the
+tolerance); now none. Round objects had the same fault where the sentence gives the distance:
+the ring was a circle, and a pizza's wavy crust comes nearer it (2 of 40 offline plans
+refused); such a ring now follows the measured outline too.
 
 Each case renders a cake (a rounded rectangle 8-16 cm long, square or up to half as wide,
-turned up to 30 degrees) and runs the whole pipeline through the outcome stage with a sentence
+turned up to 30 degrees; one case in five a round cake or a pizza instead) and runs the whole pipeline through the outcome stage with a sentence
 asking for dots or an icing line 0.5-3 cm from the edge. The right plans are the offline
 planner's; the wrong ones come from a VLM on a real local server (litellm over HTTP) answering
 those pairs and their intent with a flaw: the ring moved out past the edge, one dot put off the
@@ -26,6 +29,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from helpers.task_files import ICING, OFFLINE, vlm_planner, write_task
 from helpers.vlm_server import VlmServer
 
 from keymps import load_task, run_task
@@ -51,6 +55,8 @@ FLAWS = ("outward", "off_cake", "shift", "shrink")
 
 @dataclass(frozen=True)
 class Cake:
+    kind: str
+    """square_cake (a rounded rectangle), round_cake or round_pizza (a wavy crust)."""
     size: tuple[float, float]
     """Length and width, metres."""
     rotation: float
@@ -76,7 +82,10 @@ def _cakes() -> list[Cake]:
         centre = (0.15 + float(rng.uniform(-0.02, 0.02)), 0.11 + float(rng.uniform(-0.01, 0.01)))
         flaw = FLAWS[seed // 2 % len(FLAWS)] if seed % 2 else None
         rotation = float(rng.uniform(-30, 30))
-        cakes.append(Cake((length, width), rotation, centre, sentence, margin_m, flaw, seed))
+        kind = ("round_cake", "round_pizza")[seed // 5 % 2] if seed % 5 == 4 else "square_cake"
+        if kind != "square_cake":
+            width, sentence = length, sentence.replace("the square cake", "the round cake")
+        cakes.append(Cake(kind, (length, width), rotation, centre, sentence, margin_m, flaw, seed))
     return cakes
 
 
@@ -101,23 +110,17 @@ def results(tmp_path_factory: pytest.TempPathFactory) -> list[tuple[Cake, str, s
 
 
 def _task(folder: Path, cake: Cake, png: Path, planner: str) -> Path:
-    task = folder / "task.yaml"
-    task.write_text(
-        f"name: edge\ninstruction: {cake.sentence}\n"
-        f"scene: {{image: {png}, object_height: 0.05, workspace: {{size: {list(BOARD)}}}}}\n"
-        f"planner: {{{planner}}}\nprimitives: [line]\nrobot: {{tool: piping_bag}}\n"
-        "height: {mode: both}\nexecutor: {name: sim}\n"
-    )
-    return task
+    return write_task(folder, sentence=cake.sentence, image=png, board_m=BOARD, planner=planner,
+                      tools=ICING, name="edge")  # fmt: skip
 
 
 def _runs(cake: Cake, folder: Path, server: VlmServer) -> list[tuple[Cake, str, str, str]]:
     """The offline plan of `cake` judged and run, and the VLM's flawed one if it has a flaw."""
-    shape = ObjectSpec("square_cake", *cake.size, 0.05, cake.rotation, centre=cake.centre)
+    shape = ObjectSpec(cake.kind, *cake.size, 0.05, cake.rotation, centre=cake.centre)
     rendered = render_scene(SceneSpec((shape,), seed=cake.seed, board_size=BOARD))
     png, _ = rendered.save(folder / "scene.png")
     truth = np.asarray(rendered.truth["objects"][0]["outline_m"], float)
-    offline = _task(folder, cake, png, "backend: offline")
+    offline = _task(folder, cake, png, OFFLINE)
     found = [_run(cake, "offline", offline, None, folder, truth)]
     if cake.flaw is None or found[0][3] == "plan":
         return found
@@ -126,9 +129,7 @@ def _runs(cake: Cake, folder: Path, server: VlmServer) -> list[tuple[Cake, str, 
     recorded = json.loads((planned.folder / "vlm" / "01-combined-attempt1.json").read_text())
     ANSWER.clear()
     ANSWER.update(_flawed(cake, recorded, planned))
-    planner = ("backend: litellm, model: openai/test-vlm, "
-               f"api_key_env: {KEY_VARIABLE}, cache: false, attempts: 1")  # fmt: skip
-    vlm = _task(folder, cake, png, planner)
+    vlm = _task(folder, cake, png, vlm_planner(KEY_VARIABLE))
     return [*found, _run(cake, cake.flaw, vlm, server.openai_base, folder, truth)]
 
 
