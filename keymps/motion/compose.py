@@ -23,6 +23,8 @@ NO_HEADING_M = 0.001
 """Segments with less horizontal travel than this (dots, plunges) keep the previous yaw."""
 FOOTPRINT_SLACK_M = 0.002
 """Strokes near a cut's ends stop this far inside the safety check's footprint margin."""
+BLADE_OVERLAP_M = 0.015
+"""A cut longer than the blade is cut from both ends; the two strokes overlap this much."""
 CHORD_END_M = 0.003
 """A cut's end this close inside its object's edge is on the edge (a chord may be cut either
 way; the detected outline and a planner's ends differ by a few millimetres)."""
@@ -46,6 +48,7 @@ def compose_tool_path(
     footprint: np.ndarray | None = None,
     objects: Sequence[GroundedObject] = (),
     join_distance: float = 0.0,
+    blade_length: float = 0.0,
 ) -> ToolPath:
     """From `home`, per segment a travel piece (rise to object_top + clearance, move over,
     descend to the start) then a work piece (the primitive re-targeted to start/goal), and a
@@ -60,9 +63,9 @@ def compose_tool_path(
 
     yaw_mode 'follow' (a blade): the work piece's yaw is the segment's horizontal direction
     (radians, unwrapped: within half a turn of the cut before, the first cut's of `home_yaw`),
-    so that the blade trails the tip: a yaw taken modulo 180 degrees let the edge lead, and the
-    first fifth of a cut was left uncut; 'fixed' (a piping bag): yaw stays `home_yaw`. Yaw
-    changes only while moving over, above the object.
+    so that the blade trails the tip; 'fixed' (a piping bag): yaw stays `home_yaw`. Yaw changes
+    only while moving over, above the object. The blade (`blade_length` metres, 0: none) lies
+    on the board only along a cut's end: a chord through more food is cut from both ends.
 
     `footprint` ((N, 2) board metres, the object's outline): work that would reach further
     outside it than the safety check allows (a sawing stroke overshooting a cut that ends just
@@ -78,7 +81,7 @@ def compose_tool_path(
     outlines = {o.id: np.asarray(o.outline_m, dtype=float).reshape(-1, 2) for o in objects}
     single = np.asarray(footprint, dtype=float).reshape(-1, 2) if footprint is not None else None
     strokes, yaws = _strokes(
-        segments, ends, primitive, yaw_mode, join_distance, home_yaw, outlines, single
+        segments, ends, primitive, yaw_mode, home_yaw, blade_length, join_distance, outlines, single
     )
     owners = [segments[c.pairs[0]].object_id for c in strokes]
     headings = yaws if yaw_mode == "follow" else [None] * len(yaws)
@@ -111,18 +114,24 @@ def _strokes(
     ends: np.ndarray,
     primitive: Primitive,
     yaw_mode: str,
-    join_distance: float,
     home_yaw: float,
+    blade_length: float,
+    join_distance: float,
     outlines: Mapping[int, np.ndarray],
     single: np.ndarray | None,
 ) -> tuple[list[Chain], list[float]]:
-    """The work strokes and their yaws: icing lines piped as chains, cuts one per pair."""
+    """The work strokes and their yaws: icing lines piped as chains, cuts one per pair (two
+    for a chord longer than the blade)."""
     if primitive.family == "icing" and yaw_mode == "fixed":
         strokes = pipe_chains(ends, [s.object_id for s in segments], join_distance)
         return strokes, [home_yaw] * len(strokes)
     if yaw_mode == "follow":
         edges = [outlines.get(s.object_id, single) for s in segments]
-        return _blade_strokes(ends, edges, home_yaw)
+        strokes, yaws = _blade_strokes(ends, edges, home_yaw)
+        if blade_length <= 0:
+            return strokes, yaws
+        edges = [edges[c.pairs[0]] for c in strokes]
+        return _from_both_ends(strokes, yaws, edges, blade_length, home_yaw)
     return [Chain((k,), (False,), ends[k]) for k in range(len(segments))], [home_yaw] * len(ends)
 
 
@@ -302,6 +311,52 @@ def _blade_strokes(
         held = maybe if maybe is not None else held
         yaws.append(held)
     return strokes, yaws
+
+
+def _from_both_ends(
+    strokes: Sequence[Chain],
+    yaws: Sequence[float],
+    outlines: Sequence[np.ndarray | None],
+    blade_length: float,
+    home_yaw: float,
+) -> tuple[list[Chain], list[float]]:
+    """Each chord through more food than the blade lies along, as two strokes: the planned
+    one, ending BLADE_OVERLAP_M / 2 past the middle, then one from the other end to as far
+    short of it (its yaw turned half a turn, back towards `home_yaw`: the wrist never winds
+    up). The strokes start above the food and end on the board as the planned one does.
+    `outlines`: each stroke's object outline, or None."""
+    kept: list[Chain] = []
+    kept_yaws: list[float] = []
+    for chain, yaw, outline in zip(strokes, yaws, outlines, strict=True):
+        start, goal = chain.vertices[0], chain.vertices[-1]
+        length = float(np.hypot(*(goal[:2] - start[:2])))
+        through = _length_inside(start, goal, outline)
+        if len(chain.pairs) > 1 or through <= blade_length or not _is_chord(start, goal, outline):
+            kept.append(chain)
+            kept_yaws.append(yaw)
+            continue
+        middle = 0.5 + 0.5 * BLADE_OVERLAP_M / length
+        first = np.array([start, [*(start[:2] + middle * (goal[:2] - start[:2])), goal[2]]])
+        second = np.array(
+            [[*goal[:2], start[2]], [*(goal[:2] + middle * (start[:2] - goal[:2])), goal[2]]]
+        )
+        pair, backwards = chain.pairs[0], chain.reversed[0]
+        kept += [Chain((pair,), (backwards,), first), Chain((pair,), (not backwards,), second)]
+        kept_yaws += [yaw, yaw + math.copysign(math.pi, home_yaw - yaw)]
+    return kept, kept_yaws
+
+
+def _length_inside(start: np.ndarray, goal: np.ndarray, outline: np.ndarray | None) -> float:
+    """How much of start-goal (board xy, metres) lies inside the outline (all of it without
+    one), to a millimetre."""
+    length = float(np.hypot(*(goal[:2] - start[:2])))
+    if outline is None or len(outline) < 3 or length == 0.0:
+        return length
+    from keymps.robot.safety_geometry import inside_polygon
+
+    steps = max(2, math.ceil(length / WORK_SPACING_M) + 1)
+    samples = start[:2] + np.linspace(0.0, 1.0, steps)[:, None] * (goal[:2] - start[:2])
+    return length * float(inside_polygon(samples, outline).mean())
 
 
 def _turn(heading: float, previous: float | None, home_yaw: float) -> float:

@@ -94,13 +94,16 @@ def predict(
         )
         return Effect(deposits=deposits, strokes=strokes, loops=loops)
     prints = {food.id: Footprint(food.outline_m) for food in foods}
-    cuts = []
-    for piece, rows in runs:
-        food = by_id.get(piece.object_id) or foods[0]
+    by_pair: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}
+    owners: dict[int, Food] = {}
+    for piece, rows in runs:  # a cut longer than the blade is cut from both ends: one cut
+        owners[piece.pair_index] = by_id.get(piece.object_id) or foods[0]
         blade = -_unit(x_axes[rows, :2])  # the edge, from the tip along the tool's -x axis
-        cuts.append(
-            _cut(piece.pair_index, food, prints[food.id], positions[rows], blade, tool.blade_length)
-        )
+        by_pair.setdefault(piece.pair_index, []).append((positions[rows], blade))
+    cuts = [
+        _cut(pair, owners[pair], prints[owners[pair].id], tips, tool.blade_length)
+        for pair, tips in by_pair.items()
+    ]
     return Effect(cuts=tuple(cuts), pieces=_pieces(cuts, foods))
 
 
@@ -108,24 +111,30 @@ def _cut(
     pair_index: int,
     food: Food,
     footprint: Footprint,
-    tip: np.ndarray,
-    blade: np.ndarray,
+    strokes: Sequence[tuple[np.ndarray, np.ndarray]],
     blade_length: float,
 ) -> CutEffect:
-    """One work piece's cut: its length through the food, its depth, where it cuts through."""
-    below = np.flatnonzero(tip[:, 2] < food.height - BELOW_TOP_M)
+    """One pair's cut, from its strokes' (tip (n, 3), edge direction (n, 2)) samples: its
+    length through the food, its depth, where it cuts through."""
+    taken_segments, taken_on_board = [], []
+    for tip, blade in strokes:
+        below = np.flatnonzero(tip[:, 2] < food.height - BELOW_TOP_M)
+        if len(below) >= 2:
+            taken, segments = edge_samples(tip[below], blade[below], blade_length)
+            taken_segments.append(segments)
+            taken_on_board.append(tip[below[taken], 2] <= SEVER_HEIGHT_M)
     through = severed = swept = None
-    if len(below) >= 2:
-        taken, segments = edge_samples(tip[below], blade[below], blade_length)
+    if taken_segments:
+        segments, on_board = np.concatenate(taken_segments), np.concatenate(taken_on_board)
         through = covered_stretches(segments, footprint)
-        on_board = tip[below[taken], 2] <= SEVER_HEIGHT_M
         severed = through.of(on_board) if through is not None else None
         swept = covered_stretches(segments[on_board], None) if severed is not None else None
+    lowest = min(float(tip[:, 2].min()) for tip, _ in strokes)
     return CutEffect(
         pair_index=pair_index,
         object_id=food.id,
         length_m=through.length_m if through is not None else 0.0,
-        depth_m=float(np.clip(food.height - tip[:, 2].min(), 0.0, food.height)),
+        depth_m=float(np.clip(food.height - lowest, 0.0, food.height)),
         severed_m=severed.segments() if severed is not None else np.zeros((0, 2, 2)),
         chord_m=chord_length(food.outline_m, through) if through is not None else 0.0,
         swept_m=swept.segments() if swept is not None else np.zeros((0, 2, 2)),

@@ -468,6 +468,7 @@ class _Pipeline:
                     footprint=run.outline_m,
                     objects=grounding.objects,
                     join_distance=JOIN_LINE_WIDTHS * robot.tool.line_width,
+                    blade_length=robot.tool.blade_length,
                 ),
                 task,
             ),

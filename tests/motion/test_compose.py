@@ -218,6 +218,39 @@ def test_a_chord_runs_the_way_that_turns_the_wrist_least_with_the_edge_trailing(
     assert np.allclose(works[3].yaw, -math.pi / 2)  # the ray, as planned: rim to centre
 
 
+@pytest.mark.parametrize("primitive", ["straight", "sawing"])
+def test_a_chord_longer_than_the_blade_is_cut_from_both_ends(
+    dictionary: dict, primitive: str
+) -> None:
+    """The blade lies on the board only along the end of a cut: a chord through 24 cm of food
+    with a 16 cm blade is two strokes of the same pair, each from one edge to past the middle
+    (they overlap by BLADE_OVERLAP_M), each starting above the food and ending on the board
+    with the edge trailing; a 14 cm chord stays one stroke."""
+    from keymps.motion.compose import BLADE_OVERLAP_M
+
+    angles = np.linspace(0.0, 2 * math.pi, 96, endpoint=False)
+    cake = np.array([0.20, 0.15]) + 0.12 * np.c_[np.cos(angles), np.sin(angles)]
+    long_chord, short_chord = cut(0.075, 0.15, 0.325, 0.15), cut(0.13, 0.10, 0.27, 0.10)
+    path = compose(
+        [long_chord, short_chord], dictionary[primitive], footprint=cake, blade_length=0.16
+    )
+    works = [p for p in path.pieces if p.kind == "work"]
+    assert [w.pair_index for w in works] == [0, 0, 1]
+    first, second = works[0], works[1]
+    reach = [float(np.ptp(w.points[:, 0])) for w in works[:2]]
+    assert all(0.125 + BLADE_OVERLAP_M / 2 - 0.01 < r < 0.16 for r in reach), reach
+    # from opposite edges, meeting past the middle
+    assert first.points[0, 0] < 0.10 and second.points[0, 0] > 0.30
+    assert first.points[-1, 0] > 0.20 > second.points[-1, 0]
+    for work in works:
+        travel = work.points[-1, :2] - work.points[0, :2]
+        tool_x = np.array([math.cos(work.yaw[0]), math.sin(work.yaw[0])])
+        assert tool_x @ travel > 0.999 * np.linalg.norm(travel)
+        assert work.points[0, 2] > TOP and work.points[-1, 2] == pytest.approx(0.0, abs=1e-6)
+    without = compose([long_chord], dictionary[primitive], footprint=cake)
+    assert sum(p.kind == "work" for p in without.pieces) == 1  # no blade given: as planned
+
+
 def test_piping_bag_keeps_a_fixed_yaw_and_dots_are_dots(dictionary: dict) -> None:
     segments = [dot_or_line(0.1, 0.08, 0.1, 0.08), dot_or_line(0.12, 0.06, 0.18, 0.1)]
     path = compose(segments, dictionary["line"], yaw_mode="fixed", home_yaw=0.3)

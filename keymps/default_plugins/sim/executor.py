@@ -363,7 +363,7 @@ class SimExecutor:
         files = [str(self._write_outcome(run, found, outline))] if self.options.image else []
         problems = _problems(found, figures)
         message = "; ".join(problems) if problems else _summary(found, trajectory, figures)
-        measured = _measured(found, lengths, tops, tool_path, result)
+        measured = _measured(found, clip, tops, tool_path, result)
         return ExecutionReport(
             self.name, not problems, message, tuple(files), figures, measured=measured
         )
@@ -443,25 +443,32 @@ def _problems(found: Marks, figures: dict[str, float]) -> list[str]:
 
 def _measured(
     found: Marks,
-    lengths: list[float],
+    clip: Footprint | None,
     tops: float | np.ndarray,
     tool_path: ToolPath | None,
     result: Replay,
 ) -> Effect:
-    """Each cut's length through the food and depth, by the keypoint pair it was made for."""
-    cuts: list[CutEffect] = []
-    for piece, length, lowest in zip(found.cut_pieces, lengths, found.cut_lowest, strict=True):
+    """Each cut's length through the food and depth, by the keypoint pair it was made for (a
+    cut longer than the blade is two strokes of one pair: the length they cover together)."""
+    made: dict[int, tuple[int, list[np.ndarray], float]] = {}
+    for piece, sweep, lowest in zip(found.cut_pieces, found.sweeps, found.cut_lowest, strict=True):
         where = np.flatnonzero(result.piece_index == piece)[0]
         top = float(np.broadcast_to(np.asarray(tops, dtype=float), result.piece_index.shape)[where])
         owner = tool_path.pieces[piece] if isinstance(tool_path, ToolPath) else None
-        cuts.append(
-            CutEffect(
-                pair_index=owner.pair_index if owner is not None else len(cuts),
-                object_id=owner.object_id if owner is not None else 1,
-                length_m=length,
-                depth_m=float(np.clip(top - lowest, 0.0, top)),
-            )
+        pair = owner.pair_index if owner is not None else len(made)
+        _, sweeps, deepest = made.get(pair, (1, [], 0.0))
+        depth = float(np.clip(top - lowest, 0.0, top))
+        object_id = owner.object_id if owner is not None else 1
+        made[pair] = (object_id, [*sweeps, sweep], max(deepest, depth))
+    cuts = [
+        CutEffect(
+            pair_index=pair,
+            object_id=object_id,
+            length_m=covered_length(np.concatenate(sweeps), clip),
+            depth_m=depth,
         )
+        for pair, (object_id, sweeps, depth) in made.items()
+    ]
     return Effect(cuts=tuple(cuts))
 
 

@@ -17,7 +17,14 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from keymps.plugin import parse_options, require_validated
-from keymps.types import CutEffect, Effect, ExecutionReport, Trajectory, ValidatedTrajectory
+from keymps.types import (
+    CutEffect,
+    Effect,
+    ExecutionReport,
+    ToolPath,
+    Trajectory,
+    ValidatedTrajectory,
+)
 from keymps_mujoco import NAME
 from keymps_mujoco.model import PERSPECTIVE_CAMERA, TOP_CAMERA, Settings
 from keymps_mujoco.scene_inputs import SceneInputs, scene_from_run
@@ -101,6 +108,7 @@ class Execution:
             int(p): np.asarray(trajectory.tool_xyz)[int(np.argmax(pieces == p)), :2]
             for p in np.unique(pieces)
         }
+        self.cut_lines = _cut_lines(run.stages.compose)
 
     def simulate(self) -> ExecutionReport:
         """Follow the trajectory in the scene; the paint, video and outcome image, judged."""
@@ -262,7 +270,8 @@ class Execution:
                 direction = np.asarray(step.tool_x[:2], dtype=float)
                 far = tip[:2] - blade * direction / max(float(np.linalg.norm(direction)), 1e-9)
                 piece = int(self.trajectory.piece_index[step.index])
-                painter.cut(tip[:2], far, piece, self.piece_start[piece])
+                origin, axis = self.cut_lines.get(piece, (self.piece_start[piece], None))
+                painter.cut(tip[:2], far, piece, origin, axis)
             return
         top, _ = self.inputs.surface_under(tip[:2])
         if tip[2] - top <= DEPOSIT_GAP_M:
@@ -360,21 +369,27 @@ class Execution:
             return None
         tool_path = self.context.stages.compose
         n = len(lowest)
-        cuts: list[CutEffect] = []
+        made: dict[int, tuple[int, list[int], float]] = {}  # a pair's strokes make one cut
         for piece in np.unique(pieces[:n][kind[:n] == "work"]):
             heights = lowest[(pieces[:n] == piece) & (kind[:n] == "work")]
             heights = heights[np.isfinite(heights)]
             if not len(heights) or float(heights.min()) >= self.food_top - BELOW_TOP_M:
                 continue
             owner = tool_path.pieces[int(piece)] if tool_path is not None else None
-            cuts.append(
-                CutEffect(
-                    pair_index=owner.pair_index if owner is not None else len(cuts),
-                    object_id=owner.object_id if owner is not None else 1,
-                    length_m=painter.cut_length_m(int(piece)),
-                    depth_m=float(np.clip(self.food_top - heights.min(), 0.0, self.food_top)),
-                )
+            pair = owner.pair_index if owner is not None else len(made)
+            depth = float(np.clip(self.food_top - heights.min(), 0.0, self.food_top))
+            _, strokes, deepest = made.get(pair, (1, [], 0.0))
+            object_id = owner.object_id if owner is not None else 1
+            made[pair] = (object_id, [*strokes, int(piece)], max(deepest, depth))
+        cuts = [
+            CutEffect(
+                pair_index=pair,
+                object_id=object_id,
+                length_m=painter.cut_length_m(*strokes),
+                depth_m=depth,
             )
+            for pair, (object_id, strokes, depth) in made.items()
+        ]
         return Effect(cuts=tuple(cuts))
 
     def _problems(self, result: Any, figures: dict[str, float]) -> list[str]:
@@ -391,6 +406,27 @@ class Execution:
                 f"an arm link touched the board ({figures['arm_board_contact_n']:.1f} N)"
             )
         return problems
+
+
+def _cut_lines(tool_path: ToolPath | None) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """Per work piece, the line its cut is measured along: (origin (2,), unit axis (2,)) of its
+    pair's first stroke, shared by the pair's strokes (a cut longer than the blade is cut from
+    both ends) so that together they measure the stretch they cover."""
+    if tool_path is None:
+        return {}
+    lines: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    first: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    for index, piece in enumerate(tool_path.pieces):
+        if piece.kind != "work":
+            continue
+        points = np.asarray(piece.points, float)[:, :2]
+        step = points[-1] - points[0]
+        length = float(np.linalg.norm(step))
+        if length < 1e-6:
+            continue  # a plunge: measured along its edge, as before
+        line = first.setdefault(piece.pair_index, (points[0], step / length))
+        lines[index] = line
+    return lines
 
 
 def make_executor(options: dict[str, Any]) -> MujocoExecutor:

@@ -60,9 +60,18 @@ class Painter:
         v = height - (points[:, 1] - self.shift_m[1]) * self.px_per_m
         return np.round(np.column_stack([u, v]) * 16).astype(np.int32)
 
-    def cut(self, tip_xy: np.ndarray, far_xy: np.ndarray, cut: int, origin: np.ndarray) -> None:
+    def cut(
+        self,
+        tip_xy: np.ndarray,
+        far_xy: np.ndarray,
+        cut: int,
+        origin: np.ndarray,
+        axis: np.ndarray | None = None,
+    ) -> None:
         """The knife's edge from its tip to its far end is in the food: mark the segment, and
-        count the length it covers inside a footprint along cut `cut`'s line (from `origin`)."""
+        count the length it covers inside a footprint along cut `cut`'s line (from `origin`,
+        along `axis` (2,), a unit vector; the edge's own direction when None). Cuts measured
+        on the same origin and axis add up in `cut_length_m`."""
         import cv2
 
         a, b = self.pixels(np.array([tip_xy, far_xy]))
@@ -76,7 +85,7 @@ class Painter:
         steps = np.arange(0.0, length + 1e-12, LENGTH_BIN_M / 2)
         points = np.asarray(tip_xy, dtype=float) + steps[:, None] * (edge / length)
         inside = self._inside(points)
-        along = (points[inside] - origin) @ (edge / length)
+        along = (points[inside] - origin) @ (edge / length if axis is None else axis)
         self.cut_bins.setdefault(cut, set()).update(np.floor(along / LENGTH_BIN_M).astype(int))
 
     def _inside(self, xy: np.ndarray) -> np.ndarray:
@@ -90,9 +99,11 @@ class Painter:
             inside[ok] |= mask[v[ok], u[ok]]
         return inside
 
-    def cut_length_m(self, cut: int) -> float:
-        """How long a stretch of cut `cut`'s line the edge covered inside the food."""
-        return len(self.cut_bins.get(cut, ())) * LENGTH_BIN_M
+    def cut_length_m(self, *cuts: int) -> float:
+        """How long a stretch of the cuts' line the edge covered inside the food (several cuts:
+        the strokes of one line, measured on one origin and axis, together)."""
+        covered: set[int] = set().union(*(self.cut_bins.get(cut, set()) for cut in cuts))
+        return len(covered) * LENGTH_BIN_M
 
     def deposit(self, xyz: np.ndarray) -> bool:
         """The nozzle is at xyz just above a surface: icing there (once per DEPOSIT_STEP_M)."""

@@ -476,3 +476,35 @@ def test_every_cut_of_the_shipped_cutting_tasks_runs_its_whole_length_in_mujoco(
         assert predicted.chord_m is not None and predicted.length_m >= 0.98 * predicted.chord_m
         assert made.length_m >= 0.98 * predicted.length_m, (made, predicted)
         assert made.depth_m >= predicted.depth_m - 0.001
+
+
+@pytest.mark.slow
+def test_a_cut_longer_than_the_blade_is_measured_as_one_cut_through(tmp_path: Path) -> None:
+    """A 20 cm cake halved with the 16 cm blade: keymps cuts the chord from both ends (two
+    strokes of one pair); MuJoCo paints both and measures them on the pair's line together,
+    the whole 200 mm (each stroke alone covers about 108 mm)."""
+    import keymps
+    from keymps.scenes.render import ObjectSpec, SceneSpec, render_scene
+
+    board = (0.38, 0.30)
+    cake = ObjectSpec("round_cake", 0.20, 0.20, 0.06, 0.0, centre=(0.19, 0.15))
+    png, _ = render_scene(SceneSpec((cake,), seed=1, board_size=board)).save(tmp_path / "c.png")
+    (tmp_path / "task.yaml").write_text(
+        f"name: long\ninstruction: cut it in half\n"
+        f"scene: {{image: {png}, object_height: 0.06, workspace: {{size: {list(board)}}}}}\n"
+        "planner: {backend: offline}\nprimitives: [straight, sawing]\n"
+        "robot: {tool: knife}\nheight: {mode: start}\n"
+        "executor: {name: mujoco, video: false, outcome: false}\n"
+    )
+    run = keymps.run_task(
+        keymps.load_task(tmp_path / "task.yaml"),
+        options=keymps.RunOptions(rerun="off", quiet=True),
+        overrides=keymps.RunOverrides(out=tmp_path / "run"),
+    )
+    outcome, measured = run.stages.outcome, run.stages.execute.measured
+    assert outcome is not None and measured is not None and outcome.measured_problems == ()
+    strokes = [p for p in run.stages.compose.pieces if p.kind == "work"]
+    assert [p.pair_index for p in strokes] == [0, 0]
+    (predicted,), (made,) = outcome.predicted.cuts, measured.cuts
+    assert predicted.chord_m is not None and predicted.chord_m > 0.19
+    assert made.length_m >= 0.98 * predicted.length_m >= 0.98**2 * predicted.chord_m
