@@ -71,12 +71,16 @@ def model_provider(model: str) -> str:
     return "openai"
 
 
+def _key_variables(task: Task, model: str) -> tuple[str, ...]:
+    """The environment variables that may configure `model`: the task's own, then its
+    provider's (PROVIDER_KEYS)."""
+    own = (task.planner.api_key_env,) if task.planner.api_key_env else ()
+    return own + PROVIDER_KEYS.get(model_provider(model), ())
+
+
 def credential_source(task: Task, model: str) -> str | None:
     """Which environment variable configures `model`, or None when none is set."""
-    names = ((task.planner.api_key_env,) if task.planner.api_key_env else ()) + PROVIDER_KEYS.get(
-        model_provider(model), ()
-    )
-    return next((name for name in names if os.environ.get(name)), None)
+    return next((name for name in _key_variables(task, model) if os.environ.get(name)), None)
 
 
 def api_base_trusted(task: Task) -> bool:
@@ -141,9 +145,7 @@ def untrusted_api_base_warning(task: Task) -> str | None:
 def keys_the_task_may_send(task: Task) -> list[str]:
     """Every credential a backend may send for this task (for the redactor): the values of the
     key variables, and what planner.api_base carries (userinfo, ?api_key=)."""
-    names = ((task.planner.api_key_env,) if task.planner.api_key_env else ()) + PROVIDER_KEYS.get(
-        model_provider(task.planner.model or ""), ()
-    )
+    names = _key_variables(task, task.planner.model or "")
     keys = [name for name in names if not name.endswith("_API_BASE")]  # a URL, not a key
     values = [value for name in keys if (value := os.environ.get(name))]
     return values + url_secrets(task.planner.api_base)
