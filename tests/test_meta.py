@@ -195,10 +195,14 @@ def _private_names_defined(tree: ast.Module) -> set[str]:
             found.add(node.id)
         elif isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name):
             found.add(node.target.id)
-        elif isinstance(node, ast.Attribute) and isinstance(node.ctx, ast.Store):
-            if isinstance(node.value, ast.Name) and node.value.id in ("self", "cls"):
-                found.add(node.attr)
+        elif isinstance(node, ast.Attribute) and isinstance(node.ctx, ast.Store) and _on_self(node):
+            found.add(node.attr)
     return {name for name in found if name.startswith("_") and not name.startswith("__")}
+
+
+def _on_self(node: ast.Attribute) -> bool:
+    """`self.x` or `cls.x`: the class's own attribute."""
+    return isinstance(node.value, ast.Name) and node.value.id in ("self", "cls")
 
 
 def test_no_module_reaches_into_another_modules_private_names() -> None:
@@ -218,9 +222,7 @@ def test_no_module_reaches_into_another_modules_private_names() -> None:
                 names = [a.name for a in node.names if a.name.startswith("_")]
                 # a package's private module (keymps._memory) is the package's own
                 names = [n for n in names if not n.startswith("__") and n not in modules]
-            elif isinstance(node, ast.Attribute) and not (
-                isinstance(node.value, ast.Name) and node.value.id in ("self", "cls")
-            ):
+            elif isinstance(node, ast.Attribute) and not _on_self(node):
                 names = [node.attr] if node.attr in everywhere - defined[path] else []
             else:
                 continue
