@@ -315,7 +315,7 @@ EqualBy = Literal["area", "width"]
 PieceShape = Literal["square", "wedge", "strip", "round"]
 """The shape asked of pieces (PlanIntent.piece_shape): squares of a grid, wedges meeting at the
 centre, strips between parallel cuts (along a long object), rounds across a long object."""
-IntentSource = Literal["offline", "design", "answer", "expect"]
+IntentSource = Literal["offline", "design", "answer", "sentence", "expect"]
 """Who stated an intent: the offline planner, a named design, a VLM answer, the task file."""
 EQUAL_PARTS_TOLERANCE = 0.05
 """Appendix F's success criterion stated as a number: each of N pieces within 5 % of the
@@ -373,7 +373,8 @@ class PlanIntent:
     """The object it is for (DetectedObject.id); None: the plan's one object, or each."""
     source: IntentSource | None = None
     """Who stated it: the offline planner's reading ("offline"), a named design ("design"), a
-    VLM answer's `intent` field ("answer"), or the task file's `expect:` block ("expect")."""
+    VLM answer's `intent` field ("answer"), the instruction itself as the offline grammar reads
+    it, held against a VLM's plan ("sentence"), or the task file's `expect:` block ("expect")."""
 
     def describe(self) -> str:
         """What it states, in words.
@@ -747,7 +748,8 @@ class Outcome:
     """pass; fail (the run stops before execute); accepted (failed, executed anyway on the
     expert's --accept-outcome)."""
     intents: tuple[PlanIntent, ...]
-    """What was checked, per object (the plan's intents with the task's `expect:` applied)."""
+    """What was checked, per object (the plan's intents with the task's `expect:` applied;
+    for a model's plan on one object, also the sentence's own reading, source "sentence")."""
     predicted: Effect
     """What the validated trajectory does to the food (keymps.outcome.predict)."""
     problems: tuple[str, ...]

@@ -112,12 +112,29 @@ def expected(expect: Expect | None) -> PlanIntent | None:
     )
 
 
-def stated_intents(plan_intents: Sequence[PlanIntent], task: Task) -> tuple[PlanIntent, ...]:
+def stated_intents(
+    plan_intents: Sequence[PlanIntent],
+    task: Task,
+    asked: PlanIntent | None = None,
+    objects: int = 1,
+) -> tuple[PlanIntent, ...]:
     """The plan's intents with the task's `expect:` over them: every field it gives replaces
-    the plan's (the user's assertion is the truth); alone, it is the intent of each object."""
+    the plan's (the user's assertion is the truth); alone, it is the intent of each object.
+
+    Without `expect:`, a model's plan on one object that states its intent (from its answer
+    or a named design) is also held to `asked`, the instruction as the offline grammar reads
+    it (keymps.planning.intent.sentence_intent): a model that misreads "into 3" as 4, and
+    claims 4, is refused like one whose cuts miss its own claim. A plan that states nothing
+    is checked only for what is never right; with several `objects` the sentence may ask
+    different things of each, so only the plan's claims are checked."""
     asserted = expected(task.expect)
     if asserted is None:
-        return tuple(plan_intents)
+        from_model = bool(plan_intents) and all(
+            intent.source in ("answer", "design") for intent in plan_intents
+        )
+        if asked is None or not from_model or objects > 1:
+            return tuple(plan_intents)
+        return (*plan_intents, asked)
     if not plan_intents:
         return (asserted,)
     given = {f.name: getattr(asserted, f.name) for f in fields(asserted) if f.name != "source"}

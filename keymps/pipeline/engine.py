@@ -492,6 +492,7 @@ class _Pipeline:
         from keymps.outcome.check import check_outcome, foods_of, stated_intents
         from keymps.outcome.picture import draw_outcome
         from keymps.outcome.predict import Tool
+        from keymps.planning.intent import sentence_intent
 
         run, parts, task = self.run, self.parts, self.run.task
         robot = parts.robot
@@ -499,7 +500,8 @@ class _Pipeline:
         family = self.primitives[plan.keyword].family
         tool = Tool(family != "icing", robot.tool.blade_length, robot.tool.line_width)
         foods = foods_of(grounding.objects, run.outline_m, grounding.object_height)
-        intents = stated_intents(plan.intents, task)
+        asked = sentence_intent(task.instruction)
+        intents = stated_intents(plan.intents, task, asked, objects=len(foods))
         accept = run.options.accept_outcome
         outcome = check_outcome(
             robot, validated.trajectory, tool_path, foods, tool, intents, accept

@@ -20,7 +20,7 @@ from keymps.run import Run
 from keymps.run_files import IMAGE_FORMATS, write_atomically
 from keymps.types import ExecutionReport, ToolPath, Trajectory, ValidatedTrajectory
 
-SCHEMA_VERSION = "1.6"
+SCHEMA_VERSION = "1.7"
 """1.1: `status` (ok, failed, interrupted). 1.2: `unfinished`, the placeholder written before the
 first stage. 1.3: `pieces` (the tool path's pieces: the kind and the keypoint pairs of each).
 1.4: `outcome` (the predicted result, the verdict). 1.5: `outcome`'s deposits' `pairs` (every pair

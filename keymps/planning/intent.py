@@ -13,7 +13,8 @@ from typing import Any, Literal, get_args
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from keymps.designs.grammar import Intent
+from keymps.designs.grammar import Intent, read_instruction
+from keymps.errors import KeympsError
 from keymps.types import EQUAL_PARTS_TOLERANCE, IntentSource, PieceShape, PlanIntent
 
 ORIENTATIONS = ("vertical", "horizontal", "lengthwise", "crosswise")
@@ -68,6 +69,24 @@ def _icing(claim: PlanIntent, design: Intent) -> PlanIntent:
     if design.design == "digits":
         return replace(claim, digits=design.text)
     return claim
+
+
+CHECKED_DESIGNS = ("middle", "parallel")
+"""The designs whose name the outcome checks read (keymps.outcome.verdict)."""
+
+
+def sentence_intent(instruction: str) -> PlanIntent | None:
+    """What the instruction itself asks, as the offline grammar reads it (source "sentence"):
+    what a VLM's plan is held to besides its own claim. None where the grammar does not read
+    the sentence (it never guesses). The design is kept only where the checks read it
+    ("middle": the cut's place; "parallel": a round object's slices compare widths): how a
+    VLM lays out what was asked is its own."""
+    try:
+        read = read_instruction(instruction)
+    except KeympsError:  # unreadable, or numbers it does not model: no reading to hold to
+        return None
+    asked = intent_of_design(read, source="sentence")
+    return replace(asked, design=asked.design if asked.design in CHECKED_DESIGNS else None)
 
 
 class IntentAnswer(BaseModel):

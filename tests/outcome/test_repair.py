@@ -145,3 +145,51 @@ def test_the_offline_planner_is_not_asked_again(tmp_path):
     assert record["outcome"]["intent"][0]["source"] == "expect"
     assert record["outcome"]["intent"][0]["pieces"] == 7
     assert len(list((tmp_path / "run" / "vlm").glob("0*.json"))) == 1
+
+
+def _diameters(exact: np.ndarray, count: int) -> np.ndarray:
+    """`count` cuts through the centre of the exact plan's cake, equally turned (crop px)."""
+    centre = exact.reshape(-1, 2).mean(axis=0)
+    radius = float(np.linalg.norm(exact[0, 1] - exact[0, 0])) / 2
+    turns = np.pi * np.arange(count) / count
+    ends = radius * np.c_[np.cos(turns), np.sin(turns)]
+    return np.stack([centre - ends, centre + ends], axis=1)
+
+
+def test_a_model_that_misreads_the_sentence_is_held_to_the_sentence(cake, tmp_path):
+    """A model answering "Cut the cake into six equal parts" with 8 equal wedges, its intent
+    claiming 8, was held only to its own claim, and passed. The sentence, as the offline
+    grammar reads it, is held against a model's plan too: the 8 pieces go back for repair,
+    and the repaired plan (6) runs."""
+    png, exact = cake
+    eight = {**_answer(_diameters(exact, 4)), "rationale": "eight wedges"}
+    eight["intent"] = {**eight["intent"], "pieces": 8}
+    with VlmServer() as server:
+        server.script(Reply.json_answer(eight), Reply.json_answer(_answer(exact)))
+        run = run_task(
+            load_task(_vlm_task(tmp_path, png)),
+            options=QUIET,
+            overrides=RunOverrides(api_base=server.openai_base, out=tmp_path / "run"),
+        )
+        told = server.chat_requests[1].body["messages"][-1]["content"]
+    assert "the cuts leave 8 pieces" in told and "the intent is 6 pieces" in told
+    assert run.stages.outcome.verdict == "pass"
+    sources = [intent.source for intent in run.stages.outcome.intents]
+    assert sources == ["answer", "sentence"]
+
+
+def test_the_sentence_is_not_held_against_a_task_that_states_expect(cake, tmp_path):
+    """`expect:` is the user's own assertion: it alone replaces what the plan claims."""
+    png, exact = cake
+    eight = {**_answer(_diameters(exact, 4)), "rationale": "eight wedges"}
+    eight["intent"] = {**eight["intent"], "pieces": 8}
+    task = load_task(_vlm_task(tmp_path, png))
+    task = task.model_copy(update={"expect": Expect(pieces=8)})
+    with VlmServer(responder=lambda request: json.dumps(eight)) as server:
+        run = run_task(
+            task,
+            options=QUIET,
+            overrides=RunOverrides(api_base=server.openai_base, out=tmp_path / "run"),
+        )
+    assert run.stages.outcome.verdict == "pass"
+    assert [intent.source for intent in run.stages.outcome.intents] == ["expect"]

@@ -43,7 +43,7 @@ def test_run_folder_is_complete(runs: dict[str, Path], task: str) -> None:
         assert (folder / name).stat().st_size > 0, name
     assert (folder / "run.rrd").stat().st_size > 0
     record = _record(folder)
-    assert record["schema_version"] == "1.6"
+    assert record["schema_version"] == "1.7"
     listed = {p.name + ("/" if p.is_dir() else "") for p in folder.iterdir()}
     assert record["files"] == sorted(listed - {"run.json", "vlm/", ".keymps.lock"})
     assert record["outcome"]["verdict"] == "pass" and record["outcome"]["problems"] == []
